@@ -58,9 +58,9 @@ def test_handle_grid_layout_and_nearest():
 @pytest.mark.parametrize(
     "kw, msg",
     [
-        (dict(center=[0, 0], radius=0.0, n=3), "radius"),
-        (dict(center=[0, 0], radius=1.0, n=1), "n must"),
-        (dict(center=[0, np.nan], radius=1.0, n=3), "center"),
+        ({"center": [0, 0], "radius": 0.0, "n": 3}, "radius"),
+        ({"center": [0, 0], "radius": 1.0, "n": 1}, "n must"),
+        ({"center": [0, np.nan], "radius": 1.0, "n": 3}, "center"),
     ],
 )
 def test_handle_grid_rejects_bad_input(kw, msg):
@@ -143,3 +143,106 @@ def test_defop_trajectories_of_linear_operator_is_a_plane():
         t.of(mesh.n_vertices)
     with pytest.raises(ValueError, match="moving handle index"):
         tr.defop_trajectories(op, g, moving=1)
+
+
+# ------------------------------------------------ ground truth with a stand-in solver
+class _StubShape:
+    """Minimal Shape: handle 0 (vertex 0) is fixed, handle 1 (vertex `hv`) moves."""
+
+    def __init__(self, mesh, hv):
+        self.mesh = mesh
+        self.handles = np.array([0, hv])
+        self.moving = np.array([False, True])
+
+    @property
+    def P_moving(self):
+        return self.mesh.V[self.handles[self.moving]]
+
+    def targets(self, Q):
+        T = self.mesh.V[self.handles].copy()
+        T[self.moving] = Q
+        return T
+
+
+class _BistableSolver:
+    """Stand-in for Solver with two branches: X = V + d + s * bump, s = +-1.
+
+    From the automatic start (X0=None) the branch is sign(d^y) (a "global" minimiser that jumps at
+    d^y = 0); warm-started, it keeps the branch of X0 unless |d^y| > 0.3 (hysteresis).
+    """
+
+    def __init__(self, mesh):
+        self.mesh = mesh
+        self.bump = 1.0 * np.column_stack([np.zeros(mesh.n_vertices), mesh.V[:, 0]])
+        self.calls = []
+
+    def solve(self, targets, X0=None, **kw):
+        d = targets[1] - self.mesh.V[3]
+        if X0 is None:
+            s = 1.0 if d[1] >= 0 else -1.0
+        else:
+            s_prev = np.sign((X0 - self.mesh.V - d)[:, 1] @ self.mesh.V[:, 0])
+            s = s_prev if abs(d[1]) <= 0.3 else np.sign(d[1])
+        self.calls.append(X0 is None)
+
+        class R:
+            pass
+
+        r = R()
+        r.X = self.mesh.V + d + s * self.bump
+        r.energy, r.converged = float(s), True
+        return r
+
+
+@pytest.fixture
+def stub(monkeypatch):
+    mesh = _square_mesh(3)
+    shape = _StubShape(mesh, 3)
+    solver = _BistableSolver(mesh)
+    monkeypatch.setattr(tr, "_solver_for", lambda *a, **k: solver)
+    return shape, solver
+
+
+def test_global_ground_truth_jumps_where_the_branch_switches(stub):
+    shape, solver = stub
+    g = tr.handle_grid(shape.P_moving[0], 0.5, 11, ny=10)  # even ny: d^y = 0 is between two rows
+    t = tr.ground_truth_trajectories(shape, g, mode="global", n_jobs=1, cache=False)
+    assert all(solver.calls) and t.converged.all() and t.path is None
+    np.testing.assert_array_equal(np.sign(t.energy), np.where(g.displacements[..., 1] >= 0, 1, -1))
+    ex, ey = tr.discontinuities(t.of(15))
+    assert not ex.any() and np.flatnonzero(ey.any(axis=1)).tolist() == [4]
+
+
+def test_local_ground_truth_follows_its_path_with_hysteresis(stub):
+    shape, solver = stub
+    g = tr.handle_grid(shape.P_moving[0], 0.5, 11, ny=10)
+    t = tr.ground_truth_trajectories(shape, g, mode="local", n_jobs=1, cache=False)
+    assert solver.calls[0] and not any(solver.calls[1:])  # only the first solve starts from scratch
+    assert t.path.shape == (110, 2)
+    # the serpentine scan starts at the bottom (branch -1) and keeps it until d^y > 0.3
+    rows = np.flatnonzero(tr.discontinuities(t.of(15))[1].any(axis=1))
+    ys = g.ys
+    assert rows.tolist() == [int(np.flatnonzero(ys > 0.3)[0]) - 1]
+    glob = tr.ground_truth_trajectories(shape, g, mode="global", n_jobs=1, cache=False)
+    differ = np.abs(t.X - glob.X).max(axis=(2, 3)) > 1e-9
+    np.testing.assert_array_equal(differ, (g.displacements[..., 1] >= 0) & (g.displacements[..., 1] <= 0.3))
+
+
+def test_ground_truth_cache_round_trip(stub, tmp_path, monkeypatch):
+    shape, solver = stub
+    monkeypatch.setenv("DEFOP_CACHE", str(tmp_path))
+    g = tr.handle_grid(shape.P_moving[0], 0.5, 3)
+    a = tr.ground_truth_trajectories(shape, g, mode="local", cache=True)
+    n = len(solver.calls)
+    b = tr.ground_truth_trajectories(shape, g, mode="local", cache=True)
+    assert len(solver.calls) == n  # second call read the cache
+    np.testing.assert_array_equal(a.X, b.X)
+    np.testing.assert_array_equal(a.path, b.path)
+
+
+def test_ground_truth_rejects_grid_not_centred_on_the_handle(stub):
+    shape, _ = stub
+    with pytest.raises(ValueError, match="rest position"):
+        tr.ground_truth_trajectories(shape, tr.handle_grid([5.0, 5.0], 0.5, 3), cache=False)
+    with pytest.raises(ValueError, match="mode"):
+        tr.ground_truth_trajectories(shape, tr.handle_grid(shape.P_moving[0], 0.5, 3), mode="both", cache=False)
