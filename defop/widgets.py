@@ -626,17 +626,27 @@ class HandleEditor:
     def update_ground_truth(self, draw=True):
         """Solve the variational DefOp at the current Q, warm-started from the previous frame.
 
-        Warm starts tried in order: the previous ground truth, the current approximation (if it
-        has no flipped triangle), the solver's own robust start. A start the solver rejects
-        (ValueError, e.g. flipped under a barrier energy) falls through to the next one.
+        Warm starts tried in order:
+
+        1. the previous ground truth moved by the approximation's step,
+           ``X_gt(Q_prev) + D(·, Q) - D(·, Q_prev)``, which already meets the handle constraints
+           because D interpolates the handles (8c);
+        2. the current approximation D(·, Q);
+        3. the solver's own robust start (None).
+
+        Starts with flipped triangles are skipped (barrier energies reject them); a start the
+        solver rejects with ValueError falls through to the next one.
+
+        Returns
+        -------
+        X_gt : (n_vertices,2) numpy array
         """
         targets = self.shape.targets(self.Q)
         starts = []
         if self.X_gt is not None:
-            starts.append(self.X_gt)
-        if not np.any(self.mesh.flipped(self.X)):
-            starts.append(self.X)
-        starts.append(None)
+            starts.append(self.X_gt + self.X - np.asarray(self.operator(self.Q_gt)))
+        starts.append(self.X)
+        starts = [X0 for X0 in starts if not np.any(self.mesh.flipped(X0))] + [None]
         error = None
         t0 = time.perf_counter()
         for X0 in starts:
@@ -715,6 +725,8 @@ class HandleEditor:
             else:
                 e = self.gt_error
                 stale = " (stale: release the mouse or press Solve)" if self.gt_stale else ""
+                if not getattr(self.gt_result, "converged", True):
+                    stale += " (solver NOT converged)"
                 parts.append(
                     f"ground truth ({self.gt_time * 1e3:.0f} ms, {e['flips_gt']} flips): "
                     f"error rms {100 * e['rms']:.2f}% / max {100 * e['max']:.2f}% of the diagonal{stale}"
