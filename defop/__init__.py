@@ -35,6 +35,8 @@ _SUBMODULES = (
     "widgets",
     "figures",
     "config",
+    "trajectories",
+    "experiments",
 )
 
 

@@ -88,7 +88,8 @@ class Mesh:
         scale = max(np.ptp(V, axis=0).max(), 1e-300) ** 2
         tiny = a <= 1e-14 * scale
         if tiny.any():
-            raise ValueError(f"{int(tiny.sum())} degenerate (zero-area) triangles, first is triangle {int(np.flatnonzero(tiny)[0])}")
+            first = int(np.flatnonzero(tiny)[0])
+            raise ValueError(f"{int(tiny.sum())} degenerate (zero-area) triangles, first is triangle {first}")
         self.V = np.ascontiguousarray(V)
         self.F = np.ascontiguousarray(F)
 

@@ -293,7 +293,8 @@ def _solve_chunk(solver, targets_list, solve_kw):
 
 def _cache_key(shape, grid, energy, mode, moving, path, solver_kw, solve_kw):
     h = hashlib.sha1()
-    for a in (shape.mesh.V, shape.mesh.F, np.asarray(shape.handles), np.asarray(shape.moving), grid.center, grid.xs, grid.ys):
+    arrays = (shape.mesh.V, shape.mesh.F, np.asarray(shape.handles), np.asarray(shape.moving))
+    for a in arrays + (grid.center, grid.xs, grid.ys):
         h.update(np.ascontiguousarray(a).tobytes())
     if path is not None:
         h.update(np.ascontiguousarray(path).tobytes())
@@ -402,7 +403,9 @@ def ground_truth_trajectories(
     if not 0 <= moving < len(P_moving):
         raise ValueError(f"moving handle index {moving} out of range [0, {len(P_moving)})")
     if not np.allclose(grid.center, P_moving[moving]):
-        raise ValueError(f"grid.center {grid.center} is not the rest position {P_moving[moving]} of moving handle {moving}")
+        raise ValueError(
+            f"grid.center {grid.center} is not the rest position {P_moving[moving]} of moving handle {moving}"
+        )
 
     cdir = config.cache_dir() if cache else None
     cfile = None
@@ -485,7 +488,9 @@ def _check_path(path, shape):
     step = np.abs(np.diff(path, axis=0)).sum(axis=1)
     if (step != 1).any():
         k = int(np.flatnonzero(step != 1)[0])
-        raise ValueError(f"path step {k} jumps from {tuple(path[k])} to {tuple(path[k + 1])}; steps must join 4-neighbours")
+        raise ValueError(
+            f"path step {k} jumps from {tuple(path[k])} to {tuple(path[k + 1])}; steps must join 4-neighbours"
+        )
 
 
 # ------------------------------------------------------------------- analysis

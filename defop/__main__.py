@@ -1,0 +1,45 @@
+"""Command line: ``python -m defop figures`` (the main job) and ``python -m defop doctor``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="defop", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    fig = sub.add_parser("figures", help="regenerate every figure into figures/ by running the notebooks")
+    fig.add_argument("--only", nargs="*", help="notebook name patterns, e.g. 00_shapes or '0[12]_*'")
+    fig.add_argument("--fast", action="store_true", help="CI-sized runs (DEFOP_FAST=1); outputs are not stored")
+    fig.add_argument("--no-store", action="store_true", help="do not write outputs back into the notebooks")
+    fig.add_argument("--clean", action="store_true", help="delete figures/*.png first")
+    fig.add_argument("--timeout", type=float, default=3600, help="per-cell timeout in seconds")
+    doc = sub.add_parser("doctor", help="check (and, as root on Debian, install) what headless rendering needs")
+    doc.add_argument("--no-install", action="store_true")
+    args = parser.parse_args(argv)
+
+    if args.command == "figures":
+        from .figures import regenerate
+
+        regenerate(
+            only=args.only,
+            fast=args.fast,
+            store=False if args.no_store else None,
+            timeout=args.timeout,
+            clean=args.clean,
+        )
+    elif args.command == "doctor":
+        from .render import configure_headless, ensure_system_packages
+
+        print("defop doctor:", ensure_system_packages(install=not args.no_install))
+        try:
+            print("defop doctor: off-screen window:", configure_headless() or "on-screen display")
+        except RuntimeError as exc:
+            print("defop doctor:", exc, file=sys.stderr)
+            return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

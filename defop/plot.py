@@ -1,0 +1,212 @@
+"""Matplotlib drawing helpers (presentation only; the core never imports this module).
+
+Colours follow the paper: moving handles red, fixed handles blue (Fig. 4), sampling regions
+drawn as translucent outlines around the moving handles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib import patches
+from matplotlib import pyplot as plt
+
+MOVING = "#d62728"
+FIXED = "#1f77b4"
+FILL = "#f2d7a6"
+REGION = "#ff7f0e"
+
+
+def plot_mesh(ax, V, F, X=None, color=FILL, edges=True, edge_color="#00000040", lw=0.3, scalars=None, **kw):
+    """Draw a (deformed) triangle mesh.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    V : (n,2) numpy array
+        Rest positions (drawn when ``X`` is None).
+    F : (m,3) numpy array
+        Triangles.
+    X : (n,2) numpy array, optional
+        Deformed positions.
+    color : str
+        Fill colour when ``scalars`` is None.
+    edges : bool
+        Draw the triangle edges.
+    scalars : (m,) or (n,) numpy array, optional
+        Colour per triangle or per vertex (``tripcolor``).
+
+    Returns
+    -------
+    artist : the fill artist (a PolyCollection)
+    """
+    P = np.asarray(V if X is None else X)
+    F = np.asarray(F)
+    if scalars is None:
+        art = ax.tripcolor(P[:, 0], P[:, 1], F, facecolors=np.zeros(len(F)), cmap=_single(color), **kw)
+    else:
+        scalars = np.asarray(scalars)
+        key = "facecolors" if len(scalars) == len(F) and len(F) != len(P) else "C"
+        art = ax.tripcolor(P[:, 0], P[:, 1], F, **{key: scalars}, **kw)
+    if edges:
+        ax.triplot(P[:, 0], P[:, 1], F, color=edge_color, lw=lw)
+    ax.set_aspect("equal")
+    ax.set_axis_off()
+    return art
+
+
+def _single(color):
+    from matplotlib.colors import ListedColormap
+
+    return ListedColormap([color])
+
+
+def plot_handles(ax, X, handles, moving=None, size=30, zorder=5):
+    """Draw handles: moving ones red, fixed ones blue.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    X : (n,2) numpy array
+        Vertex positions (rest or deformed).
+    handles : (h,) int numpy array
+        Handle vertex indices.
+    moving : (h,) bool numpy array, optional
+        All moving when None.
+    """
+    handles = np.asarray(handles, dtype=int)
+    moving = np.ones(len(handles), bool) if moving is None else np.asarray(moving, bool)
+    X = np.asarray(X)
+    ax.scatter(*X[handles[~moving]].T, s=size, c=FIXED, zorder=zorder, edgecolors="k", linewidths=0.5)
+    ax.scatter(*X[handles[moving]].T, s=size, c=MOVING, zorder=zorder + 1, edgecolors="k", linewidths=0.5)
+
+
+def region_outlines(center, region, P=None, index=None, n=96):
+    """Closed outlines of a sampling region, for drawing.
+
+    Parameters
+    ----------
+    center : (2,) numpy array
+        The moving handle's rest position p_l.
+    region : dict
+        A region as in :mod:`defop.shapes` (``disc``, ``circle``, ``gaussian``, ``voronoi``, ``mixture``).
+    P : (n,2) numpy array, optional
+        All moving handles' rest positions (needed for ``voronoi``).
+    index : int, optional
+        Row of ``center`` in ``P`` (needed for ``voronoi``).
+    n : int
+        Points per circle.
+
+    Returns
+    -------
+    outlines : list of ((k,2) numpy array, str)
+        Polygons with a line style (``"-"`` or ``"--"``).
+    """
+    c = np.asarray(center, float)
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    unit = np.column_stack([np.cos(t), np.sin(t)])
+    kind = region["kind"]
+    if kind in ("disc", "circle"):
+        return [(c + region["radius"] * unit, "-" if kind == "disc" else "--")]
+    if kind == "gaussian":
+        return [(c + region["sigma"] * unit, "--"), (c + 2 * region["sigma"] * unit, ":")]
+    if kind == "voronoi":
+        poly = c + region["radius"] * unit
+        if P is not None and index is not None:
+            P = np.asarray(P, float)
+            for j, q in enumerate(P):
+                if j != index and not np.allclose(q, c):
+                    poly = _clip_halfplane(poly, c, q)
+        return [(poly, "-")]
+    if kind == "mixture":
+        out = []
+        for comp in region["components"]:
+            out += region_outlines(c, comp, P, index, n)
+        return out
+    raise ValueError(f"unknown region kind {kind!r}")
+
+
+def _clip_halfplane(poly, p, q):
+    """Clip a polygon to the half-plane of points closer to p than to q (Sutherland-Hodgman)."""
+    nrm = q - p
+    off = nrm @ (p + q) / 2
+    inside = poly @ nrm <= off
+    out = []
+    for i in range(len(poly)):
+        a, b = poly[i], poly[(i + 1) % len(poly)]
+        ia, ib = inside[i], inside[(i + 1) % len(poly)]
+        if ia:
+            out.append(a)
+        if ia != ib:
+            s = (off - a @ nrm) / ((b - a) @ nrm)
+            out.append(a + s * (b - a))
+    return np.array(out) if out else poly[:0]
+
+
+def plot_regions(ax, P_moving, regions, color=REGION):
+    """Draw the sampling region of every moving handle.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    P_moving : (n,2) numpy array
+        Rest positions of the moving handles.
+    regions : list of dict
+        One region per moving handle.
+    """
+    for i, (c, region) in enumerate(zip(np.asarray(P_moving), regions, strict=True)):
+        for poly, ls in region_outlines(c, region, P_moving, i):
+            if len(poly) < 3:
+                continue
+            ax.add_patch(patches.Polygon(poly, closed=True, fill=(ls == "-"), alpha=0.15, color=color))
+            ax.add_patch(patches.Polygon(poly, closed=True, fill=False, ls=ls, lw=1.0, color=color))
+
+
+def plot_shape(ax, shape, X=None, regions=True, title=True, edges=True):
+    """Draw a :class:`defop.shapes.Shape`: its mesh, handles and sampling regions.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    shape : defop.shapes.Shape
+    X : (n,2) numpy array, optional
+        Deformed positions (rest pose when None).
+    regions : bool
+        Draw the sampling regions (at rest positions).
+    title : bool or str
+        Title text; ``True`` uses the name and vertex count.
+    """
+    mesh = shape.mesh
+    plot_mesh(ax, mesh.V, mesh.F, X, edges=edges)
+    if regions and X is None:
+        plot_regions(ax, shape.P_moving, shape.regions)
+    plot_handles(ax, mesh.V if X is None else X, shape.handles, shape.moving)
+    if title is True:
+        n_fixed = len(shape.handles) - shape.n_moving
+        title = f"{shape.name}  ({mesh.n_vertices} v, {shape.n_moving} moving, {n_fixed} fixed)"
+    if title:
+        ax.set_title(title, fontsize=9)
+    ax.autoscale_view()
+
+
+def shape_gallery(shapes, ncols=4, size=3.2):
+    """A grid of every shape with its handles and sampling regions.
+
+    Parameters
+    ----------
+    shapes : list of defop.shapes.Shape
+    ncols : int
+    size : float
+        Inches per panel.
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    nrows = -(-len(shapes) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(size * ncols, size * nrows), squeeze=False)
+    for ax in axes.flat:
+        ax.set_axis_off()
+    for ax, shape in zip(axes.flat, shapes, strict=False):
+        plot_shape(ax, shape)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,43 @@
+"""Shared fixtures: small analytic meshes and reset of global plotting state (pyvista-examples style)."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import defop as dop  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def _reset_global_state():
+    """Each test starts from default matplotlib rcParams and closes its figures."""
+    import matplotlib
+
+    yield
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
+    matplotlib.rcdefaults()
+
+
+@pytest.fixture
+def triangle():
+    """One right triangle with legs 2 and 1 (area 1), counter-clockwise."""
+    return dop.mesh.Mesh(np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 1.0]]), np.array([[0, 1, 2]]))
+
+
+@pytest.fixture
+def grid():
+    """A structured 2 x 1 rectangle triangulated into 9 x 5 vertices."""
+    x, y = np.meshgrid(np.linspace(0, 2, 9), np.linspace(0, 1, 5))
+    V = np.column_stack([x.ravel(), y.ravel()])
+    F = []
+    for j in range(4):
+        for i in range(8):
+            a = j * 9 + i
+            F += [[a, a + 1, a + 10], [a, a + 10, a + 9]]
+    return dop.mesh.Mesh(V, np.array(F))

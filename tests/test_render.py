@@ -1,0 +1,51 @@
+"""Headless rendering: defop picks a working off-screen VTK window by itself, and images are not blank."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import defop as dop
+
+
+def test_render_mesh_offscreen_is_not_blank(grid, tmp_path):
+    img = dop.render.render_mesh(
+        grid, X=grid.V * [1.0, 1.5], handles=np.array([0, 44]), moving=np.array([True, False]),
+        window_size=(200, 150), screenshot=tmp_path / "m.png",
+    )
+    assert img.shape == (150, 200, 3)
+    white = np.all(img > 245, axis=-1)
+    assert 0.05 < (~white).mean() < 0.95  # the mesh covers part of the image, not none and not all
+    red = (img[..., 0] > 150) & (img[..., 1] < 80) & (img[..., 2] < 80)
+    assert red.sum() > 0  # the moving handle is drawn
+    assert (tmp_path / "m.png").stat().st_size > 1000
+
+
+def test_configure_headless_in_a_clean_process():
+    """A fresh interpreter with no DISPLAY and no VTK setting renders through defop (no segfault)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "VTK_DEFAULT_OPENGL_WINDOW")}
+    code = (
+        "import numpy as np, defop as dop, os\n"
+        "m = dop.mesh.Mesh(np.array([[0,0],[1,0],[0,1.]]), np.array([[0,1,2]]))\n"
+        "img = dop.render.render_mesh(m, window_size=(64,64))\n"
+        "print(os.environ['VTK_DEFAULT_OPENGL_WINDOW'], int(img.std() > 0))\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    window, nonblank = res.stdout.split()
+    assert window in ("vtkEGLRenderWindow", "vtkOSOpenGLRenderWindow") and nonblank == "1"
+
+
+def test_no_window_gives_the_apt_line(monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("VTK_DEFAULT_OPENGL_WINDOW", raising=False)
+    monkeypatch.setattr(dop.render, "_chosen", None)
+    monkeypatch.setattr(dop.render, "candidates", lambda: [])
+    if sys.platform in ("win32", "darwin"):
+        pytest.skip("headless selection only applies to Linux")
+    with pytest.raises(RuntimeError, match="apt-get install -y --no-install-recommends libosmesa6"):
+        dop.render.configure_headless()
