@@ -24,7 +24,7 @@ figures: $(STAMP)
 	$(BIN)/python -m defop figures
 
 test: $(STAMP)
-	DEFOP_FAST=1 MPLBACKEND=Agg $(BIN)/python -m pytest -p no:cacheprovider tests notebooks $(NBVAL)
+	DEFOP_FAST=1 $(BIN)/python -m pytest -p no:cacheprovider tests notebooks $(NBVAL)
 
 lint: $(STAMP)
 	$(BIN)/ruff check defop tests benchmarks

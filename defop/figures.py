@@ -69,7 +69,6 @@ def run_notebook(path, fast=False, store=None, timeout=3600, kernel_name="python
         os.environ["DEFOP_FAST"] = "1"
     else:
         os.environ.pop("DEFOP_FAST", None)
-    os.environ.setdefault("MPLBACKEND", "Agg")
     t0 = time.perf_counter()
     try:
         client = NotebookClient(

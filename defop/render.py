@@ -205,18 +205,19 @@ def to_polydata(V, F, X=None, scalars=None):
     return poly
 
 
-def render_mesh(
+def mesh_plotter(
     mesh,
     X=None,
     scalars=None,
     handles=None,
     moving=None,
     window_size=(800, 600),
-    screenshot=None,
     cmap="viridis",
     show_edges=True,
+    off_screen=True,
+    notebook=None,
 ):
-    """Render a (deformed) planar mesh off-screen with PyVista and return the image.
+    """A PyVista Plotter showing a (deformed) planar mesh, seen from above, with its handles.
 
     Parameters
     ----------
@@ -232,42 +233,84 @@ def render_mesh(
         Which handles move (red); the others are fixed (blue).
     window_size : (2,) tuple
         Image size in pixels.
-    screenshot : str or path, optional
-        Also write the image there (PNG).
     cmap : str
         Colormap for ``scalars``.
     show_edges : bool
         Draw the triangle edges.
+    off_screen, notebook : bool
+        Passed to ``pyvista.Plotter``.
+
+    Returns
+    -------
+    plotter : pyvista.Plotter
+    """
+    pv = _pyvista()
+    P = mesh.V if X is None else np.asarray(X, dtype=float)
+    poly = to_polydata(mesh.V, mesh.F, P, scalars)
+    kw = {} if notebook is None else {"notebook": notebook}
+    plotter = pv.Plotter(off_screen=off_screen, window_size=tuple(window_size), **kw)
+    plotter.set_background("white")
+    style = dict(show_edges=show_edges, edge_color="#555555", line_width=0.5)
+    if scalars is None:
+        plotter.add_mesh(poly, color="#f2d7a6", **style)
+    else:
+        plotter.add_mesh(poly, scalars="scalars", cmap=cmap, **style)
+    if handles is not None and len(handles):
+        handles = np.asarray(handles)
+        moving = np.ones(len(handles), bool) if moving is None else np.asarray(moving, bool)
+        radius = 0.012 * mesh.bbox_diagonal
+        for idx, mv in zip(handles, moving, strict=True):
+            c = np.append(P[idx], 0.0)
+            plotter.add_mesh(pv.Sphere(radius=radius, center=c), color="#d62728" if mv else "#1f77b4")
+    plotter.view_xy()
+    plotter.enable_parallel_projection()
+    plotter.reset_camera(bounds=poly.bounds)
+    return plotter
+
+
+def render_mesh(mesh, X=None, screenshot=None, **kw):
+    """Render a (deformed) planar mesh off-screen with PyVista and return the image.
+
+    Parameters
+    ----------
+    mesh : defop.mesh.Mesh
+    X : (n,2) numpy array, optional
+        Deformed positions.
+    screenshot : str or path, optional
+        Also write the image there (PNG).
+    **kw
+        As for :func:`mesh_plotter` (``scalars``, ``handles``, ``moving``, ``window_size``, ...).
 
     Returns
     -------
     img : (H,W,3) uint8 numpy array
     """
-    pv = _pyvista()
-    P = mesh.V if X is None else np.asarray(X, dtype=float)
-    poly = to_polydata(mesh.V, mesh.F, P, scalars)
-    plotter = pv.Plotter(off_screen=True, window_size=tuple(window_size))
+    plotter = mesh_plotter(mesh, X, off_screen=True, **kw)
     try:
-        plotter.set_background("white")
-        kw = dict(show_edges=show_edges, edge_color="#555555", line_width=0.5)
-        if scalars is None:
-            plotter.add_mesh(poly, color="#f2d7a6", **kw)
-        else:
-            plotter.add_mesh(poly, scalars="scalars", cmap=cmap, **kw)
-        if handles is not None and len(handles):
-            handles = np.asarray(handles)
-            moving = np.ones(len(handles), bool) if moving is None else np.asarray(moving, bool)
-            radius = 0.012 * mesh.bbox_diagonal
-            for idx, mv in zip(handles, moving, strict=True):
-                c = np.append(P[idx], 0.0)
-                plotter.add_mesh(pv.Sphere(radius=radius, center=c), color="#d62728" if mv else "#1f77b4")
-        plotter.view_xy()
-        plotter.enable_parallel_projection()
-        plotter.reset_camera(bounds=poly.bounds)
         img = plotter.screenshot(filename=None if screenshot is None else str(screenshot), return_img=True)
     finally:
         plotter.close()
     return np.asarray(img)
+
+
+def jupyter_backend():
+    """The PyVista notebook backend: ``$PYVISTA_JUPYTER_BACKEND`` if set, else ``"trame"`` when the
+    trame packages are installed and a display or a Jupyter server can show it, else ``"static"``
+    (a PNG; what CI and headless runs use).
+
+    Returns
+    -------
+    backend : str
+    """
+    env = os.environ.get("PYVISTA_JUPYTER_BACKEND")
+    if env:
+        return env
+    try:
+        import trame  # noqa: F401
+        import trame_vtk  # noqa: F401
+    except ImportError:
+        return "static"
+    return "static" if os.environ.get("DEFOP_FAST") or os.environ.get("CI") else "trame"
 
 
 if __name__ != "__main__":

@@ -1,0 +1,159 @@
+"""Shapes: polygons → meshes, the paper's models, user shapes from polygons and images, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import defop as dop
+from defop import shapes
+
+SQUARE = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+HOLE = np.array([[0.4, 0.4], [0.6, 0.4], [0.6, 0.6], [0.4, 0.6]], float)
+
+EXPECTED = {  # name: (default vertices, moving, fixed)
+    "bar": (600, 1, 3),
+    "u_shape": (800, 2, 4),
+    "gingerbread": (1200, 5, 0),
+    "aleph": (2900, 5, 0),
+    "octopus": (4000, 9, 0),
+    "crab": (2100, 10, 1),
+    "dino": (1700, 2, 2),
+}
+
+
+def test_polygon_with_hole_areas_orientation_and_loops():
+    s = shapes.from_polygon(SQUARE, [HOLE], handles=[[0.1, 0.1], [0.9, 0.9]], n_vertices=400)
+    m = s.mesh
+    assert np.all(dop.mesh.signed_areas(m.V, m.F) > 0)  # counter-clockwise
+    assert m.areas.sum() == pytest.approx(1.0 - 0.04, rel=1e-12)  # polygon minus hole, exactly
+    loops = m.boundary_loops()
+    assert len(loops) == 2
+    outer, inner = m.V[loops[0]], m.V[loops[1]]
+    d_outer = np.minimum.reduce([outer[:, 0], 1 - outer[:, 0], outer[:, 1], 1 - outer[:, 1]])
+    assert np.allclose(d_outer, 0, atol=1e-12)  # every outer-loop vertex lies on the square
+    d_inner = np.minimum.reduce([inner[:, 0] - 0.4, 0.6 - inner[:, 0], inner[:, 1] - 0.4, 0.6 - inner[:, 1]])
+    assert np.allclose(d_inner, 0, atol=1e-12)
+    assert abs(shapes.polygon_area(outer)) == pytest.approx(1.0)  # the loop walks around the whole outline
+
+
+@pytest.mark.parametrize("name", shapes.names())
+def test_named_shape(name):
+    s = shapes.load(name)
+    n, n_moving, n_fixed = EXPECTED[name]
+    assert abs(s.mesh.n_vertices - n) <= 0.15 * n
+    assert (s.n_moving, len(s.handles) - s.n_moving) == (n_moving, n_fixed)
+    assert len(s.regions) == s.n_moving
+    assert np.all(dop.mesh.signed_areas(s.mesh.V, s.mesh.F) > 0)
+    # every handle is exactly a mesh vertex, inside the outline, and the outline is one simple polygon
+    assert np.array_equal(s.P, s.mesh.V[s.handles])
+    assert shapes.points_in_polygon(s.P, s.outline).all()
+    assert len(s.mesh.boundary_loops()) == len(s.outline)
+    assert s.mesh.areas.sum() == pytest.approx(
+        abs(shapes.polygon_area(s.outline[0])) - sum(abs(shapes.polygon_area(h)) for h in s.outline[1:]), rel=2e-2
+    )
+
+
+def test_load_is_deterministic_and_returns_copies():
+    a, b = shapes.load("bar"), shapes.load("bar")
+    assert a.mesh == b.mesh and np.array_equal(a.handles, b.handles)
+    a.mesh.V[0] += 1.0
+    assert shapes.load("bar").mesh.V[0, 0] == b.mesh.V[0, 0]
+
+
+def test_n_vertices_is_configurable():
+    s = shapes.load("bar", n_vertices=300)
+    assert 250 <= s.mesh.n_vertices <= 350
+
+
+def test_targets_puts_fixed_handles_at_rest():
+    s = shapes.load("u_shape")
+    Q = s.P_moving + 0.1
+    T = s.targets(Q)
+    assert np.array_equal(T[s.moving], Q) and np.array_equal(T[~s.moving], s.P[~s.moving])
+    with pytest.raises(ValueError, match=r"shape \(2, 2\)"):
+        s.targets(np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="NaN"):
+        s.targets(np.full((2, 2), np.nan))
+
+
+def test_aleph_is_the_dejavu_glyph():
+    s = shapes.load("aleph")
+    assert "DejaVu" in s.description
+    # the glyph's outline is a single loop whose bounding box is normalised to 1
+    assert np.ptp(s.outline[0], axis=0).max() == pytest.approx(1.0)
+
+
+def test_from_image_disc_and_annulus():
+    yy, xx = np.mgrid[:200, :200]
+    r = np.hypot(xx - 100, yy - 100)
+    disc = (r < 60).astype(float)
+    s = shapes.from_image(disc, n_vertices=500, size=1.0)
+    # the silhouette is scaled so that its bbox diagonal is 1: a disc of radius 1/(2 sqrt 2)
+    assert s.mesh.areas.sum() == pytest.approx(np.pi / 8, rel=0.03)
+    assert len(s.mesh.boundary_loops()) == 1
+    annulus = ((r < 80) & (r > 40)).astype(float)
+    rgba = np.zeros((200, 200, 4))
+    rgba[..., 3] = annulus
+    a = shapes.from_image(rgba, n_vertices=600)
+    assert len(a.mesh.boundary_loops()) == 2
+    R = 1 / (2 * np.sqrt(2))
+    assert a.mesh.areas.sum() == pytest.approx(np.pi * (R**2 - (R / 2) ** 2), rel=0.05)
+
+
+def test_from_image_png_file(tmp_path):
+    from matplotlib.image import imsave
+
+    yy, xx = np.mgrid[:120, :160]
+    img = np.ones((120, 160, 3))
+    img[(abs(xx - 80) < 50) & (abs(yy - 60) < 30)] = 0.0  # a dark rectangle on white
+    imsave(tmp_path / "rect.png", img)
+    s = shapes.from_image(tmp_path / "rect.png", n_vertices=300, size=np.hypot(100, 60))
+    assert s.mesh.areas.sum() == pytest.approx(100 * 60, rel=0.03)
+
+
+# ---------------------------------------------------------------- bad input gets a clear ValueError
+def test_self_intersecting_polygon():
+    bowtie = np.array([[0, 0], [1, 1], [1, 0], [0, 1]], float)
+    with pytest.raises(ValueError, match="self-intersecting: edge 0 of the outer polygon crosses edge 2"):
+        shapes.from_polygon(bowtie, handles=[[0.1, 0.5]])
+
+
+def test_hole_crossing_the_outline():
+    with pytest.raises(ValueError, match="self-intersecting.*hole 0"):
+        shapes.triangulate(SQUARE, [HOLE + 0.5])
+
+
+def test_too_few_points():
+    with pytest.raises(ValueError, match="2 points; a polygon needs at least 3"):
+        shapes.triangulate(np.array([[0, 0], [1, 0]], float))
+
+
+def test_nan_coordinates():
+    bad = SQUARE.copy()
+    bad[2, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        shapes.triangulate(bad)
+
+
+def test_handle_outside_the_shape():
+    msg = r"handle 1 at \(1.31, 0.5\) is outside the shape \(nearest boundary point is 0.31 away\)"
+    with pytest.raises(ValueError, match=msg):
+        shapes.from_polygon(SQUARE, handles=[[0.5, 0.5], [1.31, 0.5]])
+    with pytest.raises(ValueError, match="handle 0 .* is outside the shape"):  # inside the hole is outside
+        shapes.from_polygon(SQUARE, [HOLE], handles=[[0.5, 0.5]])
+
+
+def test_unknown_name_lists_the_known_ones():
+    with pytest.raises(ValueError, match="unknown shape 'teapot'; known shapes: bar, u_shape, gingerbread, aleph"):
+        shapes.load("teapot")
+
+
+def test_image_without_foreground():
+    with pytest.raises(ValueError, match="no foreground"):
+        shapes.from_image(np.zeros((50, 50)))
+
+
+def test_bad_region():
+    with pytest.raises(ValueError, match="unknown kind 'square'"):
+        shapes.from_polygon(SQUARE, handles=[[0.5, 0.5]], regions=[{"kind": "square"}], n_vertices=100)
