@@ -1,0 +1,308 @@
+"""Deformation energies of the paper as pure, vectorised functions of the Jacobians J (m,2,2).
+
+Each energy is E(X) = Σ_t A_t ψ(J_t), a sum over triangles weighted by area, of an isotropic
+function ψ of the *signed* singular values Σ ≥ |σ| of the triangle's Jacobian (σ < 0 when
+det J < 0, so that a fold is seen rather than hidden):
+
+* ``"arap"``: ARAP, Eq. (10): ψ = (Σ−1)² + (σ−1)².
+* ``"sarap"``: Symmetric ARAP (S-ARAP), Eq. (11): ψ = (Σ−1)² + (1/σ−1)², +inf when det J ≤ 0;
+  shrinking and stretching are penalised alike, and the 1/σ term is a barrier against flips.
+* ``"isometric"``: isometric distortion, the symmetric Dirichlet energy
+  ψ = ‖J‖²_F + ‖J⁻¹‖²_F = Σ² + σ² + Σ⁻² + σ⁻², +inf when det J ≤ 0. This is the isometric
+  energy of the paper's group (Fig. 6); its minimum 4 is at rotations, and it tolerates area
+  change more than S-ARAP does.
+
+For each energy: the value, the gradient ∂ψ/∂J = U diag(ψ_Σ, ψ_σ) Vᵀ, and a positive
+semi-definite projected Hessian from the analytic eigensystem of isotropic 2D energies
+(Smith, de Goes & Kim 2019): the twist mode U[[0,−1],[1,0]]Vᵀ/√2 with eigenvalue
+(ψ_Σ+ψ_σ)/(Σ+σ), the flip mode U[[0,1],[1,0]]Vᵀ/√2 with (ψ_Σ−ψ_σ)/(Σ−σ), and two scaling
+modes U diag(e_k) Vᵀ from the 2×2 Hessian of ψ in (Σ, σ). Negative eigenvalues are clamped
+to zero. Matrices are flattened row-major: vec(J) = [J00, J01, J10, J11], as in
+``Mesh.jacobian_operator``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+ENERGIES = ("arap", "sarap", "isometric")
+BARRIER = {"arap": False, "sarap": True, "isometric": True}
+#: value of ψ at rotations (the rest pose), per energy
+REST_VALUE = {"arap": 0.0, "sarap": 0.0, "isometric": 4.0}
+
+
+def check_energy(energy):
+    """Validate an energy name; raise ValueError listing the known ones."""
+    if energy not in ENERGIES:
+        raise ValueError(f"unknown energy {energy!r}; known energies: {', '.join(ENERGIES)}")
+    return energy
+
+
+def is_barrier(energy) -> bool:
+    """Whether the energy is +inf on flipped triangles (S-ARAP, isometric)."""
+    return BARRIER[check_energy(energy)]
+
+
+def _rot(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    R = np.empty(angle.shape + (2, 2))
+    R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1] = c, -s, s, c
+    return R
+
+
+def signed_svd(J):
+    """Signed SVD of 2×2 matrices in closed form: J = U diag(Σ, σ) Vᵀ with U, V rotations.
+
+    Parameters
+    ----------
+    J : (m,2,2) numpy array
+
+    Returns
+    -------
+    U : (m,2,2) numpy array
+        Rotations (det +1).
+    S : (m,2) numpy array
+        ``S[:,0] = Σ >= |σ| = |S[:,1]|``; σ < 0 exactly when det J < 0.
+    V : (m,2,2) numpy array
+        Rotations (det +1).
+
+    Notes
+    -----
+    With E=(a+d)/2, F=(a−d)/2, G=(c+b)/2, H=(c−b)/2 for J = [[a,b],[c,d]]: Σ = √(E²+H²) + √(F²+G²),
+    σ = √(E²+H²) − √(F²+G²), U = R(φ), V = R(−θ) with φ = (atan2(H,E)+atan2(G,F))/2 and
+    θ = (atan2(H,E)−atan2(G,F))/2. Working with rotations avoids the sign fix-ups of a general
+    SVD (flipping the second column of both U and V when both have det −1).
+    """
+    J = np.asarray(J, dtype=float)
+    a, b, c, d = J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1]
+    E, F, G, H = (a + d) / 2, (a - d) / 2, (c + b) / 2, (c - b) / 2
+    Qn, Rn = np.hypot(E, H), np.hypot(F, G)
+    a1, a2 = np.arctan2(G, F), np.arctan2(H, E)
+    theta, phi = (a2 - a1) / 2, (a2 + a1) / 2
+    S = np.stack([Qn + Rn, Qn - Rn], axis=-1)
+    return _rot(phi), S, _rot(-theta)
+
+
+def _psi_sarap_smooth(t1, t2, ok, mu):
+    """S-ARAP as a smooth maximum of its two orderings, for Newton.
+
+    With Σ ≥ σ, Eq. (11) equals max(f, g) where f = (σ1−1)² + (1/σ2−1)² and g = (σ2−1)² + (1/σ1−1)²
+    (the same expression with the singular values swapped). That maximum has a kink on the conformal
+    matrices Σ = σ ≠ 1, where Newton stalls. ψ_μ = (f+g)/2 + √(((f−g)/2)² + μ²) − μ is smooth,
+    symmetric in (σ1, σ2), and within μ of Eq. (11): ψ − μ ≤ ψ_μ ≤ ψ. (With Σ ≥ σ > 0, f ≥ g, so
+    max(f, g) is exactly Eq. (11).)
+    """
+    f = (t1 - 1) ** 2 + (1 / t2 - 1) ** 2
+    g = (t2 - 1) ** 2 + (1 / t1 - 1) ** 2
+    f1, f2 = 2 * (t1 - 1), 2 * (t2 - 1) / t2**3
+    g1, g2 = 2 * (t1 - 1) / t1**3, 2 * (t2 - 1)
+    f11, f22 = np.full_like(t1, 2.0), 6 / t2**4 - 4 / t2**3
+    g11, g22 = 6 / t1**4 - 4 / t1**3, np.full_like(t1, 2.0)
+    a, b = (f + g) / 2, (f - g) / 2
+    a1, a2, b1, b2 = (f1 + g1) / 2, (f2 + g2) / 2, (f1 - g1) / 2, (f2 - g2) / 2
+    a11, a22, b11, b22 = (f11 + g11) / 2, (f22 + g22) / 2, (f11 - g11) / 2, (f22 - g22) / 2
+    r = np.sqrt(b * b + mu * mu)
+    w, c = b / r, mu * mu / r**3
+    psi = np.where(ok, a + r - mu, np.inf)
+    p1, p2 = a1 + w * b1, a2 + w * b2
+    p11 = a11 + w * b11 + c * b1 * b1
+    p22 = a22 + w * b22 + c * b2 * b2
+    p12 = c * b1 * b2
+    twist = (p1 + p2) / (t1 + t2)
+    gap = t1 - t2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        flip = np.where(gap > 1e-6 * t1, (p1 - p2) / gap, p11 - p12)
+    return psi, p1, p2, p11, p22, p12, twist, flip
+
+
+def _psi(energy, s1, s2, mu=0.0):
+    """ψ and its derivatives in the signed singular values: (ψ, ψ1, ψ2, ψ11, ψ22, ψ12, twist, flip).
+
+    ``mu > 0`` selects the smoothed S-ARAP of :func:`_psi_sarap_smooth` (ignored by the others).
+    """
+    inf = np.inf
+    if energy == "arap":
+        psi = (s1 - 1) ** 2 + (s2 - 1) ** 2
+        p1, p2 = 2 * (s1 - 1), 2 * (s2 - 1)
+        p11 = p22 = np.full_like(s1, 2.0)
+        p12 = np.zeros_like(s1)
+        ssum = s1 + s2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            twist = np.where(np.abs(ssum) > 1e-12, 2 - 4 / ssum, -inf)  # -inf → clamped to 0
+        flip = np.full_like(s1, 2.0)
+        return psi, p1, p2, p11, p22, p12, twist, flip
+    ok = s2 > 0
+    t1 = np.where(ok, s1, 1.0)
+    t2 = np.where(ok, s2, 1.0)
+    if energy == "sarap" and mu > 0:
+        return _psi_sarap_smooth(t1, t2, ok, mu)
+    if energy == "sarap":
+        psi = np.where(ok, (t1 - 1) ** 2 + (1 / t2 - 1) ** 2, inf)
+        p1 = 2 * (t1 - 1)
+        p2 = 2 * (t2 - 1) / t2**3
+        p11 = np.full_like(t1, 2.0)
+        p22 = 6 / t2**4 - 4 / t2**3
+        p12 = np.zeros_like(t1)
+        twist = (p1 + p2) / (t1 + t2)
+        gap = t1 - t2
+        # the ordered-σ energy is not C¹ across Σ = σ ≠ 1: the flip eigenvalue grows like 1/(Σ−σ); cap it
+        num = p1 - p2
+        cap = 1e4 * (1 + p11 + np.abs(p22))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            flip = np.where(gap > 1e-8, num / gap, np.where(np.abs(num) > 1e-10, cap, (p11 + p22) / 2))
+        flip = np.minimum(flip, cap)
+        return psi, p1, p2, p11, p22, p12, twist, flip
+    if energy == "isometric":
+        psi = np.where(ok, t1**2 + t2**2 + t1**-2 + t2**-2, inf)
+        p1, p2 = 2 * t1 - 2 / t1**3, 2 * t2 - 2 / t2**3
+        p11, p22 = 2 + 6 / t1**4, 2 + 6 / t2**4
+        p12 = np.zeros_like(t1)
+        den = (t1 * t2) ** 3
+        twist = 2 - 2 * (t1**2 - t1 * t2 + t2**2) / den
+        flip = 2 + 2 * (t1**2 + t1 * t2 + t2**2) / den
+        return psi, p1, p2, p11, p22, p12, twist, flip
+    check_energy(energy)
+    raise AssertionError  # pragma: no cover
+
+
+def density(J, energy, mu=0.0):
+    """ψ(J_t) per triangle.
+
+    Parameters
+    ----------
+    J : (m,2,2) numpy array
+    energy : str
+        ``"arap"``, ``"sarap"`` or ``"isometric"``.
+
+    Returns
+    -------
+    psi : (m,) numpy array
+        +inf on flipped triangles for the barrier energies.
+    """
+    check_energy(energy)
+    _, S, _ = signed_svd(J)
+    return _psi(energy, S[:, 0], S[:, 1], mu)[0]
+
+
+def gradient(J, energy, mu=0.0):
+    """∂ψ/∂J per triangle: U diag(ψ_Σ, ψ_σ) Vᵀ.
+
+    Parameters
+    ----------
+    J : (m,2,2) numpy array
+    energy : str
+
+    Returns
+    -------
+    psi : (m,) numpy array
+    dpsi : (m,2,2) numpy array
+        Only meaningful where ψ is finite.
+    """
+    check_energy(energy)
+    U, S, V = signed_svd(J)
+    psi, p1, p2 = _psi(energy, S[:, 0], S[:, 1], mu)[:3]
+    return psi, np.matmul(U * np.stack([p1, p2], -1)[:, None, :], np.swapaxes(V, 1, 2))
+
+
+def hessian(J, energy, project=True, mu=0.0):
+    """ψ, ∂ψ/∂J and the (projected) Hessian ∂²ψ/∂vec(J)² per triangle.
+
+    Parameters
+    ----------
+    J : (m,2,2) numpy array
+    energy : str
+    project : bool
+        Clamp negative eigenvalues to zero (PSD); otherwise the exact Hessian (where ψ is smooth).
+
+    Returns
+    -------
+    psi : (m,) numpy array
+    dpsi : (m,2,2) numpy array
+    H : (m,4,4) numpy array
+        In row-major vec(J) = [J00, J01, J10, J11].
+    """
+    check_energy(energy)
+    U, S, V = signed_svd(J)
+    psi, p1, p2, p11, p22, p12, twist, flip = _psi(energy, S[:, 0], S[:, 1], mu)
+    m = len(J)
+    Vt = np.swapaxes(V, 1, 2)
+    grad = np.matmul(U * np.stack([p1, p2], -1)[:, None, :], Vt)
+    m = len(J)
+    # scaling modes: closed-form eigen-decomposition of the 2x2 Hessian [[ψ11, ψ12], [ψ12, ψ22]] in (Σ, σ)
+    p11, p22, p12 = (np.where(np.isfinite(x), x, 0.0) for x in (p11, p22, p12))
+    mean, half = (p11 + p22) / 2, (p11 - p22) / 2
+    rad = np.hypot(half, p12)
+    ang = 0.5 * np.arctan2(2 * p12, p11 - p22)
+    c, s_ = np.cos(ang), np.sin(ang)
+    lams = [mean + rad, mean - rad, np.where(np.isfinite(twist), twist, -np.inf), flip]
+    r = 1 / np.sqrt(2)
+    twist_m = np.array([[0.0, -r], [r, 0.0]])
+    flip_m = np.array([[0.0, r], [r, 0.0]])
+    mats = [
+        np.matmul(U * np.stack([c, s_], -1)[:, None, :], Vt),
+        np.matmul(U * np.stack([-s_, c], -1)[:, None, :], Vt),
+        U @ twist_m @ Vt,
+        U @ flip_m @ Vt,
+    ]
+    lam = np.stack(lams, axis=-1)  # (m,4)
+    if project:
+        lam = np.maximum(lam, 0.0)
+    lam = np.where(np.isfinite(lam), lam, 0.0)
+    Dm = np.stack([D.reshape(m, 4) for D in mats], axis=-1)  # (m,4,4): columns are the eigenmatrices
+    H = np.matmul(Dm * lam[:, None, :], np.swapaxes(Dm, 1, 2))
+    return psi, grad, H
+
+
+def total_energy(mesh, X, energy, mu=0.0):
+    """E(X) = Σ_t A_t ψ(J_t) (Eq. 10 / 11), +inf if a barrier energy sees a flipped triangle.
+
+    Parameters
+    ----------
+    mesh : defop.mesh.Mesh
+    X : (n,2) numpy array
+    energy : str
+
+    Returns
+    -------
+    E : float
+    """
+    psi = density(mesh.jacobians(X), energy, mu)
+    return float(mesh.areas @ psi)
+
+
+def max_flip_free_step(J, dJ, safety=0.9):
+    """Largest t in (0, 1] such that det(J + s·dJ) > 0 for all s in [0, t) (Smith & Schaefer 2015).
+
+    Per triangle, det(J + t dJ) = det J + t·tr(adj(J) dJ) + t²·det dJ is a quadratic in t; the
+    step is ``safety`` times its smallest positive root over all triangles (the linear case
+    det dJ = 0 handled), capped at 1.
+
+    Parameters
+    ----------
+    J, dJ : (m,2,2) numpy arrays
+        Current Jacobians (all det > 0) and their change along the search direction.
+    safety : float
+
+    Returns
+    -------
+    t : float
+    """
+    a = dJ[:, 0, 0] * dJ[:, 1, 1] - dJ[:, 0, 1] * dJ[:, 1, 0]
+    b = J[:, 0, 0] * dJ[:, 1, 1] + dJ[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * dJ[:, 1, 0] - dJ[:, 0, 1] * J[:, 1, 0]
+    c = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+    scale = np.abs(a) + np.abs(b) + np.abs(c)
+    lin = np.abs(a) <= 1e-14 * scale
+    roots = np.full(len(J), np.inf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # linear: b t + c = 0
+        tl = -c / b
+        roots = np.where(lin & (tl > 0), tl, roots)
+        disc = b * b - 4 * a * c
+        sq = np.sqrt(np.maximum(disc, 0))
+        # numerically stable quadratic roots
+        qq = -0.5 * (b + np.copysign(sq, b))
+        r1, r2 = qq / a, c / qq
+        for r in (r1, r2):
+            roots = np.where(~lin & (disc >= 0) & (r > 0) & (r < roots), r, roots)
+    t = float(np.min(roots)) if len(roots) else np.inf
+    return min(1.0, safety * t)

@@ -1,0 +1,112 @@
+"""Energies (Eq. 10, 11, isometric): closed forms, finite differences, PSD projection, flip-free step."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from defop import energies as en
+
+
+def _jacobians(rng, n=300, spread=0.3, min_det=0.3):
+    J = np.eye(2) + spread * rng.normal(size=(n, 2, 2))
+    J = J[np.linalg.det(J) > min_det]
+    _, S, _ = en.signed_svd(J)
+    return J[(S[:, 0] - S[:, 1]) > 1e-3]  # away from the Σ = σ kink of S-ARAP
+
+
+def test_signed_svd_reconstructs_with_rotations():
+    rng = np.random.default_rng(0)
+    J = rng.normal(size=(500, 2, 2))
+    U, S, V = en.signed_svd(J)
+    assert np.allclose(U @ (S[:, :, None] * np.swapaxes(V, 1, 2)), J, atol=1e-12)
+    assert np.allclose(np.linalg.det(U), 1) and np.allclose(np.linalg.det(V), 1)
+    assert np.all(S[:, 0] >= np.abs(S[:, 1]))
+    assert np.array_equal(np.sign(S[:, 1]), np.sign(np.linalg.det(J)))  # σ < 0 exactly when folded
+
+
+def test_single_triangle_closed_forms():
+    s = 1.5
+    J = np.array([s * np.eye(2)])
+    assert en.density(J, "arap") == pytest.approx([2 * (s - 1) ** 2])
+    assert en.density(J, "sarap") == pytest.approx([(s - 1) ** 2 + (1 / s - 1) ** 2])
+    assert en.density(J, "isometric") == pytest.approx([2 * s**2 + 2 / s**2])
+    stretch = np.array([[[2.0, 0.0], [0.0, 0.5]]])  # Σ = 2, σ = 1/2: S-ARAP is symmetric in shrink/stretch
+    assert en.density(stretch, "sarap") == pytest.approx([1.0 + 1.0])
+    reflect = np.array([[[1.0, 0.0], [0.0, -1.0]]])
+    assert en.density(reflect, "arap") == pytest.approx([4.0])  # signed σ = -1 is penalised: (−1−1)²
+    assert en.density(reflect, "sarap") == [np.inf] and en.density(reflect, "isometric") == [np.inf]
+
+
+@pytest.mark.parametrize("energy", en.ENERGIES)
+def test_rigid_motions_are_at_the_minimum(energy):
+    th = np.linspace(0, 2 * np.pi, 7)
+    R = np.stack([np.stack([np.cos(th), -np.sin(th)], -1), np.stack([np.sin(th), np.cos(th)], -1)], 1)
+    psi, grad, _ = en.hessian(R, energy)
+    assert np.allclose(psi, en.REST_VALUE[energy], atol=1e-12)
+    assert np.allclose(grad, 0, atol=1e-12)
+
+
+@pytest.mark.parametrize("energy,mu", [("arap", 0), ("sarap", 0), ("sarap", 1e-3), ("isometric", 0)])
+def test_gradient_and_hessian_match_finite_differences(energy, mu):
+    rng = np.random.default_rng(1)
+    J = _jacobians(rng)
+    psi, g, H = en.hessian(J, energy, project=False, mu=mu)
+    h = 1e-6
+    for k in range(4):
+        dJ = np.zeros((len(J), 4))
+        dJ[:, k] = h
+        dJ = dJ.reshape(-1, 2, 2)
+        fd_g = (en.density(J + dJ, energy, mu) - en.density(J - dJ, energy, mu)) / (2 * h)
+        assert np.allclose(fd_g, g.reshape(-1, 4)[:, k], rtol=1e-6, atol=1e-6)
+        fd_h = (en.gradient(J + dJ, energy, mu)[1] - en.gradient(J - dJ, energy, mu)[1]).reshape(-1, 4) / (2 * h)
+        assert np.allclose(fd_h, H[:, :, k], rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("energy", en.ENERGIES)
+def test_projected_hessian_is_psd_and_exact_where_convex(energy):
+    rng = np.random.default_rng(2)
+    J = np.eye(2) + 0.8 * rng.normal(size=(500, 2, 2))
+    if en.is_barrier(energy):
+        J = J[np.linalg.det(J) > 0.05]
+    _, _, H = en.hessian(J, energy, project=True)
+    assert np.allclose(H, np.swapaxes(H, 1, 2))
+    assert np.linalg.eigvalsh(H).min() >= -1e-9 * np.abs(H).max()
+    # where no eigenvalue is clamped the projection changes nothing
+    _, _, Hx = en.hessian(J, energy, project=False)
+    ok = np.linalg.eigvalsh(Hx).min(axis=1) > 1e-9
+    assert ok.sum() > 10 and np.allclose(H[ok], Hx[ok], atol=1e-9)
+
+
+def test_smoothed_sarap_is_within_mu_of_eq_11():
+    rng = np.random.default_rng(3)
+    J = np.eye(2) + 0.4 * rng.normal(size=(1000, 2, 2))
+    J = J[np.linalg.det(J) > 0.05]
+    exact = en.density(J, "sarap")
+    for mu in (1e-2, 1e-4):
+        smooth = en.density(J, "sarap", mu)
+        assert np.all(smooth <= exact + 1e-15) and np.all(smooth >= exact - mu - 1e-15)
+
+
+def test_max_flip_free_step():
+    J = np.array([np.eye(2)])
+    dJ = np.array([[[-2.0, 0.0], [0.0, 0.0]]])  # det(I + t dJ) = 1 - 2t: linear, root 1/2
+    assert en.max_flip_free_step(J, dJ, safety=1.0) == pytest.approx(0.5)
+    dJ = np.array([[[-4.0, 0.0], [0.0, -4.0]]])  # (1 - 4t)^2: double root 1/4
+    assert en.max_flip_free_step(J, dJ, safety=1.0) == pytest.approx(0.25, rel=1e-6)
+    dJ = np.array([[[1.0, 0.0], [0.0, 1.0]]])  # growing: never flips
+    assert en.max_flip_free_step(J, dJ) == 1.0
+    rng = np.random.default_rng(4)
+    J = np.eye(2) + 0.2 * rng.normal(size=(200, 2, 2))
+    J = J[np.linalg.det(J) > 0]
+    dJ = rng.normal(size=J.shape)
+    t = en.max_flip_free_step(J, dJ, safety=1.0)
+    ts = np.linspace(0, t * (1 - 1e-9), 200)
+    assert all(np.linalg.det(J + s * dJ).min() > 0 for s in ts)
+    if t < 1:
+        assert np.linalg.det(J + t * 1.0001 * dJ).min() < 0
+
+
+def test_unknown_energy():
+    with pytest.raises(ValueError, match="unknown energy 'arapp'; known energies: arap, sarap, isometric"):
+        en.density(np.array([np.eye(2)]), "arapp")

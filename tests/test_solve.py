@@ -1,0 +1,121 @@
+"""Projected Newton for problem (6): agreement with libigl's ARAP, flip-freedom, warm starts, bad input."""
+
+from __future__ import annotations
+
+import pickle
+import warnings
+
+import numpy as np
+import pytest
+
+import defop as dop
+from defop.solve import NotConvergedWarning, Solver, count_flips
+
+
+@pytest.fixture(scope="module")
+def ginger():
+    s = dop.shapes.load("gingerbread", n_vertices=400)
+    rng = np.random.default_rng(3)
+    Q = s.P_moving + rng.normal(scale=0.06 * s.mesh.bbox_diagonal, size=s.P_moving.shape)
+    return s, s.targets(Q)
+
+
+def test_arap_agrees_with_libigl(ginger):
+    s, T = ginger
+    solver = Solver(s.mesh, s.handles, "arap")
+    X0 = dop.solve.start_for(solver, T)
+    ours = solver.solve(T, X0=X0, tol=1e-12)
+    igl_ = dop.solve.solve_libigl_arap(s.mesh, s.handles, T, X0=X0, iterations=3000)
+    assert ours.converged
+    assert abs(ours.energy - igl_.energy) <= 1e-6 * ours.energy
+    assert np.abs(ours.X - igl_.X).max() <= 1e-5 * s.mesh.bbox_diagonal
+
+
+@pytest.mark.parametrize("energy", ["sarap", "isometric"])
+def test_barrier_energies_far_move_is_flip_free(energy):
+    s = dop.shapes.load("bar", n_vertices=300)
+    T = s.targets(s.P_moving + [[-0.7, 0.0]])  # push the end into the bar: the biharmonic start flips triangles
+    solver = Solver(s.mesh, s.handles, energy)
+    naive = s.mesh.V + solver.extend(T - s.P)
+    assert count_flips(s.mesh, naive) > 0
+    res = solver.solve(T)
+    assert res.converged and res.flips == 0 and np.isfinite(res.energy)
+    assert np.array_equal(res.X[s.handles], T)  # hard constraints, exactly
+    assert "continuation" in res.reason
+    assert np.all(np.diff(res.energy_history[-5:]) <= 1e-12 * res.energy)  # monotone at the end
+
+
+def test_arap_folds_where_sarap_does_not():
+    """Fig. 6: ARAP folds over at a handle pulled across the body; S-ARAP's barrier keeps every triangle."""
+    s = dop.shapes.load("gingerbread")
+    Q = s.P_moving.copy()
+    Q[0] += [0.6, -0.3]
+    T = s.targets(Q)
+    arap = dop.solve.solve(s.mesh, s.handles, T, "arap")
+    sarap = dop.solve.solve(s.mesh, s.handles, T, "sarap")
+    assert arap.converged and sarap.converged
+    assert sarap.flips == 0 and arap.flips > 0
+
+
+def test_warm_start_and_pickle(ginger):
+    s, T = ginger
+    solver = Solver(s.mesh, s.handles, "sarap")
+    cold = solver.solve(T)
+    again = solver.solve(T, X0=cold.X)
+    assert again.converged and again.iterations <= 2
+    assert again.energy == pytest.approx(cold.energy, rel=1e-9)
+    T2 = T + 0.02 * s.mesh.bbox_diagonal
+    warm = solver.solve(T2, X0=cold.X)
+    other = pickle.loads(pickle.dumps(solver)).solve(T2, X0=cold.X)
+    assert warm.converged and np.allclose(warm.X, other.X, atol=1e-12)
+
+
+def test_iteration_limit_is_not_converged(ginger):
+    s, T = ginger
+    with pytest.warns(NotConvergedWarning, match="did not converge"):
+        res = Solver(s.mesh, s.handles, "arap").solve(T, max_iter=1)
+    assert not res.converged and "limit" in res.reason
+
+
+def test_lbfgs_baseline_reaches_the_same_minimum(ginger):
+    s, T = ginger
+    newton = dop.solve.solve(s.mesh, s.handles, T, "arap", tol=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lbfgs = dop.solve.solve_lbfgs(s.mesh, s.handles, T, "arap", tol=1e-15)
+    assert lbfgs.energy == pytest.approx(newton.energy, rel=1e-6)
+
+
+def test_handle_given_twice(ginger):
+    s, T = ginger
+    h = np.append(s.handles, s.handles[0])
+    ok = Solver(s.mesh, h, "arap").solve(np.vstack([T, T[0]]))
+    assert ok.converged
+    with pytest.raises(ValueError, match=f"vertex {s.handles[0]} is given two different targets"):
+        Solver(s.mesh, h, "arap").solve(np.vstack([T, T[0] + 0.1]))
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda T: T[:-1], r"targets must have shape \(5, 2\)"),
+        (lambda T: np.where(np.arange(5)[:, None] == 2, np.nan, T), "target 2 .* is not finite"),
+        (lambda T: T + np.inf, "target 0 .* is not finite"),
+    ],
+)
+def test_bad_targets(ginger, make, match):
+    s, T = ginger
+    with pytest.raises(ValueError, match=match):
+        Solver(s.mesh, s.handles, "sarap").solve(make(T))
+
+
+def test_bad_handles_and_start(ginger):
+    s, T = ginger
+    n = s.mesh.n_vertices
+    with pytest.raises(ValueError, match=f"vertex index {n}, out of range for a mesh of {n} vertices"):
+        Solver(s.mesh, np.append(s.handles, n), "sarap")
+    flipped = s.mesh.V * [-1.0, 1.0]
+    with pytest.raises(ValueError, match="flipped triangle.*barrier"):
+        Solver(s.mesh, s.handles, "sarap").solve(T, X0=flipped)
+    with pytest.raises(ValueError, match="unknown energy"):
+        Solver(s.mesh, s.handles, "asap")
