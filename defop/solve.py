@@ -464,12 +464,13 @@ def solve(mesh, handles, targets, energy="sarap", X0=None, **kw):
     return Solver(mesh, handles, energy).solve(targets, X0=X0, **kw)
 
 
-def solve_lbfgs(mesh, handles, targets, energy="sarap", X0=None, tol=1e-10, max_iter=20000, history=True):
-    """The paper's baseline: scipy's L-BFGS on the same energy with the handles eliminated.
+def solve_lbfgs(mesh, handles, targets, energy="sarap", X0=None, tol=1e-10, max_iter=20000, memory=20):
+    """The paper's baseline: L-BFGS on the same energy with the handles eliminated.
 
-    The start is prepared as for :meth:`Solver.solve` (the handles moved to their targets by a
-    flip-free continuation), so both methods start from the same map. Flipped triangles have
-    infinite energy for the barrier energies; L-BFGS's line search then backtracks.
+    scipy's L-BFGS-B aborts its line search as soon as a trial step flips a triangle (the barrier
+    energies are +inf there), so this is the textbook two-loop L-BFGS (Nocedal & Wright, Alg. 7.4)
+    with the same line search as :class:`Solver`: the flip-free maximum step for barrier energies,
+    then Armijo backtracking. It starts from the same map as :meth:`Solver.solve` would.
 
     Parameters
     ----------
@@ -478,19 +479,18 @@ def solve_lbfgs(mesh, handles, targets, energy="sarap", X0=None, tol=1e-10, max_
     targets : (h,2) numpy array
     energy : str
     X0 : (n,2) numpy array, optional
-        A start with the handles at the targets (e.g. from :func:`start_for`).
+        A start (flip-free for barrier energies) with the handles at the targets; default
+        :func:`start_for`.
     tol : float
-        ``ftol`` of L-BFGS-B (relative energy decrease).
+        Stop when an iteration reduces the energy by less than ``tol`` · E.
     max_iter : int
-    history : bool
-        Record energy and time per iteration.
+    memory : int
+        Number of correction pairs.
 
     Returns
     -------
     result : SolveResult
     """
-    from scipy.optimize import minimize
-
     solver = Solver(mesh, handles, energy)
     T = _check_targets(targets, solver.handles_given)
     _, T = _unique_handles(solver.handles_given, T)
@@ -498,50 +498,73 @@ def solve_lbfgs(mesh, handles, targets, energy="sarap", X0=None, tol=1e-10, max_
         X0 = start_for(solver, T)
     X = np.array(X0, dtype=float)
     X[solver.handles] = T
+    if solver.barrier and count_flips(mesh, X):
+        raise ValueError("the L-BFGS start has flipped triangles; the barrier energy needs a flip-free start")
     free = solver.free
     t0 = time.perf_counter()
-    hist_E, hist_t = [solver.energy_of(X)], [0.0]
 
-    def fun(xf):
-        Y = X.ravel().copy()
-        Y[free] = xf
-        Y = Y.reshape(-1, 2)
-        J = mesh.jacobians(Y)
-        psi, dpsi = en.gradient(J, energy)
+    def fun(X):
+        psi, dpsi = en.gradient(mesh.jacobians(X), energy)
         E = float(mesh.areas @ psi)
-        if not np.isfinite(E):
-            return 1e300, np.zeros_like(xf)
         g_loc = np.matmul((mesh.areas[:, None] * dpsi.reshape(-1, 4))[:, None, :], solver._B)[:, 0]
         g = np.bincount(solver._dofs.ravel(), weights=g_loc.ravel(), minlength=2 * mesh.n_vertices)
         return E, g[free]
 
-    def callback(xf):
-        if history:
-            hist_E.append(fun(xf)[0])
-            hist_t.append(time.perf_counter() - t0)
-
-    res = minimize(
-        fun,
-        X.ravel()[free],
-        jac=True,
-        method="L-BFGS-B",
-        callback=callback,
-        options=dict(maxiter=max_iter, ftol=tol, gtol=1e-12, maxcor=20),
-    )
-    Y = X.ravel().copy()
-    Y[free] = res.x
-    Y = Y.reshape(-1, 2)
-    E = solver.energy_of(Y)
+    E, g = fun(X)
+    hist_E, hist_t = [E], [0.0]
+    S, Y = [], []
+    converged, reason = False, f"iteration limit {max_iter} reached"
+    it = 0
+    while it < max_iter:
+        it += 1
+        q = -g.copy()
+        alphas = []
+        for s_, y_ in zip(reversed(S), reversed(Y)):
+            a = (s_ @ q) / (y_ @ s_)
+            alphas.append(a)
+            q -= a * y_
+        if S:
+            q *= (S[-1] @ Y[-1]) / (Y[-1] @ Y[-1])
+        for (s_, y_), a in zip(zip(S, Y), reversed(alphas)):
+            b = (y_ @ q) / (y_ @ s_)
+            q += (a - b) * s_
+        p = q
+        slope = float(g @ p)
+        if slope >= 0:  # not a descent direction: restart from steepest descent
+            S, Y = [], []
+            p, slope = -g, -float(g @ g)
+        P = np.zeros(2 * mesh.n_vertices)
+        P[free] = p
+        P = P.reshape(-1, 2)
+        step = 1.0
+        if solver.barrier:
+            step = en.max_flip_free_step(mesh.jacobians(X), mesh.jacobians(P))
+        while True:
+            Xn = X + step * P
+            En = solver.energy_of(Xn)
+            if En <= E + 1e-4 * step * slope:
+                break
+            step *= 0.5
+            if step < 1e-16:
+                break
+        if step < 1e-16:
+            converged, reason = True, "line search stalled: no further decrease at round-off"
+            break
+        En, gn = fun(Xn)
+        S.append(step * p)
+        Y.append(gn - g)
+        if len(S) > memory:
+            S.pop(0)
+            Y.pop(0)
+        decrease = E - En
+        X, E, g = Xn, En, gn
+        hist_E.append(E)
+        hist_t.append(time.perf_counter() - t0)
+        if decrease <= tol * E:
+            converged, reason = True, f"energy decrease {decrease:.2e} <= tol·E"
+            break
     return SolveResult(
-        Y,
-        E,
-        np.array(hist_E),
-        np.array(hist_t),
-        int(res.nit),
-        time.perf_counter() - t0,
-        bool(res.success),
-        str(res.message),
-        count_flips(mesh, Y),
+        X, E, np.array(hist_E), np.array(hist_t), it, time.perf_counter() - t0, converged, reason, count_flips(mesh, X)
     )
 
 
