@@ -27,7 +27,7 @@ test: $(STAMP)
 	DEFOP_FAST=1 $(BIN)/python -m pytest -p no:cacheprovider tests notebooks $(NBVAL)
 
 lint: $(STAMP)
-	$(BIN)/ruff check defop tests benchmarks
+	$(BIN)/ruff check defop tests benchmarks notebooks
 
 benchmarks: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done

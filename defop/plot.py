@@ -210,3 +210,70 @@ def shape_gallery(shapes, ncols=4, size=3.2):
         plot_shape(ax, shape)
     fig.tight_layout()
     return fig
+
+
+def plot_deformation(ax, shape, X, highlight_flips=True, title=None, edges=True, flip_color="#e31a1c", zoom_flips=True):
+    """Draw a deformed shape, its handles, and its flipped triangles in red.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    shape : defop.shapes.Shape
+    X : (n,2) numpy array
+        Deformed positions.
+    highlight_flips : bool
+        Fill triangles with det J <= 0 in ``flip_color``.
+    title : str, optional
+    zoom_flips : bool
+        Add an inset magnifying the first flipped region.
+    """
+    mesh = shape.mesh
+    plot_mesh(ax, mesh.V, mesh.F, X, edges=edges)
+    if highlight_flips:
+        flipped = mesh.flipped(X)
+        if flipped.any():
+            ax.tripcolor(X[:, 0], X[:, 1], mesh.F[flipped], facecolors=np.zeros(flipped.sum()),
+                         cmap=_single(flip_color), zorder=3)
+            if zoom_flips:
+                c = X[mesh.F[np.flatnonzero(flipped)[0]]].mean(axis=0)
+                r = 0.04 * mesh.bbox_diagonal
+                ins = ax.inset_axes([0.62, 0.02, 0.36, 0.36])
+                plot_mesh(ins, mesh.V, mesh.F, X, edges=True, lw=0.5)
+                ins.tripcolor(X[:, 0], X[:, 1], mesh.F[flipped], facecolors=np.zeros(flipped.sum()),
+                              cmap=_single(flip_color), zorder=3)
+                plot_handles(ins, X, shape.handles, shape.moving, size=15)
+                ins.set_xlim(c[0] - r, c[0] + r)
+                ins.set_ylim(c[1] - r, c[1] + r)
+                ins.set_axis_on()
+                ins.set_xticks([])
+                ins.set_yticks([])
+                ax.indicate_inset_zoom(ins, edgecolor="k")
+    plot_handles(ax, X, shape.handles, shape.moving)
+    if title:
+        ax.set_title(title, fontsize=9)
+    ax.autoscale_view()
+
+
+def plot_convergence(axes, results, E_star=None, labels=None):
+    """Energy gap (E − E*)/E* against iteration and against time, one line per solver.
+
+    Parameters
+    ----------
+    axes : (2,) sequence of matplotlib Axes
+        Iteration axis, time axis.
+    results : dict of str -> defop.solve.SolveResult
+    E_star : float, optional
+        Reference minimum (default: the lowest energy any result reached).
+    """
+    if E_star is None:
+        E_star = min(float(np.min(r.energy_history)) for r in results.values())
+    for name, r in results.items():
+        gap = np.maximum((r.energy_history - E_star) / E_star, 1e-16)
+        axes[0].semilogy(np.arange(len(gap)), gap, label=name)
+        axes[1].loglog(np.maximum(r.time_history, 1e-4), gap, label=name)
+    axes[0].set_xlabel("iteration")
+    axes[1].set_xlabel("time [s]")
+    for ax in axes:
+        ax.set_ylabel("(E − E*) / E*")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
