@@ -204,6 +204,16 @@ def _triangle(outer, holes, points, max_area):
         data["holes"] = np.array([_interior_point(H) for H in holes])
     flags = "pqQ" + (f"a{max_area:.10f}" if max_area else "")
     out = tr.triangulate(data, flags)
+    # a vertex in a single triangle (an "ear" at a sharp corner) is badly constrained by FEM energies:
+    # split such triangles at their centroid
+    for _ in range(3):
+        V, F = out["vertices"], out["triangles"]
+        lone = np.flatnonzero(np.bincount(F.ravel(), minlength=len(V)) == 1)
+        if not len(lone):
+            break
+        ears = F[np.isin(F, lone).any(axis=1)]
+        data["vertices"] = np.vstack([data["vertices"], V[ears].mean(axis=1)])
+        out = tr.triangulate(data, flags)
     return out["vertices"], out["triangles"]
 
 
