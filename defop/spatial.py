@@ -73,7 +73,7 @@ class SpatialBasis:
         X = np.asarray(X, float)
         if self.kind == "hat":
             return X.copy()
-        MX = np.einsum("ij,...jd->...id", self.mass.toarray(), X) if X.ndim == 3 else self.mass @ X
+        MX = self.mass.diagonal()[:, None] * X  # the lumped (diagonal) mass matrix
         return np.einsum("ip,...id->...pd", self.U, MX)
 
     def evaluate(self, A):

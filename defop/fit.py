@@ -1,0 +1,203 @@
+"""The constrained least-squares fit of a DefOp: problem (8) and Appendix A.
+
+Given training configurations Q_k (the rest pose Q_0 = P is always added) and their variational
+deformations X_k = D^E(·, Q_k), find the coefficients C (|Φ| × |Ψ|, one matrix per coordinate) of
+D(·, Q) = U C Ψ(Q) (Eq. 3) that
+
+    minimise   Σ_k ‖X_k − U C Ψ(Q_k)‖²_M                     (8a, the L² norm of Appendix A)
+    subject to U C Ψ(P) = V                                  (8b, the rest pose is reproduced)
+               D(p_h, Q_k) = q_{h,k} for every handle h, k   (8c, the handles are interpolated)
+               C Tᵀ = 0                                       (TPS side conditions)
+
+Solved through its structure, never as one dense system over |Φ|·|Ψ| unknowns:
+
+* (8c) together with (8b) and the side conditions says that the rows W C of the handle vertices
+  (W = U[handles]) equal the coefficients L of the handles' own linear motion (the TPS / polynomial
+  interpolant of linear data is that linear function), so C = W⁺L + (I − W⁺W) Ĉ (for hat functions:
+  the handle rows of C are L);
+* Ĉ solves the row-decoupled problem min ‖B − Ĉ Sᵀ‖² s.t. Ĉ Aᵀ = [a, 0], with S (m × |Ψ|) the
+  samples' Ψ values, A = [Ψ(P)ᵀ; T] and B, a the L²-projections of the data and the rest pose onto Φ.
+  Every row shares the same small |Ψ|-sized constrained least-squares problem, solved once by the
+  null-space method: Ĉ = B Gᵀ + a βᵀ with G (|Ψ| × m) and β (|Ψ|,) from a QR of S N (N a basis of
+  null A). With Φ M-orthonormal (reduced) or hat functions with a lumped M, the M-weighted objective is
+  exactly this row-wise one.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.linalg as sla
+
+from . import handle_bases as hb
+from . import spatial as spatial_mod
+
+
+def solve_structure(S, A, rcond=1e-13):
+    """The shared small problem: G, β with Ĉ = B Gᵀ + a βᵀ for every row.
+
+    Parameters
+    ----------
+    S : (m,q) numpy array
+        Ψ at the samples (the rest pose first).
+    A : (r,q) numpy array
+        Constraint rows: Ψ(P) first, then side conditions.
+
+    Returns
+    -------
+    G : (q,m) numpy array
+    beta : (q,) numpy array
+    rank : int
+        Numerical rank of S N (q − r when the samples determine the fit).
+    """
+    m, q = S.shape
+    # null space of A and the minimum-norm particular solution for the right-hand side e_0 (rest row)
+    Qa, Ra = np.linalg.qr(A.T, mode="complete")  # A.T = Qa[:, :r] Ra[:r]
+    r = A.shape[0]
+    N = Qa[:, r:]  # (q, q - r)
+    alpha = Qa[:, :r] @ sla.solve_triangular(Ra[:r].T, np.eye(r)[:, 0], lower=True)  # A α = e_0
+    SN = S @ N  # (m, q - r)
+    Qs, Rs, piv = sla.qr(SN, mode="economic", pivoting=True)
+    diag = np.abs(np.diag(Rs))
+    rank = int(np.sum(diag > rcond * diag.max())) if len(diag) else 0
+    # y = (SN)^+ rhs (rank-revealing QR, truncated)
+    Rinv_Qt = np.zeros((SN.shape[1], m))
+    Rinv_Qt[piv[:rank]] = sla.solve_triangular(Rs[:rank, :rank], Qs[:, :rank].T)
+    G = N @ Rinv_Qt  # (q, m)
+    beta = alpha - G @ (S @ alpha)
+    return G, beta, rank
+
+
+def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, scale=None, meta=None):
+    """Fit a :class:`defop.operator.DefOp` to sampled deformations: problem (8).
+
+    Parameters
+    ----------
+    mesh : defop.mesh.Mesh
+    handles : (h,) int numpy array
+        Vertex indices of all handles.
+    moving : (h,) bool numpy array
+        Which handles move (the variables of Ψ).
+    samples : (m,n,2) numpy array
+        Q_k, positions of the moving handles (n = moving.sum()).
+    X : (m,n_vertices,2) numpy array
+        D^E(·, Q_k), the variational deformations at the samples.
+    basis : str or defop.handle_bases.HandleBasis
+        ``"linear"``, ``"quadratic"``, ``"cubic"`` or ``"tps"`` (centred at the samples and the rest pose).
+    spatial : str or defop.spatial.SpatialBasis
+        ``"hat"`` or ``"reduced"`` (with ``k`` functions).
+    k : int
+        Size of the reduced spatial basis.
+    scale : float, optional
+        Length normalising handle displacements in Ψ (default: the RMS sample displacement).
+    meta : dict, optional
+        Extra metadata stored with the operator (shape name, energy, ...).
+
+    Returns
+    -------
+    defop : defop.operator.DefOp
+        With ``defop.fit_time`` (seconds for the small structured solve) and ``defop.fold_time``.
+
+    Raises
+    ------
+    ValueError
+        Shapes that do not match, NaN, too few samples for the basis (the message says the minimum),
+        duplicate samples for TPS.
+    """
+    from .operator import DefOp
+
+    handles = np.asarray(handles, dtype=np.int64)
+    moving = np.asarray(moving, dtype=bool)
+    P = mesh.V[handles[moving]]
+    n = len(P)
+    samples = np.asarray(samples, dtype=float)
+    X = np.asarray(X, dtype=float)
+    if samples.ndim != 3 or samples.shape[1:] != (n, 2):
+        raise ValueError(f"samples must have shape (m, {n}, 2) for {n} moving handles, got {samples.shape}")
+    if X.shape != (len(samples), mesh.n_vertices, 2):
+        raise ValueError(
+            f"X must have shape ({len(samples)}, {mesh.n_vertices}, 2), one deformation per sample, got {X.shape}"
+        )
+    if not (np.isfinite(samples).all() and np.isfinite(X).all()):
+        raise ValueError("samples or X contain NaN or infinite values")
+    # the rest pose is always a training sample: D^E(·, P) = identity
+    at_rest = np.abs(samples - P).reshape(len(samples), -1).max(axis=1) <= 1e-14
+    Qs = np.concatenate([P[None], samples[~at_rest]])
+    Xs = np.concatenate([mesh.V[None], X[~at_rest]])
+    m = len(Qs)
+    if scale is None:
+        disp = np.sqrt(np.mean(np.sum((Qs[1:] - P) ** 2, axis=-1))) if m > 1 else 1.0
+        scale = float(disp) if disp > 0 else 1.0
+    if isinstance(basis, str):
+        if basis not in hb.KINDS:
+            raise ValueError(f"unknown handle basis {basis!r}; known: {', '.join(hb.KINDS)}")
+        if basis == "tps":
+            need = 2 * n + 2
+            if m < need:
+                raise ValueError(
+                    f"the tps basis needs at least {need} samples with the rest pose ({need - 1} "
+                    f"besides it) for {n} moving handles, got {m - 1}"
+                )
+        psi = hb.make_basis(basis, P, centers=Qs if basis == "tps" else None, scale=scale)
+    else:
+        psi = basis
+    if m < psi.min_samples():
+        need = psi.min_samples()
+        raise ValueError(
+            f"the {psi.kind} basis (|Ψ| = {psi.size}) needs at least {need} samples with the rest "
+            f"pose ({need - 1} besides it) for {n} moving handles, got {m - 1}"
+        )
+    if isinstance(spatial, str):
+        spatial = spatial_mod.make_spatial(mesh, spatial, k)
+
+    t0 = time.perf_counter()
+    S = psi.evaluate_z(psi.z(Qs))  # (m, q)
+    A = np.vstack([S[:1], psi.side_conditions()])
+    G, beta, rank = solve_structure(S, A)
+    if rank < A.shape[1] - A.shape[0]:
+        raise ValueError(
+            f"the samples do not determine the {psi.kind} basis (rank {rank} < {A.shape[1] - A.shape[0]}): "
+            f"too few or degenerate samples; it needs at least {psi.min_samples() - 1} distinct ones"
+        )
+    fit_time = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    q = psi.size
+    # coefficients of the handles' linear motion, per handle vertex and coordinate: (h, q, 2)
+    L = np.zeros((len(handles), q, 2))
+    mv = np.flatnonzero(moving)
+    for c in range(2):
+        L[~moving, 0, c] = mesh.V[handles[~moving], c]
+        for j, h in enumerate(mv):
+            L[h, :, c] = psi.linear_coefficients(j, c)
+    if spatial.kind == "hat":
+        # W_c = X_c Gᵀ + V_c βᵀ, handle rows replaced by L (exact interpolation, Prop. 2)
+        Wf = np.einsum("kvc,qk->qvc", Xs, G) + np.einsum("vc,q->qvc", mesh.V, beta)
+        Wf[:, handles, :] = np.transpose(L, (1, 0, 2))
+    else:
+        U = spatial.U
+        B = spatial.coefficients(Xs)  # (m, p, 2)
+        a = spatial.coefficients(mesh.V)  # (p, 2)
+        Chat = np.einsum("kpc,qk->pqc", B, G) + np.einsum("pc,q->pqc", a, beta)
+        Wh = U[handles]  # (h, p)
+        Wp = np.linalg.pinv(Wh)  # (p, h)
+        C = Chat + np.einsum("ph,hqc->pqc", Wp, L - np.einsum("hp,pqc->hqc", Wh, Chat))
+        Wf = np.einsum("vp,pqc->qvc", U, C)
+    fold_time = time.perf_counter() - t1
+    meta = dict(meta or {})
+    meta.update(basis=psi.kind, spatial=spatial.kind, spatial_size=spatial.size, n_samples=m - 1)
+    op = DefOp(mesh, handles, moving, psi, Wf.reshape(q, -1), meta=meta, train_samples=Qs)
+    op.fit_time, op.fold_time = fit_time, fold_time
+    return op
+
+
+def fit_shape(shape, samples, X, basis="tps", spatial="hat", k=100, **kw):
+    """:func:`fit` for a :class:`defop.shapes.Shape` (its mesh, handles and moving flags).
+
+    Returns
+    -------
+    defop : defop.operator.DefOp
+    """
+    meta = {"shape": shape.name, **kw.pop("meta", {})}
+    return fit(shape.mesh, shape.handles, shape.moving, samples, X, basis, spatial, k, meta=meta, **kw)

@@ -1,0 +1,293 @@
+"""Handle bases Ψ (§3.1): functions on R^{2n} of the moving handles' positions Q (n,2).
+
+Fixed handles are not variables. Every basis is evaluated on the normalised displacement
+z = (Q − P).ravel() / scale ∈ R^{2n} (P the rest positions of the moving handles), which keeps the
+small systems of the fit well conditioned. Its first 1 + 2n functions are always 1, z_1, ..., z_2n,
+so an operator can reproduce the handles' own (linear) motion exactly (Proposition 2).
+
+| basis | size |
+|---|---|
+| linear | 2n + 1 |
+| quadratic | 1 + 3n + 2n² |
+| cubic | C(2n+3, 3) |
+| thin-plate spline (TPS) | 1 + 2n + m |
+
+The TPS basis adds r² log r centred at each training sample Q_k (m centres); with more functions than
+samples, the fit adds the usual side conditions: the RBF weights sum to zero and are orthogonal to the
+linear part (:meth:`TPSBasis.side_conditions`).
+"""
+
+from __future__ import annotations
+
+import itertools
+from math import comb
+
+import numpy as np
+
+KINDS = ("linear", "quadratic", "cubic", "tps")
+
+
+def _check_Q(Q, n):
+    Q = np.asarray(Q, dtype=float)
+    if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, 2):
+        raise ValueError(f"Q must have shape ({n}, 2) or (k, {n}, 2) for {n} moving handles, got {Q.shape}")
+    if not np.isfinite(Q).all():
+        raise ValueError("Q has NaN or infinite entries")
+    return Q
+
+
+class HandleBasis:
+    """Base class: z-normalisation and validation.
+
+    Parameters
+    ----------
+    P : (n,2) numpy array
+        Rest positions of the moving handles.
+    scale : float
+        Length that normalises displacements (default 1).
+    """
+
+    kind = "base"
+
+    def __init__(self, P, scale=1.0):
+        P = np.asarray(P, dtype=float)
+        if P.ndim != 2 or P.shape[1] != 2 or len(P) == 0:
+            raise ValueError(f"P must have shape (n,2) with n >= 1, got {P.shape}")
+        if not np.isfinite(P).all():
+            raise ValueError("P has NaN or infinite entries")
+        if not np.isfinite(scale) or scale <= 0:
+            raise ValueError(f"scale must be positive, got {scale!r}")
+        self.P = P
+        self.scale = float(scale)
+
+    @property
+    def n_handles(self) -> int:
+        return len(self.P)
+
+    @property
+    def dim(self) -> int:
+        """2n, the dimension of the handle space."""
+        return 2 * len(self.P)
+
+    def z(self, Q):
+        """Normalised displacements (…, 2n) of Q (n,2) or (k,n,2)."""
+        Q = _check_Q(Q, self.n_handles)
+        return ((Q - self.P) / self.scale).reshape(*Q.shape[:-2], self.dim)
+
+    def __call__(self, Q):
+        """Ψ(Q).
+
+        Parameters
+        ----------
+        Q : (n,2) or (k,n,2) numpy array
+
+        Returns
+        -------
+        psi : (|Ψ|,) or (k,|Ψ|) numpy array
+        """
+        z = self.z(Q)
+        out = self.evaluate_z(np.atleast_2d(z))
+        return out[0] if z.ndim == 1 else out
+
+    def side_conditions(self):
+        """Linear conditions T c = 0 on coefficient vectors c (|Ψ|,); none for polynomials.
+
+        Returns
+        -------
+        T : (s,|Ψ|) numpy array
+        """
+        return np.zeros((0, self.size))
+
+    def linear_coefficients(self, handle, coord):
+        """Coefficients of the function Q ↦ Q[handle, coord] (exactly representable).
+
+        Parameters
+        ----------
+        handle : int
+            Moving-handle index.
+        coord : int
+            0 for x, 1 for y.
+
+        Returns
+        -------
+        c : (|Ψ|,) numpy array
+        """
+        c = np.zeros(self.size)
+        c[0] = self.P[handle, coord]
+        c[1 + 2 * handle + coord] = self.scale
+        return c
+
+    def min_samples(self) -> int:
+        """The fewest training samples (rest pose included) the fit needs with this basis."""
+        return self.size
+
+    def params(self):
+        """What is needed to rebuild the basis (for saving)."""
+        return {"kind": self.kind, "P": self.P, "scale": self.scale}
+
+
+class PolynomialBasis(HandleBasis):
+    """All monomials of z up to ``degree`` (degree 1 = linear).
+
+    Parameters
+    ----------
+    P : (n,2) numpy array
+    degree : int
+        1, 2 or 3 (any positive integer works).
+    scale : float
+    """
+
+    def __init__(self, P, degree=1, scale=1.0):
+        super().__init__(P, scale)
+        if int(degree) != degree or degree < 1:
+            raise ValueError(f"degree must be a positive integer, got {degree!r}")
+        self.degree = int(degree)
+        d = self.dim
+        self.monomials = [()] + [
+            m for deg in range(1, self.degree + 1) for m in itertools.combinations_with_replacement(range(d), deg)
+        ]
+        self.kind = {1: "linear", 2: "quadratic", 3: "cubic"}.get(self.degree, f"degree{self.degree}")
+        # evaluation plan: each monomial of degree >= 2 = an earlier monomial times one coordinate
+        index = {m: i for i, m in enumerate(self.monomials)}
+        self._parent = np.array([index[m[:-1]] if len(m) > 1 else 0 for m in self.monomials[1:]])
+        self._factor = np.array([m[-1] for m in self.monomials[1:]])
+
+    @property
+    def size(self) -> int:
+        return comb(self.dim + self.degree, self.degree)
+
+    def evaluate_z(self, z):
+        k = len(z)
+        out = np.empty((k, self.size))
+        out[:, 0] = 1.0
+        for j in range(1, self.size):  # monomials are ordered by degree, parents come first
+            out[:, j] = out[:, self._parent[j - 1]] * z[:, self._factor[j - 1]]
+        return out
+
+    def params(self):
+        return {**super().params(), "degree": self.degree}
+
+
+class LinearBasis(PolynomialBasis):
+    """1, z (size 2n + 1)."""
+
+    def __init__(self, P, scale=1.0):
+        super().__init__(P, 1, scale)
+
+    def evaluate_z(self, z):
+        return np.column_stack([np.ones(len(z)), z])
+
+
+def tps_kernel(r):
+    """φ(r) = r² log r with φ(0) = 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(r > 0, r * r * np.log(np.where(r > 0, r, 1.0)), 0.0)
+
+
+class TPSBasis(HandleBasis):
+    """Thin-plate splines on R^{2n}: 1, z, and φ(‖z − c_k‖) with φ(r) = r² log r at each centre c_k.
+
+    Parameters
+    ----------
+    P : (n,2) numpy array
+    centers : (m,n,2) numpy array
+        The training samples Q_k (the rest pose P included, as the fit does).
+    scale : float
+
+    Raises
+    ------
+    ValueError
+        Duplicate centres, or centres of the wrong shape.
+    """
+
+    kind = "tps"
+
+    def __init__(self, P, centers, scale=1.0):
+        super().__init__(P, scale)
+        C = _check_Q(centers, self.n_handles)
+        if C.ndim != 3:
+            raise ValueError(f"centers must have shape (m, {self.n_handles}, 2), got {C.shape}")
+        self.centers = C
+        self._cz = self.z(C)  # (m, 2n)
+        d2 = np.sum((self._cz[:, None] - self._cz[None]) ** 2, axis=-1)
+        dup = np.argwhere(np.triu(d2 <= (1e-12) ** 2, 1))
+        if len(dup):
+            i, j = dup[0]
+            raise ValueError(f"duplicate TPS centres: samples {i} and {j} are the same handle configuration")
+        self._cz_sq = np.sum(self._cz**2, axis=1)
+
+    @property
+    def size(self) -> int:
+        return 1 + self.dim + len(self.centers)
+
+    def evaluate_z(self, z):
+        r2 = np.maximum(np.sum(z * z, axis=1)[:, None] + self._cz_sq[None] - 2 * z @ self._cz.T, 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            phi = np.where(r2 > 0, 0.5 * r2 * np.log(np.where(r2 > 0, r2, 1.0)), 0.0)  # r² log r = ½ r² log r²
+        return np.column_stack([np.ones(len(z)), z, phi])
+
+    def side_conditions(self):
+        """Σ_k w_k = 0 and Σ_k w_k c_k = 0 for the RBF weights w (the linear part is unconstrained).
+
+        Returns
+        -------
+        T : (1+2n, |Ψ|) numpy array
+        """
+        m = len(self.centers)
+        T = np.zeros((1 + self.dim, self.size))
+        T[:, 1 + self.dim :] = np.column_stack([np.ones(m), self._cz]).T
+        return T
+
+    def min_samples(self) -> int:
+        return self.dim + 2
+
+    def params(self):
+        return {**super().params(), "centers": self.centers}
+
+
+def make_basis(kind, P, centers=None, scale=1.0):
+    """Build Ψ by name.
+
+    Parameters
+    ----------
+    kind : str
+        ``"linear"``, ``"quadratic"``, ``"cubic"`` or ``"tps"``.
+    P : (n,2) numpy array
+        Rest positions of the moving handles.
+    centers : (m,n,2) numpy array
+        TPS centres (the training samples); required for ``"tps"``.
+    scale : float
+
+    Returns
+    -------
+    basis : HandleBasis
+    """
+    if kind == "linear":
+        return LinearBasis(P, scale)
+    if kind == "quadratic":
+        return PolynomialBasis(P, 2, scale)
+    if kind == "cubic":
+        return PolynomialBasis(P, 3, scale)
+    if kind == "tps":
+        if centers is None:
+            raise ValueError("the TPS basis needs centers: the training samples Q_k, shape (m, n, 2)")
+        return TPSBasis(P, centers, scale)
+    raise ValueError(f"unknown handle basis {kind!r}; known: {', '.join(KINDS)}")
+
+
+def basis_size(kind, n, m=None):
+    """|Ψ| for n moving handles (and m TPS centres).
+
+    Returns
+    -------
+    size : int
+    """
+    if kind == "linear":
+        return 2 * n + 1
+    if kind == "quadratic":
+        return 1 + 3 * n + 2 * n * n
+    if kind == "cubic":
+        return comb(2 * n + 3, 3)
+    if kind == "tps":
+        return 1 + 2 * n + m
+    raise ValueError(f"unknown handle basis {kind!r}; known: {', '.join(KINDS)}")

@@ -1,0 +1,81 @@
+"""Handle bases Ψ: sizes, linear reproduction, TPS side conditions, bad input."""
+
+from __future__ import annotations
+
+from math import comb
+
+import numpy as np
+import pytest
+
+from defop import handle_bases as hb
+
+P = np.array([[0.0, 0.0], [1.0, 0.5], [0.3, 1.2]])
+
+
+@pytest.mark.parametrize("n", [1, 2, 5])
+def test_sizes(n):
+    Pn = np.random.default_rng(0).normal(size=(n, 2))
+    C = Pn + np.random.default_rng(1).normal(size=(7, n, 2))
+    assert hb.make_basis("linear", Pn).size == 2 * n + 1
+    assert hb.make_basis("quadratic", Pn).size == 1 + 3 * n + 2 * n * n
+    assert hb.make_basis("cubic", Pn).size == comb(2 * n + 3, 3)
+    assert hb.make_basis("tps", Pn, C).size == 1 + 2 * n + 7
+    for kind in hb.KINDS:
+        b = hb.make_basis(kind, Pn, C)
+        assert b.size == hb.basis_size(kind, n, 7)
+        assert b(Pn + 0.1).shape == (b.size,) and b(C).shape == (7, b.size)
+
+
+def test_first_functions_are_one_and_the_displacements():
+    Q = P + [[0.1, -0.2], [0.0, 0.3], [0.5, 0.5]]
+    for kind in hb.KINDS:
+        b = hb.make_basis(kind, P, P[None] + np.random.default_rng(2).normal(size=(6, 3, 2)), scale=2.0)
+        psi = b(Q)
+        assert psi[0] == 1.0 and np.allclose(psi[1:7], (Q - P).ravel() / 2.0)
+        for j in range(3):
+            for c in range(2):
+                assert b.linear_coefficients(j, c) @ psi == pytest.approx(Q[j, c])
+
+
+def test_monomials_are_products():
+    b = hb.make_basis("cubic", P[:1])  # z in R^2: 1, z1, z2, z1², z1z2, z2², z1³, z1²z2, z1z2², z2³
+    z = np.array([0.5, -2.0])
+    expect = [
+        1,
+        z[0],
+        z[1],
+        z[0] ** 2,
+        z[0] * z[1],
+        z[1] ** 2,
+        z[0] ** 3,
+        z[0] ** 2 * z[1],
+        z[0] * z[1] ** 2,
+        z[1] ** 3,
+    ]
+    assert np.allclose(b(P[:1] + z), expect)
+
+
+def test_tps_kernel_and_side_conditions():
+    C = P[None] + np.random.default_rng(3).normal(size=(5, 3, 2))
+    b = hb.TPSBasis(P, C)
+    psi = b(C[2])
+    r = np.linalg.norm((C[2] - C).reshape(5, -1), axis=1)
+    assert np.allclose(psi[7:], hb.tps_kernel(r)) and psi[7 + 2] == 0.0
+    T = b.side_conditions()
+    assert T.shape == (7, b.size) and np.all(T[:, :7] == 0)
+    # weights w with T w = 0: sum to zero and orthogonal to the centres' linear part
+    assert np.allclose(T[0, 7:], 1) and np.allclose(T[1:, 7:].T, b.z(C))
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="duplicate TPS centres: samples 0 and 2"):
+        hb.TPSBasis(P, np.stack([P + 1, P + 2, P + 1]))
+    b = hb.make_basis("quadratic", P)
+    with pytest.raises(ValueError, match=r"Q must have shape \(3, 2\) or \(k, 3, 2\)"):
+        b(np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="NaN"):
+        b(np.full((3, 2), np.nan))
+    with pytest.raises(ValueError, match="unknown handle basis 'rbf'"):
+        hb.make_basis("rbf", P)
+    with pytest.raises(ValueError, match="needs centers"):
+        hb.make_basis("tps", P)
