@@ -784,7 +784,9 @@ class HandleEditor:
         plotter.render()
 
     def _refresh_3d(self):
-        image = np.asarray(dop.render.render_mesh(self.X, self.mesh.F))
+        image = np.asarray(
+            dop.render.render_mesh(self.mesh, self.X, handles=self.shape.handles, moving=self.shape.moving)
+        )
         buffer = io.BytesIO()
         plt.imsave(buffer, image, format="png")
         self._static_3d.value = buffer.getvalue()
