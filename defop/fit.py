@@ -37,34 +37,63 @@ from . import spatial as spatial_mod
 def solve_structure(S, A, rcond=1e-13):
     """The shared small problem: G, β with Ĉ = B Gᵀ + a βᵀ for every row.
 
+    Null-space method: with A = [Ψ(P)ᵀ; T], Qa = [Q1 Q2] from a Householder QR of Aᵀ (kept in
+    factored form and applied with LAPACK's ``ormqr``: the |Ψ| × |Ψ| matrix is never formed), every
+    row is c = α a + Q2 y with A α = e_0 and y the least-squares solution of (S Q2) y = b − S α a.
+    The rest pose (row 0 of S) is already fixed by the constraint, so rows 1.. carry the data; when
+    S[1:] Q2 is square (the TPS case: one function per sample) it is solved by LU, otherwise by a
+    rank-revealing QR.
+
     Parameters
     ----------
     S : (m,q) numpy array
         Ψ at the samples (the rest pose first).
     A : (r,q) numpy array
         Constraint rows: Ψ(P) first, then side conditions.
+    rcond : float
+        Relative threshold for the numerical rank.
 
     Returns
     -------
     G : (q,m) numpy array
     beta : (q,) numpy array
     rank : int
-        Numerical rank of S N (q − r when the samples determine the fit).
+        Numerical rank of S[1:] Q2 (q − r when the samples determine the fit).
     """
     m, q = S.shape
-    # null space of A and the minimum-norm particular solution for the right-hand side e_0 (rest row)
-    Qa, Ra = np.linalg.qr(A.T, mode="complete")  # A.T = Qa[:, :r] Ra[:r]
     r = A.shape[0]
-    N = Qa[:, r:]  # (q, q - r)
-    alpha = Qa[:, :r] @ sla.solve_triangular(Ra[:r].T, np.eye(r)[:, 0], lower=True)  # A α = e_0
-    SN = S @ N  # (m, q - r)
-    Qs, Rs, piv = sla.qr(SN, mode="economic", pivoting=True)
-    diag = np.abs(np.diag(Rs))
-    rank = int(np.sum(diag > rcond * diag.max())) if len(diag) else 0
-    # y = (SN)^+ rhs (rank-revealing QR, truncated)
-    Rinv_Qt = np.zeros((SN.shape[1], m))
-    Rinv_Qt[piv[:rank]] = sla.solve_triangular(Rs[:rank, :rank], Qs[:, :rank].T)
-    G = N @ Rinv_Qt  # (q, m)
+    qr_raw, tau = sla.qr(A.T, mode="raw")[0]
+    Rr = np.triu(qr_raw[:r, :r])
+
+    def apply_Q(C, side, trans):
+        lwork = max(1, 64 * max(C.shape))
+        out, _, info = sla.lapack.dormqr(side, trans, qr_raw, tau, np.asfortranarray(C), lwork)
+        if info != 0:  # pragma: no cover
+            raise RuntimeError(f"LAPACK dormqr failed with info={info}")
+        return out
+
+    e0 = np.zeros(q)
+    e0[:r] = sla.solve_triangular(Rr.T, np.eye(r)[:, 0], lower=True)
+    alpha = apply_Q(e0[:, None], "L", "N")[:, 0]  # A α = e_0, minimum norm
+    SQ = apply_Q(S, "R", "N")  # S Qa
+    SN = SQ[1:, r:]  # (m-1, q-r): data rows in null-space coordinates
+    qq = q - r
+    Y = np.zeros((qq, m))  # y = Y (b - S α a): maps the m data values to null-space coordinates
+    rank = 0
+    if SN.shape[0] == qq:
+        lu, piv = sla.lu_factor(SN, check_finite=False)
+        rc = sla.lapack.dgecon(lu, np.linalg.norm(SN, 1), norm="1")[0]
+        if rc > rcond:
+            Y[:, 1:] = sla.lu_solve((lu, piv), np.eye(qq), check_finite=False)
+            rank = qq
+    if rank == 0:
+        Qs, Rs, pv = sla.qr(SN, mode="economic", pivoting=True)
+        diag = np.abs(np.diag(Rs))
+        rank = int(np.sum(diag > rcond * diag.max())) if len(diag) else 0
+        Y[pv[:rank], 1:] = sla.solve_triangular(Rs[:rank, :rank], Qs[:, :rank].T)
+    Z = np.zeros((q, m))
+    Z[r:] = Y
+    G = apply_Q(Z, "L", "N")  # (q, m) = Q2 Y
     beta = alpha - G @ (S @ alpha)
     return G, beta, rank
 
