@@ -107,6 +107,8 @@ def region_outlines(center, region, P=None, index=None, n=96):
     kind = region["kind"]
     if kind in ("disc", "circle"):
         return [(c + region["radius"] * unit, "-" if kind == "disc" else "--")]
+    if kind == "ellipse":
+        return [(c + unit * np.asarray(region["axes"], float), "-")]
     if kind == "gaussian":
         return [(c + region["sigma"] * unit, "--"), (c + 2 * region["sigma"] * unit, ":")]
     if kind == "voronoi":
@@ -232,15 +234,27 @@ def plot_deformation(ax, shape, X, highlight_flips=True, title=None, edges=True,
     if highlight_flips:
         flipped = mesh.flipped(X)
         if flipped.any():
-            ax.tripcolor(X[:, 0], X[:, 1], mesh.F[flipped], facecolors=np.zeros(flipped.sum()),
-                         cmap=_single(flip_color), zorder=3)
+            ax.tripcolor(
+                X[:, 0],
+                X[:, 1],
+                mesh.F[flipped],
+                facecolors=np.zeros(flipped.sum()),
+                cmap=_single(flip_color),
+                zorder=3,
+            )
             if zoom_flips:
                 c = X[mesh.F[np.flatnonzero(flipped)[0]]].mean(axis=0)
                 r = 0.04 * mesh.bbox_diagonal
                 ins = ax.inset_axes([0.62, 0.02, 0.36, 0.36])
                 plot_mesh(ins, mesh.V, mesh.F, X, edges=True, lw=0.5)
-                ins.tripcolor(X[:, 0], X[:, 1], mesh.F[flipped], facecolors=np.zeros(flipped.sum()),
-                              cmap=_single(flip_color), zorder=3)
+                ins.tripcolor(
+                    X[:, 0],
+                    X[:, 1],
+                    mesh.F[flipped],
+                    facecolors=np.zeros(flipped.sum()),
+                    cmap=_single(flip_color),
+                    zorder=3,
+                )
                 plot_handles(ins, X, shape.handles, shape.moving, size=15)
                 ins.set_xlim(c[0] - r, c[0] + r)
                 ins.set_ylim(c[1] - r, c[1] + r)

@@ -44,6 +44,8 @@ def sample_region(rng, region, center, m, P=None, index=None):
     c = np.asarray(center, float)
     if kind == "disc":
         return c + _disc(rng, m, region["radius"])
+    if kind == "ellipse":
+        return c + _disc(rng, m, 1.0) * np.asarray(region["axes"], float)
     if kind == "circle":
         t = rng.uniform(0, 2 * np.pi, size=m)
         return c + region["radius"] * np.column_stack([np.cos(t), np.sin(t)])
