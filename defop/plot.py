@@ -291,3 +291,56 @@ def plot_convergence(axes, results, E_star=None, labels=None):
         ax.set_ylabel("(E − E*) / E*")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
+
+
+def plot_outline(ax, mesh, X, color="k", lw=1.0, ls="-", **kw):
+    """Draw the boundary loops of a deformed mesh (e.g. the ground truth over an approximation).
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    mesh : defop.mesh.Mesh
+    X : (n,2) numpy array
+    """
+    for loop in mesh.boundary_loops():
+        P = X[np.append(loop, loop[0])]
+        ax.plot(P[:, 0], P[:, 1], color=color, lw=lw, ls=ls, **kw)
+
+
+def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2):
+    """Rows = operators, columns = handle configurations; each panel: D(·, Q) filled, ground truth outlined.
+
+    Parameters
+    ----------
+    shape : defop.shapes.Shape
+    Q : (k,n,2) numpy array
+    X_true : (k,n_vertices,2) numpy array
+    operators : dict of str -> DefOp
+    titles : list of str, optional
+        Column titles.
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    k = len(Q)
+    rows = len(operators)
+    fig, axes = plt.subplots(rows, k, figsize=(size * k, 0.9 * size * rows), squeeze=False)
+    allX = np.concatenate([X_true.reshape(-1, 2)] + [op(Q).reshape(-1, 2) for op in operators.values()])
+    lo, hi = allX.min(axis=0), allX.max(axis=0)
+    pad = 0.05 * (hi - lo).max()
+    for r, (name, op) in enumerate(operators.items()):
+        D = op(Q)
+        for c in range(k):
+            ax = axes[r, c]
+            plot_mesh(ax, shape.mesh.V, shape.mesh.F, D[c], edges=False)
+            plot_outline(ax, shape.mesh, X_true[c], lw=0.8)
+            plot_handles(ax, D[c], shape.handles, shape.moving, size=12)
+            ax.set_xlim(lo[0] - pad, hi[0] + pad)
+            ax.set_ylim(lo[1] - pad, hi[1] + pad)
+            if c == 0:
+                ax.text(-0.02, 0.5, name, transform=ax.transAxes, rotation=90, ha="right", va="center", fontsize=10)
+            if r == 0 and titles is not None:
+                ax.set_title(titles[c], fontsize=8)
+    fig.tight_layout()
+    return fig

@@ -210,8 +210,13 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
 
 
 def _warm_starts(op, samples, mesh, energy):
+    from .operator import ExtrapolationWarning
+
     starts = []
-    for X in op(samples):
+    with warnings.catch_warnings():  # a warm start may extrapolate: the solver corrects it
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        predictions = op(samples)
+    for X in predictions:
         starts.append(None if en.is_barrier(energy) and np.any(mesh.flipped(X)) else X)
     return starts
 
