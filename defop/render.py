@@ -93,9 +93,7 @@ def probe(window: str, timeout: float = 60.0) -> bool:
     env = dict(os.environ, VTK_DEFAULT_OPENGL_WINDOW=window)
     env.pop("DISPLAY", None)
     try:
-        res = subprocess.run(
-            [sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=timeout
-        )
+        res = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return False
     return res.returncode == 0 and "ok" in res.stdout
@@ -319,3 +317,55 @@ if __name__ != "__main__":
         configure_headless()
     except RuntimeError:
         pass
+
+
+def render_height_fields(xs, ys, fields, titles=None, window_size=(1200, 450), screenshot=None, cmap="coolwarm"):
+    """PyVista height-field surfaces z = f(x, y) side by side (off-screen), e.g. trajectories (Fig. 3, 5).
+
+    Parameters
+    ----------
+    xs : (nx,) numpy array
+    ys : (ny,) numpy array
+        Grid coordinates (handle displacements).
+    fields : list of (ny,nx) numpy array
+        One surface per subplot; all share one vertical scale.
+    titles : list of str, optional
+    window_size : (2,) tuple
+    screenshot : path, optional
+        Also write a PNG.
+    cmap : str
+
+    Returns
+    -------
+    img : (H,W,3) uint8 numpy array
+    """
+    pv = _pyvista()
+    X, Y = np.meshgrid(xs, ys)
+    span = max(np.ptp(xs), np.ptp(ys))
+    zmax = max(float(np.abs(f).max()) for f in fields) or 1.0
+    scale = 0.5 * span / zmax
+    plotter = pv.Plotter(off_screen=True, shape=(1, len(fields)), window_size=tuple(window_size), border=False)
+    try:
+        for k, f in enumerate(fields):
+            plotter.subplot(0, k)
+            plotter.set_background("white")
+            surf = pv.StructuredGrid(X, Y, np.asarray(f) * scale)
+            surf["value"] = np.asarray(f).ravel(order="F")
+            plotter.add_mesh(
+                surf,
+                scalars="value",
+                cmap=cmap,
+                clim=(-zmax, zmax),
+                show_edges=True,
+                edge_color="#333333",
+                line_width=0.3,
+                show_scalar_bar=False,
+            )
+            if titles:
+                plotter.add_text(titles[k], font_size=10, color="black")
+            plotter.camera_position = "iso"
+            plotter.reset_camera(bounds=surf.bounds)
+        img = plotter.screenshot(filename=None if screenshot is None else str(screenshot), return_img=True)
+    finally:
+        plotter.close()
+    return np.asarray(img)
