@@ -16,8 +16,8 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --upgrade --quiet pip
-	$(BIN)/python -m pip install --quiet -e ".[test,notebook,dask,dev]"
-	$(BIN)/python -m defop doctor
+	$(BIN)/python -m pip install --quiet -e ".[test,notebook,dask,dev,browser]"
+	$(BIN)/python -m defop doctor --browser
 	touch $(STAMP)
 
 figures: $(STAMP)

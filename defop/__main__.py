@@ -17,6 +17,7 @@ def main(argv=None):
     fig.add_argument("--timeout", type=float, default=3600, help="per-cell timeout in seconds")
     doc = sub.add_parser("doctor", help="check (and, as root on Debian, install) what headless rendering needs")
     doc.add_argument("--no-install", action="store_true")
+    doc.add_argument("--browser", action="store_true", help="also make sure chromium is there (browser test)")
     args = parser.parse_args(argv)
 
     if args.command == "figures":
@@ -33,6 +34,10 @@ def main(argv=None):
         from .render import configure_headless, ensure_system_packages
 
         print("defop doctor:", ensure_system_packages(install=not args.no_install))
+        if args.browser:
+            from .render import ensure_chromium
+
+            print("defop doctor:", ensure_chromium(install=not args.no_install))
         try:
             print("defop doctor: off-screen window:", configure_headless() or "on-screen display")
         except RuntimeError as exc:

@@ -167,6 +167,29 @@ def ensure_system_packages(install: bool = True) -> str:
     return f"no off-screen OpenGL library found. Run as root:  {APT_LINE}"
 
 
+def ensure_chromium(install=True):
+    """Make sure Debian's chromium exists for the browser end-to-end test (apt-get as root).
+
+    Parameters
+    ----------
+    install : bool
+
+    Returns
+    -------
+    message : str
+    """
+    line = "apt-get install -y --no-install-recommends chromium"
+    if shutil.which("chromium") or shutil.which("chromium-browser"):
+        return f"chromium found at {shutil.which('chromium') or shutil.which('chromium-browser')}"
+    can_apt = shutil.which("apt-get") is not None and hasattr(os, "geteuid") and os.geteuid() == 0
+    if install and can_apt:
+        subprocess.run(["apt-get", "update", "-qq"], check=False)
+        res = subprocess.run(line.split(), check=False)
+        if res.returncode == 0 and shutil.which("chromium"):
+            return "installed chromium"
+    return f"no chromium: the browser test will be skipped. Run as root:  {line}"
+
+
 def _pyvista():
     configure_headless()
     import pyvista as pv
