@@ -13,7 +13,7 @@ def main(argv=None):
     fig.add_argument("--only", nargs="*", help="notebook name patterns, e.g. 00_shapes or '0[12]_*'")
     fig.add_argument("--fast", action="store_true", help="CI-sized runs (DEFOP_FAST=1); outputs are not stored")
     fig.add_argument("--no-store", action="store_true", help="do not write outputs back into the notebooks")
-    fig.add_argument("--clean", action="store_true", help="delete figures/*.png first")
+    fig.add_argument("--clean", action="store_true", help="a clean run: delete the figures and the cache first")
     fig.add_argument("--timeout", type=float, default=3600, help="per-cell timeout in seconds")
     doc = sub.add_parser("doctor", help="check (and, as root on Debian, install) what headless rendering needs")
     doc.add_argument("--no-install", action="store_true")

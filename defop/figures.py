@@ -100,7 +100,8 @@ def regenerate(only=None, fast=False, store=None, timeout=3600, clean=False, log
     timeout : float
         Per-cell timeout in seconds.
     clean : bool
-        Delete ``figures/*.png`` first.
+        A clean run: delete the figures and empty the cache of ground truths and operators
+        (``DEFOP_CACHE``) first, so everything is recomputed.
     log : callable
 
     Returns
@@ -113,8 +114,18 @@ def regenerate(only=None, fast=False, store=None, timeout=3600, clean=False, log
     render.configure_headless()  # exported to the kernels through the environment
     FIGURES.mkdir(exist_ok=True)
     if clean:
-        for f in FIGURES.glob("*.png"):
-            f.unlink()
+        for pattern in ("*.png", "table1.*"):
+            for f in FIGURES.glob(pattern):
+                f.unlink()
+        from .config import cache_dir
+
+        folder = cache_dir()
+        if folder is not None:
+            removed = 0
+            for f in list(folder.glob("gt-*.npz")) + list(folder.glob("op-*.npz")) + list(folder.glob("traj-*")):
+                f.unlink()
+                removed += 1
+            log(f"clean run: removed the figures and {removed} cached results from {folder}")
     report = []
     for path in notebooks(only):
         before = {f: f.stat().st_mtime for f in FIGURES.glob("*")}
