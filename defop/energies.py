@@ -165,6 +165,25 @@ def _psi(energy, s1, s2, mu=0.0):
     raise AssertionError  # pragma: no cover
 
 
+def _psi_value(energy, s1, s2, mu=0.0, both=False):
+    """ψ alone (no derivatives), for line searches; ``both=True`` returns (ψ_μ, ψ) for S-ARAP."""
+    if energy == "arap":
+        psi = (s1 - 1) ** 2 + (s2 - 1) ** 2
+        return (psi, psi) if both else psi
+    ok = s2 > 0
+    t1 = np.where(ok, s1, 1.0)
+    t2 = np.where(ok, s2, 1.0)
+    if energy == "sarap":
+        f = (t1 - 1) ** 2 + (1 / t2 - 1) ** 2
+        g = (t2 - 1) ** 2 + (1 / t1 - 1) ** 2
+        a, b = (f + g) / 2, (f - g) / 2
+        exact = np.where(ok, a + np.abs(b), np.inf)  # = Eq. (11): with Σ ≥ σ > 0, f ≥ g
+        smooth = np.where(ok, a + np.sqrt(b * b + mu * mu) - mu, np.inf) if mu > 0 else exact
+        return (smooth, exact) if both else smooth
+    psi = np.where(ok, t1**2 + t2**2 + t1**-2 + t2**-2, np.inf)
+    return (psi, psi) if both else psi
+
+
 def density(J, energy, mu=0.0):
     """ψ(J_t) per triangle.
 
@@ -180,8 +199,8 @@ def density(J, energy, mu=0.0):
         +inf on flipped triangles for the barrier energies.
     """
     check_energy(energy)
-    _, S, _ = signed_svd(J)
-    return _psi(energy, S[:, 0], S[:, 1], mu)[0]
+    S = _svd_frame(J)[0]
+    return _psi_value(energy, S[:, 0], S[:, 1], mu)
 
 
 def gradient(J, energy, mu=0.0):
@@ -204,6 +223,82 @@ def gradient(J, energy, mu=0.0):
     return psi, np.matmul(U * np.stack([p1, p2], -1)[:, None, :], np.swapaxes(V, 1, 2))
 
 
+def _svd_frame(J):
+    """Signed singular values and the rotation/reflection frame of 2×2 matrices, without trigonometry.
+
+    With α = φ+θ and β = φ−θ the angles of :func:`signed_svd` (U = R(φ), Vᵀ = R(θ)), every
+    U diag(d1, d2) Vᵀ = (d1+d2)/2 · R(α) + (d1−d2)/2 · R(β)Z, Z = diag(1, −1); R(α) and R(β)Z are
+    read off J directly: cos α = E/|(E,H)|, sin α = H/|(E,H)|, cos β = F/|(F,G)|, sin β = G/|(F,G)|.
+
+    Returns
+    -------
+    S : (m,2) numpy array
+        Σ ≥ |σ|, σ < 0 when det J < 0.
+    ca, sa, cb, sb : (m,) numpy arrays
+        cos α, sin α, cos β, sin β (β = 0 for conformal J, where it is arbitrary).
+    """
+    J = np.asarray(J, dtype=float)
+    a, b, c, d = J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1]
+    E, F, G, H = (a + d) / 2, (a - d) / 2, (c + b) / 2, (c - b) / 2
+    Qn, Rn = np.hypot(E, H), np.hypot(F, G)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ca = np.where(Qn > 0, E / Qn, 1.0)
+        sa = np.where(Qn > 0, H / Qn, 0.0)
+        cb = np.where(Rn > 0, F / Rn, 1.0)
+        sb = np.where(Rn > 0, G / Rn, 0.0)
+    return np.stack([Qn + Rn, Qn - Rn], axis=-1), ca, sa, cb, sb
+
+
+def eigensystem(J, energy, project=True, mu=0.0):
+    """ψ, ∂ψ/∂J and the analytic eigensystem of the Hessian ∂²ψ/∂vec(J)² per triangle.
+
+    The eigenmatrices (Smith, de Goes & Kim 2019), orthonormal in vec(J) = [J00, J01, J10, J11]:
+    the two scaling modes U diag(cos γ, sin γ) Vᵀ and U diag(−sin γ, cos γ) Vᵀ (γ diagonalises the
+    2×2 Hessian of ψ in (Σ, σ)), the twist U[[0,−1],[1,0]]Vᵀ/√2 and the flip U[[0,1],[1,0]]Vᵀ/√2.
+
+    Parameters
+    ----------
+    J : (m,2,2) numpy array
+    energy : str
+    project : bool
+        Clamp negative eigenvalues to zero (PSD).
+    mu : float
+        S-ARAP smoothing (see :func:`_psi_sarap_smooth`).
+
+    Returns
+    -------
+    psi : (m,) numpy array
+    grad : (m,4) numpy array
+        vec(∂ψ/∂J).
+    lam : (m,4) numpy array
+        Eigenvalues (scaling, scaling, twist, flip); non-finite ones are set to 0.
+    modes : (m,4,4) numpy array
+        ``modes[t, :, k]`` is the k-th unit eigenvector, vec of the eigenmatrix.
+    """
+    check_energy(energy)
+    S, ca, sa, cb, sb = _svd_frame(J)
+    psi, p1, p2, p11, p22, p12, twist, flip = _psi(energy, S[:, 0], S[:, 1], mu)
+    r = 1 / np.sqrt(2)
+    e_rot = np.stack([ca, -sa, sa, ca], axis=-1) * r  # vec R(α)/√2
+    e_ref = np.stack([cb, sb, sb, -cb], axis=-1) * r  # vec R(β)Z/√2
+    e_twist = np.stack([-sa, -ca, ca, -sa], axis=-1) * r  # vec R(α+90°)/√2
+    e_flip = np.stack([-sb, cb, cb, sb], axis=-1) * r  # vec R(β+90°)Z/√2
+    grad = ((p1 + p2) * r)[:, None] * e_rot + ((p1 - p2) * r)[:, None] * e_ref
+    # scaling modes: closed-form eigen-decomposition of the 2x2 Hessian [[ψ11, ψ12], [ψ12, ψ22]] in (Σ, σ)
+    p11, p22, p12 = (np.where(np.isfinite(x), x, 0.0) for x in (p11, p22, p12))
+    mean, half = (p11 + p22) / 2, (p11 - p22) / 2
+    rad = np.hypot(half, p12)
+    ang = 0.5 * np.arctan2(2 * p12, p11 - p22)
+    c, s_ = np.cos(ang), np.sin(ang)
+    s1 = ((c + s_) * r)[:, None] * e_rot + ((c - s_) * r)[:, None] * e_ref  # U diag(c, s) Vᵀ
+    s2 = ((c - s_) * r)[:, None] * e_rot - ((c + s_) * r)[:, None] * e_ref  # U diag(−s, c) Vᵀ
+    lam = np.stack([mean + rad, mean - rad, np.where(np.isfinite(twist), twist, -np.inf), flip], axis=-1)
+    if project:
+        lam = np.maximum(lam, 0.0)
+    lam = np.where(np.isfinite(lam), lam, 0.0)
+    return psi, grad, lam, np.stack([s1, s2, e_twist, e_flip], axis=-1)
+
+
 def hessian(J, energy, project=True, mu=0.0):
     """ψ, ∂ψ/∂J and the (projected) Hessian ∂²ψ/∂vec(J)² per triangle.
 
@@ -219,38 +314,11 @@ def hessian(J, energy, project=True, mu=0.0):
     psi : (m,) numpy array
     dpsi : (m,2,2) numpy array
     H : (m,4,4) numpy array
-        In row-major vec(J) = [J00, J01, J10, J11].
+        In row-major vec(J) = [J00, J01, J10, J11]; assembled from :func:`eigensystem`.
     """
-    check_energy(energy)
-    U, S, V = signed_svd(J)
-    psi, p1, p2, p11, p22, p12, twist, flip = _psi(energy, S[:, 0], S[:, 1], mu)
-    m = len(J)
-    Vt = np.swapaxes(V, 1, 2)
-    grad = np.matmul(U * np.stack([p1, p2], -1)[:, None, :], Vt)
-    m = len(J)
-    # scaling modes: closed-form eigen-decomposition of the 2x2 Hessian [[ψ11, ψ12], [ψ12, ψ22]] in (Σ, σ)
-    p11, p22, p12 = (np.where(np.isfinite(x), x, 0.0) for x in (p11, p22, p12))
-    mean, half = (p11 + p22) / 2, (p11 - p22) / 2
-    rad = np.hypot(half, p12)
-    ang = 0.5 * np.arctan2(2 * p12, p11 - p22)
-    c, s_ = np.cos(ang), np.sin(ang)
-    lams = [mean + rad, mean - rad, np.where(np.isfinite(twist), twist, -np.inf), flip]
-    r = 1 / np.sqrt(2)
-    twist_m = np.array([[0.0, -r], [r, 0.0]])
-    flip_m = np.array([[0.0, r], [r, 0.0]])
-    mats = [
-        np.matmul(U * np.stack([c, s_], -1)[:, None, :], Vt),
-        np.matmul(U * np.stack([-s_, c], -1)[:, None, :], Vt),
-        U @ twist_m @ Vt,
-        U @ flip_m @ Vt,
-    ]
-    lam = np.stack(lams, axis=-1)  # (m,4)
-    if project:
-        lam = np.maximum(lam, 0.0)
-    lam = np.where(np.isfinite(lam), lam, 0.0)
-    Dm = np.stack([D.reshape(m, 4) for D in mats], axis=-1)  # (m,4,4): columns are the eigenmatrices
-    H = np.matmul(Dm * lam[:, None, :], np.swapaxes(Dm, 1, 2))
-    return psi, grad, H
+    psi, grad, lam, modes = eigensystem(J, energy, project, mu)
+    H = np.matmul(modes * lam[:, None, :], np.swapaxes(modes, 1, 2))
+    return psi, grad.reshape(-1, 2, 2), H
 
 
 def total_energy(mesh, X, energy, mu=0.0):

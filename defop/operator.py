@@ -160,7 +160,7 @@ class DefOp:
         -------
         X : (n_vertices,2) numpy array
         """
-        psi = self.handle_basis.evaluate_z(((Q - self.handle_basis.P) / self.handle_basis.scale).reshape(1, -1))[0]
+        psi = self.handle_basis.evaluate_one(((Q - self.handle_basis.P) / self.handle_basis.scale).ravel())
         if self.factors is None:
             return (psi @ self.W).reshape(-1, 2)
         A, B = self.factors

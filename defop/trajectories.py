@@ -413,8 +413,15 @@ def ground_truth_trajectories(
         cfile = cdir / "trajectories" / _cache_key(shape, grid, energy, mode, moving, path, solver_kw, solve_kw)
         if cfile.exists():
             with np.load(cfile) as z:
-                return Trajectory(grid=grid, X=z["X"], rest=shape.mesh.V.copy(), kind=mode,
-                                  converged=z["converged"], energy=z["energy"], path=path)
+                return Trajectory(
+                    grid=grid,
+                    X=z["X"],
+                    rest=shape.mesh.V.copy(),
+                    kind=mode,
+                    converged=z["converged"],
+                    energy=z["energy"],
+                    path=path,
+                )
 
     Qm = _moving_batch(grid, len(P_moving), moving, P_moving)
     targets = np.stack([shape.targets(q) for q in Qm])  # (k, h, 2)

@@ -79,3 +79,13 @@ def test_bad_input():
         hb.make_basis("rbf", P)
     with pytest.raises(ValueError, match="needs centers"):
         hb.make_basis("tps", P)
+
+
+@pytest.mark.parametrize("kind", ["linear", "quadratic", "cubic", "tps"])
+def test_evaluate_one_fast_path_matches_call(kind):
+    rng = np.random.default_rng(3)
+    P = rng.standard_normal((4, 2))
+    C = P + 0.3 * rng.standard_normal((30, 4, 2))
+    b = hb.make_basis(kind, P, centers=C if kind == "tps" else None, scale=0.7)
+    for Q in (C[5], P + 0.1, P):  # a centre (r = 0), a generic point, the rest pose
+        assert np.allclose(b.evaluate_one(b.z(Q)), b(Q), rtol=0, atol=1e-12)

@@ -14,8 +14,12 @@ import defop as dop
 
 def test_render_mesh_offscreen_is_not_blank(grid, tmp_path):
     img = dop.render.render_mesh(
-        grid, X=grid.V * [1.0, 1.5], handles=np.array([0, 44]), moving=np.array([True, False]),
-        window_size=(200, 150), screenshot=tmp_path / "m.png",
+        grid,
+        X=grid.V * [1.0, 1.5],
+        handles=np.array([0, 44]),
+        moving=np.array([True, False]),
+        window_size=(200, 150),
+        screenshot=tmp_path / "m.png",
     )
     assert img.shape == (150, 200, 3)
     white = np.all(img > 245, axis=-1)

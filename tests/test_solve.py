@@ -42,7 +42,9 @@ def test_barrier_energies_far_move_is_flip_free(energy):
     assert res.converged and res.flips == 0 and np.isfinite(res.energy)
     assert np.array_equal(res.X[s.handles], T)  # hard constraints, exactly
     assert "continuation" in res.reason
-    assert np.all(np.diff(res.energy_history[-5:]) <= 1e-12 * res.energy)  # monotone at the end
+    # monotone at the end: Newton descends E_μ, and E − μ·ΣA ≤ E_μ ≤ E bounds how much the true E may rise
+    slack = solver.mu_schedule[-1] * s.mesh.areas.sum() + 1e-12 * res.energy
+    assert np.all(np.diff(res.energy_history[-5:]) <= slack)
 
 
 def test_arap_folds_where_sarap_does_not():
