@@ -160,6 +160,16 @@ class PolynomialBasis(HandleBasis):
         index = {m: i for i, m in enumerate(self.monomials)}
         self._parent = np.array([index[m[:-1]] if len(m) > 1 else 0 for m in self.monomials[1:]])
         self._factor = np.array([m[-1] for m in self.monomials[1:]])
+        # the same plan vectorised by degree: the monomials of degree d are contiguous, parents of lower degree
+        deg = np.array([len(m) for m in self.monomials])
+        self._by_degree = [
+            (
+                slice(int(np.argmax(deg == g)), int(np.argmax(deg == g)) + int(np.sum(deg == g))),
+                self._parent[deg[1:] == g],
+                self._factor[deg[1:] == g],
+            )
+            for g in range(1, self.degree + 1)
+        ]
 
     @property
     def size(self) -> int:
@@ -169,8 +179,8 @@ class PolynomialBasis(HandleBasis):
         k = len(z)
         out = np.empty((k, self.size))
         out[:, 0] = 1.0
-        for j in range(1, self.size):  # monomials are ordered by degree, parents come first
-            out[:, j] = out[:, self._parent[j - 1]] * z[:, self._factor[j - 1]]
+        for cols, parent, factor in self._by_degree:  # one vectorised step per degree, parents first
+            out[:, cols] = out[:, parent] * z[:, factor]
         return out
 
     def params(self):
