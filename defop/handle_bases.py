@@ -234,25 +234,40 @@ class TPSBasis(HandleBasis):
             i, j = dup[0]
             raise ValueError(f"duplicate TPS centres: samples {i} and {j} are the same handle configuration")
         self._cz_sq = np.sum(self._cz**2, axis=1)
+        self._cz_m2 = -2.0 * self._cz
 
     @property
     def size(self) -> int:
         return 1 + self.dim + len(self.centers)
 
     def evaluate_z(self, z):
-        r2 = np.maximum(np.sum(z * z, axis=1)[:, None] + self._cz_sq[None] - 2 * z @ self._cz.T, 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            phi = np.where(r2 > 0, 0.5 * r2 * np.log(np.where(r2 > 0, r2, 1.0)), 0.0)  # r² log r = ½ r² log r²
-        return np.column_stack([np.ones(len(z)), z, phi])
+        k, d = len(z), self.dim
+        out = np.empty((k, self.size))
+        out[:, 0] = 1.0
+        out[:, 1 : 1 + d] = z
+        r2 = z @ self._cz_m2.T  # −2 z·c, then + |z|² + |c|²
+        r2 += np.sum(z * z, axis=1)[:, None]
+        r2 += self._cz_sq[None]
+        r2[r2 <= 0] = 1.0  # at a centre (or rounded below 0): ½·1·log 1 = 0 = φ(0), exactly
+        phi = np.log(r2)
+        phi *= r2
+        phi *= 0.5  # r² log r = ½ r² log r²
+        out[:, 1 + d :] = phi
+        return out
 
     def evaluate_one(self, z):
         # one configuration: a matrix-vector product and one log over the centres (4x fewer temporaries)
         out = np.empty(self.size)
         out[0] = 1.0
         out[1 : 1 + self.dim] = z
-        r2 = self._cz_sq - 2 * (self._cz @ z) + z @ z
-        np.maximum(r2, 1e-300, out=r2)  # φ(0) = 0: ½·1e-300·log(1e-300) underflows to 0
-        out[1 + self.dim :] = 0.5 * r2 * np.log(r2)
+        phi = out[1 + self.dim :]
+        r2 = self._cz_m2 @ z  # −2 c·z
+        r2 += self._cz_sq
+        r2 += z @ z
+        r2[r2 <= 0] = 1.0  # at a centre (or rounded below 0): ½·1·log 1 = 0 = φ(0), exactly
+        np.log(r2, out=phi)
+        phi *= r2
+        phi *= 0.5
         return out
 
     def side_conditions(self):

@@ -146,7 +146,7 @@ class DefOp:
             out = psi @ self.W
         else:
             A, B = self.factors
-            out = (psi @ A) @ B
+            out = ((psi.astype(A.dtype) @ A) @ B).astype(np.float64)
         return out.reshape(*Q.shape[:-2], self.n_vertices, 2)
 
     def evaluate_fast(self, Q):
@@ -164,10 +164,10 @@ class DefOp:
         if self.factors is None:
             return (psi @ self.W).reshape(-1, 2)
         A, B = self.factors
-        return ((psi @ A) @ B).reshape(-1, 2)
+        return ((psi.astype(A.dtype) @ A) @ B).astype(np.float64).reshape(-1, 2)
 
     # ------------------------------------------------------------------ compression
-    def compress(self, rank=None, tol=1e-3):
+    def compress(self, rank=None, tol=1e-3, dtype=np.float32):
         """Replace W by a truncated SVD factor W ≈ A B for speed.
 
         Parameters
@@ -177,6 +177,10 @@ class DefOp:
         tol : float
             Without ``rank``: keep the fewest singular values whose discarded part is at most ``tol``
             times ‖W‖_F (relative).
+        dtype : numpy dtype
+            Storage of A and B. A frame is a matrix–vector product over B (rank × 2·n_vertices) that is
+            memory-bound, so float32 halves its time (aleph: 42 → 21 µs); its rounding (~1e-7
+            relative) is far below the truncation's. Results are returned in float64.
 
         Returns
         -------
@@ -187,7 +191,10 @@ class DefOp:
             tail = np.sqrt(np.concatenate([np.cumsum((s**2)[::-1])[::-1][1:], [0.0]]))
             rank = int(np.argmax(tail <= tol * np.linalg.norm(s))) + 1
         rank = max(1, min(int(rank), len(s)))
-        self.factors = (np.ascontiguousarray(U[:, :rank] * s[:rank]), np.ascontiguousarray(Vt[:rank]))
+        self.factors = (
+            np.ascontiguousarray(U[:, :rank] * s[:rank], dtype=dtype),
+            np.ascontiguousarray(Vt[:rank], dtype=dtype),
+        )
         self.meta["rank"] = rank
         return self
 

@@ -37,6 +37,23 @@ def test_compression_is_controlled(op_and_data):
     assert np.array_equal(op(Q), exact)
 
 
+def test_compressed_factors_are_float32_and_results_float64(op_and_data, tmp_path):
+    s, op, Q, _ = op_and_data
+    exact = op(Q[:3])
+    op.compress(tol=1e-6)
+    try:
+        assert all(f.dtype == np.float32 for f in op.factors)
+        fast, batch = op.evaluate_fast(Q[1]), op(Q[:3])
+        assert fast.dtype == batch.dtype == np.float64
+        assert np.allclose(fast, batch[1], rtol=0, atol=1e-6 * s.mesh.bbox_diagonal)
+        assert np.abs(batch - exact).max() <= 1e-5 * s.mesh.bbox_diagonal
+        op.save(tmp_path / "c.npz")
+        back = DefOp.load(tmp_path / "c.npz")
+        assert back.factors[1].dtype == np.float32 and np.array_equal(back(Q[:3]), batch)
+    finally:
+        op.decompress()
+
+
 def test_save_load_round_trip(op_and_data, tmp_path):
     s, op, Q, _ = op_and_data
     op.save(tmp_path / "op.npz")
