@@ -88,3 +88,13 @@ def test_bad_shapes_and_nan(data):
         dop.fit.fit_shape(s, Qtr, bad, "linear")
     with pytest.raises(ValueError, match="duplicate TPS centres"):
         dop.fit.fit_shape(s, np.concatenate([Qtr, Qtr[:1]]), np.concatenate([Xtr, Xtr[:1]]), "tps")
+
+
+def test_fit_time_is_the_fastest_refit_and_needs_ground_truth():
+    s = dop.shapes.load("bar")
+    Q = dop.sampling.sample_shape(s, 6, np.random.default_rng(1))
+    X = np.array([s.mesh.V + 0.01 * k for k in range(6)])  # any data: only the timing is under test
+    t = dop.analysis.fit_time(s, Q, X, "linear", repeats=3)
+    assert 0 < t < 10
+    with pytest.raises(ValueError, match="needs the ground truths"):
+        dop.analysis.fit_time(s, Q, None, "linear")
