@@ -98,6 +98,70 @@ def solve_structure(S, A, rcond=1e-13):
     return G, beta, rank
 
 
+def solve_structure_tps(S, d):
+    """:func:`solve_structure` for TPS interpolation (centres = the samples), through a symmetric system.
+
+    With as many centres as samples the fit interpolates: K w + P p = y, Pᵀ w = 0, where K is the
+    (symmetric) kernel matrix φ(‖z_k − z_j‖) and P = [1, z_k]. With a Householder QR P = [Qp Qn][R; 0],
+    w = Qn v and H v = Qnᵀ y for H = Qnᵀ K Qn, which is positive definite because r² log r is
+    conditionally positive definite of order 2 (in any dimension). So: a Cholesky factorisation and
+    inverse of H (LAPACK potrf/potri, about a third of the work of the general LU-and-solve); the 1 + d
+    Householder reflectors enter in compact WY form, as rank-(1 + d) updates; and R p = Qpᵀ (y − K w).
+
+    Parameters
+    ----------
+    S : (m,q) numpy array
+        Ψ at the samples, q = 1 + d + m: columns 1, z (d), then φ at the m centres (the samples, same order).
+    d : int
+        Dimension of z (2 × moving handles).
+
+    Returns
+    -------
+    G, beta, rank : as :func:`solve_structure`, or None when H is not numerically positive definite
+        (the caller falls back to the general method).
+    """
+    m, q = S.shape
+    r = 1 + d
+    K = S[:, r:]
+    qr_raw, tau = sla.qr(S[:, :r], mode="raw")[0]
+    Rp = np.triu(qr_raw[:r, :r])
+    # compact WY form of the r Householder reflectors: [Qp Qn] = I − U Vᵀ with U = V T (LAPACK's dlarft)
+    V = np.tril(qr_raw[:, :r], -1)
+    V[np.arange(r), np.arange(r)] = 1.0
+    T = np.zeros((r, r))
+    for i in range(r):
+        T[i, i] = tau[i]
+        T[:i, i] = -tau[i] * (T[:i, :i] @ (V[:, :i].T @ V[:, i]))
+    U = V @ T
+    Vr = V[r:]  # rows r.. of V: Qn = E − U Vrᵀ with E = [0; I]
+    KU = K @ U
+    UKU = U.T @ KU
+    # H = Qnᵀ K Qn, by rank-r updates of K's trailing block (no m x m products)
+    H = K[r:, r:] - KU[r:] @ Vr.T - Vr @ KU[r:].T + Vr @ UKU @ Vr.T
+    c, info = sla.lapack.dpotrf(H, lower=0, overwrite_a=1)
+    if info != 0:
+        return None
+    Hi, info = sla.lapack.dpotri(c, lower=0, overwrite_c=1)
+    if info != 0:  # pragma: no cover
+        return None
+    Hi = np.triu(Hi) + np.triu(Hi, 1).T
+    # Wm = Qn H⁻¹ Qnᵀ (y ↦ w): expand (E − U Vrᵀ) H⁻¹ (E − U Vrᵀ)ᵀ
+    B = Vr.T @ Hi  # (r, m − r)
+    UB = U @ B
+    Wm = U @ (B @ Vr) @ U.T
+    Wm[r:, r:] += Hi
+    Wm[:, r:] -= UB
+    Wm[r:, :] -= UB.T
+    # p = R⁻¹ Qpᵀ (y − K w) with Qp = E0 − U V[:r]ᵀ
+    Qp = -U @ V[:r].T
+    Qp[np.arange(r), np.arange(r)] += 1.0
+    Pm = sla.solve_triangular(Rp, Qp.T - (Qp.T @ K) @ Wm)
+    M = np.vstack([Pm, Wm])  # (q, m): y ↦ c = [p; w]
+    beta = M[:, 0].copy()  # the rest pose's value
+    M[:, 0] = 0.0
+    return M, beta, m - 1
+
+
 def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, scale=None, meta=None):
     """Fit a :class:`defop.operator.DefOp` to sampled deformations: problem (8).
 
@@ -183,7 +247,10 @@ def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, sc
     t0 = time.perf_counter()
     S = psi.evaluate_z(psi.z(Qs))  # (m, q)
     A = np.vstack([S[:1], psi.side_conditions()])
-    G, beta, rank = solve_structure(S, A)
+    fast = None
+    if psi.kind == "tps" and S.shape[1] == 1 + psi.dim + len(S):  # interpolation: the symmetric TPS system
+        fast = solve_structure_tps(S, psi.dim)
+    G, beta, rank = fast if fast is not None else solve_structure(S, A)
     if rank < A.shape[1] - A.shape[0]:
         raise ValueError(
             f"the samples do not determine the {psi.kind} basis (rank {rank} < {A.shape[1] - A.shape[0]}): "

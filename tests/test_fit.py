@@ -98,3 +98,21 @@ def test_fit_time_is_the_fastest_refit_and_needs_ground_truth():
     assert 0 < t < 10
     with pytest.raises(ValueError, match="needs the ground truths"):
         dop.analysis.fit_time(s, Q, None, "linear")
+
+
+def test_symmetric_tps_path_equals_the_general_null_space_method():
+    """TPS interpolation through the positive definite H = Qnᵀ K Qn gives the same G, β as the LU path."""
+    from defop import fit as F
+    from defop import handle_bases as hb
+
+    rng = np.random.default_rng(4)
+    P = rng.standard_normal((3, 2))
+    Qs = np.concatenate([P[None], P + 0.3 * rng.standard_normal((40, 3, 2))])
+    psi = hb.make_basis("tps", P, centers=Qs, scale=0.5)
+    S = psi.evaluate_z(psi.z(Qs))
+    A = np.vstack([S[:1], psi.side_conditions()])
+    G1, b1, r1 = F.solve_structure(S, A)
+    G2, b2, r2 = F.solve_structure_tps(S, psi.dim)
+    assert r1 == r2 == len(Qs) - 1
+    assert np.abs(G1 - G2).max() <= 1e-9 * np.abs(G1).max()
+    assert np.abs(b1 - b2).max() <= 1e-9 * np.abs(b1).max()
