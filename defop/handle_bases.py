@@ -197,6 +197,14 @@ class LinearBasis(PolynomialBasis):
         return np.column_stack([np.ones(len(z)), z])
 
 
+def _tps_phi(r2, out):
+    """φ = r² log r = ½ r² log r² from squared distances ``r2`` (overwritten), written into ``out``."""
+    r2[r2 <= 0] = 1.0  # at a centre (or rounded below 0): ½·1·log 1 = 0 = φ(0), exactly
+    np.log(r2, out=out)
+    out *= r2
+    out *= 0.5
+
+
 def tps_kernel(r):
     """φ(r) = r² log r with φ(0) = 0."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -246,28 +254,20 @@ class TPSBasis(HandleBasis):
         out[:, 0] = 1.0
         out[:, 1 : 1 + d] = z
         r2 = z @ self._cz_m2.T  # −2 z·c, then + |z|² + |c|²
-        r2 += np.sum(z * z, axis=1)[:, None]
-        r2 += self._cz_sq[None]
-        r2[r2 <= 0] = 1.0  # at a centre (or rounded below 0): ½·1·log 1 = 0 = φ(0), exactly
-        phi = np.log(r2)
-        phi *= r2
-        phi *= 0.5  # r² log r = ½ r² log r²
-        out[:, 1 + d :] = phi
+        r2 += np.einsum("ij,ij->i", z, z)[:, None]
+        r2 += self._cz_sq
+        _tps_phi(r2, out[:, 1 + d :])
         return out
 
     def evaluate_one(self, z):
-        # one configuration: a matrix-vector product and one log over the centres (4x fewer temporaries)
+        # one configuration: a matrix-vector product and one log over the centres, no batch temporaries
         out = np.empty(self.size)
         out[0] = 1.0
         out[1 : 1 + self.dim] = z
-        phi = out[1 + self.dim :]
-        r2 = self._cz_m2 @ z  # −2 c·z
+        r2 = self._cz_m2 @ z
         r2 += self._cz_sq
         r2 += z @ z
-        r2[r2 <= 0] = 1.0  # at a centre (or rounded below 0): ½·1·log 1 = 0 = φ(0), exactly
-        np.log(r2, out=phi)
-        phi *= r2
-        phi *= 0.5
+        _tps_phi(r2, out[1 + self.dim :])
         return out
 
     def side_conditions(self):

@@ -219,18 +219,9 @@ class Solver:
     # ------------------------------------------------------------------ precomputation
     def _precompute_pattern(self):
         mesh = self.mesh
-        F, D = mesh.F, mesh.local_gradients  # D (m,3,2): ∇φ_i per triangle
+        F = mesh.F
         m = len(F)
-        # B_t (4 x 6): vec(J)[2a+b] = Σ_i X[F_i, a] D[i, b]; local dof 2i+c
-        B = np.zeros((m, 4, 6))
-        for a in range(2):
-            for b in range(2):
-                for i in range(3):
-                    B[:, 2 * a + b, 2 * i + a] = D[:, i, b]
-        self._B = B
-        self._Bt = np.ascontiguousarray(np.swapaxes(B, 1, 2))
         dofs = np.stack([2 * F, 2 * F + 1], axis=-1).reshape(m, 6)  # local dof 2i+c -> global
-        self._dofs = dofs
         rows = np.repeat(dofs, 6, axis=1).ravel()
         cols = np.tile(dofs, (1, 6)).ravel()
         ndof = 2 * mesh.n_vertices
@@ -580,8 +571,7 @@ def solve_lbfgs(mesh, handles, targets, energy="sarap", X0=None, tol=1e-10, max_
     def fun(X):
         psi, dpsi = en.gradient(mesh.jacobians(X), energy)
         E = float(mesh.areas @ psi)
-        g_loc = np.matmul((mesh.areas[:, None] * dpsi.reshape(-1, 4))[:, None, :], solver._B)[:, 0]
-        g = np.bincount(solver._dofs.ravel(), weights=g_loc.ravel(), minlength=2 * mesh.n_vertices)
+        g = mesh.jacobian_operator.T @ (mesh.areas[:, None] * dpsi.reshape(-1, 4)).ravel()  # as in Newton
         return E, g[free]
 
     E, g = fun(X)
