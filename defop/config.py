@@ -3,8 +3,10 @@
 ``DEFOP_FAST=1``
     Fast mode for CI: notebooks shrink sample counts but keep their claims.
 ``DEFOP_CACHE``
-    Directory of the on-disk cache of trained operators and sampled ground
-    truths (default: ``~/.cache/defop``). ``DEFOP_CACHE=off`` disables it.
+    Directory of the on-disk cache of trained operators, sampled ground truths and trajectories
+    (default: ``~/.cache/defop``; see :mod:`defop.cache`). ``DEFOP_CACHE=off`` disables it. A value
+    naming a file or a directory that cannot be created or written raises ``ValueError`` when a
+    computation starts, before any work is done.
 ``DEFOP_N_JOBS``
     Default number of parallel workers for sample solves (default: all cores).
 """
@@ -12,9 +14,12 @@
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 __all__ = ["fast_mode", "cache_dir", "n_jobs", "pick"]
+
+_OFF = ("off", "0", "none", "false", "no")
 
 
 def fast_mode() -> bool:
@@ -28,16 +33,51 @@ def pick(full, fast):
 
 
 def cache_dir() -> Path | None:
-    """The cache directory (created on demand), or None when caching is off."""
+    """The cache directory (created on demand and checked writable), or None when caching is off.
+
+    Raises
+    ------
+    ValueError
+        ``DEFOP_CACHE`` names a file, a directory that cannot be created, or one this process cannot
+        write to (the message names ``DEFOP_CACHE`` and the path).
+    """
     value = os.environ.get("DEFOP_CACHE", "").strip()
-    if value.lower() in ("off", "0", "none", "false"):
+    if value.lower() in _OFF:
         return None
     path = Path(value).expanduser() if value else Path.home() / ".cache" / "defop"
-    path.mkdir(parents=True, exist_ok=True)
+    source = f"DEFOP_CACHE={value!r}" if value else "the default DEFOP_CACHE"
+    hint = "set DEFOP_CACHE to a writable directory, or DEFOP_CACHE=off to disable the cache"
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{source}: {path} is not a directory; {hint}")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        why = exc.strerror or exc
+        raise ValueError(f"{source}: cannot create the cache directory {path} ({why}); {hint}") from exc
+    try:  # a real write: os.access says yes to root on a read-only directory
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        why = exc.strerror or exc
+        raise ValueError(f"{source}: cannot write to the cache directory {path} ({why}); {hint}") from exc
     return path
 
 
 def n_jobs() -> int:
-    """Default worker count for joblib: ``DEFOP_N_JOBS`` or every core (-1)."""
+    """Default worker count for joblib: ``DEFOP_N_JOBS`` or every core (-1).
+
+    Raises
+    ------
+    ValueError
+        ``DEFOP_N_JOBS`` is not a non-zero integer.
+    """
     value = os.environ.get("DEFOP_N_JOBS", "").strip()
-    return int(value) if value else -1
+    if not value:
+        return -1
+    try:
+        jobs = int(value)
+    except ValueError:
+        jobs = 0
+    if jobs == 0:
+        raise ValueError(f"DEFOP_N_JOBS={value!r} must be a non-zero integer (-1: every core)")
+    return jobs

@@ -11,22 +11,24 @@ Stages, each timed in the :class:`TrainingRecord`:
 
 Sample solves run in parallel with joblib on every core by default (``DEFOP_N_JOBS``), through
 whatever joblib backend is active, so ``with joblib.parallel_backend("dask"):`` runs them on a Dask
-cluster. Ground truths and trained operators are cached on disk (``DEFOP_CACHE``), keyed by a hash of
-everything that determines them, so notebooks and figures never retrain.
+cluster. Ground truths and trained operators are cached on disk (``DEFOP_CACHE``, :mod:`defop.cache`),
+keyed by a hash of everything that determines them (the solver's settings and the library version
+included), so notebooks and figures never retrain.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import time
 import warnings
 
 import numpy as np
 
+from . import _options as opt
+from . import cache as cache_mod
 from . import config
 from . import energies as en
+from . import handle_bases as hb
 from .fit import fit
 from .operator import DefOp
 from .sampling import sample_shape
@@ -65,15 +67,87 @@ class TrainingRecord:
         return float(sum(self.stage_times.values()))
 
 
-def _hash(*parts):
-    h = hashlib.sha1()
-    for p in parts:
-        if isinstance(p, np.ndarray):
-            h.update(np.ascontiguousarray(p).tobytes())
-            h.update(str(p.shape).encode())
-        else:
-            h.update(json.dumps(p, sort_keys=True, default=str).encode())
-    return h.hexdigest()[:20]
+def _check_samples(shape, samples, name="samples"):
+    """(m,n,2) float array of configurations of the shape's n moving handles, finite, m >= 1."""
+    samples = np.asarray(samples, float)
+    n = shape.n_moving
+    if samples.ndim != 3 or samples.shape[1:] != (n, 2) or len(samples) == 0:
+        raise ValueError(f"{name} must have shape (m, {n}, 2), m >= 1, for {n} moving handles, got {samples.shape}")
+    if not np.isfinite(samples).all():
+        raise ValueError(f"{name} has NaN or infinite entries")
+    return samples
+
+
+def min_samples(basis, n):
+    """The fewest samples Q_k (besides the rest pose) :func:`train` needs for a handle basis.
+
+    Parameters
+    ----------
+    basis : str
+        ``"linear"``, ``"quadratic"``, ``"cubic"`` or ``"tps"``.
+    n : int
+        Number of moving handles.
+
+    Returns
+    -------
+    int
+        |Ψ| - 1 for the polynomial bases (``fit`` adds the rest pose), 2n + 1 for TPS.
+    """
+    opt.choice("handle basis", basis, hb.KINDS)
+    return 2 * n + 1 if basis == "tps" else hb.basis_size(basis, n) - 1
+
+
+def _check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds):
+    """Validate :func:`train`'s options before any work; returns (m, samples or None)."""
+    opt.choice("handle basis", basis, hb.KINDS)
+    opt.choice("spatial basis", spatial, ("hat", "reduced"))
+    if spatial == "reduced":
+        opt.integer("k", k, minimum=1)
+    opt.seed(seed)
+    opt.n_jobs(n_jobs)
+    opt.integer("rounds", rounds, minimum=1)
+    if samples is not None:
+        samples = _check_samples(shape, samples)
+        m, given = len(samples), "given samples"
+    else:
+        m = opt.integer("m", DEFAULT_M if m is None else m, minimum=1)
+        given = f"m = {m}"
+    need = min_samples(basis, shape.n_moving)
+    if m < need:
+        raise ValueError(
+            f"the {basis} handle basis needs at least {need} samples Q_k besides the rest pose for "
+            f"{shape.n_moving} moving handles, got {given}"
+        )
+    return m, samples
+
+
+def _solver_key(shape, energy):
+    """The settings of the solver :func:`solve_samples` uses, for the cache keys."""
+    return cache_mod.solver_settings(Solver(shape.mesh, shape.handles, energy))
+
+
+def _gt_expect(m, n_vertices):
+    return {"X": ((m, n_vertices, 2), "f"), "converged": ((m,), "b")}
+
+
+def _load_gt(store, key, m, n_vertices):
+    """(X, converged, meta) of a cached ground truth, or None."""
+    entry = None if store is None else store.load("gt", key, _gt_expect(m, n_vertices))
+    return None if entry is None else (entry[0]["X"], entry[0]["converged"], entry[1])
+
+
+def _operator_reader(shape):
+    """``DefOp.load`` plus the checks that the cached operator belongs to ``shape``."""
+
+    def read(path):
+        op = DefOp.load(path)
+        if op.mesh.V.shape != shape.mesh.V.shape or not np.array_equal(op.handles, shape.handles):
+            raise cache_mod.CorruptEntry("the operator does not match the shape's mesh and handles")
+        if not np.isfinite(op.W).all():
+            raise cache_mod.CorruptEntry("the operator's coefficients have NaN or infinite entries")
+        return op
+
+    return read
 
 
 def _solve_chunk(solver, targets, starts):
@@ -125,8 +199,12 @@ def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress
     """
     from joblib import Parallel, delayed
 
-    samples = np.asarray(samples, float)
+    en.check_energy(energy)
+    samples = _check_samples(shape, samples)
+    n_jobs = opt.n_jobs(n_jobs)
     m = len(samples)
+    if X0 is not None and len(X0) != m:
+        raise ValueError(f"X0 must give one warm start (or None) per sample: {len(X0)} for {m} samples")
     targets = [shape.targets(q) for q in samples]
     starts = list(X0) if X0 is not None else [None] * m
     solver = Solver(shape.mesh, shape.handles, energy)
@@ -159,23 +237,31 @@ def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress
 
 
 def sample_ground_truth(shape, samples, energy="sarap", X0=None, n_jobs=None, progress=True, cache=True):
-    """:func:`solve_samples` with an on-disk cache keyed by mesh, handles, energy and samples.
+    """:func:`solve_samples` with an on-disk cache (:mod:`defop.cache`).
+
+    The key holds the mesh, the handles, the energy, the solver's settings and the samples. The warm
+    starts ``X0`` are not in the key: they only choose among local minima the solver accepts.
 
     Returns
     -------
     X : (m,n_vertices,2) numpy array
     converged : (m,) bool numpy array
     """
-    samples = np.asarray(samples, float)
-    key = _hash("gt", shape.mesh.V, shape.mesh.F, shape.handles, shape.moving, energy, samples)
-    folder = config.cache_dir() if cache else None
-    path = None if folder is None else folder / f"gt-{key}.npz"
-    if path is not None and path.exists():
-        with np.load(path) as z:
-            return z["X"], z["converged"]
+    en.check_energy(energy)
+    samples = _check_samples(shape, samples)
+    opt.n_jobs(n_jobs)
+    store = cache_mod.open_cache(cache)
+    key = None
+    if store is not None:
+        mesh = shape.mesh
+        settings = _solver_key(shape, energy)
+        key = cache_mod.key("gt", mesh.V, mesh.F, shape.handles, shape.moving, energy, settings, samples)
+        hit = _load_gt(store, key, len(samples), mesh.n_vertices)
+        if hit is not None:
+            return hit[0], hit[1]
     X, conv = solve_samples(shape, samples, energy, X0, n_jobs, progress)
-    if path is not None:
-        np.savez(path, X=X, converged=conv)
+    if store is not None:
+        store.store("gt", key, {"X": X, "converged": conv})
     return X, conv
 
 
@@ -203,6 +289,13 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
     X : (m,n_vertices,2) numpy array
     converged : (m,) bool numpy array
     """
+    en.check_energy(energy)
+    m = opt.integer("m", m, minimum=1)
+    opt.seed(seed)
+    opt.n_jobs(n_jobs)
+    if like is not None and not callable(like):
+        raise ValueError(f"like must be a trained operator (a DefOp) or None, got {type(like).__name__}")
+    cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
     Q = sample_shape(shape, m, np.random.default_rng(seed))
     X, conv = sample_ground_truth(shape, Q, energy, None, n_jobs, progress, cache)
     if like is not None:
@@ -278,11 +371,10 @@ def train(
     record : TrainingRecord
     """
     en.check_energy(energy)
+    m, samples = _check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds)
+    store = cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
     if samples is None:
-        m = DEFAULT_M if m is None else m
         samples = sample_shape(shape, m, np.random.default_rng(seed))
-    samples = np.asarray(samples, float)
-    m = len(samples)
     params = dict(
         shape=shape.name,
         energy=energy,
@@ -293,28 +385,28 @@ def train(
         seed=seed,
         rounds=rounds,
     )
-    gt_key = _hash("gt-train", shape.mesh.V, shape.mesh.F, shape.handles, shape.moving, energy, samples, rounds)
-    op_key = _hash(gt_key, basis, spatial, params["k"])
-    folder = config.cache_dir() if cache else None
+    mesh = shape.mesh
+    gt_key = op_key = None
+    if store is not None:
+        settings = _solver_key(shape, energy)
+        gt_key = cache_mod.key(
+            "gt-train", mesh.V, mesh.F, shape.handles, shape.moving, energy, settings, samples, rounds
+        )
+        op_key = cache_mod.key("op", gt_key, basis, spatial, params["k"])
     times = {}
-    if folder is not None and (folder / f"op-{op_key}.npz").exists():
-        t0 = time.perf_counter()
-        op = DefOp.load(folder / f"op-{op_key}.npz")
+    t0 = time.perf_counter()
+    op = None if store is None else store.load_with("op", op_key, _operator_reader(shape))
+    if op is not None:
         times["load"] = time.perf_counter() - t0
-        gt = folder / f"gt-{gt_key}.npz"
-        X = conv = None
-        if gt.exists():
-            with np.load(gt) as z:
-                X, conv = z["X"], z["converged"]
+        gt = _load_gt(store, gt_key, m, mesh.n_vertices)
+        X, conv = (None, None) if gt is None else gt[:2]
         return op, TrainingRecord(samples, X, conv, times, "operator", params)
 
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
-    gt_path = None if folder is None else folder / f"gt-{gt_key}.npz"
-    if gt_path is not None and gt_path.exists():
-        with np.load(gt_path) as z:
-            X, conv = z["X"], z["converged"]
-            if "times" in z:  # how long the cached solves took when they ran
-                times.update(json.loads(str(z["times"])))
+    gt = _load_gt(store, gt_key, m, mesh.n_vertices)
+    if gt is not None:
+        X, conv = gt[0], gt[1]
+        times.update(gt[2].get("times", {}))  # how long the cached solves took when they ran
         cache_state = "ground truth"
     else:
         cache_state = "none"
@@ -340,8 +432,8 @@ def train(
             better = np.array([solver.energy_of(a) < solver.energy_of(b) for a, b in zip(X2, X)])
             X[better], conv[better] = X2[better], c2[better]
         times["solve"] = time.perf_counter() - t0
-        if gt_path is not None:
-            np.savez(gt_path, X=X, converged=conv, times=np.array(json.dumps(times)))
+        if store is not None:
+            store.store("gt", gt_key, {"X": X, "converged": conv}, meta={"times": times})
     if not conv.all():
         warnings.warn(
             f"{int((~conv).sum())} of {m} sample solves did not converge; they are used as they are",
@@ -353,6 +445,6 @@ def train(
     times["fit"] = op.fit_time
     times["fold"] = time.perf_counter() - t0 - op.fit_time
     op.meta["stage_times"] = dict(times)  # kept with the cached operator (Table 1's preprocess column)
-    if folder is not None:
-        op.save(folder / f"op-{op_key}.npz")
+    if store is not None:
+        store.store_with("op", op_key, op.save)
     return op, TrainingRecord(samples, X, conv, times, cache_state, params)

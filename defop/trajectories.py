@@ -26,8 +26,6 @@ Everything here is pure computation; drawing lives in ``defop.plot`` / ``defop.r
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import warnings
 from dataclasses import dataclass, field
@@ -36,6 +34,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from . import _options as opt
+from . import cache as cache_mod
 from . import config
 
 __all__ = [
@@ -291,15 +291,17 @@ def _solve_chunk(solver, targets_list, solve_kw):
     return [_solve_one(solver, t, None, solve_kw) for t in targets_list]
 
 
-def _cache_key(shape, grid, energy, mode, moving, path, solver_kw, solve_kw):
-    h = hashlib.sha1()
+def _cache_key(shape, grid, energy, mode, moving, path, solver, solve_kw):
+    """Key of a ground-truth trajectory: mesh, handles, grid, path and every solver setting."""
     arrays = (shape.mesh.V, shape.mesh.F, np.asarray(shape.handles), np.asarray(shape.moving))
-    for a in arrays + (grid.center, grid.xs, grid.ys):
-        h.update(np.ascontiguousarray(a).tobytes())
-    if path is not None:
-        h.update(np.ascontiguousarray(path).tobytes())
-    h.update(json.dumps([energy, mode, int(moving), solver_kw, solve_kw], sort_keys=True, default=str).encode())
-    return f"traj-{mode}-{energy}-{h.hexdigest()[:16]}.npz"
+    path = np.zeros((0, 2), np.int64) if path is None else np.asarray(path, np.int64)
+    settings = cache_mod.solver_settings(solver)
+    return cache_mod.key("traj", *arrays, grid.center, grid.xs, grid.ys, path, energy, mode, moving, settings, solve_kw)
+
+
+def _trajectory_expect(grid, n_vertices):
+    ny, nx = grid.shape
+    return {"X": ((ny, nx, n_vertices, 2), "f"), "energy": ((ny, nx), "f"), "converged": ((ny, nx), "b")}
 
 
 def _harmonic_weight(mesh, handles, moving_vertex):
@@ -391,6 +393,14 @@ def ground_truth_trajectories(
     """
     if mode not in ("global", "local"):
         raise ValueError(f"mode must be 'global' or 'local', got {mode!r}")
+    if not isinstance(grid, HandleGrid):
+        raise ValueError(f"grid must be a HandleGrid (see handle_grid), got {type(grid).__name__}")
+    from .energies import check_energy
+
+    check_energy(energy)
+    moving = opt.integer("moving", moving, minimum=0)
+    opt.n_jobs(n_jobs)
+    store = cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
     solver_kw = dict(solver_kw or {})
     solve_kw = dict(solve_kw or {})
     ny, nx = grid.shape
@@ -407,27 +417,27 @@ def ground_truth_trajectories(
             f"grid.center {grid.center} is not the rest position {P_moving[moving]} of moving handle {moving}"
         )
 
-    cdir = config.cache_dir() if cache else None
-    cfile = None
-    if cdir is not None:
-        cfile = cdir / "trajectories" / _cache_key(shape, grid, energy, mode, moving, path, solver_kw, solve_kw)
-        if cfile.exists():
-            with np.load(cfile) as z:
-                return Trajectory(
-                    grid=grid,
-                    X=z["X"],
-                    rest=shape.mesh.V.copy(),
-                    kind=mode,
-                    converged=z["converged"],
-                    energy=z["energy"],
-                    path=path,
-                )
+    solver = _solver_for(shape, energy, solver_kw)
+    n = shape.mesh.n_vertices
+    key = None
+    if store is not None:
+        key = _cache_key(shape, grid, energy, mode, moving, path, solver, solve_kw)
+        hit = store.load("traj", key, _trajectory_expect(grid, n))
+        if hit is not None:
+            z = hit[0]
+            return Trajectory(
+                grid=grid,
+                X=z["X"],
+                rest=shape.mesh.V.copy(),
+                kind=mode,
+                converged=z["converged"],
+                energy=z["energy"],
+                path=path,
+            )
 
     Qm = _moving_batch(grid, len(P_moving), moving, P_moving)
     targets = np.stack([shape.targets(q) for q in Qm])  # (k, h, 2)
     hidx = int(np.flatnonzero(shape.moving)[moving])  # row of the moving handle in `targets`
-    solver = _solver_for(shape, energy, solver_kw)
-    n = shape.mesh.n_vertices
     X = np.empty((ny * nx, n, 2))
     E = np.empty(ny * nx)
     conv = np.zeros(ny * nx, dtype=bool)
@@ -461,11 +471,8 @@ def ground_truth_trajectories(
     X = X.reshape(ny, nx, n, 2)
     E = E.reshape(ny, nx)
     conv = conv.reshape(ny, nx)
-    if cfile is not None:
-        cfile.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cfile.with_suffix(".tmp.npz")
-        np.savez(tmp, X=X, energy=E, converged=conv)
-        tmp.replace(cfile)
+    if store is not None:
+        store.store("traj", key, {"X": X, "energy": E, "converged": conv})
     return Trajectory(grid=grid, X=X, rest=shape.mesh.V.copy(), kind=mode, converged=conv, energy=E, path=path)
 
 

@@ -1,0 +1,49 @@
+"""Validation of user options, one message style: the option's name, what it must be, what was given."""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+
+def integer(name, value, minimum=None, maximum=None):
+    """``value`` as an int, checked to be an integer (an integral float is accepted) within bounds.
+
+    Raises
+    ------
+    ValueError
+        ``"{name} must be an integer >= {minimum}, got {value!r}"`` (bools, fractions, NaN, strings).
+    """
+    ok = isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
+    if not ok and isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
+        ok = bool(np.isfinite(value)) and float(value).is_integer()
+    if ok:
+        value_int = int(value)
+        if (minimum is None or value_int >= minimum) and (maximum is None or value_int <= maximum):
+            return value_int
+    bounds = [f">= {minimum}" if minimum is not None else "", f"<= {maximum}" if maximum is not None else ""]
+    what = " and ".join(b for b in bounds if b)
+    raise ValueError(f"{name} must be an integer{' ' + what if what else ''}, got {value!r}")
+
+
+def choice(name, value, options):
+    """``value`` checked to be one of ``options`` (strings); the message lists them."""
+    if not isinstance(value, str) or value not in options:
+        raise ValueError(f"unknown {name} {value!r}; known: {', '.join(options)}")
+    return value
+
+
+def n_jobs(value):
+    """A joblib worker count: None (the ``DEFOP_N_JOBS`` default) or a non-zero integer (-1: every core)."""
+    if value is None:
+        return None
+    jobs = integer("n_jobs", value)
+    if jobs == 0:
+        raise ValueError("n_jobs must be a non-zero integer (-1: every core, 1: this process), got 0")
+    return jobs
+
+
+def seed(value):
+    """A sampling seed: a non-negative integer (``numpy.random.default_rng(seed)``)."""
+    return integer("seed", value, minimum=0)

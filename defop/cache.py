@@ -1,0 +1,263 @@
+"""The on-disk cache of computed results: ground truths, trained operators, trajectories.
+
+One layer used by :mod:`defop.train` and :mod:`defop.trajectories`. An entry is one ``.npz`` file
+``<kind>-<key>.npz`` in the cache directory (``DEFOP_CACHE``, see :func:`defop.config.cache_dir`).
+
+* **Keys** (:func:`key`) hash every part given (arrays by dtype, shape and bytes; everything else as
+  JSON) together with the library version ``defop.__version__``, the entry layout :data:`FORMAT` and
+  the solver salt :data:`SOLVER_SALT`. Callers pass every setting that changes the result, the
+  solver's included (:func:`solver_settings`).
+* **Writes are atomic**: an entry is written to a hidden temporary file in the same directory and
+  renamed into place with :func:`os.replace`, so a reader sees either no entry or a complete one, and
+  two processes writing the same entry leave one complete copy (the last rename wins; both computed
+  the same result).
+* **Reads are checked**: an entry that cannot be read, misses an array, has an array of the wrong
+  shape or dtype, or holds NaN/inf is removed with a :class:`CacheWarning` naming the file, and the
+  caller recomputes it.
+
+Bumping :data:`SOLVER_SALT`
+    Increase it by one in the same commit as any change to :mod:`defop.solve` or
+    :mod:`defop.energies` that changes the solutions (a new stopping rule, smoothing schedule, start
+    policy, line search, energy formula, ...). Every cached ground truth, operator and trajectory then
+    misses and is recomputed, so ``make figures`` never reuses results of the old algorithm. A refactor
+    that leaves the solutions unchanged needs no bump.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import tempfile
+import warnings
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__, config
+
+__all__ = ["Cache", "CacheWarning", "CorruptEntry", "FORMAT", "SOLVER_SALT", "key", "open_cache", "solver_settings"]
+
+#: Version of the algorithm of :mod:`defop.solve`; bump it when the solutions change (module docstring).
+SOLVER_SALT = 1
+
+#: Layout of the cache entries; bump it when the arrays or metadata stored in an entry change.
+FORMAT = 1
+
+_META = "__meta__"  # the entry's JSON metadata, stored as a 0-d string array
+_READ_ERRORS = (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile)
+
+
+class CacheWarning(UserWarning):
+    """A corrupt cache entry was removed (it will be recomputed)."""
+
+
+class CorruptEntry(ValueError):
+    """Raised by a reader given to :meth:`Cache.load_with` for an entry that fails its checks."""
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return {"dtype": str(obj.dtype), "shape": obj.shape, "data": obj.tolist()}
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"cache key part of type {type(obj).__name__} is not supported: {obj!r}")
+
+
+def key(*parts) -> str:
+    """Hash of everything that determines a cached result.
+
+    Parameters
+    ----------
+    *parts : numpy arrays, or JSON-serialisable values (str, numbers, None, lists, tuples, dicts)
+        Arrays are hashed by dtype, shape and bytes. The library version, :data:`FORMAT` and
+        :data:`SOLVER_SALT` are always included.
+
+    Returns
+    -------
+    str
+        20 hex digits.
+    """
+    h = hashlib.sha1()
+    h.update(json.dumps([__version__, FORMAT, SOLVER_SALT]).encode())
+    for p in parts:
+        if isinstance(p, np.ndarray):
+            a = np.ascontiguousarray(p)
+            h.update(f"array {a.dtype.str} {a.shape}".encode())
+            h.update(a.tobytes())
+        else:
+            h.update(b"json ")
+            h.update(json.dumps(p, sort_keys=True, default=_json_default).encode())
+        h.update(b"|")
+    return h.hexdigest()[:20]
+
+
+def solver_settings(solver) -> dict:
+    """The settings of a :class:`defop.solve.Solver` that change its solutions, for :func:`key`.
+
+    Every public attribute holding a plain value (str, number, bool, None, or a tuple of them),
+    e.g. ``energy``, ``tol``, ``max_iter``, ``mu_schedule`` (smoothing), ``stage_tol``,
+    ``exact_switch`` and a start policy if the solver has one. Arrays (the mesh, the handles) are
+    left to the caller, which hashes them itself, and so are lists (mutable state, not settings).
+
+    Returns
+    -------
+    dict of str -> value
+    """
+    plain = (str, int, float, bool, type(None), np.generic)
+    out = {}
+    for name, value in sorted(vars(solver).items()):
+        if name.startswith("_"):
+            continue
+        if isinstance(value, plain) or (isinstance(value, tuple) and all(isinstance(v, plain) for v in value)):
+            out[name] = value
+    out["class"] = type(solver).__qualname__
+    return out
+
+
+def open_cache(enabled=True):
+    """The cache, checked to be usable, or None when ``enabled`` is false or ``DEFOP_CACHE=off``.
+
+    Call it at the start of a computation: a bad ``DEFOP_CACHE`` raises here, before any work.
+
+    Raises
+    ------
+    ValueError
+        ``DEFOP_CACHE`` names a file, a directory that cannot be created, or one that is not writable.
+    """
+    if not enabled:
+        return None
+    folder = config.cache_dir()
+    return None if folder is None else Cache(folder)
+
+
+def _check_arrays(arrays, expect):
+    """Why ``arrays`` do not match ``expect`` (name -> (shape with None wildcards, dtype kind)), or None."""
+    for name, (shape, kind) in expect.items():
+        if name not in arrays:
+            return f"missing array {name!r}"
+        a = arrays[name]
+        if a.ndim != len(shape) or any(s is not None and s != t for s, t in zip(shape, a.shape)):
+            return f"array {name!r} has shape {a.shape}, expected {tuple('*' if s is None else s for s in shape)}"
+        if a.dtype.kind != kind and not (kind == "f" and a.dtype.kind in "iu"):
+            return f"array {name!r} has dtype {a.dtype}, expected kind {kind!r}"
+        if a.dtype.kind in "fc" and not np.isfinite(a).all():
+            return f"array {name!r} has NaN or infinite entries"
+    return None
+
+
+@dataclasses.dataclass(frozen=True)
+class Cache:
+    """A cache directory of ``.npz`` entries (see the module docstring).
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        An existing, writable directory (:func:`open_cache` checks it).
+    """
+
+    folder: Path
+
+    def path(self, kind, key):
+        """pathlib.Path of the entry ``<kind>-<key>.npz``."""
+        return Path(self.folder) / f"{kind}-{key}.npz"
+
+    def _discard(self, path, reason):
+        warnings.warn(f"removed corrupt cache entry {path} ({reason}); recomputing it", CacheWarning, stacklevel=3)
+        path.unlink(missing_ok=True)
+
+    def load(self, kind, key, expect):
+        """Read an entry of arrays written by :meth:`store`.
+
+        Parameters
+        ----------
+        kind, key : str
+        expect : dict of str -> (tuple, str)
+            For every array that must be present: its shape (``None`` for any length) and dtype kind
+            (``"f"`` float, ``"b"`` bool, ``"i"`` int). Float arrays must be finite.
+
+        Returns
+        -------
+        (arrays, meta) : (dict of str -> numpy array, dict) or None
+            None when there is no entry, or there was a corrupt one (removed with a :class:`CacheWarning`).
+        """
+        path = self.path(kind, key)
+        if not path.exists():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+            meta = json.loads(str(arrays.pop(_META))) if _META in arrays else {}
+        except _READ_ERRORS as exc:
+            self._discard(path, f"{type(exc).__name__}: {exc}")
+            return None
+        reason = _check_arrays(arrays, expect)
+        if reason is not None:
+            self._discard(path, reason)
+            return None
+        return arrays, meta
+
+    def store(self, kind, key, arrays, meta=None):
+        """Write an entry atomically: ``arrays`` (dict of str -> numpy array) and JSON ``meta``.
+
+        Returns
+        -------
+        pathlib.Path
+        """
+        arrays = dict(arrays)
+        if meta is not None:
+            arrays[_META] = np.array(json.dumps(meta, default=_json_default))
+
+        def write(tmp):
+            with open(tmp, "wb") as fh:
+                np.savez(fh, **arrays)
+
+        return self.store_with(kind, key, write)
+
+    def load_with(self, kind, key, read):
+        """Read an entry with ``read(path)`` (e.g. ``DefOp.load``).
+
+        ``read`` may raise :class:`CorruptEntry` (or ValueError, OSError, KeyError, ...) for an entry
+        that fails its checks; the entry is then removed with a :class:`CacheWarning`.
+
+        Returns
+        -------
+        object or None
+            ``read``'s result; None when there is no entry or it was corrupt.
+        """
+        path = self.path(kind, key)
+        if not path.exists():
+            return None
+        try:
+            return read(path)
+        except _READ_ERRORS as exc:
+            self._discard(path, f"{type(exc).__name__}: {exc}")
+            return None
+
+    def store_with(self, kind, key, write):
+        """Write an entry atomically with ``write(tmp)`` (e.g. ``op.save``), ``tmp`` a temporary path.
+
+        The bytes go to a hidden temporary file in the cache directory, which is renamed into place
+        (:func:`os.replace`) once complete; on any error it is removed and the entry left untouched.
+
+        Returns
+        -------
+        pathlib.Path
+        """
+        path = self.path(kind, key)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.npz", dir=path.parent)
+        os.close(fd)
+        try:
+            write(tmp)
+            with open(tmp, "rb") as fh:  # on disk before it is renamed into place
+                os.fsync(fh.fileno())
+            os.chmod(tmp, 0o644)  # mkstemp creates 0600; entries are as readable as before
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return path
