@@ -36,7 +36,7 @@ _SUBMODULES = (
     "figures",
     "config",
     "trajectories",
-    "experiments",
+    "cache",
 )
 
 

@@ -1,0 +1,391 @@
+"""The on-disk cache (defop.cache): keys, atomic writes, corrupt entries, a bad DEFOP_CACHE, concurrent writers."""
+
+from __future__ import annotations
+
+import io
+import multiprocessing
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import defop as dop
+from defop import cache as cm
+from defop import trajectories as tr
+
+TRAIN = dict(energy="sarap", basis="tps", m=8, seed=4, n_jobs=1, progress=False)
+
+
+@pytest.fixture(scope="module")
+def bar():
+    return dop.shapes.load("bar", n_vertices=200)
+
+
+@pytest.fixture
+def folder(tmp_path, monkeypatch):
+    path = tmp_path / "cache"
+    monkeypatch.setenv("DEFOP_CACHE", str(path))
+    return path
+
+
+def _entries(folder, kind):
+    return sorted(folder.glob(f"{kind}-*.npz"))
+
+
+# ------------------------------------------------------------------------------------------ keys
+def test_key_is_deterministic_and_sees_every_part():
+    V = np.arange(6.0).reshape(3, 2)
+    k = cm.key("gt", V, "sarap", {"tol": 1e-9, "mu": (1e-5,)})
+    assert k == cm.key("gt", V.copy(), "sarap", {"mu": (1e-5,), "tol": 1e-9}) and len(k) == 20
+    others = [
+        cm.key("op", V, "sarap", {"tol": 1e-9, "mu": (1e-5,)}),
+        cm.key("gt", V + 1e-15, "sarap", {"tol": 1e-9, "mu": (1e-5,)}),
+        cm.key("gt", V.reshape(2, 3), "sarap", {"tol": 1e-9, "mu": (1e-5,)}),  # same bytes, other shape
+        cm.key("gt", V.astype(np.float32), "sarap", {"tol": 1e-9, "mu": (1e-5,)}),
+        cm.key("gt", V, "arap", {"tol": 1e-9, "mu": (1e-5,)}),
+        cm.key("gt", V, "sarap", {"tol": 1e-8, "mu": (1e-5,)}),
+    ]
+    assert len({k, *others}) == 1 + len(others)
+
+
+def test_key_includes_the_library_version_and_the_solver_salt(monkeypatch):
+    k = cm.key("gt", 1)
+    monkeypatch.setattr(cm, "__version__", "99.0")
+    k_version = cm.key("gt", 1)
+    monkeypatch.setattr(cm, "SOLVER_SALT", cm.SOLVER_SALT + 1)
+    assert len({k, k_version, cm.key("gt", 1)}) == 3
+
+
+def test_key_rejects_parts_it_cannot_hash_stably():
+    with pytest.raises(TypeError, match="cache key part of type object"):
+        cm.key(object())
+
+
+def test_solver_settings_hold_everything_that_changes_a_solution(bar):
+    s = cm.solver_settings(dop.solve.Solver(bar.mesh, bar.handles, "sarap"))
+    assert {"energy", "tol", "max_iter", "mu_schedule", "stage_tol", "exact_switch"} <= set(s)
+    assert s["tol"] == 1e-9 and s["mu_schedule"] == (1e-5,)
+    for kw in ({"tol": 1e-6}, {"max_iter": 10}, {"smoothing": (1e-5, 1e-9)}):
+        assert cm.solver_settings(dop.solve.Solver(bar.mesh, bar.handles, "sarap", **kw)) != s, kw
+
+
+# ------------------------------------------------------------------------------ store and load
+def test_store_load_round_trip_is_atomic(tmp_path):
+    store = cm.Cache(tmp_path)
+    X = np.random.default_rng(0).random((3, 4, 2))
+    path = store.store("gt", "k", {"X": X, "converged": np.ones(3, bool)}, meta={"times": {"solve": 1.5}})
+    assert path == tmp_path / "gt-k.npz" and os.listdir(tmp_path) == ["gt-k.npz"]  # no temporary file left
+    arrays, meta = store.load("gt", "k", {"X": ((3, None, 2), "f"), "converged": ((3,), "b")})
+    assert np.array_equal(arrays["X"], X) and meta == {"times": {"solve": 1.5}}
+    assert store.load("gt", "other", {}) is None
+
+
+def test_a_failed_write_leaves_the_old_entry_and_no_temporary_file(tmp_path):
+    store = cm.Cache(tmp_path)
+    store.store("gt", "k", {"X": np.zeros(2)})
+
+    def broken(tmp):
+        Path(tmp).write_bytes(b"PK half a file")
+        raise KeyboardInterrupt  # a write killed midway
+
+    with pytest.raises(KeyboardInterrupt):
+        store.store_with("gt", "k", broken)
+    assert os.listdir(tmp_path) == ["gt-k.npz"]
+    assert np.array_equal(store.load("gt", "k", {"X": ((2,), "f")})[0]["X"], np.zeros(2))
+
+
+def _truncate(path):
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
+CORRUPTIONS = {
+    "truncated": (lambda p: _truncate(p), "BadZipFile"),
+    "garbage": (lambda p: p.write_bytes(b"not a zip file at all"), "BadZipFile|ValueError|OSError"),
+    "empty": (lambda p: p.write_bytes(b""), "EOFError|BadZipFile|ValueError"),
+    "missing key": (lambda p: np.savez(p, converged=np.ones(3, bool)), "missing array 'X'"),
+    "wrong shape": (lambda p: np.savez(p, X=np.zeros((3, 5, 2)), converged=np.ones(3, bool)), "shape"),
+    "wrong dtype": (lambda p: np.savez(p, X=np.zeros((3, 4, 2)), converged=np.ones(3)), "dtype"),
+    "NaN": (lambda p: np.savez(p, X=np.full((3, 4, 2), np.nan), converged=np.ones(3, bool)), "NaN or infinite"),
+    "inf": (lambda p: np.savez(p, X=np.full((3, 4, 2), np.inf), converged=np.ones(3, bool)), "NaN or infinite"),
+    "bad meta": (
+        lambda p: np.savez(p, X=np.zeros((3, 4, 2)), converged=np.ones(3, bool), __meta__=np.array("{")),
+        "JSONDecodeError",
+    ),
+}
+
+
+@pytest.mark.parametrize("how", list(CORRUPTIONS))
+def test_a_corrupt_entry_is_removed_with_a_warning_naming_the_file(tmp_path, how):
+    store = cm.Cache(tmp_path)
+    path = store.store("gt", "k", {"X": np.zeros((3, 4, 2)), "converged": np.ones(3, bool)})
+    corrupt, reason = CORRUPTIONS[how]
+    corrupt(path)
+    assert path.exists()
+    with pytest.warns(cm.CacheWarning, match="corrupt cache entry") as rec:
+        assert store.load("gt", "k", {"X": ((3, 4, 2), "f"), "converged": ((3,), "b")}) is None
+    message = str(rec[0].message)
+    assert str(path) in message and any(r in message for r in reason.split("|")), message
+    assert not path.exists()
+
+
+def test_load_with_removes_an_entry_its_reader_rejects(tmp_path):
+    store = cm.Cache(tmp_path)
+    path = store.store("op", "k", {"W": np.zeros(2)})
+
+    def reject(p):
+        raise cm.CorruptEntry("does not match the shape")
+
+    with pytest.warns(cm.CacheWarning, match="does not match the shape") as rec:
+        assert store.load_with("op", "k", reject) is None
+    assert str(path) in str(rec[0].message) and not path.exists()
+
+
+# -------------------------------------------------------------------- corrupt entries in train
+@pytest.mark.parametrize("kind", ["gt", "op"])
+def test_train_recomputes_a_truncated_entry(bar, folder, kind):
+    a, ra = dop.train.train(bar, **TRAIN)
+    (entry,) = _entries(folder, kind)
+    _truncate(entry)
+    if kind == "gt":  # else the cached operator is served (without X when its ground truth is corrupt)
+        _entries(folder, "op")[0].unlink()
+    with pytest.warns(cm.CacheWarning, match="corrupt cache entry") as rec:
+        b, rb = dop.train.train(bar, **TRAIN)
+    assert str(entry) in str(rec[0].message)
+    assert rb.cache == ("ground truth" if kind == "op" else "none")
+    assert np.allclose(a(ra.samples), b(rb.samples), atol=1e-12) and np.allclose(ra.X, rb.X, atol=1e-12)
+    with warnings.catch_warnings():  # the entry was rewritten whole
+        warnings.simplefilter("error", cm.CacheWarning)
+        c, rc = dop.train.train(bar, **TRAIN)
+    assert rc.cache == "operator" and np.array_equal(rc.X, rb.X)
+
+
+def test_train_recomputes_an_operator_with_nan_coefficients(bar, folder):
+    a, ra = dop.train.train(bar, **TRAIN)
+    (entry,) = _entries(folder, "op")
+    op = dop.operator.DefOp.load(entry)
+    op.W[0, 0] = np.nan
+    op.save(entry)
+    with pytest.warns(cm.CacheWarning, match="NaN") as rec:
+        b, rb = dop.train.train(bar, **TRAIN)
+    assert str(entry) in str(rec[0].message) and rb.cache == "ground truth"
+    assert np.isfinite(b.W).all() and np.allclose(a(ra.samples), b(rb.samples), atol=1e-12)
+
+
+def test_train_cache_misses_when_a_solver_setting_the_version_or_the_salt_changes(bar, folder, monkeypatch):
+    dop.train.train(bar, **TRAIN)
+    assert dop.train.train(bar, **TRAIN)[1].cache == "operator"
+
+    class LooserSolver(dop.solve.Solver):
+        def __init__(self, *args, **kw):
+            super().__init__(*args, **kw)
+            self.stage_tol = 1e-6
+
+    with monkeypatch.context() as mp:
+        mp.setattr(dop.train, "Solver", LooserSolver)
+        assert dop.train.train(bar, **TRAIN)[1].cache == "none"
+    with monkeypatch.context() as mp:
+        mp.setattr(cm, "SOLVER_SALT", cm.SOLVER_SALT + 1)
+        assert dop.train.train(bar, **TRAIN)[1].cache == "none"
+    with monkeypatch.context() as mp:
+        mp.setattr(cm, "__version__", "0.0.0+other")
+        assert dop.train.train(bar, **TRAIN)[1].cache == "none"
+    assert dop.train.train(bar, **TRAIN)[1].cache == "operator"  # the original entries are still there
+
+
+def test_sample_ground_truth_round_trip_and_recompute(bar, folder):
+    Q = dop.sampling.sample_shape(bar, 3, 7)
+    X, c = dop.train.sample_ground_truth(bar, Q, "arap", n_jobs=1, progress=False)
+    (entry,) = _entries(folder, "gt")
+    X2, c2 = dop.train.sample_ground_truth(bar, Q, "arap", n_jobs=1, progress=False)
+    assert np.array_equal(X, X2) and np.array_equal(c, c2)
+    np.savez(entry, X=X[:2], converged=c[:2])  # an entry for other samples under this key
+    with pytest.warns(cm.CacheWarning, match="shape"):
+        X3, _ = dop.train.sample_ground_truth(bar, Q, "arap", n_jobs=1, progress=False)
+    assert np.allclose(X, X3, atol=1e-12)
+
+
+# ------------------------------------------------------------- corrupt entries in trajectories
+def test_trajectories_recompute_a_truncated_entry(bar, folder):
+    g = tr.handle_grid(bar.P_moving[0], 0.05, 2)
+    a = tr.ground_truth_trajectories(bar, g, "arap", n_jobs=1)
+    (entry,) = _entries(folder, "traj")
+    _truncate(entry)
+    with pytest.warns(cm.CacheWarning, match="corrupt cache entry") as rec:
+        b = tr.ground_truth_trajectories(bar, g, "arap", n_jobs=1)
+    assert str(entry) in str(rec[0].message) and np.allclose(a.X, b.X, atol=1e-12)
+
+
+def test_trajectory_keys_see_the_solver_settings_and_the_salt(bar, monkeypatch):
+    g = tr.handle_grid(bar.P_moving[0], 0.05, 2)
+    solver = dop.solve.Solver(bar.mesh, bar.handles, "sarap")
+    k = tr._cache_key(bar, g, "sarap", "global", 0, None, solver, {})
+    tighter = dop.solve.Solver(bar.mesh, bar.handles, "sarap", smoothing=(1e-5, 1e-9))
+    assert tr._cache_key(bar, g, "sarap", "global", 0, None, tighter, {}) != k
+    assert tr._cache_key(bar, g, "sarap", "global", 0, None, solver, {"tol": 1e-6}) != k
+    monkeypatch.setattr(cm, "SOLVER_SALT", cm.SOLVER_SALT + 1)
+    assert tr._cache_key(bar, g, "sarap", "global", 0, None, solver, {}) != k
+
+
+# ------------------------------------------------------------------------------ bad DEFOP_CACHE
+def _no_solves(monkeypatch):
+    def fail(*a, **k):
+        raise AssertionError("a solve ran before DEFOP_CACHE was checked")
+
+    monkeypatch.setattr(dop.train, "solve_samples", fail)
+    monkeypatch.setattr(tr, "_solve_one", fail)
+
+
+def _bad_cache_values(tmp_path):
+    afile = tmp_path / "a-file"
+    afile.write_text("x")
+    return {
+        "a file": (afile, "is not a directory"),
+        "impossible to create": (afile / "sub", "cannot create"),
+        "read-only (/proc/1)": (Path("/proc/1"), "cannot write"),
+    }
+
+
+@pytest.mark.parametrize("case", ["a file", "impossible to create", "read-only (/proc/1)"])
+def test_a_bad_defop_cache_fails_before_any_work(bar, tmp_path, monkeypatch, case):
+    path, what = _bad_cache_values(tmp_path)[case]
+    monkeypatch.setenv("DEFOP_CACHE", str(path))
+    _no_solves(monkeypatch)
+    calls = [
+        lambda: dop.train.train(bar, **TRAIN),
+        lambda: dop.train.held_out(bar, "sarap", 4, 9, n_jobs=1, progress=False),
+        lambda: dop.train.sample_ground_truth(bar, bar.P_moving[None], "sarap", n_jobs=1, progress=False),
+        lambda: tr.ground_truth_trajectories(bar, tr.handle_grid(bar.P_moving[0], 0.05, 2), n_jobs=1),
+    ]
+    for call in calls:
+        with pytest.raises(ValueError, match="DEFOP_CACHE") as exc:
+            call()
+        assert str(path) in str(exc.value) and what in str(exc.value)
+
+
+def test_a_read_only_defop_cache_is_named():
+    """A directory without write permission, checked by an unprivileged process (root may write anywhere)."""
+    base = Path(tempfile.mkdtemp(prefix="defop-ro-"))
+    try:
+        base.chmod(0o755)
+        ro = base / "ro"
+        ro.mkdir(mode=0o555)
+        ro.chmod(0o555)
+        kw = dict(user=65534, group=65534, extra_groups=[]) if os.geteuid() == 0 else {}
+        env = {**os.environ, "DEFOP_CACHE": str(ro)}
+        code = "import defop; defop.config.cache_dir()"
+        try:
+            r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, **kw)
+        except PermissionError as exc:  # root, with the interpreter where nobody may run it (e.g. under /root)
+            pytest.skip(f"cannot run Python as an unprivileged user here ({exc}); /proc/1 covers read-only")
+    finally:
+        shutil.rmtree(base)
+    last = r.stderr.strip().splitlines()[-1] if r.stderr.strip() else ""
+    assert r.returncode != 0 and last.startswith("ValueError: DEFOP_CACHE="), r.stderr
+    assert str(ro) in last and "cannot write" in last, last
+
+
+def test_defop_cache_off_disables_the_cache(bar, tmp_path, monkeypatch):
+    monkeypatch.setenv("DEFOP_CACHE", "off")
+    monkeypatch.setenv("HOME", str(tmp_path))  # the default location must stay untouched too
+    assert cm.open_cache() is None
+    a = dop.train.train(bar, **TRAIN)[1]
+    b = dop.train.train(bar, **TRAIN)[1]
+    assert a.cache == b.cache == "none" and list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- two processes
+def _slow_savez(started, may_finish):
+    """np.savez that writes half the bytes, signals, waits until allowed, then writes the rest."""
+    real = np.savez
+
+    def savez(file, *args, **kw):
+        buf = io.BytesIO()
+        real(buf, *args, **kw)
+        data = buf.getvalue()
+        fh = open(file, "wb") if isinstance(file, (str, os.PathLike)) else file
+        fh.write(data[: len(data) // 2])
+        fh.flush()
+        started.set()
+        may_finish.wait(120)
+        fh.write(data[len(data) // 2 :])
+        fh.flush()
+        if fh is not file:
+            fh.close()
+
+    return savez
+
+
+def _train_child(cache, out, started=None, may_finish=None):
+    os.environ["DEFOP_CACHE"] = cache
+    os.environ["DEFOP_N_JOBS"] = "1"
+    if started is not None:
+        np.savez = _slow_savez(started, may_finish)
+    import defop
+
+    shape = defop.shapes.load("bar", n_vertices=200)
+    op, rec = defop.train.train(shape, **TRAIN)
+    np.save(out, np.stack([op(rec.samples), rec.X]))
+
+
+def test_two_processes_training_the_same_operator_both_get_it(tmp_path):
+    """Process A writes each entry slowly and is held mid-write until process B has trained and stored."""
+    ctx = multiprocessing.get_context("spawn")
+    started, b_done = ctx.Event(), ctx.Event()
+    cache = str(tmp_path / "cache")
+    a = ctx.Process(target=_train_child, args=(cache, tmp_path / "a.npy", started, b_done))
+    a.start()
+    try:
+        assert started.wait(120), "process A never started writing"
+        assert [p.name for p in Path(cache).glob(".gt-*")]  # A's half-written ground truth is on disk
+        b = ctx.Process(target=_train_child, args=(cache, tmp_path / "b.npy"))
+        b.start()
+        b.join(300)
+        assert b.exitcode == 0, "process B failed while A was writing"
+        b_done.set()
+        a.join(300)
+        assert a.exitcode == 0
+    finally:
+        b_done.set()
+        a.join(10)
+        if a.is_alive():
+            a.kill()
+    ra, rb = np.load(tmp_path / "a.npy"), np.load(tmp_path / "b.npy")
+    assert np.allclose(ra, rb, atol=1e-12)
+    assert len(_entries(Path(cache), "gt")) == len(_entries(Path(cache), "op")) == 1
+    assert not list(Path(cache).glob(".*"))  # no temporary file left behind
+    with warnings.catch_warnings():  # the entries are whole: loaded without a CacheWarning
+        warnings.simplefilter("error", cm.CacheWarning)
+        store = cm.Cache(Path(cache))
+        (op_entry,) = _entries(Path(cache), "op")
+        op = store.load_with("op", op_entry.stem[3:], dop.operator.DefOp.load)
+    assert op is not None and np.allclose(op(dop.sampling.sample_shape(_bar(), 8, 4)), ra[0], atol=1e-12)
+
+
+def _bar():
+    return dop.shapes.load("bar", n_vertices=200)
+
+
+def test_a_writer_killed_midway_leaves_no_entry(tmp_path, monkeypatch):
+    ctx = multiprocessing.get_context("spawn")
+    started, never = ctx.Event(), ctx.Event()
+    cache = tmp_path / "cache"
+    a = ctx.Process(target=_train_child, args=(str(cache), tmp_path / "a.npy", started, never))
+    a.start()
+    try:
+        assert started.wait(120)
+    finally:
+        a.kill()
+        a.join(30)
+    assert _entries(cache, "gt") == [] and _entries(cache, "op") == []
+    monkeypatch.setenv("DEFOP_CACHE", str(cache))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", cm.CacheWarning)
+        op, rec = dop.train.train(_bar(), **TRAIN)
+    assert rec.cache == "none" and len(_entries(cache, "op")) == 1
