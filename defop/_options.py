@@ -6,6 +6,8 @@ import numbers
 
 import numpy as np
 
+from . import config
+
 
 def integer(name, value, minimum=None, maximum=None):
     """``value`` as an int, checked to be an integer (an integral float is accepted) within bounds.
@@ -35,8 +37,9 @@ def choice(name, value, options):
 
 
 def n_jobs(value):
-    """A joblib worker count: None (the ``DEFOP_N_JOBS`` default) or a non-zero integer (-1: every core)."""
+    """A joblib worker count: None (the ``DEFOP_N_JOBS`` default, checked here) or a non-zero integer."""
     if value is None:
+        config.n_jobs()  # a bad DEFOP_N_JOBS fails now, not after the first stage of work
         return None
     jobs = integer("n_jobs", value)
     if jobs == 0:

@@ -57,3 +57,114 @@ def test_dask_backend(bar):
         with Client(cluster), joblib.parallel_backend("dask"):
             Xd, cd = dop.train.solve_samples(bar, Q, "arap", n_jobs=-1, progress=False)
     assert cd.all() and np.allclose(Xs, Xd, atol=1e-12)
+
+
+# ------------------------------------------------------------------------------ option validation
+@pytest.fixture
+def no_solves(monkeypatch):
+    """Every check below must fire before the first solve."""
+
+    def fail(*a, **k):
+        raise AssertionError("a solve ran before the options were checked")
+
+    monkeypatch.setattr(dop.train, "_solve_chunk", fail)
+
+
+@pytest.mark.parametrize("basis", ["linear", "quadratic", "cubic", "tps"])
+def test_too_few_samples_names_the_basis_and_its_minimum(bar, basis, no_solves):
+    need = dop.train.min_samples(basis, bar.n_moving)
+    with pytest.raises(ValueError) as exc:
+        dop.train.train(bar, "sarap", basis, m=need - 1, n_jobs=1, progress=False)
+    msg = str(exc.value)
+    assert f"the {basis} handle basis needs at least {need} samples" in msg and f"m = {need - 1}" in msg
+    assert basis == "linear" or "linear" not in msg
+    with pytest.raises(ValueError, match=f"the {basis} handle basis needs at least {need} samples"):
+        dop.train.train(bar, "sarap", basis, samples=np.tile(bar.P_moving, (need - 1, 1, 1)) + 0.1, progress=False)
+
+
+def test_tps_with_one_sample_complains_about_tps(bar, no_solves):
+    with pytest.raises(ValueError, match=r"the tps handle basis needs at least 3 samples .* got m = 1") as exc:
+        dop.train.train(bar, basis="tps", m=1, n_jobs=1, progress=False)
+    assert "linear" not in str(exc.value)
+
+
+@pytest.mark.parametrize("basis", ["linear", "quadratic", "cubic", "tps"])
+def test_the_minimum_number_of_samples_trains(bar, basis):
+    """The minimum is exact: that many samples train, and the operator reproduces them (Prop. 1/2)."""
+    need = dop.train.min_samples(basis, bar.n_moving)
+    op, rec = dop.train.train(bar, "arap", basis, m=need, seed=3, n_jobs=1, progress=False, cache=False)
+    assert op.meta["basis"] == basis and rec.X.shape[0] == need
+    assert np.abs(op(bar.P_moving) - bar.mesh.V).max() < 1e-10  # rest pose exact, (8b)
+
+
+BAD_TRAIN_OPTIONS = [
+    ({"m": 0}, "m must be an integer >= 1, got 0"),
+    ({"m": -5}, "m must be an integer >= 1, got -5"),
+    ({"m": 12.5}, "m must be an integer >= 1, got 12.5"),
+    ({"m": True}, "m must be an integer >= 1, got True"),
+    ({"m": "12"}, "m must be an integer >= 1, got '12'"),
+    ({"m": float("nan")}, "m must be an integer >= 1, got nan"),
+    ({"seed": -1}, "seed must be an integer >= 0, got -1"),
+    ({"seed": 1.5}, "seed must be an integer >= 0, got 1.5"),
+    ({"seed": None}, "seed must be an integer >= 0, got None"),
+    ({"n_jobs": 0}, "n_jobs must be a non-zero integer"),
+    ({"n_jobs": 1.5}, "n_jobs must be an integer, got 1.5"),
+    ({"energy": "elastic"}, "unknown energy 'elastic'; known energies: arap, sarap, isometric"),
+    ({"basis": "rbf"}, "unknown handle basis 'rbf'; known: linear, quadratic, cubic, tps"),
+    ({"basis": None}, "unknown handle basis None"),
+    ({"spatial": "fourier"}, "unknown spatial basis 'fourier'; known: hat, reduced"),
+    ({"spatial": "reduced", "k": 0}, "k must be an integer >= 1, got 0"),
+    ({"spatial": "reduced", "k": 2.5}, "k must be an integer >= 1, got 2.5"),
+    ({"rounds": 0}, "rounds must be an integer >= 1, got 0"),
+    ({"rounds": 1.5}, "rounds must be an integer >= 1, got 1.5"),
+    ({"samples": np.zeros((4, 2, 2))}, r"samples must have shape \(m, 1, 2\), m >= 1, for 1 moving handles"),
+    ({"samples": np.zeros((0, 1, 2))}, r"samples must have shape \(m, 1, 2\), m >= 1"),
+    ({"samples": np.full((4, 1, 2), np.nan)}, "samples has NaN or infinite entries"),
+]
+
+
+@pytest.mark.parametrize(("options", "message"), BAD_TRAIN_OPTIONS, ids=[str(o) for o, _ in BAD_TRAIN_OPTIONS])
+def test_train_rejects_bad_options_by_name(bar, options, message, no_solves):
+    kw = dict(energy="sarap", basis="tps", m=12, n_jobs=1, progress=False) | options
+    with pytest.raises(ValueError, match=message):
+        dop.train.train(bar, **kw)
+
+
+def test_a_bad_defop_n_jobs_is_named_before_any_work(bar, monkeypatch, no_solves):
+    for value in ("many", "0", "1.5"):
+        monkeypatch.setenv("DEFOP_N_JOBS", value)
+        with pytest.raises(ValueError, match=f"DEFOP_N_JOBS='{value}' must be a non-zero integer"):
+            dop.train.train(bar, m=12, progress=False)
+
+
+BAD_HELD_OUT = [
+    ({"m": 0}, "m must be an integer >= 1, got 0"),
+    ({"m": 2.5}, "m must be an integer >= 1, got 2.5"),
+    ({"seed": -3}, "seed must be an integer >= 0, got -3"),
+    ({"n_jobs": 0}, "n_jobs must be a non-zero integer"),
+    ({"energy": "neo-hookean"}, "unknown energy 'neo-hookean'"),
+    ({"like": 5}, "like must be a trained operator"),
+]
+
+
+@pytest.mark.parametrize(("options", "message"), BAD_HELD_OUT, ids=[str(o) for o, _ in BAD_HELD_OUT])
+def test_held_out_rejects_bad_options_by_name(bar, options, message, no_solves):
+    kw = dict(energy="sarap", m=4, seed=9, n_jobs=1, progress=False) | options
+    with pytest.raises(ValueError, match=message):
+        dop.train.held_out(bar, **kw)
+
+
+@pytest.mark.parametrize("function", ["solve_samples", "sample_ground_truth"])
+def test_sample_solvers_reject_bad_options_by_name(bar, function, no_solves):
+    solve = getattr(dop.train, function)
+    Q = np.tile(bar.P_moving, (3, 1, 1)) + 0.05
+    with pytest.raises(ValueError, match="unknown energy 'ARAP'"):
+        solve(bar, Q, "ARAP", progress=False)
+    with pytest.raises(ValueError, match=r"samples must have shape \(m, 1, 2\)"):
+        solve(bar, Q[:, :, :1], "arap", progress=False)
+    with pytest.raises(ValueError, match="samples has NaN"):
+        solve(bar, Q * np.nan, "arap", progress=False)
+    with pytest.raises(ValueError, match="n_jobs must be a non-zero integer"):
+        solve(bar, Q, "arap", n_jobs=0, progress=False)
+    with pytest.raises(ValueError, match="X0 must give one warm start .* 2 for 3 samples"):
+        solve(bar, Q, "arap", X0=[None, None], n_jobs=1, progress=False)
