@@ -30,6 +30,7 @@ from . import config
 from . import energies as en
 from . import handle_bases as hb
 from .fit import fit
+from .mesh import Mesh
 from .operator import DefOp
 from .sampling import sample_shape
 from .solve import NotConvergedWarning, Solver
@@ -122,8 +123,13 @@ def _check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rou
 
 
 def _solver_key(shape, energy):
-    """The settings of the solver :func:`solve_samples` uses, for the cache keys."""
-    return cache_mod.solver_settings(Solver(shape.mesh, shape.handles, energy))
+    """The settings of the solver :func:`solve_samples` uses, for the cache keys.
+
+    Read from a Solver built like :func:`solve_samples`'s but on one triangle: its settings do not
+    depend on the mesh, and this takes 0.1 ms instead of 45 ms on the octopus (3911 vertices).
+    """
+    tiny = Mesh(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([[0, 1, 2]]))
+    return cache_mod.solver_settings(Solver(tiny, np.array([0]), energy))
 
 
 def _gt_expect(m, n_vertices):

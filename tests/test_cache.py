@@ -75,6 +75,13 @@ def test_solver_settings_hold_everything_that_changes_a_solution(bar):
         assert cm.solver_settings(dop.solve.Solver(bar.mesh, bar.handles, "sarap", **kw)) != s, kw
 
 
+@pytest.mark.parametrize("energy", ["arap", "sarap", "isometric"])
+def test_train_keys_read_the_settings_of_the_solver_train_uses(bar, energy):
+    """train reads the settings from a one-triangle Solver: they must equal the real one's."""
+    real = cm.solver_settings(dop.solve.Solver(bar.mesh, bar.handles, energy))
+    assert dop.train._solver_key(bar, energy) == real and real["energy"] == energy
+
+
 # ------------------------------------------------------------------------------ store and load
 def test_store_load_round_trip_is_atomic(tmp_path):
     store = cm.Cache(tmp_path)
