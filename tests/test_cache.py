@@ -245,8 +245,7 @@ def _no_solves(monkeypatch):
     def fail(*a, **k):
         raise AssertionError("a solve ran before DEFOP_CACHE was checked")
 
-    monkeypatch.setattr(dop.train, "solve_samples", fail)
-    monkeypatch.setattr(tr, "_solve_one", fail)
+    monkeypatch.setattr(dop.solve.Solver, "solve", fail)  # the primitive every driver calls
 
 
 def _bad_cache_values(tmp_path):

@@ -50,7 +50,7 @@ def no_solves(monkeypatch):
     def fail(*a, **k):
         raise AssertionError("a solve ran before the options were checked")
 
-    monkeypatch.setattr(tr, "_solve_one", fail)
+    monkeypatch.setattr(dop.solve.Solver, "solve", fail)  # the primitive every driver calls
 
 
 BAD_TRAJ_OPTIONS = [
