@@ -102,8 +102,8 @@ def _check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rou
     """Validate :func:`train`'s options before any work; returns (m, samples or None)."""
     opt.choice("handle basis", basis, hb.KINDS)
     opt.choice("spatial basis", spatial, ("hat", "reduced"))
-    if spatial == "reduced":
-        opt.integer("k", k, minimum=1)
+    if spatial == "reduced":  # reduced_basis solves for k + 3 eigenpairs: k + 3 < n_vertices
+        opt.integer("k", k, minimum=3, maximum=shape.mesh.n_vertices - 4)
     opt.seed(seed)
     opt.n_jobs(n_jobs)
     opt.integer("rounds", rounds, minimum=1)

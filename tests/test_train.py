@@ -113,8 +113,9 @@ BAD_TRAIN_OPTIONS = [
     ({"basis": "rbf"}, "unknown handle basis 'rbf'; known: linear, quadratic, cubic, tps"),
     ({"basis": None}, "unknown handle basis None"),
     ({"spatial": "fourier"}, "unknown spatial basis 'fourier'; known: hat, reduced"),
-    ({"spatial": "reduced", "k": 0}, "k must be an integer >= 1, got 0"),
-    ({"spatial": "reduced", "k": 2.5}, "k must be an integer >= 1, got 2.5"),
+    ({"spatial": "reduced", "k": 0}, "k must be an integer >= 3 and <= 198, got 0"),
+    ({"spatial": "reduced", "k": 2.5}, "k must be an integer >= 3 and <= 198, got 2.5"),
+    ({"spatial": "reduced", "k": 199}, "k must be an integer >= 3 and <= 198, got 199"),
     ({"rounds": 0}, "rounds must be an integer >= 1, got 0"),
     ({"rounds": 1.5}, "rounds must be an integer >= 1, got 1.5"),
     ({"samples": np.zeros((4, 2, 2))}, r"samples must have shape \(m, 1, 2\), m >= 1, for 1 moving handles"),
@@ -168,3 +169,9 @@ def test_sample_solvers_reject_bad_options_by_name(bar, function, no_solves):
         solve(bar, Q, "arap", n_jobs=0, progress=False)
     with pytest.raises(ValueError, match="X0 must give one warm start .* 2 for 3 samples"):
         solve(bar, Q, "arap", X0=[None, None], n_jobs=1, progress=False)
+
+
+def test_the_largest_reduced_basis_allowed_trains(bar):
+    k = bar.mesh.n_vertices - 4  # the bound train checks before any solve
+    op, _ = dop.train.train(bar, "arap", "linear", m=2, spatial="reduced", k=k, n_jobs=1, progress=False, cache=False)
+    assert op.meta["spatial"] == "reduced" and op.meta["spatial_size"] == k
