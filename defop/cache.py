@@ -25,6 +25,7 @@ Bumping :data:`SOLVER_SALT`
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -166,10 +167,6 @@ class Cache:
         """pathlib.Path of the entry ``<kind>-<key>.npz``."""
         return Path(self.folder) / f"{kind}-{key}.npz"
 
-    def _discard(self, path, reason):
-        warnings.warn(f"removed corrupt cache entry {path} ({reason}); recomputing it", CacheWarning, stacklevel=3)
-        path.unlink(missing_ok=True)
-
     def load(self, kind, key, expect):
         """Read an entry of arrays written by :meth:`store`.
 
@@ -185,21 +182,17 @@ class Cache:
         (arrays, meta) : (dict of str -> numpy array, dict) or None
             None when there is no entry, or there was a corrupt one (removed with a :class:`CacheWarning`).
         """
-        path = self.path(kind, key)
-        if not path.exists():
-            return None
-        try:
+
+        def read(path):
             with np.load(path, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}
             meta = json.loads(str(arrays.pop(_META))) if _META in arrays else {}
-        except _READ_ERRORS as exc:
-            self._discard(path, f"{type(exc).__name__}: {exc}")
-            return None
-        reason = _check_arrays(arrays, expect)
-        if reason is not None:
-            self._discard(path, reason)
-            return None
-        return arrays, meta
+            reason = _check_arrays(arrays, expect)
+            if reason is not None:
+                raise CorruptEntry(reason)
+            return arrays, meta
+
+        return self.load_with(kind, key, read)
 
     def store(self, kind, key, arrays, meta=None):
         """Write an entry atomically: ``arrays`` (dict of str -> numpy array) and JSON ``meta``.
@@ -222,7 +215,8 @@ class Cache:
         """Read an entry with ``read(path)`` (e.g. ``DefOp.load``).
 
         ``read`` may raise :class:`CorruptEntry` (or ValueError, OSError, KeyError, ...) for an entry
-        that fails its checks; the entry is then removed with a :class:`CacheWarning`.
+        that fails its checks; the entry is then removed with a :class:`CacheWarning` (unless another
+        process has meanwhile replaced it with a new one).
 
         Returns
         -------
@@ -230,12 +224,18 @@ class Cache:
             ``read``'s result; None when there is no entry or it was corrupt.
         """
         path = self.path(kind, key)
-        if not path.exists():
+        try:
+            inode = path.stat().st_ino
+        except FileNotFoundError:
             return None
         try:
             return read(path)
         except _READ_ERRORS as exc:
-            self._discard(path, f"{type(exc).__name__}: {exc}")
+            reason = str(exc) if isinstance(exc, CorruptEntry) else f"{type(exc).__name__}: {exc}"
+            warnings.warn(f"removed corrupt cache entry {path} ({reason}); recomputing it", CacheWarning, stacklevel=3)
+            with contextlib.suppress(FileNotFoundError):
+                if path.stat().st_ino == inode:  # not a whole entry another process has just renamed into place
+                    path.unlink()
             return None
 
     def store_with(self, kind, key, write):

@@ -154,6 +154,21 @@ def test_load_with_removes_an_entry_its_reader_rejects(tmp_path):
     assert str(path) in str(rec[0].message) and not path.exists()
 
 
+def test_a_corrupt_entry_replaced_meanwhile_by_another_process_is_kept(tmp_path):
+    store = cm.Cache(tmp_path)
+    path = store.store("gt", "k", {"X": np.zeros(2)})
+    _truncate(path)
+
+    def reader(p):
+        with open(p, "rb") as fh:  # this process opened the truncated entry ...
+            store.store("gt", "k", {"X": np.ones(2)})  # ... another one renamed a whole entry into place
+            return dict(np.load(fh))
+
+    with pytest.warns(cm.CacheWarning, match="corrupt cache entry"):
+        assert store.load_with("gt", "k", reader) is None
+    assert np.array_equal(store.load("gt", "k", {"X": ((2,), "f")})[0]["X"], np.ones(2))
+
+
 # -------------------------------------------------------------------- corrupt entries in train
 @pytest.mark.parametrize("kind", ["gt", "op"])
 def test_train_recomputes_a_truncated_entry(bar, folder, kind):
