@@ -37,6 +37,7 @@ import scipy.sparse.linalg as spla
 from . import _options as opt
 from . import cache as cache_mod
 from . import config
+from .energies import check_energy
 
 __all__ = [
     "HandleGrid",
@@ -395,8 +396,6 @@ def ground_truth_trajectories(
         raise ValueError(f"mode must be 'global' or 'local', got {mode!r}")
     if not isinstance(grid, HandleGrid):
         raise ValueError(f"grid must be a HandleGrid (see handle_grid), got {type(grid).__name__}")
-    from .energies import check_energy
-
     check_energy(energy)
     moving = opt.integer("moving", moving, minimum=0)
     opt.n_jobs(n_jobs)
@@ -417,12 +416,10 @@ def ground_truth_trajectories(
             f"grid.center {grid.center} is not the rest position {P_moving[moving]} of moving handle {moving}"
         )
 
-    solver = _solver_for(shape, energy, solver_kw)
-    n = shape.mesh.n_vertices
     key = None
     if store is not None:
-        key = _cache_key(shape, grid, energy, mode, moving, path, solver, solve_kw)
-        hit = store.load("traj", key, _trajectory_expect(grid, n))
+        key = _cache_key(shape, grid, energy, mode, moving, path, _solver_for(shape, energy, solver_kw), solve_kw)
+        hit = store.load("traj", key, _trajectory_expect(grid, shape.mesh.n_vertices))
         if hit is not None:
             z = hit[0]
             return Trajectory(
@@ -438,6 +435,8 @@ def ground_truth_trajectories(
     Qm = _moving_batch(grid, len(P_moving), moving, P_moving)
     targets = np.stack([shape.targets(q) for q in Qm])  # (k, h, 2)
     hidx = int(np.flatnonzero(shape.moving)[moving])  # row of the moving handle in `targets`
+    solver = _solver_for(shape, energy, solver_kw)
+    n = shape.mesh.n_vertices
     X = np.empty((ny * nx, n, 2))
     E = np.empty(ny * nx)
     conv = np.zeros(ny * nx, dtype=bool)
