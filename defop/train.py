@@ -294,6 +294,12 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
     Q : (m,n,2) numpy array
     X : (m,n_vertices,2) numpy array
     converged : (m,) bool numpy array
+
+    Raises
+    ------
+    ValueError
+        Before any solve, naming the option: an unknown energy, ``m``, ``seed`` or ``n_jobs`` not an
+        integer in range, ``like`` not callable, a ``DEFOP_CACHE`` that cannot be used.
     """
     en.check_energy(energy)
     m = opt.integer("m", m, minimum=1)
@@ -375,6 +381,14 @@ def train(
     -------
     defop : defop.operator.DefOp
     record : TrainingRecord
+
+    Raises
+    ------
+    ValueError
+        Before any solve, naming the option: an unknown energy, handle basis or spatial basis; ``m``,
+        ``seed``, ``k``, ``rounds`` or ``n_jobs`` that is not an integer in range; fewer samples than
+        the handle basis needs (:func:`min_samples`, the message names the basis); ``samples`` of the
+        wrong shape or not finite; a ``DEFOP_CACHE`` or ``DEFOP_N_JOBS`` that cannot be used.
     """
     en.check_energy(energy)
     m, samples = _check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds)
