@@ -32,7 +32,6 @@ import json
 import os
 import tempfile
 import warnings
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +47,10 @@ SOLVER_SALT = 1
 FORMAT = 1
 
 _META = "__meta__"  # the entry's JSON metadata, stored as a 0-d string array
-_READ_ERRORS = (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile)
+#: a damaged .npz can make zipfile/numpy raise nearly anything (BadZipFile, EOFError, NotImplementedError for a
+#: flipped compression-method byte, struct.error, zlib.error, SyntaxError in the array header, ...): any failure
+#: to read an entry makes it unusable, and it is removed, with a warning naming the file and the exception
+_READ_ERRORS = (Exception,)
 
 
 class CacheWarning(UserWarning):
@@ -184,9 +186,13 @@ class Cache:
         """
 
         def read(path):
-            with np.load(path, allow_pickle=False) as z:
+            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # fh: closed on a bad zip too
                 arrays = {k: z[k] for k in z.files}
-            meta = json.loads(str(arrays.pop(_META))) if _META in arrays else {}
+            if _META not in arrays:  # every entry has one (store writes {} for no metadata)
+                raise CorruptEntry("missing its metadata")
+            meta = json.loads(str(arrays.pop(_META)))
+            if not isinstance(meta, dict):
+                raise CorruptEntry(f"metadata is a {type(meta).__name__}, not a dict")
             reason = _check_arrays(arrays, expect)
             if reason is not None:
                 raise CorruptEntry(reason)
@@ -202,8 +208,7 @@ class Cache:
         pathlib.Path
         """
         arrays = dict(arrays)
-        if meta is not None:
-            arrays[_META] = np.array(json.dumps(meta, default=_json_default))
+        arrays[_META] = np.array(json.dumps({} if meta is None else dict(meta), default=_json_default))
 
         def write(tmp):
             with open(tmp, "wb") as fh:
