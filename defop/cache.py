@@ -250,21 +250,35 @@ class Cache:
 
         The bytes go to a hidden temporary file in the cache directory, which is renamed into place
         (:func:`os.replace`) once complete; on any error it is removed and the entry left untouched.
+        An OSError (the directory became unwritable, the disk is full) only warns: the result the
+        caller computed is still returned to the user, just not cached.
 
         Returns
         -------
-        pathlib.Path
+        pathlib.Path or None
+            None when the entry could not be written.
         """
         path = self.path(kind, key)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.npz", dir=path.parent)
-        os.close(fd)
+        tmp = None
         try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.npz", dir=path.parent)
+            os.close(fd)
             write(tmp)
             with open(tmp, "rb") as fh:  # on disk before it is renamed into place
                 os.fsync(fh.fileno())
             os.chmod(tmp, 0o644)  # mkstemp creates 0600; entries are as readable as before
             os.replace(tmp, path)
+        except OSError as exc:
+            _remove(tmp)
+            warnings.warn(f"could not write the cache entry {path} ({exc}); the result is not cached", CacheWarning, 2)
+            return None
         except BaseException:
-            Path(tmp).unlink(missing_ok=True)
+            _remove(tmp)
             raise
         return path
+
+
+def _remove(tmp):
+    if tmp is not None:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)

@@ -107,6 +107,20 @@ def test_a_failed_write_leaves_the_old_entry_and_no_temporary_file(tmp_path):
     assert np.array_equal(store.load("gt", "k", {"X": ((2,), "f")})[0]["X"], np.zeros(2))
 
 
+def test_a_cache_that_becomes_unwritable_warns_and_keeps_the_result(bar, folder, monkeypatch):
+    """DEFOP_CACHE was fine at the start and fails at the end (disk full, permissions changed)."""
+
+    def no_space(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(cm.os, "replace", no_space)
+    with pytest.warns(cm.CacheWarning, match=r"could not write the cache entry .*No space left") as rec:
+        op, r = dop.train.train(bar, **TRAIN)
+    assert r.cache == "none" and np.abs(op(r.samples) - r.X).max() < 1e-8
+    written = sorted(str(w.message).split("cache/")[1][:3] for w in rec)
+    assert written == ["gt-", "op-"] and list(folder.iterdir()) == []  # no entry, no temp file
+
+
 def _truncate(path):
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])
