@@ -398,12 +398,13 @@ def _train_child(cache, out, started=None, may_finish=None):
         np.savez = _slow_savez(started, may_finish)
     import defop
 
+    warnings.simplefilter("error", defop.cache.CacheWarning)  # seeing a half-written entry is a failure
     shape = defop.shapes.load("bar", n_vertices=200)
     op, rec = defop.train.train(shape, **TRAIN)
     np.save(out, np.stack([op(rec.samples), rec.X]))
 
 
-def test_two_processes_training_the_same_operator_both_get_it(tmp_path):
+def test_two_processes_training_the_same_operator_both_get_it(bar, tmp_path, monkeypatch):
     """Process A writes each entry slowly and is held mid-write until process B has trained and stored."""
     ctx = multiprocessing.get_context("spawn")
     started, b_done = ctx.Event(), ctx.Event()
@@ -425,23 +426,19 @@ def test_two_processes_training_the_same_operator_both_get_it(tmp_path):
         a.join(10)
         if a.is_alive():
             a.kill()
-    ra, rb = np.load(tmp_path / "a.npy"), np.load(tmp_path / "b.npy")
-    assert np.allclose(ra, rb, atol=1e-12)
+    ra, rb = np.load(tmp_path / "a.npy"), np.load(tmp_path / "b.npy")  # [op(Q_k), X_k] of each process
+    assert np.allclose(ra, rb, atol=1e-12) and np.abs(ra[0] - ra[1]).max() < 1e-8  # same, and Prop. 1 holds
     assert len(_entries(Path(cache), "gt")) == len(_entries(Path(cache), "op")) == 1
     assert not list(Path(cache).glob(".*"))  # no temporary file left behind
+    monkeypatch.setenv("DEFOP_CACHE", cache)
     with warnings.catch_warnings():  # the entries are whole: loaded without a CacheWarning
         warnings.simplefilter("error", cm.CacheWarning)
-        store = cm.Cache(Path(cache))
-        (op_entry,) = _entries(Path(cache), "op")
-        op = store.load_with("op", op_entry.stem[3:], dop.operator.DefOp.load)
-    assert op is not None and np.allclose(op(dop.sampling.sample_shape(_bar(), 8, 4)), ra[0], atol=1e-12)
+        op, rec = dop.train.train(bar, **TRAIN)
+    assert rec.cache == "operator" and np.allclose(op(rec.samples), ra[0], atol=1e-12)
+    assert np.array_equal(rec.X, ra[1])
 
 
-def _bar():
-    return dop.shapes.load("bar", n_vertices=200)
-
-
-def test_a_writer_killed_midway_leaves_no_entry(tmp_path, monkeypatch):
+def test_a_writer_killed_midway_leaves_no_entry(bar, tmp_path, monkeypatch):
     ctx = multiprocessing.get_context("spawn")
     started, never = ctx.Event(), ctx.Event()
     cache = tmp_path / "cache"
@@ -456,5 +453,5 @@ def test_a_writer_killed_midway_leaves_no_entry(tmp_path, monkeypatch):
     monkeypatch.setenv("DEFOP_CACHE", str(cache))
     with warnings.catch_warnings():
         warnings.simplefilter("error", cm.CacheWarning)
-        op, rec = dop.train.train(_bar(), **TRAIN)
+        op, rec = dop.train.train(bar, **TRAIN)
     assert rec.cache == "none" and len(_entries(cache, "op")) == 1
