@@ -10,7 +10,8 @@ One layer used by :mod:`defop.train` and :mod:`defop.trajectories`. An entry is 
 * **Writes are atomic**: an entry is written to a hidden temporary file in the same directory and
   renamed into place with :func:`os.replace`, so a reader sees either no entry or a complete one, and
   two processes writing the same entry leave one complete copy (the last rename wins; both computed
-  the same result).
+  the same result). A temporary file left by a writer killed midway is removed by :func:`open_cache`
+  once it is an hour old.
 * **Reads are checked**: an entry that cannot be read (any exception: truncated, damaged zip), misses
   an array or its metadata, has an array of the wrong shape or dtype, or holds NaN/inf is removed with
   a :class:`CacheWarning` naming the file, and the caller recomputes it. (If another process renamed a
@@ -33,6 +34,7 @@ import hashlib
 import json
 import os
 import tempfile
+import time
 import warnings
 from pathlib import Path
 
@@ -137,7 +139,23 @@ def open_cache(enabled=True):
     if not enabled:
         return None
     folder = config.cache_dir()
-    return None if folder is None else Cache(folder)
+    if folder is None:
+        return None
+    _remove_stale_temporaries(folder)
+    return Cache(folder)
+
+
+#: a temporary file older than this was left by a writer that was killed (a write takes seconds)
+STALE_SECONDS = 3600.0
+
+
+def _remove_stale_temporaries(folder):
+    """Remove the temporary files of writers killed midway (older than :data:`STALE_SECONDS`)."""
+    now = time.time()
+    for tmp in Path(folder).glob(".*.tmp.npz"):
+        with contextlib.suppress(OSError):  # another process may remove it first
+            if now - tmp.stat().st_mtime > STALE_SECONDS:
+                tmp.unlink()
 
 
 def _check_arrays(arrays, expect):

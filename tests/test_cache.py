@@ -9,6 +9,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 import warnings
 from pathlib import Path
 
@@ -450,7 +451,14 @@ def test_a_writer_killed_midway_leaves_no_entry(bar, tmp_path, monkeypatch):
         a.kill()
         a.join(30)
     assert _entries(cache, "gt") == [] and _entries(cache, "op") == []
+    (litter,) = cache.glob(".gt-*.tmp.npz")  # the killed writer's half-written temporary file
     monkeypatch.setenv("DEFOP_CACHE", str(cache))
+    cm.open_cache()
+    assert litter.exists()  # it could still be a live writer's
+    old = time.time() - cm.STALE_SECONDS - 1
+    os.utime(litter, (old, old))
+    cm.open_cache()
+    assert not litter.exists()  # an hour old: a killed writer's, removed
     with warnings.catch_warnings():
         warnings.simplefilter("error", cm.CacheWarning)
         op, rec = dop.train.train(bar, **TRAIN)
