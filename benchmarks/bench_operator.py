@@ -144,11 +144,11 @@ def main(m=500, cache=False, octopus=False):
         f"S-ARAP, {m} samples, TPS |Psi| = {op.handle_basis.size}, hat Phi; training solves converged "
         f"{int(rec.converged.sum())}/{m}, held-out {int(conv.sum())}/{N_TEST}"
     )
-    if rec.cache_state == "none":
+    if rec.cache == "none":
         stages = ", ".join(f"{k} {v:.2f}" for k, v in rec.stage_times.items())
         print(f"  preprocess {preprocess:.1f} s (paper 2,500 s, target <= 60 s; stages: {stages})")
     else:
-        print(f"  preprocess: not measured (--cache, loaded {rec.cache_state})")
+        print(f"  preprocess: not measured (--cache, loaded the {rec.cache})")
     print(f"  fit, LS {fit_ms:.1f} ms (fastest of 5; paper 91 ms, target <= 20 ms)")
     quality_rows("aleph", op, Q, X)
     f_comp = speed_rows(op, Q)

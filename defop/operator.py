@@ -92,6 +92,7 @@ class DefOp:
         self._WF = self.W[1:].copy()
         self._WF[:, self._all_hcols] = 0.0
         self._WF32 = None  # float32 copy of W_F for evaluate_fast / evaluate_batch, made on first use
+        self._work = None  # workspace of the batch product
         self._inv_scale = 1.0 / handle_basis.scale
 
     # ------------------------------------------------------------------ properties
@@ -167,40 +168,47 @@ class DefOp:
         """Ψ(Q): (|Ψ|,) or (k,|Ψ|)."""
         return self.handle_basis(Q)
 
-    def _free(self, d, fast):
-        """δψ W_F for δψ (k,|Ψ|−1): float64 W_F, its float32 copy (``fast``) or the factors A B."""
+    def _free(self, d, fast, out=None):
+        """x + δψ W_F for δψ (k,|Ψ|−1), in float64: float64 W_F, its float32 copy (``fast``) or the factors."""
         if self.factors is None and not fast:
-            return d @ self._WF
+            return np.add(self._x, d @ self._WF, out=out)
         if self.factors is None and self._WF32 is None:
             self._WF32 = self._WF.astype(np.float32)
         mats = self.factors if self.factors is not None else (self._WF32,)
-        if mats[0].dtype == np.float64:
-            out = d
-            for M in mats:
-                out = out @ M
-            return out
-        # float32: scale each row into float32's range (only δψ of far-away Q needs it)
-        s = np.abs(d).max(axis=1, keepdims=True)
-        s[~(s > _F32_SAFE)] = 1.0
-        out = (d / s).astype(np.float32)
-        for M in mats:
-            out = out @ M
-        return out * s
+        # float32: rows of δψ beyond float32's range (only far-away Q) are scaled into it and back
+        s = np.abs(d).max(axis=1)
+        far = s > _F32_SAFE
+        if far.any():
+            s = np.where(far, s, 1.0)[:, None]
+            d = d / s
+        y = d.astype(mats[0].dtype)
+        for M in mats[:-1]:
+            y = y @ M
+        M = mats[-1]
+        # the last product goes into a kept workspace: a fresh (k, 2 n_vertices) temporary per call costs
+        # page faults comparable to the product itself
+        if self._work is None or self._work.shape[0] < len(y) or self._work.dtype != M.dtype:
+            self._work = np.empty((len(y), M.shape[1]), M.dtype)
+        y = np.matmul(y, M, out=self._work[: len(y)])
+        if far.any():
+            y = y * s
+        return np.add(self._x, y, out=out, dtype=np.float64)
 
-    def _evaluate(self, Q, fast):
-        """(★) for Q (n,2) or (k,n,2), validated."""
+    def _evaluate(self, Q, fast, out=None):
+        """(★) for Q (n,2) or (k,n,2), validated; ``out`` (k, 2 n_vertices) float64 receives the result."""
         Q = np.asarray(Q, dtype=float)
         z = self.handle_basis.z(Q)  # validates shape and NaN
         Q2 = Q.reshape(-1, self.n_moving, 2)
         d = self.handle_basis.delta_z(np.atleast_2d(z))
-        if not np.isfinite(d).all():
-            raise self._not_finite(Q2[~np.isfinite(d).all(axis=1)])
+        finite = np.isfinite(d).all(axis=1)
+        if not finite.all():
+            raise self._not_finite(Q2[~finite])
         self._check_extrapolation(Q)
-        out = self._free(d, fast)
-        out = np.add(self._x, out, dtype=np.float64)
+        out = self._free(d, fast, out)
         out[:, self._hcols] += (Q2 - self.P).reshape(len(Q2), -1)  # δψ W_H = Q − P, exactly (Prop. 2)
-        if not np.isfinite(out).all():
-            raise self._not_finite(Q2[~np.isfinite(out).all(axis=1)], "D(·, Q)")
+        big = np.abs(d).max(axis=1) > 1e280  # only rows this far from rest can overflow in the product
+        if big.any() and not np.isfinite(out[big]).all():
+            raise self._not_finite(Q2[big], "D(·, Q)")
         return out.reshape(*Q.shape[:-2], self.n_vertices, 2)
 
     def __call__(self, Q):
@@ -222,7 +230,7 @@ class DefOp:
         """
         return self._evaluate(Q, fast=False)
 
-    def evaluate_batch(self, Qs):
+    def evaluate_batch(self, Qs, out=None):
         """D(·, Q_k) for k configurations as one matrix product (trajectories, animation).
 
         As :meth:`evaluate_fast`: float32 W_F (or the factors) and the float64 exact part of (★).
@@ -230,6 +238,8 @@ class DefOp:
         Parameters
         ----------
         Qs : (k,n,2) numpy array
+        out : (k,n_vertices,2) float64 numpy array, optional
+            Written in place and returned (an animation loop reuses it: no fresh pages per batch).
 
         Returns
         -------
@@ -238,6 +248,11 @@ class DefOp:
         Qs = np.asarray(Qs, dtype=float)
         if Qs.ndim != 3:
             raise ValueError(f"Qs must have shape (k, {self.n_moving}, 2), got {Qs.shape}")
+        if out is not None:
+            if out.shape != (len(Qs), self.n_vertices, 2) or out.dtype != np.float64 or not out.flags.c_contiguous:
+                raise ValueError(f"out must be a C-contiguous float64 array of shape {(len(Qs), self.n_vertices, 2)}")
+            self._evaluate(Qs, fast=True, out=out.reshape(len(Qs), -1))
+            return out
         return self._evaluate(Qs, fast=True)
 
     def evaluate_fast(self, Q):

@@ -322,3 +322,12 @@ def test_load_checks_the_factors(op_and_data, tmp_path):
                 DefOp.load(bad)
     finally:
         op.decompress()
+
+
+def test_evaluate_batch_into_out(op_and_data):
+    s, op, Q, _ = op_and_data
+    buf = np.full((len(Q), s.mesh.n_vertices, 2), np.nan)
+    assert op.evaluate_batch(Q, out=buf) is buf
+    assert np.array_equal(buf, op.evaluate_batch(Q))
+    with pytest.raises(ValueError, match="out must be a C-contiguous float64 array of shape"):
+        op.evaluate_batch(Q, out=buf[:-1])
