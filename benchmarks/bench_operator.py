@@ -42,7 +42,7 @@ from defop.analysis import (
 from defop.operator import ExtrapolationWarning
 
 N_TEST = 60  # held-out configurations (issue 15: at least 50)
-TOL = 1e-3  # compress(): discarded part of the training displacements
+TOL = 5e-3  # compress(): discarded part of the training displacements (aleph: rank 30, +0.03% (8a))
 
 
 def guarantees(op, Q):
