@@ -296,7 +296,7 @@ class DefOp:
         Parameters
         ----------
         rank : int, optional
-            Keep this many directions (1 ≤ rank).
+            Keep this many directions (1 ≤ rank; at most the numerical rank of Y).
         tol : float
             Without ``rank``: keep the fewest directions whose discarded part of Y is at most ``tol``
             times ‖Y‖_F (relative, 0 ≤ tol < 1).
@@ -321,27 +321,15 @@ class DefOp:
         if rank is None and not (isinstance(tol, numbers.Real) and 0 <= tol < 1):
             raise ValueError(f"tol must be a relative tolerance in [0, 1), got {tol!r}")
         free = np.setdiff1d(np.arange(self._x.size), self._all_hcols)
-        mh = np.sqrt(np.repeat(self.mesh.mass_matrix.diagonal(), 2))[free]
-        WF = self._WF[:, free] * mh
+        S = None
         if self.train_samples is not None and len(self.train_samples) > 1:
-            Y = self.handle_basis.delta_z(self.handle_basis.z(self.train_samples)) @ WF
-        else:
-            Y = WF
-        # right singular vectors of Y from its small Gram matrix (m × m): only the leading ones are kept
-        lam, U = np.linalg.eigh(Y @ Y.T)
-        lam, U = np.clip(lam[::-1], 0.0, None), U[:, ::-1]
-        positive = int(np.sum(lam > lam[0] * 1e-24)) if lam[0] > 0 else 1
-        if rank is None:
-            tail = np.sqrt(np.concatenate([np.cumsum(lam[::-1])[::-1][1:], [0.0]]))
-            rank = int(np.argmax(tail <= tol * np.sqrt(lam.sum()))) + 1
-        rank = min(int(rank), positive)
-        Vr = (U[:, :rank] / np.sqrt(np.maximum(lam[:rank], 1e-300))).T @ Y  # (r, free), orthonormal rows
-        Vr, _ = np.linalg.qr(Vr.T)  # re-orthonormalise (Gram matrices square the condition number)
-        B = np.zeros((rank, self._x.size))
-        B[:, free] = Vr.T / mh
-        A = WF @ Vr
+            S = self.handle_basis.delta_z(self.handle_basis.z(self.train_samples))
+        mass = np.repeat(self.mesh.mass_matrix.diagonal(), 2)
+        A, Bf = principal_factors(self._WF[:, free], mass[free], S, rank, tol)
+        B = np.zeros((A.shape[1], self._x.size))
+        B[:, free] = Bf
         self.factors = (np.ascontiguousarray(A, dtype=dtype), np.ascontiguousarray(B, dtype=dtype))
-        self.meta["rank"] = rank
+        self.meta["rank"] = A.shape[1]
         return self
 
     def decompress(self):
@@ -421,6 +409,44 @@ class DefOp:
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc)
             raise ValueError(f"{path} is not a valid defop operator file: {what}") from exc
+
+
+def principal_factors(WF, mass, S=None, rank=None, tol=1e-3):
+    """W_F ≈ A B projected onto the leading mass-weighted principal directions of S W_F.
+
+    With Y = S W_F M^{1/2} ≈ U Σ V_rᵀ (right singular vectors from the small Gram matrix Y Yᵀ, then
+    re-orthonormalised): A = W_F M^{1/2} V_r and B = V_rᵀ M^{−1/2}, so A B = W_F M^{1/2} V_r V_rᵀ M^{−1/2}
+    and the discarded part of Y is at most ``tol`` ‖Y‖_F.
+
+    Parameters
+    ----------
+    WF : (q,c) numpy array
+        The free columns of W_F.
+    mass : (c,) numpy array
+        Lumped mass of each column's vertex.
+    S : (m,q) numpy array, optional
+        δψ at the training samples (default: the identity, Y = W_F M^{1/2}).
+    rank : int, optional
+    tol : float
+
+    Returns
+    -------
+    A : (q,r) numpy array
+    B : (r,c) numpy array
+    """
+    mh = np.sqrt(mass)
+    WF = WF * mh
+    Y = WF if S is None else S @ WF
+    lam, U = np.linalg.eigh(Y @ Y.T)
+    lam, U = np.clip(lam[::-1], 0.0, None), U[:, ::-1]
+    positive = max(1, int(np.sum(lam > lam[0] * 1e-24))) if lam[0] > 0 else 1
+    if rank is None:
+        tail = np.sqrt(np.concatenate([np.cumsum(lam[::-1])[::-1][1:], [0.0]]))
+        rank = int(np.argmax(tail <= tol * np.sqrt(lam.sum()))) + 1
+    rank = min(int(rank), positive)
+    Vr = (U[:, :rank] / np.sqrt(np.maximum(lam[:rank], 1e-300))).T @ Y  # (r, c), orthonormal rows
+    Vr, _ = np.linalg.qr(Vr.T)  # re-orthonormalise (the Gram matrix squares the condition number)
+    return WF @ Vr, Vr.T / mh
 
 
 def _array(data, name, ndim, dtype_kind, shape=None):
