@@ -4,7 +4,7 @@ Prints, from one run, with the guarantees on (Prop. 2 and (8b) hold on every pat
 ``defop.operator``; the run checks them on the held-out configurations):
 
 * preprocess time (sampling + ground-truth solves + fit), the fit (structured least squares) and fold;
-* single-thread frame rates (BLAS pinned to one thread with threadpoolctl; median and best of 7 runs) of
+* single-thread frame rates (BLAS pinned to one thread with threadpoolctl; median and best of 15 short runs) of
   the exact operator in float64 and float32 W_F, and of the compressed one (rank r, float32), each beside
   its floor on this machine: the bytes of the matrices a frame streams over the bandwidth of a large numpy
   copy (read + write), plus the ψ time; and the batch API (k = 256 frames as one product);
@@ -89,7 +89,7 @@ def speed_rows(op, Q):
     psi = repeat_timing(lambda: op.handle_basis.delta_one(z))["best"]
     exact64 = repeat_timing(lambda: op(Q[0]), repeats=5)
     print(
-        f"\nsingle thread (threadpoolctl), median / best of 7 runs; copy bandwidth {bw / 1e9:.1f} GB/s, "
+        f"\nsingle thread (threadpoolctl), median / best of 15 runs (batch: 5); copy bandwidth {bw / 1e9:.1f} GB/s, "
         f"ψ {1e6 * psi:.1f} us"
     )
     head = f"{'FPS median':>11s} {'FPS best':>10s} {'MB':>6s} {'floor us':>9s} {'best us':>8s} {'floor/best':>10s}"
