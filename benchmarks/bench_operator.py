@@ -86,7 +86,7 @@ def speed_rows(op, Q):
     """Frame rates beside their floors, single thread, median and best of repeats."""
     bw = copy_bandwidth()
     z = ((Q[0] - op.P) / op.handle_basis.scale).ravel()
-    psi = repeat_timing(lambda: op.handle_basis.delta_one(z))["best"]
+    psi = repeat_timing(lambda: op.handle_basis.delta_one(z), repeats=15, min_time=0.01)["best"]
     exact64 = repeat_timing(lambda: op(Q[0]), repeats=5)
     print(
         f"\nsingle thread (threadpoolctl), median / best of 15 runs (batch: 5); copy bandwidth {bw / 1e9:.1f} GB/s, "
