@@ -331,3 +331,27 @@ def test_evaluate_batch_into_out(op_and_data):
     assert np.array_equal(buf, op.evaluate_batch(Q))
     with pytest.raises(ValueError, match="out must be a C-contiguous float64 array of shape"):
         op.evaluate_batch(Q, out=buf[:-1])
+
+
+def test_format_1_files_still_load(op_and_data, tmp_path):
+    # operators cached before (★): format 1, W only, or W with factors of Ψ W (|Ψ| rows), which are rebuilt
+    _, op, Q, _ = op_and_data
+    op.save(tmp_path / "op.npz")
+    with np.load(tmp_path / "op.npz") as z:
+        header = json.loads(str(z["header"]))
+    header["format"] = "defop-operator-1"
+    old = _rewrite(tmp_path / "op.npz", tmp_path / "old.npz", header)
+    assert np.array_equal(DefOp.load(old)(Q), op(Q))
+    header["meta"]["rank"] = 4
+    q = op.handle_basis.size
+    old = _rewrite(
+        tmp_path / "op.npz",
+        tmp_path / "old_c.npz",
+        header,
+        factor_A=np.ones((q, 4)),
+        factor_B=np.ones((4, op.W.shape[1])),
+    )
+    back = DefOp.load(old)
+    assert back.rank == 4 and back.factors[0].shape == (q - 1, 4)
+    D = back(Q)
+    assert np.abs(D[:, back.handles[back.moving]] - Q).max() <= 1e-12
