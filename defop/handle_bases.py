@@ -32,7 +32,8 @@ def _check_Q(Q, n):
     if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, 2):
         raise ValueError(f"Q must have shape ({n}, 2) or (k, {n}, 2) for {n} moving handles, got {Q.shape}")
     if not np.isfinite(Q).all():
-        raise ValueError("Q has NaN or infinite entries")
+        where = np.argwhere(~np.isfinite(Q))[0].tolist()
+        raise ValueError(f"Q has NaN or infinite entries (first at {where}): {np.array2string(Q, threshold=20)}")
     return Q
 
 
@@ -97,6 +98,37 @@ class HandleBasis:
         psi : (|Ψ|,) numpy array
         """
         return self.evaluate_z(z[None])[0]
+
+    def delta_z(self, z):
+        """δψ(z) = Ψ(z)[1:] − Ψ(0)[1:]: the basis relative to the rest pose, without the constant.
+
+        The constant function drops out of every difference, and at the rest pose (z = 0, bit for bit,
+        as z = (Q − P)/scale gives at Q = P) δψ is exactly zero in floating point: the same function of
+        the same input, subtracted. :class:`defop.operator.DefOp` evaluates D(·, Q) = x + δψ(Q) W[1:].
+
+        Parameters
+        ----------
+        z : (k,2n) numpy array
+
+        Returns
+        -------
+        dpsi : (k,|Ψ|−1) numpy array
+        """
+        out = self.evaluate_z(z)[:, 1:]
+        out -= self._rest()
+        return out
+
+    def delta_one(self, z):
+        """:meth:`delta_z` at one configuration z (2n,), without validation. Returns (|Ψ|−1,)."""
+        out = self.evaluate_one(z)[1:]
+        out -= self._rest()
+        return out
+
+    def _rest(self):
+        """Ψ(0)[1:], computed once by the same code path as every evaluation."""
+        if getattr(self, "_psi0", None) is None:
+            self._psi0 = self.evaluate_one(np.zeros(self.dim))[1:].copy()
+        return self._psi0
 
     def side_conditions(self):
         """Linear conditions T c = 0 on coefficient vectors c (|Ψ|,); none for polynomials.
@@ -268,6 +300,18 @@ class TPSBasis(HandleBasis):
         r2 += self._cz_sq
         r2 += z @ z
         _tps_phi(r2, out[1 + self.dim :])
+        return out
+
+    def delta_one(self, z):
+        # the fast path of DefOp: z, then φ(‖z − c_k‖) − φ(‖c_k‖), in one buffer
+        out = np.empty(self.size - 1)
+        out[: self.dim] = z
+        r2 = self._cz_m2 @ z
+        r2 += self._cz_sq
+        r2 += z @ z
+        phi = out[self.dim :]
+        _tps_phi(r2, phi)
+        phi -= self._rest()[self.dim :]
         return out
 
     def side_conditions(self):

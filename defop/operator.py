@@ -1,15 +1,30 @@
 """The trained deformation operator DefOp: D(x, Q) = Σ_ij C_ij φ_i(x) ψ_j(Q) (Eq. 3).
 
 After fitting, the spatial basis is folded into the coefficients: D(·, Q) as row-major vertex positions
-is ``Ψ(Q) @ W`` with W (|Ψ| × 2n_vertices). One evaluation is a handle-basis evaluation plus one small
-dense product. :meth:`DefOp.compress` replaces W by a truncated SVD factor ``W ≈ A B`` (|Ψ| × r, r × 2n),
-which is what makes ≥ 20,000 evaluations per second possible; :meth:`DefOp.compression_error` measures
-what it costs.
+is ``Ψ(Q) @ W`` with W (|Ψ| × 2n_vertices). Every evaluation path (exact, float32, compressed; one frame
+or a batch) uses the same form, which keeps the paper's two guarantees by construction:
+
+    D(·, Q) = x + δψ(Q) W_F + δψ(Q) W_H,        δψ(Q) = Ψ(Q)[1:] − Ψ(P)[1:]            (★)
+
+* x are the rest positions, and (8b) ψ(P)ᵀ W = x makes (★) equal to Ψ(Q) W (the constant function
+  drops out of the difference). At Q = P, δψ is computed from the same bits as Ψ(P) and is exactly
+  zero, so D(·, P) = x holds to the last bit on every path, whatever precision or rank W_F is stored in.
+* W_H are the columns of the handle vertices. Prop. 2 / (8c) fix them to the coefficients of the handles'
+  own linear motion (the first 1 + 2n functions of Ψ are 1 and z = (Q − P)/scale), so δψ(Q) W_H =
+  scale·z = Q − P for a moving handle and 0 for a fixed one. This part is evaluated in float64 from z,
+  never compressed: the handles are interpolated to round-off at every Q where Ψ(Q) is finite.
+* W_F are the other columns, zero on the handles. Only W_F is stored in float32 or compressed. The
+  compressed form is W_F ≈ A B with B's rows spanning the leading principal directions of the training
+  displacements, mass-weighted: with S = δψ(Q_k) over the training samples, Y = S W_F M^{1/2} ≈ U Σ V_rᵀ,
+  B = V_rᵀ M^{−1/2} and A = W_F M^{1/2} V_r. This is the rank-r projection that is optimal for the
+  (8a) norm of Appendix A on the training set (the TPS operator reproduces it, Prop. 1); B is zero on
+  the handle columns and A multiplies δψ, so neither guarantee depends on the truncation.
 """
 
 from __future__ import annotations
 
 import json
+import numbers
 import warnings
 import zipfile
 from pathlib import Path
@@ -19,7 +34,9 @@ import numpy as np
 from . import handle_bases as hb
 from .mesh import Mesh
 
-FORMAT = "defop-operator-1"
+FORMAT = "defop-operator-2"
+READS = ("defop-operator-1", FORMAT)  # format 1: W only (its factors predate (★) and are dropped)
+_F32_SAFE = 1e28  # bound on |δψ A|² (single frame) and |δψ| (batch): float32 products stay finite (|B| << 1e9)
 
 
 class ExtrapolationWarning(UserWarning):
@@ -27,7 +44,7 @@ class ExtrapolationWarning(UserWarning):
 
 
 class DefOp:
-    """A trained closed-form deformation operator.
+    """A trained closed-form deformation operator, evaluated as (★) in the module docstring.
 
     Parameters
     ----------
@@ -42,12 +59,14 @@ class DefOp:
     meta : dict, optional
         Shape, energy, bases, number of samples, library version.
     train_samples : (m,n,2) numpy array, optional
-        The training configurations (for the extrapolation warning).
+        The training configurations (for the extrapolation warning and :meth:`compress`).
 
     Attributes
     ----------
     P : (n,2) numpy array
         Rest positions of the moving handles.
+    factors : tuple of (|Ψ|−1,r) and (r,2 n_vertices) numpy arrays, or None
+        A and B of the compressed W_F ≈ A B (after :meth:`compress`).
     """
 
     def __init__(self, mesh, handles, moving, handle_basis, W, meta=None, train_samples=None):
@@ -66,6 +85,15 @@ class DefOp:
             d = np.linalg.norm(self.train_samples - self.P, axis=-1)  # (m, n)
             self._reach = d.max(axis=0)
         self.fit_time = self.fold_time = None
+        # (★): x, the moving handles' coordinate columns, and W_F = W[1:] without the handle columns
+        self._x = np.ascontiguousarray(mesh.V, dtype=float).ravel()
+        self._hcols = (2 * self.handles[self.moving][:, None] + np.arange(2)).ravel()
+        self._all_hcols = (2 * self.handles[:, None] + np.arange(2)).ravel()
+        self._WF = self.W[1:].copy()
+        self._WF[:, self._all_hcols] = 0.0
+        self._WF32 = None  # float32 copy of W_F for evaluate_fast / evaluate_batch, made on first use
+        self._work = None  # workspace of the batch product
+        self._inv_scale = 1.0 / handle_basis.scale
 
     # ------------------------------------------------------------------ properties
     @property
@@ -94,8 +122,14 @@ class DefOp:
         """Rank of the compressed factor, or None when uncompressed."""
         return None if self.factors is None else self.factors[0].shape[1]
 
+    def factor_bytes(self, fast=True):
+        """Bytes of the matrices one evaluation streams (the memory-bandwidth floor of a frame)."""
+        if self.factors is not None:
+            return int(sum(f.nbytes for f in self.factors))
+        return int(self._WF.size * (4 if fast else 8))
+
     def __repr__(self):
-        comp = f", rank {self.rank}" if self.factors is not None else ""
+        comp = f", rank {self.rank} {self.factors[1].dtype}" if self.factors is not None else ""
         return (
             f"DefOp({self.meta.get('shape', '?')}, {self.meta.get('energy', '?')}, Ψ={self.handle_basis.kind} "
             f"|Ψ|={self.handle_basis.size}, Φ={self.meta.get('spatial', '?')}, "
@@ -118,12 +152,67 @@ class DefOp:
                 stacklevel=3,
             )
 
+    def _not_finite(self, Q, what="Ψ(Q)"):
+        Q = np.asarray(Q, dtype=float).reshape(-1, self.n_moving, 2)
+        bad = Q[0]
+        with np.errstate(all="ignore"):
+            dist = np.sqrt(np.max(np.sum((Q - self.P) ** 2, axis=-1)))
+        return ValueError(
+            f"{what} is not finite at Q = {np.array2string(bad, precision=4, threshold=20)}"
+            f"{' (first of the batch)' if len(Q) > 1 else ''}: a handle is {dist:.3g} from rest, beyond "
+            f"what the {self.handle_basis.kind} basis can evaluate in float64 (the bounding-box diagonal is "
+            f"{self.mesh.bbox_diagonal:.3g})"
+        )
+
     def psi(self, Q):
         """Ψ(Q): (|Ψ|,) or (k,|Ψ|)."""
         return self.handle_basis(Q)
 
+    def _free(self, d, fast, out=None):
+        """x + δψ W_F for δψ (k,|Ψ|−1), in float64: float64 W_F, its float32 copy (``fast``) or the factors."""
+        if self.factors is None and not fast:
+            return np.add(self._x, d @ self._WF, out=out)
+        if self.factors is None and self._WF32 is None:
+            self._WF32 = self._WF.astype(np.float32)
+        mats = self.factors if self.factors is not None else (self._WF32,)
+        # float32: rows of δψ beyond float32's range (only far-away Q) are scaled into it and back
+        s = np.abs(d).max(axis=1)
+        far = s > _F32_SAFE
+        if far.any():
+            s = np.where(far, s, 1.0)[:, None]
+            d = d / s
+        y = d.astype(mats[0].dtype)
+        for M in mats[:-1]:
+            y = y @ M
+        M = mats[-1]
+        # the last product goes into a kept workspace: a fresh (k, 2 n_vertices) temporary per call costs
+        # page faults comparable to the product itself
+        if self._work is None or self._work.shape[0] < len(y) or self._work.dtype != M.dtype:
+            self._work = np.empty((len(y), M.shape[1]), M.dtype)
+        y = np.matmul(y, M, out=self._work[: len(y)])
+        if far.any():
+            y = y * s
+        return np.add(self._x, y, out=out, dtype=np.float64)
+
+    def _evaluate(self, Q, fast, out=None):
+        """(★) for Q (n,2) or (k,n,2), validated; ``out`` (k, 2 n_vertices) float64 receives the result."""
+        Q = np.asarray(Q, dtype=float)
+        z = self.handle_basis.z(Q)  # validates shape and NaN
+        Q2 = Q.reshape(-1, self.n_moving, 2)
+        d = self.handle_basis.delta_z(np.atleast_2d(z))
+        finite = np.isfinite(d).all(axis=1)
+        if not finite.all():
+            raise self._not_finite(Q2[~finite])
+        self._check_extrapolation(Q)
+        out = self._free(d, fast, out)
+        out[:, self._hcols] += (Q2 - self.P).reshape(len(Q2), -1)  # δψ W_H = Q − P, exactly (Prop. 2)
+        big = np.abs(d).max(axis=1) > 1e280  # only rows this far from rest can overflow in the product
+        if big.any() and not np.isfinite(out[big]).all():
+            raise self._not_finite(Q2[big], "D(·, Q)")
+        return out.reshape(*Q.shape[:-2], self.n_vertices, 2)
+
     def __call__(self, Q):
-        """D(·, Q): the deformed vertex positions.
+        """D(·, Q): the deformed vertex positions, (★) with float64 W or the compressed factors.
 
         Parameters
         ----------
@@ -137,20 +226,42 @@ class DefOp:
         Raises
         ------
         ValueError
-            Q with the wrong shape or NaN.
+            Q with the wrong shape or NaN, or Q so far away that Ψ(Q) is not finite (the message names Q).
         """
-        Q = np.asarray(Q, dtype=float)
-        psi = self.handle_basis(Q)  # validates shape and NaN
-        self._check_extrapolation(Q)
-        if self.factors is None:
-            out = psi @ self.W
-        else:
-            A, B = self.factors
-            out = ((psi.astype(A.dtype) @ A) @ B).astype(np.float64)
-        return out.reshape(*Q.shape[:-2], self.n_vertices, 2)
+        return self._evaluate(Q, fast=False)
+
+    def evaluate_batch(self, Qs, out=None):
+        """D(·, Q_k) for k configurations as one matrix product (trajectories, animation).
+
+        As :meth:`evaluate_fast`: float32 W_F (or the factors) and the float64 exact part of (★). The
+        product goes through a workspace kept on the operator: use one operator per thread.
+
+        Parameters
+        ----------
+        Qs : (k,n,2) numpy array
+        out : (k,n_vertices,2) float64 numpy array, optional
+            Written in place and returned (an animation loop reuses it: no fresh pages per batch).
+
+        Returns
+        -------
+        X : (k,n_vertices,2) numpy array
+        """
+        Qs = np.asarray(Qs, dtype=float)
+        if Qs.ndim != 3:
+            raise ValueError(f"Qs must have shape (k, {self.n_moving}, 2), got {Qs.shape}")
+        if out is not None:
+            if out.shape != (len(Qs), self.n_vertices, 2) or out.dtype != np.float64 or not out.flags.c_contiguous:
+                raise ValueError(f"out must be a C-contiguous float64 array of shape {(len(Qs), self.n_vertices, 2)}")
+            self._evaluate(Qs, fast=True, out=out.reshape(len(Qs), -1))
+            return out
+        return self._evaluate(Qs, fast=True)
 
     def evaluate_fast(self, Q):
-        """D(·, Q) for one configuration without validation (for interactive loops).
+        """D(·, Q) for one configuration, the interactive path: (★) with float32 W_F or the factors.
+
+        The shape of Q is not checked; a non-finite Ψ(Q) raises, as in :meth:`__call__`. The float32 W_F
+        rounds the free vertices by about 1e-6 of the bounding-box diagonal (aleph TPS-500); the handles
+        and the rest pose stay exact.
 
         Parameters
         ----------
@@ -160,42 +271,68 @@ class DefOp:
         -------
         X : (n_vertices,2) numpy array
         """
-        psi = self.handle_basis.evaluate_one(((Q - self.handle_basis.P) / self.handle_basis.scale).ravel())
+        dz = (Q - self.handle_basis.P).ravel()
+        d = self.handle_basis.delta_one(dz / self.handle_basis.scale)
         if self.factors is None:
-            return (psi @ self.W).reshape(-1, 2)
-        A, B = self.factors
-        return ((psi.astype(A.dtype) @ A) @ B).astype(np.float64).reshape(-1, 2)
+            if self._WF32 is None:
+                self._WF32 = self._WF.astype(np.float32)
+            mats = (self._WF32,)
+        else:
+            mats = self.factors
+        t = d.astype(mats[0].dtype) @ mats[0]
+        if not t @ t < _F32_SAFE:  # large, inf or NaN (t·t overflows to inf first): the checked path
+            return self._evaluate(Q, fast=True)
+        out = self._x + (t @ mats[1] if len(mats) == 2 else t)
+        out[self._hcols] += dz  # δψ W_H = Q − P (Prop. 2)
+        return out.reshape(-1, 2)
 
     # ------------------------------------------------------------------ compression
     def compress(self, rank=None, tol=1e-3, dtype=np.float32):
-        """Replace W by a truncated SVD factor W ≈ A B for speed.
+        """Replace W_F by a rank-r factor W_F ≈ A B (module docstring, (★)); the guarantees stay exact.
+
+        B spans the leading mass-weighted principal directions of the training displacements
+        δψ(Q_k) W_F (Y = S W_F M^{1/2} ≈ U Σ V_rᵀ; B = V_rᵀ M^{−1/2}, A = W_F M^{1/2} V_r), so the
+        truncation is the best rank-r one in the (8a) norm on the training set. Without training
+        samples, Y = W_F M^{1/2}. B is zero on the handle columns and A multiplies δψ(Q), which is zero
+        at Q = P: neither Prop. 2 nor (8b) depends on r or on the precision.
 
         Parameters
         ----------
         rank : int, optional
-            Keep this many singular values.
+            Keep this many directions (1 ≤ rank; at most the numerical rank of Y).
         tol : float
-            Without ``rank``: keep the fewest singular values whose discarded part is at most ``tol``
-            times ‖W‖_F (relative).
+            Without ``rank``: keep the fewest directions whose discarded part of Y is at most ``tol``
+            times ‖Y‖_F (relative, 0 ≤ tol < 1).
         dtype : numpy dtype
-            Storage of A and B. A frame is a matrix–vector product over B (rank × 2·n_vertices) that is
-            memory-bound, so float32 halves its time (aleph: 42 → 21 µs); its rounding (~1e-7
-            relative) is far below the truncation's. Results are returned in float64.
+            float32 (default: a frame is a memory-bound product over B, so half the bytes is half the
+            time; the rounding, ~1e-7 relative, is far below the truncation) or float64.
 
         Returns
         -------
         self : DefOp
+
+        Raises
+        ------
+        ValueError
+            A rank that is not a positive integer, a tol outside [0, 1), or another dtype.
         """
-        U, s, Vt = np.linalg.svd(self.W, full_matrices=False)
-        if rank is None:
-            tail = np.sqrt(np.concatenate([np.cumsum((s**2)[::-1])[::-1][1:], [0.0]]))
-            rank = int(np.argmax(tail <= tol * np.linalg.norm(s))) + 1
-        rank = max(1, min(int(rank), len(s)))
-        self.factors = (
-            np.ascontiguousarray(U[:, :rank] * s[:rank], dtype=dtype),
-            np.ascontiguousarray(Vt[:rank], dtype=dtype),
-        )
-        self.meta["rank"] = rank
+        dtype = np.dtype(dtype)
+        if dtype not in (np.float32, np.float64):
+            raise ValueError(f"dtype must be float32 or float64, got {dtype}")
+        if rank is not None and (isinstance(rank, bool) or not isinstance(rank, numbers.Integral) or rank < 1):
+            raise ValueError(f"rank must be a positive integer, got {rank!r}")
+        if rank is None and not (isinstance(tol, numbers.Real) and 0 <= tol < 1):
+            raise ValueError(f"tol must be a relative tolerance in [0, 1), got {tol!r}")
+        free = np.setdiff1d(np.arange(self._x.size), self._all_hcols)
+        S = None
+        if self.train_samples is not None and len(self.train_samples) > 1:
+            S = self.handle_basis.delta_z(self.handle_basis.z(self.train_samples))
+        mass = np.repeat(self.mesh.mass_matrix.diagonal(), 2)
+        A, Bf = principal_factors(self._WF[:, free], mass[free], S, rank, tol)
+        B = np.zeros((A.shape[1], self._x.size))
+        B[:, free] = Bf
+        self.factors = (np.ascontiguousarray(A, dtype=dtype), np.ascontiguousarray(B, dtype=dtype))
+        self.meta["rank"] = A.shape[1]
         return self
 
     def decompress(self):
@@ -251,12 +388,12 @@ class DefOp:
 
     @classmethod
     def load(cls, path):
-        """Load an operator written by :meth:`save`.
+        """Load an operator written by :meth:`save`, checking every array (finite values, shapes).
 
         Raises
         ------
         ValueError
-            A missing, corrupt or incompatible file.
+            A missing, corrupt, malformed or incompatible file (the message says what is wrong).
         """
         path = Path(path)
         if not path.exists():
@@ -267,27 +404,105 @@ class DefOp:
             header = json.loads(str(data["header"]))
         except (zipfile.BadZipFile, OSError, EOFError, KeyError, json.JSONDecodeError, ValueError) as exc:
             raise ValueError(f"{path} is not a readable defop operator file ({type(exc).__name__}: {exc})") from exc
-        if header.get("format") != FORMAT:
-            raise ValueError(f"{path} has format {header.get('format')!r}; this defop reads {FORMAT!r}")
-        need = {"V", "F", "handles", "moving", "W", "basis_P"}
-        missing = need - set(data)
-        if missing:
-            raise ValueError(f"{path} is incomplete: missing {sorted(missing)}")
-        b = header["basis"]
-        kind = b["kind"]
-        if kind == "tps":
-            psi = hb.TPSBasis(data["basis_P"], data["basis_centers"], b["scale"])
-        elif kind == "linear":
-            psi = hb.LinearBasis(data["basis_P"], b["scale"])
-        else:
-            psi = hb.PolynomialBasis(data["basis_P"], b["degree"], b["scale"])
-        mesh = Mesh(data["V"], data["F"])
-        if data["W"].shape != (psi.size, 2 * mesh.n_vertices):
-            raise ValueError(
-                f"{path} is inconsistent: W has shape {data['W'].shape}, expected ({psi.size}, {2 * mesh.n_vertices})"
-            )
-        op = cls(mesh, data["handles"], data["moving"], psi, data["W"], header["meta"], data.get("train_samples"))
-        op.meta = header["meta"]
+        fmt = header.get("format") if isinstance(header, dict) else None
+        if fmt not in READS:
+            raise ValueError(f"{path} has format {fmt!r}; this defop reads {FORMAT!r}")
+        try:
+            return _build(cls, header, data, fmt)
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc)
+            raise ValueError(f"{path} is not a valid defop operator file: {what}") from exc
+
+
+def principal_factors(WF, mass, S=None, rank=None, tol=1e-3):
+    """W_F ≈ A B projected onto the leading mass-weighted principal directions of S W_F.
+
+    With Y = S W_F M^{1/2} ≈ U Σ V_rᵀ (right singular vectors from the small Gram matrix Y Yᵀ, then
+    re-orthonormalised): A = W_F M^{1/2} V_r and B = V_rᵀ M^{−1/2}, so A B = W_F M^{1/2} V_r V_rᵀ M^{−1/2}
+    and the discarded part of Y is at most ``tol`` ‖Y‖_F.
+
+    Parameters
+    ----------
+    WF : (q,c) numpy array
+        The free columns of W_F.
+    mass : (c,) numpy array
+        Lumped mass of each column's vertex.
+    S : (m,q) numpy array, optional
+        δψ at the training samples (default: the identity, Y = W_F M^{1/2}).
+    rank : int, optional
+    tol : float
+
+    Returns
+    -------
+    A : (q,r) numpy array
+    B : (r,c) numpy array
+    """
+    mh = np.sqrt(mass)
+    WF = WF * mh
+    Y = WF if S is None else S @ WF
+    lam, U = np.linalg.eigh(Y @ Y.T)
+    lam, U = np.clip(lam[::-1], 0.0, None), U[:, ::-1]
+    positive = max(1, int(np.sum(lam > lam[0] * 1e-24))) if lam[0] > 0 else 1
+    if rank is None:
+        tail = np.sqrt(np.concatenate([np.cumsum(lam[::-1])[::-1][1:], [0.0]]))
+        rank = int(np.argmax(tail <= tol * np.sqrt(lam.sum()))) + 1
+    rank = min(int(rank), positive)
+    Vr = (U[:, :rank] / np.sqrt(np.maximum(lam[:rank], 1e-300))).T @ Y  # (r, c), orthonormal rows
+    Vr, _ = np.linalg.qr(Vr.T)  # re-orthonormalise (the Gram matrix squares the condition number)
+    return WF @ Vr, Vr.T / mh
+
+
+def _array(data, name, ndim, dtype_kind, shape=None):
+    """data[name] checked: dimension, kind (f/i/b), finite values, and ``shape`` (None = any)."""
+    if name not in data:
+        raise KeyError(f"array {name!r}")
+    a = data[name]
+    if a.ndim != ndim or a.dtype.kind not in dtype_kind:
+        raise ValueError(f"array {name!r} must be {ndim}-D of kind {dtype_kind!r}, got {a.dtype} {a.shape}")
+    if shape is not None and any(s is not None and s != t for s, t in zip(shape, a.shape)):
+        raise ValueError(f"array {name!r} has shape {a.shape}, expected {tuple(shape)}")
+    if a.dtype.kind == "f" and not np.isfinite(a).all():
+        raise ValueError(f"array {name!r} has NaN or infinite values")
+    return a
+
+
+def _build(cls, header, data, fmt):
+    """The operator from a loaded header and arrays, validating both (raises KeyError/TypeError/ValueError)."""
+    b, meta = header["basis"], header["meta"]
+    if not isinstance(meta, dict) or not isinstance(b, dict):
+        raise TypeError("header 'meta' and 'basis' must be objects")
+    V = _array(data, "V", 2, "f", (None, 2))
+    F = _array(data, "F", 2, "iu", (None, 3))
+    handles = _array(data, "handles", 1, "iu")
+    moving = _array(data, "moving", 1, "b", handles.shape)
+    mesh = Mesh(V, F)
+    if handles.size and (handles.min() < 0 or handles.max() >= len(V)):
+        raise ValueError(f"handle indices must lie in [0, {len(V)})")
+    n = int(moving.sum())
+    P = _array(data, "basis_P", 2, "f", (n, 2))
+    if not np.array_equal(P, V[handles[moving]]):
+        raise ValueError("basis_P is not the rest position of the moving handles")
+    kind, scale = b["kind"], float(b["scale"])
+    if kind == "tps":
+        psi = hb.TPSBasis(P, _array(data, "basis_centers", 3, "f", (None, n, 2)), scale)
+    elif kind == "linear":
+        psi = hb.LinearBasis(P, scale)
+    elif kind in hb.KINDS or str(kind).startswith("degree"):
+        psi = hb.PolynomialBasis(P, int(b["degree"]), scale)
+    else:
+        raise ValueError(f"unknown handle basis {kind!r}")
+    W = _array(data, "W", 2, "f", (psi.size, 2 * len(V)))
+    samples = _array(data, "train_samples", 3, "f", (None, n, 2)) if "train_samples" in data else None
+    op = cls(mesh, handles, moving, psi, W, meta, samples)
+    op.meta = meta
+    if fmt != FORMAT:  # format 1 factors compressed Ψ W without (★): recompute them
         if "factor_A" in data:
-            op.factors = (data["factor_A"], data["factor_B"])
+            op.compress(rank=int(meta.get("rank", 1)))
         return op
+    if "factor_A" in data:
+        A = _array(data, "factor_A", 2, "f", (psi.size - 1, None))
+        B = _array(data, "factor_B", 2, "f", (A.shape[1], 2 * len(V)))
+        if A.dtype != B.dtype or np.any(B[:, op._all_hcols] != 0):
+            raise ValueError("factor_B must be zero on the handle columns, in the dtype of factor_A")
+        op.factors = (A, B)
+    return op

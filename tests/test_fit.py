@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -116,3 +118,23 @@ def test_symmetric_tps_path_equals_the_general_null_space_method():
     assert r1 == r2 == len(Qs) - 1
     assert np.abs(G1 - G2).max() <= 1e-9 * np.abs(G1).max()
     assert np.abs(b1 - b2).max() <= 1e-9 * np.abs(b1).max()
+
+
+@pytest.mark.parametrize("basis, spatial", [("tps", "hat"), ("quadratic", "hat"), ("tps", "reduced")])
+def test_fitted_W_satisfies_the_constraints_the_operator_builds_on(data, basis, spatial):
+    # DefOp's (★) evaluates x + δψ W_F + (Q − P) on the handles: that equals Ψ(Q) W exactly when the fit
+    # met (8b) Ψ(P) W = x and (8c) W's handle columns are the handles' linear coefficients
+    s, Qtr, Xtr, Qte, _ = data
+    op = dop.fit.fit_shape(s, Qtr, Xtr, basis, spatial, k=30)
+    diag = s.mesh.bbox_diagonal
+    assert np.abs(op.psi(s.P_moving) @ op.W - s.mesh.V.ravel()).max() <= 1e-10 * diag  # (8b)
+    Wh = op.W.reshape(op.W.shape[0], -1, 2)[:, op.handles]
+    for j, h in enumerate(np.flatnonzero(op.moving)):
+        for c in range(2):
+            assert np.abs(Wh[:, h, c] - op.handle_basis.linear_coefficients(j, c)).max() <= 1e-9 * diag
+    # so Ψ(Q) W, the paper's Eq. (3) as fitted, and the evaluated (★) agree away from the handles too
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
+        D = op(Qte)
+    ref = (op.psi(Qte) @ op.W).reshape(D.shape)
+    assert np.abs(D - ref).max() <= 1e-9 * diag

@@ -6,6 +6,8 @@ from math import comb
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from defop import handle_bases as hb
 
@@ -89,3 +91,32 @@ def test_evaluate_one_fast_path_matches_call(kind):
     b = hb.make_basis(kind, P, centers=C if kind == "tps" else None, scale=0.7)
     for Q in (C[5], P + 0.1, P):  # a centre (r = 0), a generic point, the rest pose
         assert np.allclose(b.evaluate_one(b.z(Q)), b(Q), rtol=0, atol=1e-12)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    kind=st.sampled_from(["linear", "quadratic", "cubic", "tps"]),
+    n=st.integers(1, 3),
+    seed=st.integers(0, 2**31 - 1),
+    far=st.sampled_from([1e-3, 1.0, 1e3]),
+)
+def test_delta_is_psi_relative_to_rest_and_exactly_zero_there(kind, n, seed, far):
+    # DefOp's (★) needs δψ(P) = 0 bit for bit on the batch and the single-frame paths
+    rng = np.random.default_rng(seed)
+    P = rng.standard_normal((n, 2))
+    centers = P + rng.standard_normal((2 * n + 4, n, 2)) if kind == "tps" else None
+    psi = hb.make_basis(kind, P, centers=centers, scale=0.7)
+    zero = psi.z(P)
+    assert np.all(psi.delta_z(zero[None]) == 0) and np.all(psi.delta_one(zero) == 0)
+    Q = P + far * rng.standard_normal((3, n, 2))
+    z = psi.z(Q)
+    ref = psi(Q)[:, 1:] - psi(P)[1:]
+    scale = np.abs(psi(Q)).max()
+    assert np.allclose(psi.delta_z(z), ref, rtol=0, atol=1e-12 * scale)
+    assert np.allclose(np.array([psi.delta_one(zi) for zi in z]), ref, rtol=0, atol=1e-12 * scale)
+
+
+def test_non_finite_Q_is_named():
+    psi = hb.make_basis("linear", np.zeros((2, 2)))
+    with pytest.raises(ValueError, match=r"Q has NaN or infinite entries \(first at \[1, 0\]\)"):
+        psi(np.array([[0.0, 0.0], [np.inf, 0.0]]))

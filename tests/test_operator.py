@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import json
+import warnings
+
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import defop as dop
+from defop import handle_bases as hb
 from defop.operator import DefOp, ExtrapolationWarning
 
 
@@ -92,3 +98,260 @@ def test_extrapolation_warning(op_and_data):
     s, op, _, _ = op_and_data
     with pytest.warns(ExtrapolationWarning, match="moving handle 0 .* extrapolates"):
         op(s.P_moving + [[3.0, 0.0]])
+
+
+# ---------------------------------------------------------------- the guarantees on every path (issue 15)
+# Prop. 2 (handles interpolated) and (8b) (D(x, P) = x) must hold by construction for any fitted data,
+# so the data below is synthetic: random handle subsets, random samples, a random smooth deformation.
+
+_MESH = {}
+
+
+def _mesh():
+    if "bar" not in _MESH:
+        _MESH["bar"] = dop.shapes.load("bar", n_vertices=250).mesh
+    return _MESH["bar"]
+
+
+def _random_operator(seed, basis, spatial, n_handles, n_moving):
+    rng = np.random.default_rng(seed)
+    mesh = _mesh()
+    handles = rng.choice(mesh.n_vertices, n_handles, replace=False)
+    moving = np.zeros(n_handles, bool)
+    moving[rng.choice(n_handles, n_moving, replace=False)] = True
+    P = mesh.V[handles[moving]]
+    q = hb.basis_size(basis, n_moving, 0 if basis != "tps" else 1)
+    m = max(q + 4, 2 * n_moving + 8)
+    Q = P + 0.2 * rng.standard_normal((m, n_moving, 2))
+    # a smooth synthetic "ground truth": any data must give the guarantees
+    a = rng.standard_normal((m, 2, 2)) * 0.3
+    X = mesh.V + np.einsum("mij,vj->mvi", a, mesh.V) + 0.05 * np.sin(3 * mesh.V[None, :, :1] + Q[:, :1, :1])
+    return dop.fit.fit(mesh, handles, moving, Q, X, basis, spatial, k=12), Q
+
+
+def _paths(op, Qs):
+    """Every evaluation path on Qs (k,n,2): (name, (k,n_vertices,2))."""
+    return [
+        ("op(Q)", np.array([op(q) for q in Qs])),
+        ("op(Qs)", op(Qs)),
+        ("evaluate_fast", np.array([op.evaluate_fast(q) for q in Qs])),
+        ("evaluate_batch", op.evaluate_batch(Qs)),
+    ]
+
+
+def _assert_guarantees(op, Qs, where):
+    diag = op.mesh.bbox_diagonal
+    hv = op.handles[op.moving]
+    fixed = op.handles[~op.moving]
+    for name, D in _paths(op, Qs):
+        # Prop. 2: moving handles follow Q, fixed handles stay, to 1e-9 of the diagonal (+ round-off of |Q|)
+        tol = 1e-9 * diag + 4e-16 * np.abs(Qs).max(axis=(1, 2))[:, None, None]
+        assert np.all(np.abs(D[:, hv] - Qs) <= tol), f"{where}, {name}: handles off by {np.abs(D[:, hv] - Qs).max()}"
+        assert np.array_equal(D[:, fixed], np.broadcast_to(op.mesh.V[fixed], D[:, fixed].shape)), name
+    for name, D in _paths(op, op.P[None]):
+        # (8b): the rest pose is reproduced exactly (δψ(P) = 0 bit for bit)
+        assert np.abs(D[0] - op.mesh.V).max() <= 1e-9 * diag, f"{where}, {name}: rest pose off"
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    basis=st.sampled_from(["linear", "quadratic", "tps"]),
+    spatial=st.sampled_from(["hat", "reduced"]),
+    n_handles=st.integers(1, 5),
+    data=st.data(),
+)
+def test_handles_and_rest_pose_exact_on_every_path(seed, basis, spatial, n_handles, data):
+    n_moving = data.draw(st.integers(1, min(n_handles, 3)), label="n_moving")
+    if basis == "quadratic" and n_moving > 2:
+        n_moving = 2
+    op, Q = _random_operator(seed, basis, spatial, n_handles, n_moving)
+    rng = np.random.default_rng(seed + 1)
+    far = data.draw(st.sampled_from([0.1, 1.0, 30.0, 1e4]), label="distance / diagonal")
+    Qs = op.P + far * op.mesh.bbox_diagonal * rng.standard_normal((4, n_moving, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        _assert_guarantees(op, Qs, "exact W")
+        for rank, dtype in [(1, np.float32), (3, np.float32), (None, np.float64)]:
+            op.compress(rank=rank, tol=1e-2, dtype=dtype)
+            _assert_guarantees(op, Qs, f"rank {op.rank} {np.dtype(dtype).name}")
+        op.decompress()
+
+
+def test_batch_api_matches_single_frames(op_and_data):
+    s, op, Q, _ = op_and_data
+    exact = op(Q)
+    fast = op.evaluate_batch(Q)
+    assert fast.shape == exact.shape and fast.dtype == np.float64
+    assert np.abs(fast - exact).max() <= 1e-5 * s.mesh.bbox_diagonal  # float32 W_F
+    single = np.array([op.evaluate_fast(q) for q in Q])
+    assert np.abs(single - fast).max() <= 1e-5 * s.mesh.bbox_diagonal
+    with pytest.raises(ValueError, match=r"Qs must have shape \(k, 1, 2\)"):
+        op.evaluate_batch(Q[0])
+
+
+def test_compression_discards_at_most_tol_of_the_training_displacements(op_and_data):
+    # the TPS operator reproduces the training set (Prop. 1), so on it the compressed operator's (8a) error is
+    # exactly the discarded part of the mass-weighted displacements Y, which compress() bounds by tol ‖Y‖
+    s, op, Q, X = op_and_data
+    mass = s.mesh.mass_matrix.diagonal()
+    total = np.einsum("v,kvc->", mass, (X - s.mesh.V) ** 2)
+    for tol in (1e-1, 1e-2, 1e-3):
+        op.compress(tol=tol, dtype=np.float64)
+        try:
+            discarded = dop.analysis.approximation_error(op, Q, X) * s.mesh.n_vertices
+            assert discarded <= tol**2 * total * (1 + 1e-6)
+            assert np.all(op.factors[1][:, op._all_hcols] == 0)  # B never touches the handle columns
+        finally:
+            op.decompress()
+
+
+# ---------------------------------------------------------------- never NaN, clear errors (issue 14)
+@pytest.mark.parametrize("path", ["call", "batch", "fast"])
+def test_non_finite_psi_raises_naming_Q(op_and_data, path):
+    s, op, _, _ = op_and_data
+    far = s.P_moving + 1e200
+    f = {"call": op, "batch": lambda q: op.evaluate_batch(q[None]), "fast": op.evaluate_fast}[path]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        with pytest.raises(ValueError, match=r"Ψ\(Q\) is not finite at Q = \[\[1\.e\+200"):
+            f(far)
+
+
+def test_evaluate_fast_rejects_nan(op_and_data):
+    s, op, _, _ = op_and_data
+    for compressed in (False, True):
+        if compressed:
+            op.compress(rank=3)
+        try:
+            with pytest.raises(ValueError, match=r"Q has NaN or infinite entries \(first at \[0, 0\]\)"):
+                op.evaluate_fast(np.array([[np.nan, 0.0]]))
+        finally:
+            op.decompress()
+
+
+@pytest.mark.parametrize(
+    "kw, message",
+    [
+        ({"tol": -1}, r"tol must be a relative tolerance in \[0, 1\), got -1"),
+        ({"tol": float("nan")}, r"tol must be a relative tolerance in \[0, 1\), got nan"),
+        ({"tol": 1.5}, r"tol must be a relative tolerance in \[0, 1\), got 1.5"),
+        ({"rank": 0}, "rank must be a positive integer, got 0"),
+        ({"rank": 2.5}, "rank must be a positive integer, got 2.5"),
+        ({"rank": True}, "rank must be a positive integer, got True"),
+        ({"rank": 3, "dtype": np.int32}, "dtype must be float32 or float64, got int32"),
+    ],
+)
+def test_compress_validates_its_options(op_and_data, kw, message):
+    _, op, _, _ = op_and_data
+    with pytest.raises(ValueError, match=message):
+        op.compress(**kw)
+    assert op.factors is None
+
+
+def _rewrite(src, dst, header=None, **arrays):
+    with np.load(src) as z:
+        data = {k: z[k] for k in z.files}
+    if header is not None:
+        data["header"] = np.array(json.dumps(header))
+    data.update(arrays)
+    with open(dst, "wb") as fh:
+        np.savez(fh, **data)
+    return dst
+
+
+@pytest.mark.parametrize(
+    "drop, message",
+    [("meta", "'meta'"), ("basis", "'basis'"), ("kind", "'kind'"), ("scale", "'scale'")],
+)
+def test_load_header_missing_keys_is_a_value_error(op_and_data, tmp_path, drop, message):
+    _, op, _, _ = op_and_data
+    op.save(tmp_path / "op.npz")
+    with np.load(tmp_path / "op.npz") as z:
+        header = json.loads(str(z["header"]))
+    if drop in header:
+        del header[drop]
+    else:
+        del header["basis"][drop]
+    bad = _rewrite(tmp_path / "op.npz", tmp_path / "bad.npz", header)
+    with pytest.raises(ValueError, match=f"not a valid defop operator file: missing {message}"):
+        DefOp.load(bad)
+
+
+@pytest.mark.parametrize(
+    "name, make, message",
+    [
+        ("W", lambda a: np.where(np.arange(a.size).reshape(a.shape) == 7, np.nan, a), "'W' has NaN or infinite"),
+        ("W", lambda a: a[:, :-2], r"'W' has shape \(\d+, \d+\), expected"),
+        ("V", lambda a: np.where(a == a[0, 0], np.inf, a), "'V' has NaN or infinite"),
+        ("F", lambda a: a[:, :2], r"'F' has shape \(\d+, 2\), expected \(None, 3\)"),
+        ("basis_centers", lambda a: a * np.nan, "'basis_centers' has NaN"),
+        ("train_samples", lambda a: a[..., :1], r"'train_samples' has shape"),
+        ("handles", lambda a: a + 10**6, r"handle indices must lie in \[0, \d+\)"),
+        ("moving", lambda a: a.astype(float), "'moving' must be 1-D of kind 'b'"),
+        ("basis_P", lambda a: a + 1.0, "basis_P is not the rest position of the moving handles"),
+    ],
+)
+def test_load_checks_every_array(op_and_data, tmp_path, name, make, message):
+    _, op, _, _ = op_and_data
+    op.save(tmp_path / "op.npz")
+    with np.load(tmp_path / "op.npz") as z:
+        bad_array = make(z[name])
+    bad = _rewrite(tmp_path / "op.npz", tmp_path / "bad.npz", **{name: bad_array})
+    with pytest.raises(ValueError, match=message):
+        DefOp.load(bad)
+
+
+def test_load_checks_the_factors(op_and_data, tmp_path):
+    _, op, Q, _ = op_and_data
+    op.compress(rank=3)
+    try:
+        op.save(tmp_path / "c.npz")
+        back = DefOp.load(tmp_path / "c.npz")
+        assert np.array_equal(back(Q), op(Q)) and back.rank == 3
+        A, B = op.factors
+        touched = B.copy()
+        touched[:, op._all_hcols[0]] = 1.0
+        for arrays, message in [
+            ({"factor_B": touched}, "factor_B must be zero on the handle columns"),
+            ({"factor_A": A[:-1]}, r"'factor_A' has shape"),
+            ({"factor_A": A * np.nan}, "'factor_A' has NaN"),
+        ]:
+            bad = _rewrite(tmp_path / "c.npz", tmp_path / "bad.npz", **arrays)
+            with pytest.raises(ValueError, match=message):
+                DefOp.load(bad)
+    finally:
+        op.decompress()
+
+
+def test_evaluate_batch_into_out(op_and_data):
+    s, op, Q, _ = op_and_data
+    buf = np.full((len(Q), s.mesh.n_vertices, 2), np.nan)
+    assert op.evaluate_batch(Q, out=buf) is buf
+    assert np.array_equal(buf, op.evaluate_batch(Q))
+    with pytest.raises(ValueError, match="out must be a C-contiguous float64 array of shape"):
+        op.evaluate_batch(Q, out=buf[:-1])
+
+
+def test_format_1_files_still_load(op_and_data, tmp_path):
+    # operators cached before (★): format 1, W only, or W with factors of Ψ W (|Ψ| rows), which are rebuilt
+    _, op, Q, _ = op_and_data
+    op.save(tmp_path / "op.npz")
+    with np.load(tmp_path / "op.npz") as z:
+        header = json.loads(str(z["header"]))
+    header["format"] = "defop-operator-1"
+    old = _rewrite(tmp_path / "op.npz", tmp_path / "old.npz", header)
+    assert np.array_equal(DefOp.load(old)(Q), op(Q))
+    header["meta"]["rank"] = 4
+    q = op.handle_basis.size
+    old = _rewrite(
+        tmp_path / "op.npz",
+        tmp_path / "old_c.npz",
+        header,
+        factor_A=np.ones((q, 4)),
+        factor_B=np.ones((4, op.W.shape[1])),
+    )
+    back = DefOp.load(old)
+    assert back.rank == 4 and back.factors[0].shape == (q - 1, 4)
+    D = back(Q)
+    assert np.abs(D[:, back.handles[back.moving]] - Q).max() <= 1e-12
