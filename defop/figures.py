@@ -61,7 +61,7 @@ class NotebookError(RuntimeError):
     """A notebook failed in the main job; the message names the notebook and the cell."""
 
 
-def notebooks(only=None, directory=NOTEBOOKS):
+def notebooks(only=None, directory=None):
     """The notebooks to run, in order.
 
     Parameters
@@ -74,6 +74,7 @@ def notebooks(only=None, directory=NOTEBOOKS):
     -------
     paths : list of pathlib.Path
     """
+    directory = NOTEBOOKS if directory is None else directory
     paths = sorted(Path(directory).glob("[0-9][0-9]_*.ipynb"))
     if only:
         pats = [only] if isinstance(only, str) else list(only)
@@ -154,7 +155,7 @@ def _client_class():
                 if self.progress_stream is not None:
                     text = content["text"]
                     if not self.progress_stream.isatty():  # a log file: one line per update
-                        text = "\n".join(s.strip() for s in text.split("\r") if s.strip()) + "\n"
+                        text = "".join(s.strip() + "\n" for s in text.split("\r") if s.strip())
                     self.progress_stream.write(text)
                     self.progress_stream.flush()
                 return None  # a progress bar is never stored in the notebook
@@ -255,7 +256,9 @@ def _print(message):
     print(message)
 
 
-def regenerate(only=None, fast=False, store=None, timeout=CELL_TIMEOUT, clean=False, log=_print, record=RUNTIMES):
+def regenerate(
+    only=None, fast=False, store=None, timeout=CELL_TIMEOUT, clean=False, log=_print, record=RUNTIMES, directory=None
+):
     """Run the notebooks, one line per notebook as it starts and ends; a failure does not stop the others.
 
     Parameters
@@ -274,6 +277,8 @@ def regenerate(only=None, fast=False, store=None, timeout=CELL_TIMEOUT, clean=Fa
     log : callable
     record : path or None
         The timing record to update (``figures/runtimes.json``); None writes none.
+    directory : path, optional
+        Where the notebooks are (default ``notebooks/``).
 
     Returns
     -------
@@ -286,7 +291,7 @@ def regenerate(only=None, fast=False, store=None, timeout=CELL_TIMEOUT, clean=Fa
     FIGURES.mkdir(exist_ok=True)
     if clean:
         _clean(log)
-    paths = notebooks(only)
+    paths = notebooks(only, directory)
     mode = "fast" if fast else "full"
     report = []
     for i, path in enumerate(paths, 1):
@@ -381,8 +386,8 @@ def _seconds(value, unit):
 
 
 def format_seconds(seconds):
-    """``"95 s"`` below two minutes, ``"8.4 min"`` above."""
-    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
+    """``"502 s"`` below ten minutes, ``"12.4 min"`` above."""
+    return f"{seconds:.0f} s" if seconds < 600 else f"{seconds / 60:.1f} min"
 
 
 def parse_run_time(text):
