@@ -86,15 +86,16 @@ def notebooks(only=None, directory=None):
 
 # ---------------------------------------------------------------------------------------------- storing
 def _static_outputs(outputs):
-    """Widget outputs keep their static fallback (picture, one text line); a widget with none is dropped."""
+    """Widget outputs keep their static fallback (a picture and its text line); a widget with no picture
+    (a progress bar frozen where it was, a raw ``VBox(children=…`` repr) is dropped: without a kernel it
+    shows nothing true."""
     kept = []
     for out in outputs:
         data = out.get("data")
         if data and WIDGET_VIEW in data:
             data.pop(WIDGET_VIEW)
-            text = "".join(data.get("text/plain", ""))
-            if set(data) <= {"text/plain"} and re.match(r"^\w+\((children|value)=", text):
-                continue  # a raw widget repr (a progress bar, a layout box): nothing to show without a kernel
+            if set(data) <= {"text/plain"}:
+                continue
         kept.append(out)
     return kept
 
@@ -253,7 +254,24 @@ def _clean(log):
 
 
 def _print(message):
-    print(message)
+    print(message, flush=True)
+
+
+def _run_one(path, tag, log, **kw):
+    """Run one notebook between its two report lines; a failure is reported, not raised."""
+    before = {f: f.stat().st_mtime for f in FIGURES.glob("*")}
+    log(f"{tag} started ({'fast' if kw['fast'] else 'full'} mode)")
+    t0 = time.perf_counter()
+    try:
+        seconds, error = run_notebook(path, **kw), None
+    except NotebookError as exc:
+        seconds, error = time.perf_counter() - t0, str(exc)
+    written = sorted(f.name for f in FIGURES.glob("*") if before.get(f) != f.stat().st_mtime)
+    status = "ok" if error is None else "FAILED"
+    log(f"{tag} {status:6s} {seconds:7.1f} s" + (f"  -> {', '.join(written)}" if written else ""))
+    if error:
+        log(f"    {error}")
+    return dict(name=path.stem, seconds=seconds, ok=error is None, error=error, figures=written)
 
 
 def regenerate(
@@ -296,19 +314,7 @@ def regenerate(
     report = []
     for i, path in enumerate(paths, 1):
         tag = f"[{i:2d}/{len(paths)}] {path.stem:<20s}"
-        before = {f: f.stat().st_mtime for f in FIGURES.glob("*")}
-        log(f"{tag} started ({mode} mode)")
-        t0 = time.perf_counter()
-        try:
-            seconds, error = run_notebook(path, fast=fast, store=store, timeout=timeout), None
-        except NotebookError as exc:
-            seconds, error = time.perf_counter() - t0, str(exc)
-        written = sorted(f.name for f in FIGURES.glob("*") if before.get(f) != f.stat().st_mtime)
-        status = "ok" if error is None else "FAILED"
-        log(f"{tag} {status:6s} {seconds:7.1f} s" + (f"  -> {', '.join(written)}" if written else ""))
-        if error:
-            log(f"    {error}")
-        report.append(dict(name=path.stem, seconds=seconds, ok=error is None, error=error, figures=written))
+        report.append(_run_one(path, tag, log, fast=fast, store=store, timeout=timeout))
     failed = [r["name"] for r in report if not r["ok"]]
     total = sum(r["seconds"] for r in report)
     log(
@@ -421,6 +427,7 @@ def stated_times(root=ROOT):
     for name, full, fast in _table_rows((Path(root) / "notebooks" / "README.md").read_text()):
         stated["table:" + name] = (full, fast)
     stated["total"] = parse_run_time((Path(root) / "README.md").read_text())
+    stated["total:notebooks/README.md"] = parse_run_time((Path(root) / "notebooks" / "README.md").read_text())
     return stated
 
 
@@ -475,7 +482,7 @@ def update_stated_times(path=RUNTIMES, root=ROOT):
         total = run_time_sentence(sum(full.values()), sum(fast.values()))
         for doc in ("README.md", "notebooks/README.md"):
             changed += _rewrite(Path(root) / doc, lambda t, s=total: RUN_TIME_RE.sub(lambda _: s, t, count=1))
-    return changed
+    return sorted(set(changed))
 
 
 def _rewrite(path, edit):
