@@ -75,3 +75,11 @@ def test_ipykernel_7_is_excluded_everywhere():
     ipk = next(Requirement(r) for r in _requirements() if _name(r) == "ipykernel")
     assert not ipk.specifier.contains("7.4.0") and ipk.specifier.contains("6.31.0")
     assert re.search(r"^\s*- ipykernel>=6,<7", (ROOT / "environment.yml").read_text(), re.M)
+
+
+def test_make_lab_opens_the_notebooks_and_allows_root():
+    make = (ROOT / "Makefile").read_text()
+    recipe = re.search(r"^lab:.*\n((?:\t.*\n)+)", make, re.M)
+    assert recipe and "cd notebooks" in recipe[1] and "jupyter lab" in recipe[1] and "--allow-root" in recipe[1]
+    assert re.search(r"^\s*\$ make lab\s*$", (ROOT / "README.md").read_text(), re.M)
+    assert re.search(r"^constraints:", make, re.M) and "pip freeze --exclude-editable" in make
