@@ -1,4 +1,4 @@
-"""Command line: ``python -m defop figures`` (the main job) and ``python -m defop doctor``."""
+"""Command line: ``python -m defop figures`` (the main job), ``doctor``, ``normalise`` and ``runtimes``."""
 
 from __future__ import annotations
 
@@ -14,22 +14,40 @@ def main(argv=None):
     fig.add_argument("--fast", action="store_true", help="CI-sized runs (DEFOP_FAST=1); outputs are not stored")
     fig.add_argument("--no-store", action="store_true", help="do not write outputs back into the notebooks")
     fig.add_argument("--clean", action="store_true", help="a clean run: delete the figures and the cache first")
-    fig.add_argument("--timeout", type=float, default=3600, help="per-cell timeout in seconds")
+    fig.add_argument("--timeout", type=float, default=600, help="per-cell timeout in seconds (default 600)")
+    fig.add_argument("--no-record", action="store_true", help="do not update figures/runtimes.json")
+    norm = sub.add_parser(
+        "normalise", help="normalise stored notebooks (metadata, widget outputs) as the main job does"
+    )
+    norm.add_argument("paths", nargs="*", help="notebooks (default: every notebook in notebooks/)")
+    sub.add_parser("runtimes", help="write figures/runtimes.json's times into the notebook headers and READMEs")
     doc = sub.add_parser("doctor", help="check (and, as root on Debian, install) what headless rendering needs")
     doc.add_argument("--no-install", action="store_true")
     doc.add_argument("--browser", action="store_true", help="also make sure chromium is there (browser test)")
     args = parser.parse_args(argv)
 
     if args.command == "figures":
-        from .figures import regenerate
+        from .figures import RUNTIMES, regenerate
 
-        regenerate(
+        report = regenerate(
             only=args.only,
             fast=args.fast,
             store=False if args.no_store else None,
             timeout=args.timeout,
             clean=args.clean,
+            record=None if args.no_record else RUNTIMES,
         )
+        return 0 if all(r["ok"] for r in report) else 1
+    elif args.command == "normalise":
+        from .figures import normalise_files, notebooks
+
+        for path in normalise_files(args.paths or notebooks()):
+            print("normalised", path)
+    elif args.command == "runtimes":
+        from .figures import update_stated_times
+
+        for path in update_stated_times():
+            print("updated", path)
     elif args.command == "doctor":
         from .render import configure_headless, ensure_system_packages
 

@@ -4,21 +4,64 @@ Each notebook in ``notebooks/`` is executed with nbclient, in its own directory,
 (``DEFOP_FAST`` unset) unless ``fast=True``. Full runs store their outputs back into the
 notebook, as the project's notebooks keep outputs from full runs. Figures are written by the
 notebooks themselves into ``figures/``.
+
+What the job guarantees:
+
+* **Progress.** One line per notebook as it starts and as it ends (name, seconds, ok/FAILED). The
+  kernel runs with ``DEFOP_PROGRESS=text``, so training draws plain-text tqdm bars on its stderr;
+  the client forwards them to this terminal and never stores them in the notebook.
+* **No hang.** A per-cell timeout (600 s by default) fails the notebook with a message naming the
+  notebook, the cell index and the cell's first line. ipykernel 7 is excluded in pyproject.toml
+  (under nbclient it intermittently never sends ``execute_reply``).
+* **One failure is not the end.** A failed notebook is reported, the others still run, and
+  :func:`regenerate` reports the failure so that ``python -m defop figures`` exits non-zero.
+* **A timing record.** ``figures/runtimes.json`` holds, per mode (``full``/``fast``), each
+  notebook's seconds, the date and the machine. :func:`update_stated_times` writes those numbers into
+  the "Run time" lines of the notebook headers, ``notebooks/README.md`` and ``README.md``.
+* **No churn.** Stored notebooks are normalised by :func:`normalise` (nbstripout, keeping outputs):
+  no execution counts, timing or widget-state metadata, no interpreter version, and widget outputs
+  keep only their static picture and text line, so a regeneration that changes nothing gives no diff.
 """
 
 from __future__ import annotations
 
+import datetime
 import fnmatch
+import json
 import os
+import platform
+import re
+import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = ROOT / "notebooks"
 FIGURES = ROOT / "figures"
+RUNTIMES = FIGURES / "runtimes.json"
+CELL_TIMEOUT = 600
+
+# nbstripout's own defaults (its command line adds them) plus the interpreter version, which the kernel
+# writes on every run and differs from machine to machine
+STRIP_KEYS = (
+    "metadata.signature",
+    "metadata.widgets",
+    "metadata.language_info.version",
+    "cell.metadata.collapsed",
+    "cell.metadata.ExecuteTime",
+    "cell.metadata.execution",
+    "cell.metadata.heading_collapsed",
+    "cell.metadata.hidden",
+    "cell.metadata.scrolled",
+)
+WIDGET_VIEW = "application/vnd.jupyter.widget-view+json"
 
 
-def notebooks(only=None, directory=NOTEBOOKS):
+class NotebookError(RuntimeError):
+    """A notebook failed in the main job; the message names the notebook and the cell."""
+
+
+def notebooks(only=None, directory=None):
     """The notebooks to run, in order.
 
     Parameters
@@ -31,6 +74,7 @@ def notebooks(only=None, directory=NOTEBOOKS):
     -------
     paths : list of pathlib.Path
     """
+    directory = NOTEBOOKS if directory is None else directory
     paths = sorted(Path(directory).glob("[0-9][0-9]_*.ipynb"))
     if only:
         pats = [only] if isinstance(only, str) else list(only)
@@ -40,7 +84,93 @@ def notebooks(only=None, directory=NOTEBOOKS):
     return paths
 
 
-def run_notebook(path, fast=False, store=None, timeout=3600, kernel_name="python3"):
+# ---------------------------------------------------------------------------------------------- storing
+def _static_outputs(outputs):
+    """Widget outputs keep their static fallback (a picture and its text line); a widget with no picture
+    (a progress bar frozen where it was, a raw ``VBox(children=…`` repr) is dropped: without a kernel it
+    shows nothing true."""
+    kept = []
+    for out in outputs:
+        data = out.get("data")
+        if data and WIDGET_VIEW in data:
+            data.pop(WIDGET_VIEW)
+            if set(data) <= {"text/plain"}:
+                continue
+        kept.append(out)
+    return kept
+
+
+def normalise(nb):
+    """Normalise a notebook for storing: the same content gives the same file on every machine.
+
+    nbstripout (the Jupyter community's notebook cleaner, used by many projects as a git filter) with
+    outputs and cell ids kept: it drops execution counts, per-cell timing metadata, stored widget state
+    and the interpreter version. Widget outputs keep only their static picture and text line.
+
+    Parameters
+    ----------
+    nb : nbformat.NotebookNode
+        Changed in place.
+
+    Returns
+    -------
+    nb : nbformat.NotebookNode
+    """
+    from nbstripout import strip_output
+
+    strip_output(nb, keep_output=True, keep_count=False, keep_id=True, extra_keys=list(STRIP_KEYS))
+    for cell in nb.cells:
+        if cell.cell_type == "code":
+            cell.outputs = _static_outputs(cell.outputs)
+    return nb
+
+
+def normalise_files(paths):
+    """Normalise notebooks on disk (``python -m defop normalise``); returns the paths that changed."""
+    import nbformat
+
+    changed = []
+    for path in map(Path, paths):
+        before = path.read_text()
+        nb = normalise(nbformat.reads(before, as_version=4))
+        after = nbformat.writes(nb) + "\n"
+        if after != before:
+            path.write_text(after)
+            changed.append(path)
+    return changed
+
+
+# ---------------------------------------------------------------------------------------------- running
+def _client_class():
+    from nbclient import NotebookClient
+
+    class Client(NotebookClient):
+        """nbclient that forwards progress bars (stderr text with carriage returns) to a terminal."""
+
+        progress_stream = None
+        current_cell = None
+
+        def output(self, outs, msg, display_id, cell_index):
+            content = msg.get("content", {})
+            if msg["msg_type"] == "stream" and content.get("name") == "stderr" and "\r" in content.get("text", ""):
+                if self.progress_stream is not None:
+                    text = content["text"]
+                    if not self.progress_stream.isatty():  # a log file: one line per update
+                        text = "".join(s.strip() + "\n" for s in text.split("\r") if s.strip())
+                    self.progress_stream.write(text)
+                    self.progress_stream.flush()
+                return None  # a progress bar is never stored in the notebook
+            return super().output(outs, msg, display_id, cell_index)
+
+    return Client
+
+
+def _describe_cell(name, cell, index):
+    first = next((ln for ln in cell.source.splitlines() if ln.strip() and not ln.startswith("# NBVAL")), "")
+    return f"{name}, cell {index} ({first.strip()[:70]!r})"
+
+
+def run_notebook(path, fast=False, store=None, timeout=CELL_TIMEOUT, kernel_name="python3", progress=sys.stderr):
     """Execute one notebook with nbclient.
 
     Parameters
@@ -50,44 +180,104 @@ def run_notebook(path, fast=False, store=None, timeout=3600, kernel_name="python
     fast : bool
         Run with ``DEFOP_FAST=1``.
     store : bool, optional
-        Write the executed notebook back; default: only for full runs.
+        Write the executed notebook back (normalised); default: only for full runs.
     timeout : float
         Per-cell timeout in seconds.
+    progress : file-like or None
+        Where the kernel's progress bars go.
 
     Returns
     -------
     seconds : float
+
+    Raises
+    ------
+    NotebookError
+        A cell raised, timed out or the kernel died; the message names the notebook and the cell.
     """
     import nbformat
-    from nbclient import NotebookClient
 
     path = Path(path)
     store = (not fast) if store is None else store
     nb = nbformat.read(path, as_version=4)
-    old = os.environ.get("DEFOP_FAST")
-    if fast:
-        os.environ["DEFOP_FAST"] = "1"
-    else:
-        os.environ.pop("DEFOP_FAST", None)
+    env = {"DEFOP_FAST": "1" if fast else None, "DEFOP_PROGRESS": "text", "TQDM_MININTERVAL": None}
+    if progress is not None and not progress.isatty():
+        env["TQDM_MININTERVAL"] = "15"  # a log file gets a line every 15 s, not every 0.1 s
+    old = {k: os.environ.get(k) for k in env}
+    _set_env(env)
+    client = _client_class()(
+        nb,
+        timeout=timeout,
+        kernel_name=kernel_name,
+        resources={"metadata": {"path": str(path.parent)}},
+        record_timing=False,  # widget state stays on: nbclient's Output-widget support needs it (normalise drops it)
+    )
+    client.progress_stream = progress
+    client.on_cell_start = lambda cell, cell_index: setattr(client, "current_cell", (cell, cell_index))
     t0 = time.perf_counter()
     try:
-        client = NotebookClient(
-            nb, timeout=timeout, kernel_name=kernel_name, resources={"metadata": {"path": str(path.parent)}}
-        )
         client.execute()
+    except Exception as exc:
+        where = _describe_cell(path.stem, *client.current_cell) if client.current_cell else path.stem
+        kind = f"timed out after {timeout:.0f} s" if "Timeout" in type(exc).__name__ else "failed"
+        detail = str(exc).strip().splitlines()
+        raise NotebookError(f"{where} {kind}: {type(exc).__name__}: {detail[-1] if detail else ''}") from exc
     finally:
-        if old is None:
-            os.environ.pop("DEFOP_FAST", None)
-        else:
-            os.environ["DEFOP_FAST"] = old
+        _set_env(old)
     seconds = time.perf_counter() - t0
     if store:
-        nbformat.write(nb, path)
+        path.write_text(nbformat.writes(normalise(nb)) + "\n")
     return seconds
 
 
-def regenerate(only=None, fast=False, store=None, timeout=3600, clean=False, log=print):
-    """Run the notebooks and report which figures each wrote.
+def _set_env(values):
+    for key, value in values.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+
+
+def _clean(log):
+    for pattern in ("*.png", "table1.*"):
+        for f in FIGURES.glob(pattern):
+            f.unlink()
+    from .config import cache_dir
+
+    folder = cache_dir()
+    if folder is not None:
+        removed = 0
+        for f in list(folder.glob("gt-*.npz")) + list(folder.glob("op-*.npz")) + list(folder.glob("traj-*")):
+            f.unlink()
+            removed += 1
+        log(f"clean run: removed the figures and {removed} cached results from {folder}")
+
+
+def _print(message):
+    print(message, flush=True)
+
+
+def _run_one(path, tag, log, **kw):
+    """Run one notebook between its two report lines; a failure is reported, not raised."""
+    before = {f: f.stat().st_mtime for f in FIGURES.glob("*")}
+    log(f"{tag} started ({'fast' if kw['fast'] else 'full'} mode)")
+    t0 = time.perf_counter()
+    try:
+        seconds, error = run_notebook(path, **kw), None
+    except NotebookError as exc:
+        seconds, error = time.perf_counter() - t0, str(exc)
+    written = sorted(f.name for f in FIGURES.glob("*") if before.get(f) != f.stat().st_mtime)
+    status = "ok" if error is None else "FAILED"
+    log(f"{tag} {status:6s} {seconds:7.1f} s" + (f"  -> {', '.join(written)}" if written else ""))
+    if error:
+        log(f"    {error}")
+    return dict(name=path.stem, seconds=seconds, ok=error is None, error=error, figures=written)
+
+
+def regenerate(
+    only=None, fast=False, store=None, timeout=CELL_TIMEOUT, clean=False, log=_print, record=RUNTIMES, directory=None
+):
+    """Run the notebooks, one line per notebook as it starts and ends; a failure does not stop the others.
 
     Parameters
     ----------
@@ -103,37 +293,202 @@ def regenerate(only=None, fast=False, store=None, timeout=3600, clean=False, log
         A clean run: delete the figures and empty the cache of ground truths and operators
         (``DEFOP_CACHE``) first, so everything is recomputed.
     log : callable
+    record : path or None
+        The timing record to update (``figures/runtimes.json``); None writes none.
+    directory : path, optional
+        Where the notebooks are (default ``notebooks/``).
 
     Returns
     -------
-    report : list of (str, float, list of str)
-        Notebook name, seconds, figures written.
+    report : list of dict
+        ``name``, ``seconds``, ``ok``, ``error`` (None or the message) and ``figures`` written.
     """
     from . import render
 
     render.configure_headless()  # exported to the kernels through the environment
     FIGURES.mkdir(exist_ok=True)
     if clean:
-        for pattern in ("*.png", "table1.*"):
-            for f in FIGURES.glob(pattern):
-                f.unlink()
-        from .config import cache_dir
-
-        folder = cache_dir()
-        if folder is not None:
-            removed = 0
-            for f in list(folder.glob("gt-*.npz")) + list(folder.glob("op-*.npz")) + list(folder.glob("traj-*")):
-                f.unlink()
-                removed += 1
-            log(f"clean run: removed the figures and {removed} cached results from {folder}")
+        _clean(log)
+    paths = notebooks(only, directory)
+    mode = "fast" if fast else "full"
     report = []
-    for path in notebooks(only):
-        before = {f: f.stat().st_mtime for f in FIGURES.glob("*")}
-        log(f"running {path.name} ({'fast' if fast else 'full'} mode) ...")
-        seconds = run_notebook(path, fast=fast, store=store, timeout=timeout)
-        written = sorted(f.name for f in FIGURES.glob("*") if before.get(f) != f.stat().st_mtime)
-        log(f"  {seconds:7.1f} s  -> {', '.join(written) or '(no figure)'}")
-        report.append((path.name, seconds, written))
-    total = sum(s for _, s, _ in report)
-    log(f"{len(report)} notebooks in {total:.0f} s; figures in {FIGURES}")
+    for i, path in enumerate(paths, 1):
+        tag = f"[{i:2d}/{len(paths)}] {path.stem:<20s}"
+        report.append(_run_one(path, tag, log, fast=fast, store=store, timeout=timeout))
+    failed = [r["name"] for r in report if not r["ok"]]
+    total = sum(r["seconds"] for r in report)
+    log(
+        f"{len(report)} notebooks in {total:.0f} s ({mode} mode); "
+        + (f"FAILED: {', '.join(failed)}" if failed else "all ok")
+    )
+    if record is not None:
+        write_runtimes(report, mode, record)
     return report
+
+
+# ---------------------------------------------------------------------------------------------- timing record
+def machine_info():
+    """What the run times were measured on: CPU, cores, Python, OS and the key package versions."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    cpu = platform.processor()
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+        cpu = re.search(r"^model name\s*:\s*(.+)$", text, re.M).group(1).strip()
+    except (OSError, AttributeError):
+        pass
+    packages = {}
+    for name in ("numpy", "scipy", "ipykernel", "nbclient"):
+        try:
+            packages[name] = version(name)
+        except PackageNotFoundError:
+            pass
+    return dict(cpu=cpu, cores=os.cpu_count(), python=platform.python_version(), os=platform.platform(), **packages)
+
+
+def write_runtimes(report, mode, path=RUNTIMES):
+    """Merge a run's seconds into the timing record (other modes and notebooks are kept).
+
+    Parameters
+    ----------
+    report : list of dict
+        From :func:`regenerate`.
+    mode : {"full", "fast"}
+    path : path
+
+    Returns
+    -------
+    record : dict
+        ``{mode: {"date", "machine", "notebooks": {name: {"seconds", "ok"}}}}``.
+    """
+    path = Path(path)
+    record = json.loads(path.read_text()) if path.exists() else {}
+    entry = record.setdefault(mode, {"notebooks": {}})
+    entry["date"] = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    entry["machine"] = machine_info()
+    for r in report:
+        entry["notebooks"][r["name"]] = {"seconds": round(r["seconds"], 1), "ok": r["ok"]}
+    entry["notebooks"] = dict(sorted(entry["notebooks"].items()))
+    path.write_text(json.dumps(dict(sorted(record.items())), indent=1) + "\n")
+    return record
+
+
+# ---------------------------------------------------------------------------------------------- stated times
+# "**Run time:** full 95 s, fast 20 s (measured by the main job)", and the older free forms such as
+# "**Run time** on the 2-core machine: full ≈ 10 s, fast (`DEFOP_FAST=1`) ≈ 15 s" or "≈ 3 s (fast ≈ 8 s)"
+_NUM = r"(?:≈\s*)?(?P<{0}>\d[\d,]*(?:\.\d+)?)\s*(?P<{0}_unit>s|min)\b"
+RUN_TIME_RE = re.compile(
+    r"\*\*Run time(?:\*\*)?[^:*\n]*:(?:\*\*)?\s*(?:full\s*)?"
+    + _NUM.format("full")
+    + r"(?:[^\n]*?|[^\n]*?\n[^\n]*?)"  # a remark, at most one line break
+    + r"fast(?:[^≈\n]*?≈)?\s*"
+    + _NUM.format("fast")
+    + r"\)?(?: \(measured by the main job\))?",
+)
+
+
+def _seconds(value, unit):
+    return float(value.replace(",", "")) * (60.0 if unit == "min" else 1.0)
+
+
+def format_seconds(seconds):
+    """``"502 s"`` below ten minutes, ``"12.4 min"`` above."""
+    return f"{seconds:.0f} s" if seconds < 600 else f"{seconds / 60:.1f} min"
+
+
+def parse_run_time(text):
+    """The stated (full, fast) run times in seconds from a "Run time" sentence, or None when there is none."""
+    m = RUN_TIME_RE.search(text)
+    if m is None:
+        return None
+    return _seconds(m["full"], m["full_unit"]), _seconds(m["fast"], m["fast_unit"])
+
+
+def run_time_sentence(full, fast):
+    """The canonical, machine-readable sentence: ``**Run time:** full 95 s, fast 20 s (measured by the main job)``."""
+    return f"**Run time:** full {format_seconds(full)}, fast {format_seconds(fast)} (measured by the main job)"
+
+
+def stated_times(root=ROOT):
+    """Every run time the documentation states.
+
+    Returns
+    -------
+    stated : dict
+        ``{name: (full, fast)}`` from each notebook's header, ``{"table:" + name: (full, fast)}`` from
+        the table in ``notebooks/README.md`` and ``{"total": (full, fast)}`` from ``README.md``.
+    """
+    import nbformat
+
+    stated = {}
+    for path in notebooks(directory=Path(root) / "notebooks"):
+        head = nbformat.read(path, as_version=4).cells[0].source
+        stated[path.stem] = parse_run_time(head)
+    for name, full, fast in _table_rows((Path(root) / "notebooks" / "README.md").read_text()):
+        stated["table:" + name] = (full, fast)
+    stated["total"] = parse_run_time((Path(root) / "README.md").read_text())
+    stated["total:notebooks/README.md"] = parse_run_time((Path(root) / "notebooks" / "README.md").read_text())
+    return stated
+
+
+_ROW_RE = re.compile(r"^\| `(?P<name>\d\d_\w+)` \|(?P<mid>.*)\| (?P<full>[^|]*?) \| (?P<fast>[^|]*?) \|$", re.M)
+_CELL_RE = re.compile(_NUM.format("v"))
+
+
+def _table_rows(text):
+    for m in _ROW_RE.finditer(text):
+        a, b = _CELL_RE.search(m["full"]), _CELL_RE.search(m["fast"])
+        if a and b:
+            yield m["name"], _seconds(a["v"], a["v_unit"]), _seconds(b["v"], b["v_unit"])
+
+
+def update_stated_times(path=RUNTIMES, root=ROOT):
+    """Write the recorded run times into the headers, ``notebooks/README.md`` and ``README.md``.
+
+    Notebooks without both a full and a fast record keep what they state. Run it after a full and a
+    fast run of the main job (``python -m defop figures && python -m defop figures --fast``), or as
+    ``python -m defop runtimes``.
+
+    Returns
+    -------
+    changed : list of pathlib.Path
+    """
+    import nbformat
+
+    record = json.loads(Path(path).read_text())
+    full = {k: v["seconds"] for k, v in record.get("full", {}).get("notebooks", {}).items()}
+    fast = {k: v["seconds"] for k, v in record.get("fast", {}).get("notebooks", {}).items()}
+    both = {k: (full[k], fast[k]) for k in full.keys() & fast.keys()}
+    changed = []
+    for nb_path in notebooks(directory=Path(root) / "notebooks"):
+        if nb_path.stem not in both:
+            continue
+        nb = nbformat.read(nb_path, as_version=4)
+        sentence = run_time_sentence(*both[nb_path.stem])
+        new = RUN_TIME_RE.sub(lambda _, s=sentence: s, nb.cells[0].source, count=1)
+        if new != nb.cells[0].source:
+            nb.cells[0].source = new
+            nb_path.write_text(nbformat.writes(nb) + "\n")
+            changed.append(nb_path)
+
+    def row(m):
+        if m["name"] not in both:
+            return m[0]
+        f, q = both[m["name"]]
+        return f"| `{m['name']}` |{m['mid']}| {format_seconds(f)} | {format_seconds(q)} |"
+
+    changed += _rewrite(Path(root) / "notebooks" / "README.md", lambda t: _ROW_RE.sub(row, t))
+    if full and fast and full.keys() == fast.keys():
+        total = run_time_sentence(sum(full.values()), sum(fast.values()))
+        for doc in ("README.md", "notebooks/README.md"):
+            changed += _rewrite(Path(root) / doc, lambda t, s=total: RUN_TIME_RE.sub(lambda _: s, t, count=1))
+    return sorted(set(changed))
+
+
+def _rewrite(path, edit):
+    text = path.read_text()
+    new = edit(text)
+    if new == text:
+        return []
+    path.write_text(new)
+    return [path]

@@ -19,6 +19,7 @@ included), so notebooks and figures never retrain.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 import warnings
 
@@ -176,10 +177,31 @@ def _solve_chunk(solver, targets, starts):
 
 
 def _progress(total, desc, enabled):
+    """A progress bar over ``total`` sample solves, or None.
+
+    Parameters
+    ----------
+    total : int
+    desc : str
+    enabled : bool or callable
+        False: no bar. A callable: ``enabled(total=total, desc=desc)`` makes the bar, any object with
+        ``update(n)`` and ``close()`` (the playground passes its widget bar). True: ``tqdm.auto`` (a
+        widget in a live notebook), except with ``DEFOP_PROGRESS=text``, set by the main job: a plain
+        text bar on stderr, which the job forwards to the terminal instead of storing a widget frozen
+        at 0 % in the notebook.
+
+    Returns
+    -------
+    bar : object or None
+    """
     if not enabled:
         return None
-    from tqdm.auto import tqdm
-
+    if callable(enabled):
+        return enabled(total=total, desc=desc)
+    if os.environ.get("DEFOP_PROGRESS", "").strip().lower() == "text":
+        from tqdm.std import tqdm
+    else:
+        from tqdm.auto import tqdm
     return tqdm(total=total, desc=desc, leave=False)
 
 

@@ -43,7 +43,7 @@ from matplotlib.collections import PolyCollection
 
 import defop as dop
 
-__all__ = ["BASES", "BASIS_LABELS", "HandleEditor", "shape_picker"]
+__all__ = ["BASES", "BASIS_LABELS", "HandleEditor", "min_samples", "shape_picker", "static_bundle"]
 
 #: Handle bases Ψ the editor can switch between (names of :func:`defop.handle_bases.make_basis`).
 BASES = ("linear", "quadratic", "cubic", "tps")
@@ -214,9 +214,10 @@ class HandleEditor:
             "seed": self.seed,
             "progress": False,
         }
-        if self.m is not None:
-            kw["m"] = self.m
         kw.update(self.train_kw)
+        if "samples" not in kw:  # at least the fewest samples problem (8) needs for this basis and shape
+            need = min_samples(kind, self.shape.n_moving)
+            kw["m"] = max(self.m if self.m is not None else dop.train.DEFAULT_M, need)
         defop_, _record = dop.train.train(self.shape, **kw)
         return defop_
 
@@ -800,6 +801,84 @@ class HandleEditor:
         plt.close(self.fig)
 
 
+def min_samples(kind, n_moving):
+    """The fewest training samples Q_k (rest pose not counted) problem (8) accepts for a basis.
+
+    Parameters
+    ----------
+    kind : str
+        One of :data:`BASES`.
+    n_moving : int
+        Moving handles of the shape.
+
+    Returns
+    -------
+    m : int
+        TPS: 2n + 1 (its linear part plus one centre); a polynomial Ψ: |Ψ| - 1
+        (:func:`defop.handle_bases.basis_size`), so that the fit is determined.
+    """
+    if kind == "tps":
+        return 2 * n_moving + 1
+    return dop.handle_bases.basis_size(kind, n_moving) - 1
+
+
+def static_bundle(editor, dpi=72):
+    """A picture of the editor's canvas and one line of text: what a stored notebook shows without a kernel.
+
+    Parameters
+    ----------
+    editor : HandleEditor
+    dpi : int
+
+    Returns
+    -------
+    bundle : dict
+        ``{"image/png": base64 str, "text/plain": str}``.
+    """
+    import base64
+
+    buf = io.BytesIO()
+    editor.fig.savefig(buf, format="png", dpi=dpi)
+    shape = editor.shape
+    text = (
+        f"Handle editor: {shape.name}, {shape.mesh.n_vertices} vertices, {len(editor.P)} moving handle(s), "
+        f"the {BASIS_LABELS[editor.kind]} DefOp (run the notebook to drag the handles)"
+    )
+    return {"image/png": base64.b64encode(buf.getvalue()).decode("ascii"), "text/plain": text}
+
+
+class _PickerBox(widgets.VBox):
+    """The picker's box; a stored notebook keeps a picture of the editor instead of a raw widget repr."""
+
+    editor = None
+
+    def _repr_mimebundle_(self, **kwargs):
+        bundle = super()._repr_mimebundle_(**kwargs) or {}
+        if self.editor is not None:
+            bundle.update(static_bundle(self.editor))
+        return bundle
+
+
+class _WidgetBar:
+    """A progress bar on an ipywidgets IntProgress, with the interface ``train`` expects (update, close)."""
+
+    def __init__(self, bar, label, total, desc):
+        self.bar, self.label, self.desc = bar, label, desc
+        bar.max, bar.value = max(int(total), 1), 0
+        bar.layout.display = None
+        self._show()
+
+    def _show(self):
+        self.label.value = f"{self.desc}: {self.bar.value} of {self.bar.max}"
+
+    def update(self, n=1):
+        self.bar.value = min(self.bar.value + int(n), self.bar.max)
+        self._show()
+
+    def close(self):
+        self.bar.layout.display = "none"
+
+
 def shape_picker(names=None, value="bar", **editor_kw):
     """A dropdown of shapes; choosing one builds a :class:`HandleEditor` for it (training on first use).
 
@@ -810,12 +889,14 @@ def shape_picker(names=None, value="bar", **editor_kw):
     value : str
         The shape shown first.
     **editor_kw
-        Passed to :class:`HandleEditor`.
+        Passed to :class:`HandleEditor`; each basis trains with at least :func:`min_samples`
+        samples, and a progress bar under the dropdown follows the sample solves.
 
     Returns
     -------
     box : ipywidgets.VBox
-        ``box.editor`` is the current editor.
+        ``box.editor`` is the current editor. Displayed without a live kernel (a stored notebook),
+        it shows a picture of the editor and one line of text.
     """
     from IPython.display import display
 
@@ -823,18 +904,25 @@ def shape_picker(names=None, value="bar", **editor_kw):
     if value not in names:
         raise ValueError(f"shape {value!r} is not among {names}")
     dropdown = widgets.Dropdown(options=names, value=value, description="Shape")
+    label = widgets.Label()
+    bar = widgets.IntProgress(layout=widgets.Layout(display="none", width="240px"))
     out = widgets.Output()
-    box = widgets.VBox([dropdown, out])
-    box.editor = None
+    box = _PickerBox([dropdown, widgets.HBox([label, bar]), out])
+    train_kw = dict(editor_kw.pop("train_kw", None) or {})
+    train_kw.setdefault("progress", lambda total, desc: _WidgetBar(bar, label, total, desc))
 
     def show(name):
         if box.editor is not None:
             box.editor.close()
         out.clear_output()
+        label.value = f"preparing {name} …"
+        try:
+            editor = HandleEditor(name, train_kw=train_kw, **editor_kw)
+        except Exception as exc:
+            label.value = f"could not prepare {name}: {exc}"
+            raise
+        label.value = ""
         with out:
-            print(f"preparing {name} …")
-            editor = HandleEditor(name, **editor_kw)
-            out.clear_output()
             display(editor)
         box.editor = editor
 
