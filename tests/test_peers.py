@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop import compare, peers
+from defop import compare, peers, warp
 
 
 def _perp(x):
@@ -160,3 +160,46 @@ def test_pareto_front():
     cost = np.array([1.0, 2.0, 3.0, 0.5, 2.5])
     err = np.array([5.0, 1.0, 0.5, 6.0, 2.0])
     assert compare.pareto_front(cost, err) == [3, 0, 1, 2]
+
+
+# ---------------------------------------------------------------------------------------------- image warping
+def _grid_mesh(x0, x1, y0, y1, k=6):
+    x, y = np.meshgrid(np.linspace(x0, x1, k), np.linspace(y0, y1, k))
+    V = np.column_stack([x.ravel(), y.ravel()])
+    i = np.arange(k - 1)[:, None] * k + np.arange(k - 1)[None]
+    i = i.ravel()
+    F = np.vstack([np.column_stack([i, i + 1, i + k + 1]), np.column_stack([i, i + k + 1, i + k])])
+    return V, F
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_piecewise_affine_warp_of_an_affine_map_is_exact_on_a_linear_image(seed):
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:60, 0:80].astype(float)
+    a, b, c = rng.normal(size=3)
+    image = a * xx + b * yy + c  # bilinear sampling reproduces it exactly
+    V, F = _grid_mesh(10.3, 69.7, 8.2, 51.9)
+    A = np.eye(2) + rng.normal(scale=0.15, size=(2, 2))
+    t = rng.normal(scale=2.0, size=2)
+    X = (V - 40) @ A.T + 40 + t
+    out = warp.warp_image(image, V, X, F, background=np.nan)
+    inside = np.isfinite(out)
+    py, px = np.nonzero(inside)
+    src = np.linalg.solve(A, (np.column_stack([px, py]) - 40 - t).T).T + 40  # back through the affine map
+    np.testing.assert_allclose(out[inside], a * src[:, 0] + b * src[:, 1] + c, atol=1e-9)
+    # every pixel centre strictly inside the deformed square is covered, none outside it
+    face, _ = warp.rasterize(X, F, image.shape)
+    corners = X[[0, 5, 35, 30]]
+    from matplotlib.path import Path
+
+    want = Path(corners).contains_points(np.column_stack([xx.ravel(), yy.ravel()])).reshape(image.shape)
+    assert np.array_equal(face >= 0, want) or np.count_nonzero((face >= 0) != want) <= 2  # ties on edges
+    assert inside.sum() == (face >= 0).sum()
+
+
+def test_warp_rejects_mismatched_meshes():
+    V, F = _grid_mesh(0, 10, 0, 10)
+    with pytest.raises(ValueError, match="same shape"):
+        warp.warp_image(np.zeros((12, 12)), V, V[:-1], F)
+    with pytest.raises(ValueError, match="finite"):
+        warp.rasterize(np.full_like(V, np.nan), F, (12, 12))
