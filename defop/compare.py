@@ -202,3 +202,31 @@ def markdown_table(scores):
     lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     lines += ["| " + " | ".join(s.row()) + " |" for s in scores]
     return "\n".join(lines)
+
+
+def score_all(methods, shape, Q, X_true, names=None, precompute=None):
+    """:func:`score` for several methods on the same frames.
+
+    Parameters
+    ----------
+    methods : list of callable
+    shape : defop.shapes.Shape
+    Q : (k,n_moving,2) numpy array
+    X_true : (k,n_vertices,2) numpy array
+    names, precompute : list, optional
+        Per method; None entries use the defaults of :func:`score`.
+
+    Returns
+    -------
+    scores : list of Score
+    frames : dict of str -> (k,n_vertices,2) numpy array
+        Each method's frames, by name.
+    """
+    names = names or [None] * len(methods)
+    precompute = precompute or [None] * len(methods)
+    scores, frames = [], {}
+    for method, name, pre in zip(methods, names, precompute):
+        s, X = score(method, shape, Q, X_true, name=name, precompute=pre)
+        scores.append(s)
+        frames[s.name] = X
+    return scores, frames

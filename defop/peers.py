@@ -461,3 +461,17 @@ def make_peer(shape, kind, iterations=10, alpha=1.0):
         evaluate, name, reset = arap, f"libigl ARAP, {arap.iterations} it.", arap.reset
     seconds = time.perf_counter() - t0
     return Peer(name, mesh, b, shape.moving, evaluate, seconds, reset)
+
+
+def make_peers(shape, kinds=KINDS, arap_iterations=(10,)):
+    """Every peer of ``kinds`` on a shape, ARAP once per entry of ``arap_iterations``.
+
+    Returns
+    -------
+    peers : list of Peer
+    """
+    out = []
+    for kind in kinds:
+        its = arap_iterations if kind == "arap" else (10,)
+        out += [make_peer(shape, kind, iterations=k) for k in its]
+    return out

@@ -26,10 +26,12 @@ def pareto_plot(ax, scores, title=None, highlight="defop"):
     e = np.array([s.error for s in scores])
     front = pareto_front(t, e)
     ax.step(t[front], e[front], where="post", color="0.6", lw=1, zorder=1, label="Pareto front")
-    for s, ti, ei in zip(scores, t, e):
-        ours = s.name.startswith(highlight)
-        ax.scatter(ti, ei, s=40, zorder=3, color=FLIP if ours else "#3182bd", marker="*" if ours else "o")
-        ax.annotate(s.name, (ti, ei), textcoords="offset points", xytext=(5, 4), fontsize=7)
+    for i in np.argsort(e):
+        ours = scores[i].name.startswith(highlight)
+        ax.scatter(t[i], e[i], s=40, zorder=3, color=FLIP if ours else "#3182bd", marker="*" if ours else "o")
+        # alternate the labels above and below their points: close errors do not overprint
+        dy = 4 if i % 2 else -9
+        ax.annotate(scores[i].name, (t[i], e[i]), textcoords="offset points", xytext=(5, dy), fontsize=7)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("time per frame (s, median, 1 BLAS thread)")
