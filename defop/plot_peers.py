@@ -39,7 +39,7 @@ def pareto_plot(ax, scores, title=None, highlight="defop"):
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
     if title:
         ax.set_title(title)
-    ax.legend(loc="lower left", fontsize=7)
+    ax.legend(loc="upper right", fontsize=7)
 
 
 def draw_deformation(ax, mesh, X, handles=None, reference=None, title=None):
