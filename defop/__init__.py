@@ -37,6 +37,10 @@ _SUBMODULES = (
     "config",
     "trajectories",
     "experiments",
+    "peers",
+    "compare",
+    "warp",
+    "plot_peers",
 )
 
 

@@ -203,3 +203,29 @@ def test_warp_rejects_mismatched_meshes():
         warp.warp_image(np.zeros((12, 12)), V, V[:-1], F)
     with pytest.raises(ValueError, match="finite"):
         warp.rasterize(np.full_like(V, np.nan), F, (12, 12))
+
+
+def _maps(mesh, b, Q):
+    """Each closed-form peer's X for handle vertices b moved to Q."""
+    P = mesh.V[b]
+    return {
+        "MLS rigid": peers.mls_evaluate(peers.mls_precompute(mesh.V, P, "rigid"), Q),
+        "MLS similarity": peers.mls_evaluate(peers.mls_precompute(mesh.V, P, "similarity"), Q),
+        "TPS": peers.linear_evaluate(peers.tps_precompute(mesh.V, P), Q),
+        "BBW + LBS": peers.lbs_evaluate(mesh.V, peers.bbw_precompute(mesh, b), P, Q),
+        "biharmonic": peers.linear_evaluate(peers.biharmonic_precompute(mesh, b), Q),
+    }
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_peers_do_not_depend_on_handle_order_or_subset(aleph, seed):
+    """A random subset of at least 3 handles, in random order: the same map, and the handles are interpolated."""
+    rng = np.random.default_rng(seed)
+    k = int(rng.integers(3, len(aleph.handles) + 1))
+    b = rng.choice(aleph.handles, size=k, replace=False)
+    Q = aleph.mesh.V[b] + rng.normal(scale=0.08, size=(k, 2))
+    perm = rng.permutation(k)
+    X, Xp = _maps(aleph.mesh, b, Q), _maps(aleph.mesh, b[perm], Q[perm])
+    for name in X:
+        np.testing.assert_allclose(Xp[name], X[name], atol=1e-7, err_msg=name)
+        np.testing.assert_allclose(X[name][b], Q, atol=1e-8, err_msg=name)
