@@ -3,15 +3,11 @@
 Each method is split into a *precompute* on the rest mesh and rest handles P, and an *evaluate* that maps
 handle positions Q to deformed vertex positions X, like ``DefOp.__call__``:
 
-======================  ==========================================================  ===================
-method                  reference                                                   evaluate
-======================  ==========================================================  ===================
-MLS similarity / rigid  Schaefer, McPhail & Warren 2006, §2.2 (μ_s) and §2.3 (f_r)  O(n h) per frame
-Bookstein TPS warp      Bookstein 1989, Eq. (1)-(3) of §2 (U(r) = r² log r²)        X = G Q
-BBW + LBS               Jacobson, Baran, Popović & Sorkine 2011 (libigl ``bbw``)    X = V + W (Q - P)
-biharmonic coordinates  Wang, Jacobson et al. 2015 (libigl ``biharmonic_coordinates``)  X = W Q
-ARAP iterations         Sorkine & Alexa 2007, libigl ``arap_solve`` (k iterations)  k local-global steps
-======================  ==========================================================  ===================
+- MLS similarity and rigid: Schaefer, McPhail & Warren 2006, §2.2 (μ_s) and §2.3 (f_r); O(n h) per frame.
+- Bookstein's thin-plate-spline warp: Bookstein 1989, §2 (U(r) = r² log r², the L matrix); X = G Q.
+- BBW + LBS: Jacobson, Baran, Popović & Sorkine 2011 (libigl ``bbw``), translations only; X = V + W (Q − P).
+- Biharmonic coordinates: Wang, Jacobson et al. 2015 (libigl ``biharmonic_coordinates``); X = W Q.
+- ARAP iterations: Sorkine & Alexa 2007 (libigl ``arap_solve``); k local-global steps per frame.
 
 Here P and Q hold *all* handles (h,2), fixed ones included; :func:`make_peer` wraps a method as a
 :class:`Peer` that takes the moving handles only, as a DefOp does, so one harness
@@ -92,7 +88,7 @@ class MLSPrecomputed:
 def mls_precompute(V, P, kind="rigid", alpha=1.0):
     """Precompute MLS similarity or rigid deformation of the points V (Schaefer et al. 2006).
 
-    With weights w_i = 1 / |p_i − v|^{2α} (§2, Eq. 2), centroids p* = Σ w_i p_i / Σ w_i, p̂_i = p_i − p*
+    With weights w_i = 1 / |p_i − v|^{2α} (§2), centroids p* = Σ w_i p_i / Σ w_i, p̂_i = p_i − p*
     and q* likewise, and A_i = w_i [p̂_i; −p̂_i^⊥] [v − p*; −(v − p*)^⊥]^T (§2.2), the similarity
     deformation is f_s(v) = Σ_i q̂_i A_i / μ_s + q* with μ_s = Σ_i w_i |p̂_i|², and the rigid one (§2.3) is
     f_r(v) = |v − p*| f⃗_r(v) / |f⃗_r(v)| + q* with f⃗_r(v) = Σ_i q̂_i A_i. As Σ_i A_i = 0, Σ q̂_i A_i =
