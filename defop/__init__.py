@@ -37,6 +37,10 @@ _SUBMODULES = (
     "config",
     "trajectories",
     "cache",
+    "peers",
+    "compare",
+    "warp",
+    "plot_peers",
 )
 
 

@@ -1,0 +1,49 @@
+"""Peers benchmark (issue 17): time per frame of DefOp and the closed-form peers, side by side, one BLAS thread.
+
+On the aleph (5 handles), at 50 random handle configurations: MLS similarity and rigid, Bookstein's TPS warp, BBW +
+LBS, biharmonic coordinates, 10 libigl ARAP iterations, and a DefOp (S-ARAP, TPS Ψ, ``m`` samples, compressed).
+Prints each method's precompute and best/median frame time, and the ratio to DefOp's best frame.
+
+Targets on this 2-core machine: DefOp compressed >= 30x faster per frame than 10 libigl ARAP iterations, and within
+10x of the fastest closed-form peer. Run: ``python benchmarks/bench_peers.py [m]`` (default m = 100; no cache).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import warnings
+
+import numpy as np
+
+import defop as dop
+from defop import compare, peers
+
+
+def main(m=100):
+    os.environ["DEFOP_CACHE"] = "off"
+    shape = dop.shapes.load("aleph")
+    op, rec = dop.train.train(shape, "sarap", "tps", m=m, seed=0, cache=False, progress=False, rounds=1)
+    op.compress()
+    Q = dop.sampling.sample_shape(shape, 50, np.random.default_rng(1))
+    methods = peers.make_peers(shape) + [op]
+    rows = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
+        for method in methods:
+            _, seconds = compare.run_frames(method, Q)
+            rows.append((getattr(method, "name", f"defop TPS-{m}, compressed"), seconds))
+    ours = rows[-1][1].min()
+    print(f"\naleph: {shape.mesh.n_vertices} vertices, {shape.n_moving} handles, 50 frames, one BLAS thread")
+    print(f"{'method':32s} {'best':>10s} {'median':>10s} {'best / defop':>13s}")
+    for name, s in rows:
+        print(f"{name:32s} {1e6 * s.min():8.1f} µs {1e6 * np.median(s):8.1f} µs {s.min() / ours:12.2f}x")
+    arap = dict(rows)["libigl ARAP, 10 it."].min()
+    fastest = min(s.min() for name, s in rows[:-1] if "ARAP" not in name)
+    print(f"\n10 ARAP iterations / defop: {arap / ours:.0f}x (target >= 30x); "
+          f"defop / fastest closed-form peer: {ours / fastest:.1f}x (target <= 10x)")
+    return arap / ours >= 30 and ours / fastest <= 10
+
+
+if __name__ == "__main__":
+    sys.exit(0 if main(*(int(a) for a in sys.argv[1:])) else 1)
