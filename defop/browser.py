@@ -129,11 +129,13 @@ def encode_payload(payload):
 
 _PAGE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>
-<meta http-equiv="Content-Security-Policy" content="default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'">
+<meta http-equiv="Content-Security-Policy"
+ content="default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'">
 </head><body style="margin:12px">
 <div id="defop-app"></div>
 <p style="font:12px system-ui;color:#555">Drag a red handle. D(x, Q) = &Sigma;<sub>ij</sub> C<sub>ij</sub>
-&phi;<sub>i</sub>(x) &psi;<sub>j</sub>(Q) (Eq. 3 of Poranne &amp; Lipman) is evaluated in this page; written by defop.</p>
+&phi;<sub>i</sub>(x) &psi;<sub>j</sub>(Q) (Eq. 3 of Poranne &amp; Lipman) is evaluated in this page;
+written by defop.</p>
 <script type="module">
 {js}
 window.defopEditor = mountStandalone(document.getElementById("defop-app"), {meta}, "{data}");

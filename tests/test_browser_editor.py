@@ -284,8 +284,9 @@ def test_standalone_page_drag_in_chromium(operators, shape, tmp_path):
             page.wait_for_timeout(20)
         page.mouse.up()
         state = page.evaluate(
-            "() => { const e = window.defopEditor; return {Q: Array.from(e.st.Q), X: Array.from(e.st.X),"
-            " end: e.st.view.toData(%f, %f), warn: e.ui.warn.textContent} }" % (u + 40, v - 30)
+            "([u, v]) => { const e = window.defopEditor; return {Q: Array.from(e.st.Q), X: Array.from(e.st.X),"
+            " end: e.st.view.toData(u, v), warn: e.ui.warn.textContent} }",
+            [u + 40, v - 30],
         )
         page.screenshot(path="/tmp/defop_standalone_drag.png")
         chromium.close()

@@ -105,7 +105,10 @@ export function outsideRegions(Q, regions) {
 
 const STYLE = `
 .defop-editor { display: flex; gap: 12px; align-items: flex-start; font: 13px system-ui, sans-serif; color: #222; }
-.defop-editor canvas { border: 1px solid #ccc; background: #fff; touch-action: none; cursor: crosshair; }
+.defop-editor .defop-stack { position: relative; border: 1px solid #ccc; background: #fff; flex: none; }
+.defop-editor .defop-stack canvas { position: absolute; left: 0; top: 0; }
+.defop-editor .defop-canvas { touch-action: none; cursor: crosshair; }
+.defop-editor .defop-gl { pointer-events: none; }
 .defop-editor .defop-side { display: flex; flex-direction: column; gap: 8px; width: 300px; }
 .defop-editor .defop-readout { font-family: ui-monospace, monospace; font-size: 12px; white-space: pre-wrap; }
 .defop-editor .defop-warn { color: #b00; font-weight: 600; min-height: 1.2em; }
@@ -126,7 +129,10 @@ function buildLayout(root, opts) {
     document.head.appendChild(s);
   }
   const box = el("div", { class: "defop-editor" });
+  const stack = el("div", { class: "defop-stack" });
+  const glCanvas = el("canvas", { class: "defop-gl" });
   const canvas = el("canvas", { class: "defop-canvas" });
+  stack.append(glCanvas, canvas);
   const side = el("div", { class: "defop-side" });
   const title = el("div", { class: "defop-title" });
   const controls = el("div", { class: "defop-controls" });
@@ -142,9 +148,9 @@ function buildLayout(root, opts) {
   const gtReadout = el("div", { class: "defop-readout defop-gt-readout" });
   side.append(title, controls, gtLabel, warn, readout, gtReadout);
   if (!opts.kernel) { gtLabel.style.display = "none"; gtReadout.style.display = "none"; }
-  box.append(canvas, side);
+  box.append(stack, side);
   root.appendChild(box);
-  return { box, canvas, title, basis, shape, reset, gt, warn, readout, gtReadout };
+  return { box, canvas, glCanvas, title, basis, shape, reset, gt, warn, readout, gtReadout };
 }
 
 /** Axis-aligned view: fits the rest mesh plus a margin into the canvas, y up. */
@@ -232,10 +238,95 @@ function drawHandles(ctx, X, handles, moving, view, active, outside) {
   if (active !== null) ring(active, 8, "#000");
 }
 
+const VS = `attribute vec2 pos; attribute vec3 bc; attribute float fl; uniform vec4 xf;
+varying vec3 bary; varying float flip;
+void main() { bary = bc; flip = fl; gl_Position = vec4((pos.x - xf.x) * xf.z, (pos.y - xf.y) * xf.w, 0.0, 1.0); }`;
+// one pass draws fill and wireframe: a fragment is on an edge where a barycentric coordinate is ~0
+const FS = `#extension GL_OES_standard_derivatives : enable
+precision mediump float;
+varying vec3 bary; varying float flip;
+uniform vec4 fill; uniform vec4 flipped; uniform vec4 edge; uniform float edgesOnly;
+void main() {
+  vec3 a = smoothstep(vec3(0.0), fwidth(bary), bary);
+  float e = (1.0 - min(min(a.x, a.y), a.z)) * edge.a;
+  if (edgesOnly > 0.5) { if (e < 0.02) discard; gl_FragColor = vec4(edge.rgb, e); return; }
+  gl_FragColor = vec4(mix(flip > 0.5 ? flipped.rgb : fill.rgb, edge.rgb, e), 1.0);
+}`;
+
+/** WebGL renderer of the mesh (faces, flipped faces red, edges) and the ground truth's edges; null without WebGL. */
+function makeGL(canvas, p, view, width, height) {
+  const gl = canvas.getContext("webgl", { antialias: false, premultipliedAlpha: false });
+  if (!gl || !gl.getExtension("OES_standard_derivatives")) return null;
+  const shader = (type, src) => { const s = gl.createShader(type); gl.shaderSource(s, src); gl.compileShader(s); return s; };
+  const prog = gl.createProgram();
+  gl.attachShader(prog, shader(gl.VERTEX_SHADER, VS));
+  gl.attachShader(prog, shader(gl.FRAGMENT_SHADER, FS));
+  gl.linkProgram(prog);
+  if (!gl.getProgramParameter(prog, gl.LINK_STATUS)) return null;
+  gl.useProgram(prog);
+  const [ox, oy] = view.toData(width / 2, height / 2);
+  gl.uniform4f(gl.getUniformLocation(prog, "xf"), ox, oy, (2 * view.s) / width, (2 * view.s) / height);
+  const u = (name, ...v) => gl.uniform4f(gl.getUniformLocation(prog, name), ...v);
+  u("fill", 0.949, 0.843, 0.651, 1);
+  u("flipped", 0.878, 0.25, 0.25, 1);
+  const edgesOnly = gl.getUniformLocation(prog, "edgesOnly");
+  const F = p.F, nf = F.length / 3;
+  const attribute = (name, size, data) => {
+    const b = gl.createBuffer(), loc = gl.getAttribLocation(prog, name);
+    gl.bindBuffer(gl.ARRAY_BUFFER, b);
+    gl.bufferData(gl.ARRAY_BUFFER, data, gl.DYNAMIC_DRAW);
+    gl.enableVertexAttribArray(loc);
+    gl.vertexAttribPointer(loc, size, gl.FLOAT, false, 0, 0);
+    return b;
+  };
+  const bc = new Float32Array(9 * nf);
+  for (let t = 0; t < nf; t++) { bc[9 * t] = 1; bc[9 * t + 4] = 1; bc[9 * t + 8] = 1; }
+  attribute("bc", 3, bc);
+  const corners = new Float32Array(6 * nf), flips = new Float32Array(3 * nf);
+  const posBuf = attribute("pos", 2, corners), flipBuf = attribute("fl", 1, flips);
+  gl.enable(gl.BLEND);
+  gl.blendFunc(gl.SRC_ALPHA, gl.ONE_MINUS_SRC_ALPHA);
+  gl.viewport(0, 0, canvas.width, canvas.height);
+  const upload = (X) => { // one corner per triangle vertex; flipped = signed area <= 0
+    for (let t = 0, k = 0; t < nf; t++) {
+      const a = 2 * F[3 * t], b = 2 * F[3 * t + 1], c = 2 * F[3 * t + 2];
+      corners[k++] = X[a]; corners[k++] = X[a + 1]; corners[k++] = X[b];
+      corners[k++] = X[b + 1]; corners[k++] = X[c]; corners[k++] = X[c + 1];
+      const f = (X[b] - X[a]) * (X[c + 1] - X[a + 1]) - (X[c] - X[a]) * (X[b + 1] - X[a + 1]) <= 0 ? 1 : 0;
+      flips[3 * t] = f; flips[3 * t + 1] = f; flips[3 * t + 2] = f;
+    }
+    gl.bindBuffer(gl.ARRAY_BUFFER, posBuf);
+    gl.bufferSubData(gl.ARRAY_BUFFER, 0, corners);
+    gl.bindBuffer(gl.ARRAY_BUFFER, flipBuf);
+    gl.bufferSubData(gl.ARRAY_BUFFER, 0, flips);
+  };
+  function draw(X, gt) {
+    gl.clearColor(1, 1, 1, 1);
+    gl.clear(gl.COLOR_BUFFER_BIT);
+    upload(X);
+    u("edge", 0, 0, 0, 0.22);
+    gl.uniform1f(edgesOnly, 0);
+    gl.drawArrays(gl.TRIANGLES, 0, 3 * nf);
+    if (gt) {
+      upload(gt);
+      u("edge", 0.12, 0.47, 0.71, 0.8);
+      gl.uniform1f(edgesOnly, 1);
+      gl.drawArrays(gl.TRIANGLES, 0, 3 * nf);
+    }
+  }
+  return { draw, renderer: "webgl" };
+}
+
 /** Draw one frame: regions, the deformed mesh (flipped triangles red), the ground truth, the handles. */
 function drawFrame(ctx, st) {
   const { view, p, X } = st;
   ctx.clearRect(0, 0, st.width, st.height);
+  if (st.gl) { // the mesh in WebGL, regions and handles on the 2D overlay
+    st.gl.draw(X, st.gt && st.gtVisible ? st.gt : null);
+    drawRegions(ctx, p.regions, view);
+    drawHandles(ctx, X, p.handles, p.moving, view, st.active, st.outside);
+    return;
+  }
   drawRegions(ctx, p.regions, view);
   tracePath(ctx, X, p.F, view, false);
   ctx.fillStyle = "#f2d7a6";
@@ -274,13 +365,14 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
   const ui = buildLayout(root, { kernel: !!hooks.onGroundTruth });
   const width = options.width || 720, height = options.height || 560;
   const dpr = (typeof window !== "undefined" && window.devicePixelRatio) || 1;
-  ui.canvas.width = Math.round(width * dpr);
-  ui.canvas.height = Math.round(height * dpr);
-  ui.canvas.style.width = width + "px";
-  ui.canvas.style.height = height + "px";
+  for (const c of [ui.canvas, ui.glCanvas, ui.canvas.parentNode]) {
+    if (c.tagName === "CANVAS") { c.width = Math.round(width * dpr); c.height = Math.round(height * dpr); }
+    c.style.width = width + "px";
+    c.style.height = height + "px";
+  }
   const ctx = ui.canvas.getContext("2d");
   ctx.scale(dpr, dpr);
-  const st = { width, height, active: null, outside: [], gt: null, gtVisible: false, frames: [], evalMs: [] };
+  const st = { width, height, active: null, outside: [], gt: null, gtVisible: false, frames: [], evalMs: [], drawMs: [] };
   const editor = { ui, st, hooks };
 
   editor.load = (payload_, Q) => {
@@ -288,6 +380,7 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
     st.p = p;
     st.op = makeOperator(p);
     st.view = makeView(p.V, width, height, 0.25);
+    st.gl = options.webgl === false ? null : makeGL(ui.glCanvas, p, st.view, width, height);
     st.Q = Float64Array.from(Q || p.P);
     st.gt = null;
     ui.title.textContent = p.title;
@@ -299,22 +392,26 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
   editor.evaluate = () => {
     const t0 = performance.now();
     st.X = st.op.evaluate(st.Q);
-    st.evalMs.push(performance.now() - t0);
-    if (st.evalMs.length > 120) st.evalMs.shift();
+    const t1 = performance.now();
     st.outside = outsideRegions(st.Q, st.p.regions);
     drawFrame(ctx, st);
+    st.evalMs.push(t1 - t0);
+    st.drawMs.push(performance.now() - t1);
+    if (st.evalMs.length > 120) { st.evalMs.shift(); st.drawMs.shift(); }
     editor.readout();
   };
 
   editor.readout = () => {
     const f = st.frames, ms = st.evalMs;
     const fps = f.length > 2 ? (1000 * (f.length - 1)) / (f[f.length - 1] - f[0]) : null;
-    const med = [...ms].sort((a, b) => a - b)[Math.floor(ms.length / 2)];
+    const median = (a) => [...a].sort((x, y) => x - y)[Math.floor(a.length / 2)];
+    const med = median(ms), draw = median(st.drawMs);
     const q = Array.from({ length: st.p.n_moving }, (_, i) => `q${i} = (${st.Q[2 * i].toFixed(3)}, ${st.Q[2 * i + 1].toFixed(3)})`);
     ui.readout.textContent =
       `${fps === null ? "–" : fps.toFixed(0)} fps (browser frames while dragging)\n` +
-      `evaluation ${med === undefined ? "–" : med.toFixed(2)} ms/frame (in the page, |Ψ| = ${st.p.size}` +
-      `${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices)\n` + q.join("\n");
+      `evaluation ${med === undefined ? "–" : med.toFixed(2)} ms/frame in the page, drawing ` +
+      `${draw === undefined ? "–" : draw.toFixed(1)} ms\n` +
+      `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices)\n` + q.join("\n");
     ui.warn.textContent = st.outside.length
       ? `handle ${st.outside.join(", ")} outside its sampling region: the operator extrapolates`
       : "";
