@@ -253,6 +253,35 @@ def test_state_ground_truth(operators, shape):
     assert state.gt_error is None and state.ground_truth_text() == ""
 
 
+def test_widget_kernel_side(operators, shape):
+    """What the page sends (q on release, basis, ground truth) reaches the state; what Python sends back."""
+    editor = browser.BrowserEditor(shape, dict(operators), basis="tps")
+    meta = editor.payload_meta
+    assert meta["scalars"]["kind"] == "tps" and meta["scalars"]["kinds"] == list(KINDS)
+    Q = editor.Q + [[0.02, 0.01], [0.0, 0.0]]
+    editor.q = Q.ravel().tolist()  # as the page does on release
+    np.testing.assert_array_equal(editor.Q, Q)
+    np.testing.assert_allclose(editor.state.X[shape.moving_handles], Q, atol=1e-9)
+    editor.ground_truth = True
+    X_gt = np.frombuffer(editor.gt_data, np.float32).reshape(-1, 2)
+    np.testing.assert_allclose(X_gt, editor.state.X_gt, atol=1e-6)
+    assert "error rms" in editor.gt_meta["text"]
+    editor.basis = "linear"
+    assert editor.payload_meta["scalars"]["size"] == operators["linear"].handle_basis.size
+    np.testing.assert_array_equal(editor.Q, Q)  # switching basis keeps Q
+    editor.set_Q(editor.state.P)
+    assert editor.q == editor.state.P.ravel().tolist()
+
+
+def test_javascript_is_package_data():
+    import importlib.resources
+    import tomllib
+
+    assert importlib.resources.files("defop").joinpath("static/defop_editor.js").is_file()
+    data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["defop"]
+    assert "static/*.js" in data
+
+
 # ---------------------------------------------------------------------------------------------- (d)
 @pytest.mark.browser
 def test_standalone_page_drag_in_chromium(operators, shape, tmp_path):
@@ -302,3 +331,115 @@ def test_standalone_page_drag_in_chromium(operators, shape, tmp_path):
     assert np.max(np.linalg.norm(X - X0, axis=1)) > 0.01 * op.mesh.bbox_diagonal
     with _quiet():
         np.testing.assert_allclose(X, op(Q), atol=1e-5 * op.mesh.bbox_diagonal)
+
+
+# ---------------------------------------------------------------------------------------------- (e)
+_WIDGET_NOTEBOOK = [
+    "import json\nimport defop as dop\nfrom defop.browser import BrowserEditor",
+    "editor = BrowserEditor('u_shape', basis='tps', kinds=('tps', 'linear'), m=20)\n"
+    "editor.observe(lambda c: open('q.json', 'w').write(json.dumps(c['new'])), names='q')\neditor",
+]
+
+
+@pytest.fixture
+def widget_lab(tmp_path):
+    """JupyterLab serving a two-cell notebook that shows a BrowserEditor (the pattern of tests/test_browser.py)."""
+    import signal
+    import sys
+
+    import nbformat
+    from test_browser import TOKEN, _free_port, _wait_for_server
+
+    root = tmp_path / "notebooks"
+    root.mkdir()
+    nb = nbformat.v4.new_notebook(
+        cells=[nbformat.v4.new_code_cell(src) for src in _WIDGET_NOTEBOOK],
+        metadata={"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}},
+    )
+    nbformat.write(nb, root / "editor.ipynb")
+    settings = tmp_path / "lab-settings" / "@jupyterlab" / "apputils-extension"
+    settings.mkdir(parents=True)
+    (settings / "notification.jupyterlab-settings").write_text('{"fetchNews": "false", "checkForUpdates": false}')
+    env = dict(os.environ, DEFOP_CACHE=str(tmp_path / "cache"), DEFOP_N_JOBS="1",
+               JUPYTER_CONFIG_DIR=str(tmp_path / "jc"), JUPYTER_RUNTIME_DIR=str(tmp_path / "jr"),
+               JUPYTERLAB_SETTINGS_DIR=str(tmp_path / "lab-settings"), JUPYTERLAB_WORKSPACES_DIR=str(tmp_path / "lw"),
+               IPYTHONDIR=str(tmp_path / "ipython"), PYTHONPATH=str(ROOT))
+    port = _free_port()
+    log = open(tmp_path / "lab.log", "w")  # noqa: SIM115 - closed below
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jupyterlab", "--ServerApp.ip=127.0.0.1", f"--ServerApp.port={port}",
+         "--ServerApp.port_retries=0", f"--IdentityProvider.token={TOKEN}", "--no-browser", "--allow-root",
+         f"--ServerApp.root_dir={root}", "--LabApp.expose_app_in_browser=True"],
+        env=env, cwd=root, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+    )
+    url = f"http://127.0.0.1:{port}"
+    try:
+        _wait_for_server(url, proc)
+        yield {"url": url, "root": root, "tmp": tmp_path}
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        log.close()
+
+
+@pytest.mark.browser
+def test_anywidget_drag_in_jupyterlab(widget_lab):
+    sync_api = pytest.importorskip("playwright.sync_api", reason="the Python package playwright is not installed")
+    if not (os.path.isfile(CHROMIUM) and os.access(CHROMIUM, os.X_OK)):
+        pytest.skip(f"no Chromium at {CHROMIUM}")
+    from test_browser import _CELL_ERRORS, _KERNEL_IDLE, _NOTEBOOK_DONE, CHROMIUM_ARGS, TOKEN
+
+    with sync_api.sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        page = chromium.new_page(viewport={"width": 1400, "height": 1000})
+        try:
+            page.set_default_timeout(60_000)
+            page.goto(f"{widget_lab['url']}/lab/tree/editor.ipynb?token={TOKEN}")
+            page.wait_for_selector(".jp-Notebook .jp-Cell")
+            page.wait_for_function(_KERNEL_IDLE, timeout=90_000)
+            page.evaluate("() => window.jupyterapp.commands.execute('notebook:run-all-cells')")
+            page.wait_for_function(_NOTEBOOK_DONE, timeout=240_000, polling=500)
+            assert not page.evaluate(_CELL_ERRORS)
+            canvas = page.locator(".defop-editor canvas.defop-canvas").first
+            canvas.wait_for(state="visible")
+            canvas.scroll_into_view_if_needed()
+            page.wait_for_timeout(500)
+            editor = "document.querySelector('.defop-editor').parentNode.defopEditor"
+            X0 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
+            box = canvas.bounding_box()
+            u, v = page.evaluate(f"() => {editor}.handleScreen(0)")
+            x0, y0 = box["x"] + u, box["y"] + v
+            page.mouse.move(x0, y0)
+            page.mouse.down()
+            for t in np.linspace(0.1, 1.0, 10):
+                page.mouse.move(x0 + 40 * t, y0 - 30 * t)
+                page.wait_for_timeout(30)
+            page.mouse.up()
+            end = page.evaluate(f"([u, v]) => {editor}.st.view.toData(u, v)", [u + 40, v - 30])
+            X1 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
+            q_file = widget_lab["root"] / "q.json"
+            page.wait_for_function(_KERNEL_IDLE, timeout=30_000)
+            for _ in range(100):
+                if q_file.exists():
+                    break
+                page.wait_for_timeout(100)
+            # the ground-truth overlay: solved in the kernel, drawn when it arrives, with its error
+            page.locator(".defop-editor input.defop-gt").first.check()
+            page.wait_for_function(
+                "() => document.querySelector('.defop-gt-readout').textContent.includes('error rms')", timeout=60_000
+            )
+            gt_text = page.locator(".defop-gt-readout").first.text_content()
+            page.screenshot(path="/tmp/defop_anywidget_drag.png")
+        finally:
+            chromium.close()
+    diag = np.linalg.norm(np.ptp(X0, axis=0))
+    assert np.max(np.linalg.norm(X1 - X0, axis=1)) > 0.01 * diag  # the mesh moved in the page
+    Q_py = np.reshape(json.loads(q_file.read_text()), (-1, 2))  # Q came back to the kernel on release
+    np.testing.assert_allclose(Q_py[0], end, atol=1e-9)
+    np.testing.assert_allclose(X1[dop.shapes.load(SHAPE).moving_handles[0]], end, atol=1e-6 * diag)
+    assert "flips" in gt_text and "NOT converged" not in gt_text, gt_text

@@ -309,7 +309,7 @@ function makeGL(canvas, p, view, width, height) {
     gl.drawArrays(gl.TRIANGLES, 0, 3 * nf);
     if (gt) {
       upload(gt);
-      u("edge", 0.12, 0.47, 0.71, 0.8);
+      u("edge", 0.12, 0.47, 0.71, 0.5);
       gl.uniform1f(edgesOnly, 1);
       gl.drawArrays(gl.TRIANGLES, 0, 3 * nf);
     }
