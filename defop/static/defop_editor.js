@@ -459,6 +459,7 @@ function wirePointer(editor, canvas) {
     st.frames.push(t);
     if (st.frames.length > 120) st.frames.shift();
     editor.evaluate();
+    if (editor.onFrame) editor.onFrame(t); // benchmarks log every frame's rAF timestamp
   };
   canvas.addEventListener("pointerdown", (ev) => {
     const [x, y] = position(ev);
