@@ -273,6 +273,15 @@ def test_widget_kernel_side(operators, shape):
     assert editor.q == editor.state.P.ravel().tolist()
 
 
+def test_widget_switches_shape(operators, shape):
+    editor = browser.BrowserEditor(shape, dict(operators), basis="tps", m=20, shapes=["u_shape", "bar"])
+    assert editor.payload_meta["scalars"]["shapes"] == ["u_shape", "bar"]
+    editor.shape_name = "bar"  # as the page's shape menu does: trains the bar's operator in the kernel
+    assert editor.state.shape.name == "bar"
+    assert editor.payload_meta["scalars"]["n_vertices"] == editor.state.mesh.n_vertices != shape.mesh.n_vertices
+    np.testing.assert_array_equal(editor.Q, editor.state.shape.P_moving)
+
+
 def test_javascript_is_package_data():
     import importlib.resources
     import tomllib
@@ -284,7 +293,9 @@ def test_javascript_is_package_data():
 
 # ---------------------------------------------------------------------------------------------- (d)
 @pytest.mark.browser
-def test_standalone_page_drag_in_chromium(operators, shape, tmp_path):
+@pytest.mark.parametrize("webgl", [True, False], ids=["webgl", "canvas2d"])
+def test_standalone_page_drag_in_chromium(operators, shape, tmp_path, webgl):
+    """The page drags offline; without WebGL (``--disable-3d-apis``) it falls back to the 2D canvas."""
     sync_api = pytest.importorskip("playwright.sync_api", reason="the Python package playwright is not installed")
     if not (os.path.isfile(CHROMIUM) and os.access(CHROMIUM, os.X_OK)):
         pytest.skip(f"no Chromium at {CHROMIUM}")
@@ -295,7 +306,8 @@ def test_standalone_page_drag_in_chromium(operators, shape, tmp_path):
     text = page_path.read_text()
     assert "http://" not in text and "https://" not in text  # nothing to fetch: works offline
     with sync_api.sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        args = CHROMIUM_ARGS + ([] if webgl else ["--disable-3d-apis"])
+        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=args)
         page = chromium.new_page(viewport={"width": 1280, "height": 720})
         requests, errors = [], []
         page.on("request", lambda r: requests.append(r.url))
@@ -314,12 +326,14 @@ def test_standalone_page_drag_in_chromium(operators, shape, tmp_path):
         page.mouse.up()
         state = page.evaluate(
             "([u, v]) => { const e = window.defopEditor; return {Q: Array.from(e.st.Q), X: Array.from(e.st.X),"
-            " end: e.st.view.toData(u, v), warn: e.ui.warn.textContent} }",
+            " end: e.st.view.toData(u, v), warn: e.ui.warn.textContent, gl: e.st.gl !== null} }",
             [u + 40, v - 30],
         )
-        page.screenshot(path="/tmp/defop_standalone_drag.png")
+        page.screenshot(path=f"/tmp/defop_standalone_drag_{'webgl' if webgl else 'canvas2d'}.png")
         chromium.close()
     assert not errors, errors
+    if not webgl:
+        assert not state["gl"]  # the 2D fallback drew this page
     assert all(url.startswith(("file:", "data:", "about:")) for url in requests), requests
     Q = np.array(state["Q"]).reshape(-1, 2)
     X = np.array(state["X"]).reshape(-1, 2)

@@ -356,6 +356,40 @@ function fillSelect(select, values, current) {
   select.style.display = values.length > 1 ? "" : "none";
 }
 
+/** The readout: browser frame rate, per-frame evaluation and drawing times, Q, and the extrapolation warning. */
+function readout(ui, st) {
+  const f = st.frames;
+  const fps = f.length > 2 ? (1000 * (f.length - 1)) / (f[f.length - 1] - f[0]) : null;
+  const median = (a) => [...a].sort((x, y) => x - y)[Math.floor(a.length / 2)];
+  const fmt = (v, digits) => (v === undefined || v === null ? "–" : v.toFixed(digits));
+  const q = Array.from({ length: st.p.n_moving }, (_, i) => `q${i} = (${st.Q[2 * i].toFixed(3)}, ${st.Q[2 * i + 1].toFixed(3)})`);
+  ui.readout.textContent =
+    `${fmt(fps, 0)} fps (browser frames while dragging)\n` +
+    `evaluation ${fmt(median(st.evalMs), 2)} ms/frame in the page, drawing ${fmt(median(st.drawMs), 1)} ms\n` +
+    `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices)\n` + q.join("\n");
+  ui.warn.textContent = st.outside.length
+    ? `handle ${st.outside.join(", ")} outside its sampling region: the operator extrapolates`
+    : "";
+}
+
+/** Reset, basis and shape menus, ground-truth toggle: local redraw plus the kernel hooks, when connected. */
+function wireControls(editor, ctx) {
+  const { ui, st, hooks } = editor;
+  ui.reset.addEventListener("click", () => {
+    st.Q = Float64Array.from(st.p.P);
+    st.frames = [];
+    editor.evaluate();
+    if (hooks.onReset) hooks.onReset();
+  });
+  ui.basis.addEventListener("change", () => hooks.onBasis && hooks.onBasis(ui.basis.value));
+  ui.shape.addEventListener("change", () => hooks.onShape && hooks.onShape(ui.shape.value));
+  ui.gt.addEventListener("change", () => {
+    st.gtVisible = ui.gt.checked;
+    drawFrame(ctx, st);
+    if (hooks.onGroundTruth) hooks.onGroundTruth(ui.gt.checked);
+  });
+}
+
 /**
  * Mount an editor in `root`. `hooks` (all optional) connect it to a kernel:
  * onRelease(Q), onBasis(kind), onShape(name), onGroundTruth(enabled), onReset().
@@ -401,36 +435,10 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
     editor.readout();
   };
 
-  editor.readout = () => {
-    const f = st.frames, ms = st.evalMs;
-    const fps = f.length > 2 ? (1000 * (f.length - 1)) / (f[f.length - 1] - f[0]) : null;
-    const median = (a) => [...a].sort((x, y) => x - y)[Math.floor(a.length / 2)];
-    const med = median(ms), draw = median(st.drawMs);
-    const q = Array.from({ length: st.p.n_moving }, (_, i) => `q${i} = (${st.Q[2 * i].toFixed(3)}, ${st.Q[2 * i + 1].toFixed(3)})`);
-    ui.readout.textContent =
-      `${fps === null ? "–" : fps.toFixed(0)} fps (browser frames while dragging)\n` +
-      `evaluation ${med === undefined ? "–" : med.toFixed(2)} ms/frame in the page, drawing ` +
-      `${draw === undefined ? "–" : draw.toFixed(1)} ms\n` +
-      `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices)\n` + q.join("\n");
-    ui.warn.textContent = st.outside.length
-      ? `handle ${st.outside.join(", ")} outside its sampling region: the operator extrapolates`
-      : "";
-  };
+  editor.readout = () => readout(ui, st);
 
   wirePointer(editor, ui.canvas);
-  ui.reset.addEventListener("click", () => {
-    st.Q = Float64Array.from(st.p.P);
-    st.frames = [];
-    editor.evaluate();
-    if (hooks.onReset) hooks.onReset();
-  });
-  ui.basis.addEventListener("change", () => hooks.onBasis && hooks.onBasis(ui.basis.value));
-  ui.shape.addEventListener("change", () => hooks.onShape && hooks.onShape(ui.shape.value));
-  ui.gt.addEventListener("change", () => {
-    st.gtVisible = ui.gt.checked;
-    drawFrame(ctx, st);
-    if (hooks.onGroundTruth) hooks.onGroundTruth(ui.gt.checked);
-  });
+  wireControls(editor, ctx);
   editor.setGroundTruth = (X, text) => {
     st.gt = X;
     ui.gtReadout.textContent = text || "";
