@@ -329,9 +329,14 @@ def test_standalone_page_drag_in_chromium(operators, shape, tmp_path, webgl):
             " end: e.st.view.toData(u, v), warn: e.ui.warn.textContent, gl: e.st.gl !== null} }",
             [u + 40, v - 30],
         )
+        far = page.evaluate(  # a handle far outside its sampling region: the readout warns
+            "() => { const e = window.defopEditor; e.st.Q[2] += 0.3; e.evaluate(); return e.ui.warn.textContent; }"
+        )
         page.screenshot(path=f"/tmp/defop_standalone_drag_{'webgl' if webgl else 'canvas2d'}.png")
         chromium.close()
     assert not errors, errors
+    assert far.startswith("handle 1 outside its sampling region"), far
+    assert state["warn"] == ""
     if not webgl:
         assert not state["gl"]  # the 2D fallback drew this page
     assert all(url.startswith(("file:", "data:", "about:")) for url in requests), requests

@@ -104,7 +104,7 @@ export function outsideRegions(Q, regions) {
 }
 
 const STYLE = `
-.defop-editor { display: flex; gap: 12px; align-items: flex-start; font: 13px system-ui, sans-serif; color: #222; }
+.defop-editor { display: flex; flex-wrap: wrap; gap: 12px; align-items: flex-start; font: 13px system-ui, sans-serif; color: #222; }
 .defop-editor .defop-stack { position: relative; border: 1px solid #ccc; background: #fff; flex: none; }
 .defop-editor .defop-stack canvas { position: absolute; left: 0; top: 0; }
 .defop-editor .defop-canvas { touch-action: none; cursor: crosshair; }
@@ -195,8 +195,8 @@ function traceEdges(ctx, X, E, view) {
   }
 }
 
-function drawRegions(ctx, regions, view) {
-  ctx.fillStyle = "rgba(255,127,14,0.10)";
+function drawRegions(ctx, regions, view, fill = true) {
+  ctx.fillStyle = fill ? "rgba(255,127,14,0.10)" : "rgba(0,0,0,0)";
   ctx.strokeStyle = "rgba(255,127,14,0.7)";
   ctx.lineWidth = 1;
   for (const polys of regions) {
@@ -323,7 +323,7 @@ function drawFrame(ctx, st) {
   ctx.clearRect(0, 0, st.width, st.height);
   if (st.gl) { // the mesh in WebGL, regions and handles on the 2D overlay
     st.gl.draw(X, st.gt && st.gtVisible ? st.gt : null);
-    drawRegions(ctx, p.regions, view);
+    drawRegions(ctx, p.regions, view, false); // outlines only: the overlay is above the mesh
     drawHandles(ctx, X, p.handles, p.moving, view, st.active, st.outside);
     return;
   }
