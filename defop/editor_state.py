@@ -1,0 +1,327 @@
+"""The handle editor's state, without any view: Q, X, the operators per basis and the ground truth.
+
+This is the pure part of the interactive editor (issue #18): a view (the in-page editor of
+:mod:`defop.browser`, or a matplotlib figure) draws it and calls its methods; tests drive the same
+methods. Nothing here imports matplotlib, ipywidgets or anywidget.
+
+Example
+-------
+>>> state = EditorState("bar", m=40)                 # doctest: +SKIP
+>>> state.set_handle(0, state.P[0] + [0.1, 0.2])      # doctest: +SKIP
+>>> state.outside_regions()                           # doctest: +SKIP
+>>> state.set_ground_truth(True); state.gt_error      # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+
+import defop as dop
+
+from .handle_bases import KINDS
+from .operator import ExtrapolationWarning
+
+
+def region_polygons(P, regions, n=96):
+    """The sampling region of every moving handle as closed polygons (§3.3).
+
+    A handle is inside its region when it is inside any of its polygons: for a Gaussian region that is
+    the 2σ circle, for a mixture the union of its components.
+
+    Parameters
+    ----------
+    P : (n,2) numpy array
+        Rest positions of the moving handles.
+    regions : list of dict
+        One region per moving handle, as in :class:`defop.shapes.Shape`.
+    n : int
+        Points per circle.
+
+    Returns
+    -------
+    polygons : list of list of (k,2) numpy array
+    """
+    from .plot import region_outlines  # numpy only; plot.py is where the region outlines are defined today
+
+    P = np.asarray(P, float)
+    return [[poly for poly, _style in region_outlines(c, r, P, i, n) if len(poly) >= 3] for i, (c, r) in
+            enumerate(zip(P, regions, strict=True))]
+
+
+def reach_polygons(P, samples, n=96):
+    """Discs through the farthest training sample of each moving handle (when no regions are known).
+
+    Parameters
+    ----------
+    P : (n,2) numpy array
+    samples : (m,n,2) numpy array or None
+
+    Returns
+    -------
+    polygons : list of list of (k,2) numpy array
+        Empty lists when there are no samples.
+    """
+    P = np.asarray(P, float)
+    if samples is None or len(samples) < 2:
+        return [[] for _ in P]
+    reach = np.linalg.norm(np.asarray(samples, float) - P, axis=-1).max(axis=0)
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    unit = np.column_stack([np.cos(t), np.sin(t)])
+    return [[p + r * unit] for p, r in zip(P, reach)]
+
+
+def inside_polygon(q, poly):
+    """Even-odd point-in-polygon test (the same rule as ``insidePolygon`` in the page).
+
+    Parameters
+    ----------
+    q : (2,) numpy array
+    poly : (k,2) numpy array
+
+    Returns
+    -------
+    bool
+    """
+    x, y = float(q[0]), float(q[1])
+    xi, yi = poly[:, 0], poly[:, 1]
+    xj, yj = np.roll(xi, 1), np.roll(yi, 1)
+    crosses = (yi > y) != (yj > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xs = (xj - xi) * (y - yi) / (yj - yi) + xi
+    return bool(np.count_nonzero(crosses & (x < xs)) % 2)
+
+
+def ground_truth_error(mesh, X, X_gt):
+    """Distance between the approximation and the ground truth, relative to the bounding-box diagonal.
+
+    Parameters
+    ----------
+    mesh : defop.mesh.Mesh
+    X, X_gt : (n,2) numpy array
+
+    Returns
+    -------
+    dict
+        ``rms``: the L2(Ω) distance / |Ω|^½ (lumped mass), ``max``: the largest vertex distance, both
+        divided by the diagonal; ``flips_gt``: flipped triangles of the ground truth.
+    """
+    d = np.asarray(X, float) - np.asarray(X_gt, float)
+    mass = np.asarray(mesh.mass_matrix.diagonal())
+    diag = mesh.bbox_diagonal
+    rms = float(np.sqrt(np.sum(mass * np.sum(d * d, axis=1)) / np.sum(mass)))
+    return {
+        "rms": rms / diag,
+        "max": float(np.max(np.linalg.norm(d, axis=1))) / diag,
+        "flips_gt": int(np.sum(mesh.flipped(X_gt))),
+    }
+
+
+class EditorState:
+    """Moving handles Q, the deformation X = D(·, Q) and the ground truth of one shape.
+
+    Parameters
+    ----------
+    shape : defop.shapes.Shape or str
+        The shape (a name is loaded with :func:`defop.shapes.load`).
+    operators : dict, optional
+        Trained DefOps by basis kind; missing kinds are trained on first use.
+    basis : str
+        The initial handle basis Ψ.
+    energy : str
+        Energy of the operators and of the ground-truth solve.
+    m : int, optional
+        Training samples for :func:`defop.train.train` (its default when None).
+    kinds : sequence of str
+        The bases offered.
+    trainer : callable, optional
+        ``trainer(shape, kind) -> DefOp``; default :func:`defop.train.train`.
+    solver : object, optional
+        Ground-truth solver with ``solve(targets (h,2), X0=None)`` returning a result with ``X`` and
+        ``converged``; default a :class:`defop.solve.Solver` built on first use.
+    pick_radius : float
+        Picking distance as a fraction of the bounding-box diagonal.
+
+    Attributes
+    ----------
+    P : (n,2) numpy array
+        Rest positions of the moving handles.
+    Q : (n,2) numpy array
+        Current positions of the moving handles.
+    X : (n_vertices,2) numpy array
+        D(·, Q) of the current basis.
+    X_gt : (n_vertices,2) numpy array or None
+        The last ground truth D^E(·, Q_gt), None when off or not solved yet.
+    gt_error : dict or None
+        :func:`ground_truth_error` of the last ground truth.
+    """
+
+    def __init__(self, shape, operators=None, *, basis="tps", energy="sarap", m=None, kinds=KINDS, trainer=None,
+                 solver=None, pick_radius=0.05):
+        if isinstance(shape, str):
+            shape = dop.shapes.load(shape)
+        self.kinds = tuple(kinds)
+        for kind in [basis, *(operators or {})]:
+            if kind not in self.kinds:
+                raise ValueError(f"basis {kind!r} is not offered; choose one of {self.kinds}")
+        if not pick_radius > 0:
+            raise ValueError(f"pick_radius must be positive, got {pick_radius}")
+        self.shape, self.mesh, self.energy, self.m = shape, shape.mesh, energy, m
+        self.operators = dict(operators or {})
+        for op in self.operators.values():
+            op.check_mesh(self.mesh)
+        self.trainer = trainer
+        self._solver = solver
+        self.P = np.array(shape.P_moving, dtype=float)
+        self.diag = float(self.mesh.bbox_diagonal)
+        self.pick_radius = float(pick_radius)
+        self.regions = region_polygons(self.P, shape.regions)
+        self.kind = basis
+        self.gt_enabled = False
+        self.get_operator(basis)
+        self.reset()
+
+    # ------------------------------------------------------------------ operators
+    def get_operator(self, kind):
+        """The DefOp of basis ``kind`` (trained on first use).
+
+        Returns
+        -------
+        defop.operator.DefOp
+        """
+        if kind not in self.kinds:
+            raise ValueError(f"basis {kind!r} is not offered; choose one of {self.kinds}")
+        if kind not in self.operators:
+            if self.trainer is not None:
+                op = self.trainer(self.shape, kind)
+            else:
+                kw = {} if self.m is None else {"m": self.m}
+                op, _record = dop.train.train(self.shape, energy=self.energy, basis=kind, progress=False, **kw)
+            op.check_mesh(self.mesh)
+            self.operators[kind] = op
+        return self.operators[kind]
+
+    @property
+    def operator(self):
+        """The DefOp of the current basis."""
+        return self.get_operator(self.kind)
+
+    def set_basis(self, kind):
+        """Switch the handle basis Ψ (training it on first use) and re-evaluate at the same Q."""
+        self.get_operator(kind)
+        self.kind = kind
+        self._evaluate()
+
+    # ------------------------------------------------------------------ handles
+    def set_Q(self, Q):
+        """Move all moving handles to ``Q (n,2)`` and re-evaluate (the ground truth too, when on)."""
+        Q = np.array(Q, dtype=float)
+        if Q.shape != self.P.shape:
+            raise ValueError(f"Q must have shape {self.P.shape} (the moving handles), got {Q.shape}")
+        bad = ~np.isfinite(Q).all(axis=1)
+        if bad.any():
+            raise ValueError(f"handle {int(np.flatnonzero(bad)[0])} has a NaN or infinite position")
+        self.Q = Q
+        self._evaluate()
+
+    def set_handle(self, i, q):
+        """Move moving handle ``i`` to ``q (2,)`` and re-evaluate."""
+        if not 0 <= int(i) < len(self.P):
+            raise ValueError(f"handle index {i} is out of range 0..{len(self.P) - 1}")
+        Q = self.Q.copy()
+        Q[int(i)] = q
+        self.set_Q(Q)
+
+    def reset(self):
+        """Back to the rest pose Q = P; forgets the ground truth's warm start."""
+        self.X_gt = self.Q_gt = self.gt_result = self.gt_error = self.gt_time = None
+        self.set_Q(self.P)
+
+    def pick(self, x, y):
+        """The moving handle nearest to (x, y) within ``pick_radius`` × diagonal, else None."""
+        d = np.hypot(self.Q[:, 0] - x, self.Q[:, 1] - y)
+        i = int(np.argmin(d))
+        return i if d[i] <= self.pick_radius * self.diag else None
+
+    def outside_regions(self, Q=None):
+        """Indices of the moving handles outside their sampling region (the operator extrapolates there).
+
+        Parameters
+        ----------
+        Q : (n,2) numpy array, optional
+            Default: the current Q.
+
+        Returns
+        -------
+        list of int
+        """
+        Q = self.Q if Q is None else np.asarray(Q, float)
+        return [i for i, polys in enumerate(self.regions) if polys and not any(inside_polygon(Q[i], p) for p in polys)]
+
+    def _evaluate(self):
+        with warnings.catch_warnings():  # the readout reports extrapolation through outside_regions
+            warnings.simplefilter("ignore", ExtrapolationWarning)
+            self.X = np.asarray(self.operator(self.Q), dtype=float)
+        if self.gt_enabled:
+            self.update_ground_truth()
+
+    # ------------------------------------------------------------------ ground truth
+    @property
+    def solver(self):
+        """The ground-truth solver (a :class:`defop.solve.Solver`, built on first use)."""
+        if self._solver is None:
+            self._solver = dop.solve.Solver(self.mesh, self.shape.handles, energy=self.energy)
+        return self._solver
+
+    def set_ground_truth(self, enabled):
+        """Turn the ground truth on (solving it at the current Q) or off."""
+        self.gt_enabled = bool(enabled)
+        if self.gt_enabled:
+            self.update_ground_truth()
+        else:
+            self.gt_error = None
+
+    def update_ground_truth(self):
+        """Solve the variational DefOp (problem 6) at Q, warm-started, and measure the approximation's error.
+
+        Starts, in order: the previous ground truth moved by the approximation's step
+        ``X_gt + D(·, Q) − D(·, Q_gt)`` (it meets the handle constraints because D interpolates them,
+        Prop. 2), then D(·, Q), then the solver's own start; starts with flipped triangles are skipped and a
+        start the solver rejects (ValueError) falls through to the next.
+
+        Returns
+        -------
+        X_gt : (n_vertices,2) numpy array
+        """
+        starts = []
+        if self.X_gt is not None:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ExtrapolationWarning)
+                starts.append(self.X_gt + self.X - np.asarray(self.operator(self.Q_gt)))
+        starts = [X0 for X0 in [*starts, self.X] if not np.any(self.mesh.flipped(X0))] + [None]
+        targets = self.shape.targets(self.Q)
+        t0, error = time.perf_counter(), None
+        for X0 in starts:
+            try:
+                result = self.solver.solve(targets, X0=X0)
+                break
+            except ValueError as exc:
+                error = exc
+        else:
+            raise ValueError(f"the ground-truth solver failed from every start: {error}")
+        self.gt_time = time.perf_counter() - t0
+        self.gt_result = result
+        self.X_gt, self.Q_gt = np.asarray(result.X, dtype=float), self.Q.copy()
+        self.gt_error = ground_truth_error(self.mesh, self.X, self.X_gt)
+        return self.X_gt
+
+    def ground_truth_text(self):
+        """One line for the readout: solve time, convergence, flips and the error (or an empty string)."""
+        if not self.gt_enabled or self.gt_error is None:
+            return ""
+        e = self.gt_error
+        conv = "" if getattr(self.gt_result, "converged", True) else " (solver NOT converged)"
+        return (f"ground truth: {1e3 * self.gt_time:.0f} ms{conv}, {e['flips_gt']} flips; error rms "
+                f"{100 * e['rms']:.2f}% / max {100 * e['max']:.2f}% of the diagonal")

@@ -1,0 +1,464 @@
+"""The in-page editor (issue #18): its JavaScript evaluation, the editor state and the standalone page.
+
+- The page's own module ``defop/static/defop_editor.js`` is run in Node and compared with ``DefOp.__call__``
+  at random Q (hypothesis) for every handle basis; handles and rest pose are exact up to the float32
+  storage of the factors, with the bound stated in :func:`_float32_bound`.
+- :class:`defop.editor_state.EditorState` is driven through its public API only.
+- The standalone page of :func:`defop.browser.to_html` is dragged in headless Chromium (Playwright).
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import copy
+import json
+import os
+import shutil
+import subprocess
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import defop as dop
+from defop import browser
+from defop.editor_state import EditorState, inside_polygon
+
+ROOT = Path(__file__).resolve().parents[1]
+DRIVER = ROOT / "tests" / "js" / "eval_operator.mjs"
+NODE = shutil.which("node") or "/usr/bin/node"
+CHROMIUM = os.environ.get("DEFOP_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
+KINDS = ("linear", "quadratic", "cubic", "tps")
+U32 = 2.0**-24  # unit round-off of float32 storage
+SHAPE = "u_shape"  # 2 moving + 4 fixed handles, 795 vertices: every basis trains in seconds
+
+needs_node = pytest.mark.skipif(not os.access(NODE, os.X_OK), reason=f"no node at {NODE}")
+
+
+@pytest.fixture(scope="module")
+def shape():
+    return dop.shapes.load(SHAPE)
+
+
+@pytest.fixture(scope="module")
+def operators(shape):
+    """Small operators (fast settings, cached under DEFOP_CACHE): m just above each basis' minimum."""
+    ops = {}
+    for kind in KINDS:
+        m = 20 if kind == "tps" else dop.handle_bases.basis_size(kind, shape.n_moving) + 5
+        ops[kind], _ = dop.train.train(shape, basis=kind, m=m, progress=False, n_jobs=1, rounds=1)
+    return ops
+
+
+def node_eval(op, Qs, tmp_path, regions=None):
+    """Run the page's module in Node on Qs (k,n,2); returns X (k,n_vertices,2), psi (k,|Ψ|) and outside lists."""
+    meta, data = browser.encode_payload(browser.defop_to_payload(op, regions))
+    spec = {
+        "js": str(browser.JS_PATH),
+        "meta": meta,
+        "data": base64.b64encode(data).decode(),
+        "Q": [np.asarray(Q, float).ravel().tolist() for Q in Qs],
+    }
+    path = tmp_path / "input.json"
+    path.write_text(json.dumps(spec))
+    res = subprocess.run([NODE, str(DRIVER), str(path)], capture_output=True, text=True, timeout=60, check=True)
+    out = json.loads(res.stdout)
+    X = np.array([o["X"] for o in out]).reshape(len(Qs), -1, 2)
+    return X, np.array([o["psi"] for o in out]), [o["outside"] for o in out]
+
+
+def _float32_bound(op, Q):
+    """|D_js − D| ≤ u·Σ_j |ψ_j(Q)| |W_jc| per coordinate: W stored in float32 (relative error ≤ u = 2^-24),
+    products accumulated in float64 (their error is ~1e-16 relative, far below)."""
+    psi = np.abs(op.psi(Q))
+    return (U32 * (psi @ np.abs(op.W)) + 1e-12 * op.mesh.bbox_diagonal).reshape(-1, 2)
+
+
+def _displacements(n):
+    """Handle displacements up to 0.6 of the diagonal: inside and far outside the sampling regions."""
+    return st.lists(st.floats(-0.6, 0.6, allow_nan=False), min_size=2 * n, max_size=2 * n).map(
+        lambda v: np.reshape(v, (n, 2))
+    )
+
+
+# ---------------------------------------------------------------------------------------------- (a), (b)
+@needs_node
+@pytest.mark.parametrize("kind", KINDS)
+def test_javascript_matches_defop_at_random_Q(operators, kind, tmp_path_factory):
+    op = operators[kind]
+    diag = op.mesh.bbox_diagonal
+    tmp = tmp_path_factory.mktemp(kind)
+
+    @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+    @given(_displacements(op.n_moving))
+    def check(dQ):
+        Q = op.P + dQ * diag
+        with _quiet():
+            X_py = op(Q)
+        X_js, psi_js, _ = node_eval(op, [Q], tmp)
+        np.testing.assert_allclose(psi_js[0], op.psi(Q), rtol=1e-12, atol=1e-12 * np.abs(op.psi(Q)).max())
+        err = np.max(np.linalg.norm(X_js[0] - X_py, axis=1))
+        assert err <= 1e-5 * diag, f"{kind}: JS differs from DefOp by {err / diag:.2e} of the diagonal"
+        moving = op.handles[op.moving]
+        assert np.all(np.abs(X_js[0][moving] - Q) <= _float32_bound(op, Q)[moving]), "handles not exact (Prop. 2)"
+
+    check()
+
+
+@contextlib.contextmanager
+def _quiet():
+    """Far Q are tested on purpose: silence the operator's ExtrapolationWarning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
+        yield
+
+
+@needs_node
+@pytest.mark.parametrize("kind", KINDS)
+def test_javascript_rest_pose_and_fixed_handles_exact(operators, kind, tmp_path):
+    op = operators[kind]
+    X_js, _, outside = node_eval(op, [op.P], tmp_path)
+    bound = _float32_bound(op, op.P)
+    assert np.all(np.abs(X_js[0] - op.mesh.V) <= bound), "rest pose not exact (8b)"
+    fixed = op.handles[~op.moving]
+    np.testing.assert_array_less(np.abs(X_js[0][fixed] - op.mesh.V[fixed]), bound[fixed] + 1e-300)
+    assert outside == [[]]
+    # the bound itself is tiny: float32 round-off relative to the diagonal
+    assert bound.max() / op.mesh.bbox_diagonal < 1e-6
+
+
+@needs_node
+def test_javascript_compressed_factors_match(operators, tmp_path):
+    op = copy.deepcopy(operators["tps"]).compress(rank=8)
+    rng = np.random.default_rng(3)
+    Qs = op.P + 0.2 * op.mesh.bbox_diagonal * rng.standard_normal((4, op.n_moving, 2))
+    X_js, _, _ = node_eval(op, Qs, tmp_path)
+    with _quiet():
+        X_py = op(Qs)
+    assert np.max(np.linalg.norm(X_js - X_py, axis=-1)) <= 1e-5 * op.mesh.bbox_diagonal
+
+
+@needs_node
+def test_javascript_extrapolation_matches_state(operators, shape, tmp_path):
+    state = EditorState(shape, operators, basis="tps")
+    rng = np.random.default_rng(0)
+    r = shape.regions[0]["radius"]
+    Qs = state.P + 0.8 * r * rng.standard_normal((12, state.P.shape[0], 2))
+    polys = state.regions
+    _, _, outside = node_eval(operators["tps"], Qs, tmp_path, regions=polys)
+    assert [state.outside_regions(Q) for Q in Qs] == outside
+    assert any(outside) and not all(outside)
+
+
+def test_payload_round_trip(operators):
+    p = browser.defop_to_payload(operators["cubic"])
+    meta, data = browser.encode_payload(p)
+    for name, a in meta["arrays"].items():
+        assert a["offset"] % 8 == 0
+        dt = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u1": np.uint8}[a["dtype"]]
+        back = np.frombuffer(data, dt, a["length"], a["offset"]).reshape(a["shape"])
+        np.testing.assert_array_equal(back, p[name])
+    assert meta["scalars"]["size"] == operators["cubic"].handle_basis.size
+    assert len(meta["arrays"]["parent"]["shape"]) == 1 and meta["arrays"]["parent"]["length"] == p["size"] - 1
+
+
+# ---------------------------------------------------------------------------------------------- (c)
+def test_state_handles_and_rest_pose(operators, shape):
+    state = EditorState(shape, operators, basis="quadratic")
+    np.testing.assert_array_equal(state.Q, shape.P_moving)
+    np.testing.assert_allclose(state.X, shape.mesh.V, atol=1e-9 * state.diag)
+    q = state.P[1] + [0.05 * state.diag, -0.03 * state.diag]
+    state.set_handle(1, q)
+    np.testing.assert_allclose(state.X[shape.moving_handles[1]], q, atol=1e-9 * state.diag)
+    np.testing.assert_allclose(state.X[shape.fixed_handles], shape.mesh.V[shape.fixed_handles], atol=1e-9)
+    state.set_basis("tps")
+    assert state.kind == "tps" and state.operator is operators["tps"]
+    np.testing.assert_allclose(state.X[shape.moving_handles[1]], q, atol=1e-9 * state.diag)
+    state.reset()
+    np.testing.assert_array_equal(state.Q, state.P)
+
+
+def test_state_rejects_bad_input(operators, shape):
+    state = EditorState(shape, operators)
+    with pytest.raises(ValueError, match="out of range"):
+        state.set_handle(5, [0, 0])
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        state.set_handle(0, [np.nan, 0])
+    with pytest.raises(ValueError, match="shape"):
+        state.set_Q(np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="not offered"):
+        state.set_basis("quartic")
+    other = dop.shapes.load("bar")
+    with pytest.raises(ValueError, match="trained on a mesh"):
+        EditorState(other, {"tps": operators["tps"]})
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(i=st.integers(0, 1), dx=st.floats(-1, 1), dy=st.floats(-1, 1))
+def test_state_pick_nearest_handle(operators, shape, i, dx, dy):
+    state = EditorState(shape, operators)
+    r = state.pick_radius * state.diag
+    x, y = state.P[i] + 0.9 * r * np.array([dx, dy]) / max(1.0, np.hypot(dx, dy))
+    d = np.hypot(*(state.P - [x, y]).T)
+    assert state.pick(x, y) == int(np.argmin(d))
+    assert state.pick(*(state.P[i] + [10 * state.diag, 0])) is None
+
+
+def test_state_outside_regions_follows_region_geometry(operators, shape):
+    state = EditorState(shape, operators)
+    assert state.outside_regions() == []
+    region = shape.regions[0]
+    assert region["kind"] == "disc"
+    r = region["radius"]
+    for t, out in ((0.9, []), (1.1, [0])):
+        Q = state.P.copy()
+        Q[0] += [t * r / np.sqrt(2), t * r / np.sqrt(2)]
+        assert state.outside_regions(Q) == out
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    assert inside_polygon([0.5, 0.5], square) and not inside_polygon([1.5, 0.5], square)
+
+
+def test_state_trains_missing_bases_on_first_use(operators, shape):
+    calls = []
+
+    def trainer(shape_, kind):
+        calls.append(kind)
+        return operators[kind]
+
+    state = EditorState(shape, {"tps": operators["tps"]}, trainer=trainer)
+    assert calls == []
+    state.set_basis("linear")
+    state.set_basis("tps")
+    state.set_basis("linear")
+    assert calls == ["linear"]
+
+
+def test_state_ground_truth(operators, shape):
+    state = EditorState(shape, operators, basis="tps", energy="sarap")
+    state.set_ground_truth(True)
+    assert state.gt_error["rms"] < 1e-6  # at rest the ground truth is the rest pose
+    q = state.P[0] + [0.04 * state.diag, 0.02 * state.diag]
+    state.set_handle(0, q)
+    assert state.gt_result.converged
+    np.testing.assert_allclose(state.X_gt[shape.moving_handles[0]], q, atol=1e-8 * state.diag)
+    np.testing.assert_array_equal(state.Q_gt, state.Q)
+    e = state.gt_error
+    assert 0 < e["rms"] <= e["max"] < 0.05 and e["flips_gt"] == 0
+    assert "error rms" in state.ground_truth_text()
+    state.set_ground_truth(False)
+    assert state.gt_error is None and state.ground_truth_text() == ""
+
+
+def test_widget_kernel_side(operators, shape):
+    """What the page sends (q on release, basis, ground truth) reaches the state; what Python sends back."""
+    editor = browser.BrowserEditor(shape, dict(operators), basis="tps")
+    meta = editor.payload_meta
+    assert meta["scalars"]["kind"] == "tps" and meta["scalars"]["kinds"] == list(KINDS)
+    Q = editor.Q + [[0.02, 0.01], [0.0, 0.0]]
+    editor.q = Q.ravel().tolist()  # as the page does on release
+    np.testing.assert_array_equal(editor.Q, Q)
+    np.testing.assert_allclose(editor.state.X[shape.moving_handles], Q, atol=1e-9)
+    editor.ground_truth = True
+    X_gt = np.frombuffer(editor.gt_data, np.float32).reshape(-1, 2)
+    np.testing.assert_allclose(X_gt, editor.state.X_gt, atol=1e-6)
+    assert "error rms" in editor.gt_meta["text"]
+    editor.basis = "linear"
+    assert editor.payload_meta["scalars"]["size"] == operators["linear"].handle_basis.size
+    np.testing.assert_array_equal(editor.Q, Q)  # switching basis keeps Q
+    editor.set_Q(editor.state.P)
+    assert editor.q == editor.state.P.ravel().tolist()
+
+
+def test_widget_switches_shape(operators, shape):
+    editor = browser.BrowserEditor(shape, dict(operators), basis="tps", m=20, shapes=["u_shape", "bar"])
+    assert editor.payload_meta["scalars"]["shapes"] == ["u_shape", "bar"]
+    editor.shape_name = "bar"  # as the page's shape menu does: trains the bar's operator in the kernel
+    assert editor.state.shape.name == "bar"
+    assert editor.payload_meta["scalars"]["n_vertices"] == editor.state.mesh.n_vertices != shape.mesh.n_vertices
+    np.testing.assert_array_equal(editor.Q, editor.state.shape.P_moving)
+
+
+def test_javascript_is_package_data():
+    import importlib.resources
+    import tomllib
+
+    assert importlib.resources.files("defop").joinpath("static/defop_editor.js").is_file()
+    data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["defop"]
+    assert "static/*.js" in data
+
+
+# ---------------------------------------------------------------------------------------------- (d)
+@pytest.mark.browser
+@pytest.mark.parametrize("webgl", [True, False], ids=["webgl", "canvas2d"])
+def test_standalone_page_drag_in_chromium(operators, shape, tmp_path, webgl):
+    """The page drags offline; without WebGL (``--disable-3d-apis``) it falls back to the 2D canvas."""
+    sync_api = pytest.importorskip("playwright.sync_api", reason="the Python package playwright is not installed")
+    if not (os.path.isfile(CHROMIUM) and os.access(CHROMIUM, os.X_OK)):
+        pytest.skip(f"no Chromium at {CHROMIUM}")
+    from test_browser import CHROMIUM_ARGS
+
+    op = operators["tps"]
+    page_path = browser.to_html(op, tmp_path / "u_shape.html", shape=shape)
+    text = page_path.read_text()
+    assert "http://" not in text and "https://" not in text  # nothing to fetch: works offline
+    with sync_api.sync_playwright() as p:
+        args = CHROMIUM_ARGS + ([] if webgl else ["--disable-3d-apis"])
+        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=args)
+        page = chromium.new_page(viewport={"width": 1280, "height": 720})
+        requests, errors = [], []
+        page.on("request", lambda r: requests.append(r.url))
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(page_path.as_uri())
+        page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
+        X0 = np.array(page.evaluate("() => Array.from(window.defopEditor.st.X)")).reshape(-1, 2)
+        box = page.locator("canvas.defop-canvas").bounding_box()
+        u, v = page.evaluate("() => window.defopEditor.handleScreen(0)")
+        x0, y0 = box["x"] + u, box["y"] + v
+        page.mouse.move(x0, y0)
+        page.mouse.down()
+        for t in np.linspace(0.1, 1.0, 10):
+            page.mouse.move(x0 + 40 * t, y0 - 30 * t)
+            page.wait_for_timeout(20)
+        page.mouse.up()
+        state = page.evaluate(
+            "([u, v]) => { const e = window.defopEditor; return {Q: Array.from(e.st.Q), X: Array.from(e.st.X),"
+            " end: e.st.view.toData(u, v), warn: e.ui.warn.textContent, gl: e.st.gl !== null} }",
+            [u + 40, v - 30],
+        )
+        far = page.evaluate(  # a handle far outside its sampling region: the readout warns
+            "() => { const e = window.defopEditor; e.st.Q[2] += 0.3; e.evaluate(); return e.ui.warn.textContent; }"
+        )
+        page.screenshot(path=f"/tmp/defop_standalone_drag_{'webgl' if webgl else 'canvas2d'}.png")
+        chromium.close()
+    assert not errors, errors
+    assert far.startswith("handle 1 outside its sampling region"), far
+    assert state["warn"] == ""
+    if not webgl:
+        assert not state["gl"]  # the 2D fallback drew this page
+    assert all(url.startswith(("file:", "data:", "about:")) for url in requests), requests
+    Q = np.array(state["Q"]).reshape(-1, 2)
+    X = np.array(state["X"]).reshape(-1, 2)
+    np.testing.assert_allclose(Q[0], state["end"], atol=1e-9)  # the handle is where the pointer was released
+    assert Q[0, 0] > op.P[0, 0] and Q[0, 1] > op.P[0, 1]  # screen right/up = data +x/+y
+    np.testing.assert_array_equal(Q[1], op.P[1])
+    moving = op.handles[op.moving]
+    np.testing.assert_allclose(X[moving], Q, atol=1e-6 * op.mesh.bbox_diagonal)  # the mesh follows the handle
+    assert np.max(np.linalg.norm(X - X0, axis=1)) > 0.01 * op.mesh.bbox_diagonal
+    with _quiet():
+        np.testing.assert_allclose(X, op(Q), atol=1e-5 * op.mesh.bbox_diagonal)
+
+
+# ---------------------------------------------------------------------------------------------- (e)
+_WIDGET_NOTEBOOK = [
+    "import json\nimport defop as dop\nfrom defop.browser import BrowserEditor",
+    "editor = BrowserEditor('u_shape', basis='tps', kinds=('tps', 'linear'), m=20)\n"
+    "editor.observe(lambda c: open('q.json', 'w').write(json.dumps(c['new'])), names='q')\neditor",
+]
+
+
+@pytest.fixture
+def widget_lab(tmp_path):
+    """JupyterLab serving a two-cell notebook that shows a BrowserEditor (the pattern of tests/test_browser.py)."""
+    import signal
+    import sys
+
+    import nbformat
+    from test_browser import TOKEN, _free_port, _wait_for_server
+
+    root = tmp_path / "notebooks"
+    root.mkdir()
+    nb = nbformat.v4.new_notebook(
+        cells=[nbformat.v4.new_code_cell(src) for src in _WIDGET_NOTEBOOK],
+        metadata={"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}},
+    )
+    nbformat.write(nb, root / "editor.ipynb")
+    settings = tmp_path / "lab-settings" / "@jupyterlab" / "apputils-extension"
+    settings.mkdir(parents=True)
+    (settings / "notification.jupyterlab-settings").write_text('{"fetchNews": "false", "checkForUpdates": false}')
+    env = dict(os.environ, DEFOP_CACHE=str(tmp_path / "cache"), DEFOP_N_JOBS="1",
+               JUPYTER_CONFIG_DIR=str(tmp_path / "jc"), JUPYTER_RUNTIME_DIR=str(tmp_path / "jr"),
+               JUPYTERLAB_SETTINGS_DIR=str(tmp_path / "lab-settings"), JUPYTERLAB_WORKSPACES_DIR=str(tmp_path / "lw"),
+               IPYTHONDIR=str(tmp_path / "ipython"), PYTHONPATH=str(ROOT))
+    port = _free_port()
+    log = open(tmp_path / "lab.log", "w")  # noqa: SIM115 - closed below
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jupyterlab", "--ServerApp.ip=127.0.0.1", f"--ServerApp.port={port}",
+         "--ServerApp.port_retries=0", f"--IdentityProvider.token={TOKEN}", "--no-browser", "--allow-root",
+         f"--ServerApp.root_dir={root}", "--LabApp.expose_app_in_browser=True"],
+        env=env, cwd=root, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+    )
+    url = f"http://127.0.0.1:{port}"
+    try:
+        _wait_for_server(url, proc)
+        yield {"url": url, "root": root, "tmp": tmp_path}
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        log.close()
+
+
+@pytest.mark.browser
+def test_anywidget_drag_in_jupyterlab(widget_lab):
+    sync_api = pytest.importorskip("playwright.sync_api", reason="the Python package playwright is not installed")
+    if not (os.path.isfile(CHROMIUM) and os.access(CHROMIUM, os.X_OK)):
+        pytest.skip(f"no Chromium at {CHROMIUM}")
+    from test_browser import _CELL_ERRORS, _KERNEL_IDLE, _NOTEBOOK_DONE, CHROMIUM_ARGS, TOKEN
+
+    with sync_api.sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        page = chromium.new_page(viewport={"width": 1400, "height": 1000})
+        try:
+            page.set_default_timeout(60_000)
+            page.goto(f"{widget_lab['url']}/lab/tree/editor.ipynb?token={TOKEN}")
+            page.wait_for_selector(".jp-Notebook .jp-Cell")
+            page.wait_for_function(_KERNEL_IDLE, timeout=90_000)
+            page.evaluate("() => window.jupyterapp.commands.execute('notebook:run-all-cells')")
+            page.wait_for_function(_NOTEBOOK_DONE, timeout=240_000, polling=500)
+            assert not page.evaluate(_CELL_ERRORS)
+            canvas = page.locator(".defop-editor canvas.defop-canvas").first
+            canvas.wait_for(state="visible")
+            canvas.scroll_into_view_if_needed()
+            page.wait_for_timeout(500)
+            editor = "document.querySelector('.defop-editor').parentNode.defopEditor"
+            X0 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
+            box = canvas.bounding_box()
+            u, v = page.evaluate(f"() => {editor}.handleScreen(0)")
+            x0, y0 = box["x"] + u, box["y"] + v
+            page.mouse.move(x0, y0)
+            page.mouse.down()
+            for t in np.linspace(0.1, 1.0, 10):
+                page.mouse.move(x0 + 40 * t, y0 - 30 * t)
+                page.wait_for_timeout(30)
+            page.mouse.up()
+            end = page.evaluate(f"([u, v]) => {editor}.st.view.toData(u, v)", [u + 40, v - 30])
+            X1 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
+            q_file = widget_lab["root"] / "q.json"
+            page.wait_for_function(_KERNEL_IDLE, timeout=30_000)
+            for _ in range(100):
+                if q_file.exists():
+                    break
+                page.wait_for_timeout(100)
+            # the ground-truth overlay: solved in the kernel, drawn when it arrives, with its error
+            page.locator(".defop-editor input.defop-gt").first.check()
+            page.wait_for_function(
+                "() => document.querySelector('.defop-gt-readout').textContent.includes('error rms')", timeout=60_000
+            )
+            gt_text = page.locator(".defop-gt-readout").first.text_content()
+            page.screenshot(path="/tmp/defop_anywidget_drag.png")
+        finally:
+            chromium.close()
+    diag = np.linalg.norm(np.ptp(X0, axis=0))
+    assert np.max(np.linalg.norm(X1 - X0, axis=1)) > 0.01 * diag  # the mesh moved in the page
+    Q_py = np.reshape(json.loads(q_file.read_text()), (-1, 2))  # Q came back to the kernel on release
+    np.testing.assert_allclose(Q_py[0], end, atol=1e-9)
+    np.testing.assert_allclose(X1[dop.shapes.load(SHAPE).moving_handles[0]], end, atol=1e-6 * diag)
+    assert "flips" in gt_text and "NOT converged" not in gt_text, gt_text
