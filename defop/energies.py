@@ -83,7 +83,7 @@ def signed_svd(J):
     return _rot(phi), S, _rot(-theta)
 
 
-def _psi_sarap_smooth(t1, t2, ok, mu):
+def psi_sarap_smooth(t1, t2, ok, mu):
     """S-ARAP as a smooth maximum of its two orderings, for Newton.
 
     With Σ ≥ σ, Eq. (11) equals max(f, g) where f = (σ1−1)² + (1/σ2−1)² and g = (σ2−1)² + (1/σ1−1)²
@@ -115,10 +115,10 @@ def _psi_sarap_smooth(t1, t2, ok, mu):
     return psi, p1, p2, p11, p22, p12, twist, flip
 
 
-def _psi(energy, s1, s2, mu=0.0):
+def psi_derivatives(energy, s1, s2, mu=0.0):
     """ψ and its derivatives in the signed singular values: (ψ, ψ1, ψ2, ψ11, ψ22, ψ12, twist, flip).
 
-    ``mu > 0`` selects the smoothed S-ARAP of :func:`_psi_sarap_smooth` (ignored by the others).
+    ``mu > 0`` selects the smoothed S-ARAP of :func:`psi_sarap_smooth` (ignored by the others).
     """
     inf = np.inf
     if energy == "arap":
@@ -135,7 +135,7 @@ def _psi(energy, s1, s2, mu=0.0):
     t1 = np.where(ok, s1, 1.0)
     t2 = np.where(ok, s2, 1.0)
     if energy == "sarap" and mu > 0:
-        return _psi_sarap_smooth(t1, t2, ok, mu)
+        return psi_sarap_smooth(t1, t2, ok, mu)
     if energy == "sarap":
         psi = np.where(ok, (t1 - 1) ** 2 + (1 / t2 - 1) ** 2, inf)
         p1 = 2 * (t1 - 1)
@@ -165,7 +165,7 @@ def _psi(energy, s1, s2, mu=0.0):
     raise AssertionError  # pragma: no cover
 
 
-def _psi_value(energy, s1, s2, mu=0.0, both=False):
+def psi_value(energy, s1, s2, mu=0.0, both=False):
     """ψ alone (no derivatives), for line searches; ``both=True`` returns (ψ_μ, ψ) for S-ARAP."""
     if energy == "arap":
         psi = (s1 - 1) ** 2 + (s2 - 1) ** 2
@@ -199,8 +199,8 @@ def density(J, energy, mu=0.0):
         +inf on flipped triangles for the barrier energies.
     """
     check_energy(energy)
-    S = _svd_frame(J)[0]
-    return _psi_value(energy, S[:, 0], S[:, 1], mu)
+    S = svd_frame(J)[0]
+    return psi_value(energy, S[:, 0], S[:, 1], mu)
 
 
 def gradient(J, energy, mu=0.0):
@@ -219,11 +219,11 @@ def gradient(J, energy, mu=0.0):
     """
     check_energy(energy)
     U, S, V = signed_svd(J)
-    psi, p1, p2 = _psi(energy, S[:, 0], S[:, 1], mu)[:3]
+    psi, p1, p2 = psi_derivatives(energy, S[:, 0], S[:, 1], mu)[:3]
     return psi, np.matmul(U * np.stack([p1, p2], -1)[:, None, :], np.swapaxes(V, 1, 2))
 
 
-def _svd_frame(J):
+def svd_frame(J):
     """Signed singular values and the rotation/reflection frame of 2×2 matrices, without trigonometry.
 
     With α = φ+θ and β = φ−θ the angles of :func:`signed_svd` (U = R(φ), Vᵀ = R(θ)), every
@@ -263,7 +263,7 @@ def eigensystem(J, energy, project=True, mu=0.0):
     project : bool
         Clamp negative eigenvalues to zero (PSD).
     mu : float
-        S-ARAP smoothing (see :func:`_psi_sarap_smooth`).
+        S-ARAP smoothing (see :func:`psi_sarap_smooth`).
 
     Returns
     -------
@@ -276,8 +276,8 @@ def eigensystem(J, energy, project=True, mu=0.0):
         ``modes[t, :, k]`` is the k-th unit eigenvector, vec of the eigenmatrix.
     """
     check_energy(energy)
-    S, ca, sa, cb, sb = _svd_frame(J)
-    psi, p1, p2, p11, p22, p12, twist, flip = _psi(energy, S[:, 0], S[:, 1], mu)
+    S, ca, sa, cb, sb = svd_frame(J)
+    psi, p1, p2, p11, p22, p12, twist, flip = psi_derivatives(energy, S[:, 0], S[:, 1], mu)
     r = 1 / np.sqrt(2)
     e_rot = np.stack([ca, -sa, sa, ca], axis=-1) * r  # vec R(α)/√2
     e_ref = np.stack([cb, sb, sb, -cb], axis=-1) * r  # vec R(β)Z/√2
