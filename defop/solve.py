@@ -199,7 +199,7 @@ def check_handles(mesh, handles):
         bad = np.flatnonzero(~np.isfinite(h) | (np.mod(h, 1) != 0))
         if len(bad):
             k = int(bad[0])
-            raise ValueError(f"handles must be integer vertex indices; handle {k} is {h[k]!r}")
+            raise ValueError(f"handles must be integer vertex indices; handle {k} is {float(h[k])!r}")
     h = h.astype(np.int64)
     bad = np.flatnonzero((h < 0) | (h >= n))
     if len(bad):
@@ -232,12 +232,12 @@ def check_targets(targets, handles, mesh=None):
         raise ValueError(f"target {k} of handle vertex {int(handles[k])} is not finite: {T[k]}")
     if mesh is not None:
         d = mesh.bbox_diagonal
-        far = np.linalg.norm(T - mesh.V.mean(axis=0), axis=1) / d
+        far = np.abs(T - mesh.V.mean(axis=0)).max(axis=1) / d  # max-norm: no overflow at 1e300
         if far.max() > MAX_TARGET_DISTANCE:
             k = int(np.argmax(far))
             raise ValueError(
                 f"target {k} of handle vertex {int(handles[k])} is {far[k]:.3g} bounding-box diagonals from the "
-                f"mesh (more than {MAX_TARGET_DISTANCE:g}); the energy would overflow"
+                f"mesh (more than {MAX_TARGET_DISTANCE:g}): the energy would overflow"
             )
     return T
 
@@ -398,6 +398,8 @@ class Solver:
                 raise ValueError(f"smoothing must be a non-empty sequence of μ >= 0, got {smoothing!r}")
             self.mu_schedule = mus if mus[-1] == 0 else mus + (0.0,)
         self.verify_tol = 1e-5
+        #: energies below this (1e-12 · area) count as zero in relative tests (ARAP and S-ARAP vanish at rest)
+        self._energy_floor = 1e-12 * float(mesh.areas.sum())
         #: switch from the projected to the exact Hessian once λ²/2 ≤ exact_switch · E
         self.exact_switch = 1e-2
         #: tolerance of the intermediate μ stages: from a loosely converged stage, Newton on the next, sharper
@@ -673,6 +675,8 @@ class Solver:
                 continue
             stages += 1
             Xt[self.handles] = start_h + s_next * (T - start_h)
+            if self.barrier and s_next >= 1.0 and np.any(mesh.flipped(Xt)):
+                return X, False, "the targets collapse or flip a triangle between handles", False
             s = s_next
             X, converged, reason = self._newton(log, Xt, tol if s >= 1.0 else max(tol, 1e-4))
             if log.exhausted and not converged:
@@ -711,10 +715,12 @@ class Solver:
                 exact = False  # indefinite: fall back to the projected Hessian, same eigensystem
                 p = self._newton_direction(gf, self._assemble(local))
                 dec = -float(gf @ p)
+            if not np.isfinite(E):
+                return X, False, "the energy is not finite (a collapsed triangle)"
             if not np.isfinite(dec):
                 return X, False, "Newton direction is not finite (degenerate Hessian)"
-            rel_dec = dec / 2 / max(E, 1e-300)
-            if dec / 2 <= tol * max(E, 1e-300) or E == 0.0:
+            rel_dec = dec / 2 / max(E, self._energy_floor)
+            if dec / 2 <= tol * max(E, self._energy_floor):
                 return X, True, f"Newton decrement λ²/2 = {dec / 2:.2e} <= tol·E"
             mesh = self.mesh if self.barrier else None
             found = line_search(fun, X, self._full(p), E, -dec, mesh, min_step=1e-3 if exact else 1e-12)
@@ -724,11 +730,11 @@ class Solver:
             log.iters += 1
             if found is None:
                 log.record(self.energy_of(X))
-                ok = dec / 2 <= 1e-6 * max(E, 1e-300)  # at round-off: as good as it gets
+                ok = dec / 2 <= 1e-6 * max(E, self._energy_floor)  # at round-off: as good as it gets
                 return X, ok, "line search stalled at round-off" if ok else "line search failed"
             step, X, (En, En_true) = found
             log.record(En if En_true is None else En_true)
-            if exact and step == 1.0 and dec / 2 <= 10 * tol * max(E, 1e-300):
+            if exact and step == 1.0 and dec / 2 <= 10 * tol * max(E, self._energy_floor):
                 # a full exact Newton step from λ²/2 ≤ 10·tol·E lands within O(λ⁴) of the optimum
                 return X, True, f"full Newton step from λ²/2 = {dec / 2:.2e} <= 10·tol·E"
             # triangles on S-ARAP's kink make the last digits converge linearly: three steps in a row that
@@ -775,7 +781,7 @@ class Solver:
         if negative:
             why = f"saddle point: the reduced Hessian has {negative} negative eigenvalue(s)"
             return Verification(False, "saddle", why, E, dec, negative)
-        if not (np.isfinite(dec) and dec <= tol * max(E, 1e-300)):
+        if not (np.isfinite(dec) and dec <= tol * max(E, self._energy_floor)):
             why = f"the true energy's Newton decrement λ²/2 = {dec:.2e} > {tol:g}·E"
             return Verification(False, "decrement", why, E, dec)
         return Verification(True, "", "", E, dec, 0)
@@ -881,10 +887,15 @@ class Solver:
         results, skipped = [], []
         for label, X0 in runs:
             try:
-                r = self._local(targets, X0, tol, max_iter, 64, label)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", NotConvergedWarning)
+                    r = self.solve(targets, X0=X0, tol=tol, max_iter=max_iter)
             except ValueError as exc:  # a rejected start (flipped, wrong shape): the next one
                 skipped.append((label, str(exc)))
                 continue
+            if X0 is not None:  # "X0 > escape ..." -> "start k > escape ..."
+                r.start = label + r.start[2:]
+                r.candidates = [(label + lab[2:], E, ok) for lab, E, ok in r.candidates]
             results.append(r)
             if keep == "first" and r.converged:
                 break
