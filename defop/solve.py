@@ -628,14 +628,15 @@ class Solver:
         T = self.targets_of(targets)
         X = self._check_start(X0)
         X, reached, reason, ok = self._continuation(log, X, T, tol, max_stages)
+        check = None
         if reached:
-            X, label, reason, ok = self._escape(log, X, T, tol, label, reason, ok, self.max_escapes)
+            X, label, reason, ok, check = self._escape(log, X, T, tol, label, reason, ok, self.max_escapes)
         else:
             log.candidates.append((label, self.energy_of(X), False))
-        return self._result(log, X, T, reason, label, ok and reached)
+        return self._result(log, X, T, reason, label, ok and reached, check)
 
-    def _result(self, log, X, T, reason, label, ok):
-        check = self.verify(X, T)
+    def _result(self, log, X, T, reason, label, ok, check=None):
+        check = self.verify(X, T) if check is None else check
         converged = bool(ok and check.ok)
         if not check.ok:
             reason = f"{reason}; check failed: {check.reason}"
@@ -824,15 +825,15 @@ class Solver:
     def _escape(self, log, X, T, tol, label, reason, ok, escapes):
         """At a saddle, step off along negative curvature both ways, Newton on, keep the lower verified minimum.
 
-        Returns (X, label, reason, ok) of the best end point.
+        Returns (X, label, reason, ok, check) of the best end point (``check`` its :meth:`verify`).
         """
         check = self.verify(X, T)
         if check.failed != "saddle" or escapes == 0 or log.exhausted:
             log.candidates.append((label, check.energy, bool(ok and check.ok)))
-            return X, label, reason, ok
+            return X, label, reason, ok, check
         log.candidates.append((label, check.energy, False))
         _, D = self.negative_curvature(X)
-        best = (X, label, reason, ok)
+        best = (X, label, reason, ok, check)
         best_key = (True, check.energy)
         for sign in (1.0, -1.0):
             Xs = self._step_off(X, sign * D)
@@ -842,10 +843,9 @@ class Solver:
             why = f"{why} (escaped a saddle with {check.negative} negative eigenvalue(s))"
             lab = f"{label} > escape {'+' if sign > 0 else '-'}"
             out = self._escape(log, Xs, T, tol, lab, why, ok_s, escapes - 1)
-            E = self.energy_of(out[0])
-            good = out[3] and self.verify(out[0], T).ok
-            if (not good, E) < best_key:
-                best, best_key = out, (not good, E)
+            key = (not (out[3] and out[4].ok), out[4].energy)
+            if key < best_key:
+                best, best_key = out, key
         return best
 
     # ------------------------------------------------------------------ the one multi-start policy
