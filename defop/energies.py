@@ -249,7 +249,7 @@ def svd_frame(J):
     return np.stack([Qn + Rn, Qn - Rn], axis=-1), ca, sa, cb, sb
 
 
-def eigensystem(J, energy, project=True, mu=0.0):
+def eigensystem(J, energy, project=True, mu=0.0, kink=0.0):
     """ψ, ∂ψ/∂J and the analytic eigensystem of the Hessian ∂²ψ/∂vec(J)² per triangle.
 
     The eigenmatrices (Smith, de Goes & Kim 2019), orthonormal in vec(J) = [J00, J01, J10, J11]:
@@ -264,6 +264,11 @@ def eigensystem(J, energy, project=True, mu=0.0):
         Clamp negative eigenvalues to zero (PSD).
     mu : float
         S-ARAP smoothing (see :func:`psi_sarap_smooth`).
+    kink : float
+        S-ARAP with ``mu = 0`` only: triangles with Σ − σ ≤ ``kink`` · Σ are taken to sit on Eq. (11)'s kink,
+        where ψ is not differentiable: their gradient is the conformal part alone (the subgradient of the
+        cone |Σ − σ| that is symmetric in Σ, σ) and the two anti-conformal modes get a curvature 1e8 times
+        their scale (motion off the kink is not modelled). Used by the verification of a minimum.
 
     Returns
     -------
@@ -293,6 +298,14 @@ def eigensystem(J, energy, project=True, mu=0.0):
     s1 = ((c + s_) * r)[:, None] * e_rot + ((c - s_) * r)[:, None] * e_ref  # U diag(c, s) Vᵀ
     s2 = ((c - s_) * r)[:, None] * e_rot - ((c + s_) * r)[:, None] * e_ref  # U diag(−s, c) Vᵀ
     lam = np.stack([mean + rad, mean - rad, np.where(np.isfinite(twist), twist, -np.inf), flip], axis=-1)
+    if energy == "sarap" and mu == 0 and kink > 0:
+        on = (S[:, 0] - S[:, 1] <= kink * S[:, 0]) & (S[:, 1] > 0)
+        if on.any():
+            big = 1e8 * (1 + np.abs(p11) + np.abs(p22))
+            grad = np.where(on[:, None], ((p1 + p2) * r)[:, None] * e_rot, grad)
+            lam = np.where(on[:, None], np.stack([(p11 + p22) / 2, big, lam[:, 2], big], axis=-1), lam)
+            s1 = np.where(on[:, None], e_rot, s1)
+            s2 = np.where(on[:, None], e_ref, s2)
     if project:
         lam = np.maximum(lam, 0.0)
     lam = np.where(np.isfinite(lam), lam, 0.0)
