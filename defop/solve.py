@@ -284,32 +284,74 @@ def line_search(fun, X, P, E, slope, mesh=None, min_step=1e-12, c=1e-4):
     return None
 
 
-class _Factor:
-    """Sparse symmetric solve with the symbolic analysis done once (QDLDL) or, without qdldl, SuperLU.
+class _ReducedHessian:
+    """The Hessian on the free dofs: a fixed sparsity pattern, assembly, an LDLᵀ and its inertia.
 
-    ``inertia()`` returns the number of negative pivots of the last factorisation (QDLDL's D; Sylvester's
-    law of inertia makes it the number of negative eigenvalues), or None without qdldl.
+    The upper triangle of the free-free block is assembled in CSC order (QDLDL's input), so only its values
+    change between iterations; QDLDL computes the AMD ordering and the symbolic analysis once and reuses them
+    in every ``update``. Without qdldl, SuperLU (no inertia).
     """
 
-    def __init__(self):
-        self._solver = None
-        self._lu = None
+    def __init__(self, mesh, free):
+        F = mesh.F
+        m = len(F)
+        dofs = np.stack([2 * F, 2 * F + 1], axis=-1).reshape(m, 6)  # local dof 2i+c -> global
+        rows = np.repeat(dofs, 6, axis=1).ravel()
+        cols = np.tile(dofs, (1, 6)).ravel()
+        gmap = -np.ones(2 * mesh.n_vertices, np.int64)
+        gmap[free] = np.arange(len(free))
+        r, c = gmap[rows], gmap[cols]
+        keep = (r >= 0) & (c >= 0) & (r <= c)  # upper triangle of the free-free block
+        self._keep = np.flatnonzero(keep)
+        nf = self.nf = len(free)
+        uniq, self._inv = np.unique(c[keep] * nf + r[keep], return_inverse=True)  # column-major = CSC
+        self._rows = (uniq % nf).astype(np.int32)
+        self._ptr = np.concatenate([[0], np.cumsum(np.bincount(uniq // nf, minlength=nf))]).astype(np.int32)
+        self._nnz = len(uniq)
+        self._diag = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
+        self._K = self._qdldl = None
 
-    def solve(self, K_upper, b):
-        if qdldl is not None:
-            if self._solver is None:
-                self._solver = qdldl.Solver(K_upper, upper=True)
-            else:
-                self._solver.update(K_upper, upper=True)
-            return self._solver.solve(b)
-        K = K_upper + sp.triu(K_upper, 1).T
-        self._lu = sla.splu(K.tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
-        return self._lu.solve(b)
+    def __getstate__(self):
+        return {**self.__dict__, "_K": None, "_qdldl": None}
+
+    def assemble(self, local, project=True):
+        """Values in the pattern from per-triangle modes W (m,6,4) and A_t·λ (m,4); ``project`` clamps the
+        element eigenvalues at 0 (the PSD projection)."""
+        W, lamA = local
+        if project:
+            lamA = np.maximum(lamA, 0.0)
+        K_loc = np.matmul(W * lamA[:, None, :], np.swapaxes(W, 1, 2))  # (m,6,6)
+        return np.bincount(self._inv, weights=K_loc.reshape(-1)[self._keep], minlength=self._nnz)
+
+    def matrix(self, data, rel_shift=0.0):
+        """The upper-triangular CSC matrix with these values plus ``rel_shift`` · mean|diag| on the diagonal."""
+        if self._K is None:  # the pattern is fixed: build the matrix once, then only overwrite its values
+            self._K = sp.csc_matrix((data.copy(), self._rows, self._ptr), shape=(self.nf, self.nf))
+        self._K.data[:] = data
+        self._K.data[self._diag] += rel_shift * max(float(np.mean(np.abs(data[self._diag]))), 1e-300)
+        return self._K
+
+    def full(self, data):
+        """The symmetric matrix (both triangles), CSC."""
+        K = self.matrix(data).copy()
+        return (K + sp.triu(K, 1).T).tocsc()
+
+    def solve(self, data, b, rel_shift):
+        """K⁻¹ b with K = ``matrix(data, rel_shift)``; factorises."""
+        K = self.matrix(data, rel_shift)
+        if qdldl is None:  # pragma: no cover - exercised only without the dependency
+            self._qdldl = None
+            lu = sla.splu((K + sp.triu(K, 1).T).tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
+            return lu.solve(b)
+        if self._qdldl is None:
+            self._qdldl = qdldl.Solver(K, upper=True)
+        else:
+            self._qdldl.update(K, upper=True)
+        return self._qdldl.solve(b)
 
     def inertia(self):
-        if self._solver is not None:
-            return int(np.count_nonzero(self._solver.factors()[1] < 0))
-        return None  # pragma: no cover - SuperLU's pivoting does not give the inertia
+        """Negative pivots of the last LDLᵀ (Sylvester: negative eigenvalues of the shifted K), None without qdldl."""
+        return None if self._qdldl is None else int(np.count_nonzero(self._qdldl.factors()[1] < 0))
 
 
 class _Log:
@@ -393,8 +435,7 @@ class Solver:
         is_handle[self.handles] = True
         self.free_vertices = np.flatnonzero(~is_handle)
         self.free = np.column_stack([2 * self.free_vertices, 2 * self.free_vertices + 1]).ravel()
-        self._precompute_pattern()
-        self._factor = _Factor()
+        self._hess = _ReducedHessian(mesh, self.free)
         self._biharmonic = None
         self.mu_schedule = (0.0,)
         if self.energy == "sarap":
@@ -414,40 +455,10 @@ class Solver:
         #: saddle escapes per solve (each tries both directions)
         self.max_escapes = 4
 
-    # ------------------------------------------------------------------ precomputation
-    def _precompute_pattern(self):
-        mesh = self.mesh
-        F = mesh.F
-        m = len(F)
-        dofs = np.stack([2 * F, 2 * F + 1], axis=-1).reshape(m, 6)  # local dof 2i+c -> global
-        rows = np.repeat(dofs, 6, axis=1).ravel()
-        cols = np.tile(dofs, (1, 6)).ravel()
-        gmap = -np.ones(2 * mesh.n_vertices, np.int64)
-        gmap[self.free] = np.arange(len(self.free))
-        r, c = gmap[rows], gmap[cols]
-        keep = (r >= 0) & (c >= 0) & (r <= c)  # upper triangle of the free-free block (QDLDL input)
-        self._keep = np.flatnonzero(keep)
-        nf = len(self.free)
-        key = c[keep] * nf + r[keep]  # column-major order = CSC
-        uniq, inv = np.unique(key, return_inverse=True)
-        self._inv = inv
-        self._csc_rows = (uniq % nf).astype(np.int32)
-        colcount = np.bincount(uniq // nf, minlength=nf)
-        self._csc_ptr = np.concatenate([[0], np.cumsum(colcount)]).astype(np.int32)
-        self._nnz = len(uniq)
-        self._nf = nf
-        self._diag_pos = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
-
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_factor"] = None
         state["_biharmonic"] = None
-        state.pop("_K", None)
         return state
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self._factor = _Factor()
 
     # ------------------------------------------------------------------ targets
     def targets_of(self, targets):
@@ -492,7 +503,7 @@ class Solver:
 
         Per triangle, K_t = A_t Σ_k λ_k w_k w_kᵀ with w_k = B_tᵀ vec(M_k) for the eigenpairs (λ_k, M_k)
         of :func:`defop.energies.eigensystem`: no 4×4 Hessian is formed. Also returns ``local``, with
-        which :meth:`_assemble` rebuilds the projected Hessian without a second eigensystem.
+        which :meth:`_ReducedHessian.assemble` rebuilds the projected Hessian without a second eigensystem.
         """
         mesh = self.mesh
         G = mesh.jacobian_operator
@@ -506,31 +517,12 @@ class Solver:
         # w_k[2i+a] = Σ_b ∇φ_i[b] M_k[a,b]: one (3,2)@(2,8) product per triangle
         Mb = np.ascontiguousarray(modes.reshape(m, 2, 2, 4).transpose(0, 2, 1, 3)).reshape(m, 2, 8)
         local = (np.matmul(D, Mb).reshape(m, 6, 4), lam * A[:, None])
-        return E, g, self._assemble(local, project), local
-
-    def _assemble(self, local, project=True):
-        """Hessian values in the CSC pattern from per-triangle modes W (m,6,4) and A_t·λ (m,4); ``project``
-        clamps the element eigenvalues at 0 (the PSD projection)."""
-        W, lamA = local
-        if project:
-            lamA = np.maximum(lamA, 0.0)
-        K_loc = np.matmul(W * lamA[:, None, :], np.swapaxes(W, 1, 2))  # (m,6,6)
-        return np.bincount(self._inv, weights=K_loc.reshape(-1)[self._keep], minlength=self._nnz)
-
-    def _matrix(self, data, rel_shift):
-        """The upper-triangular CSC matrix with these values plus ``rel_shift`` · mean|diag| on the diagonal."""
-        shift = rel_shift * max(float(np.mean(np.abs(data[self._diag_pos]))), 1e-300)
-        K = getattr(self, "_K", None)
-        if K is None:  # the pattern is fixed: build the CSC matrix once, then only overwrite its values
-            K = self._K = sp.csc_matrix((data.copy(), self._csc_rows, self._csc_ptr), shape=(self._nf, self._nf))
-        K.data[:] = data
-        K.data[self._diag_pos] += shift
-        return K
+        return E, g, self._hess.assemble(local, project), local
 
     def _newton_direction(self, g_free, data, rel_shift=1e-10):
         # a tiny relative diagonal shift keeps the projected (PSD) Hessian definite; the exact Hessian
         # may be indefinite: the caller checks that the direction descends
-        return -self._factor.solve(self._matrix(data, rel_shift), g_free)
+        return -self._hess.solve(data, g_free, rel_shift)
 
     def _full(self, p):
         """(n,2) field from free-dof values ``p`` (zero at the handles)."""
@@ -719,7 +711,7 @@ class Solver:
             dec = -float(gf @ p)  # Newton decrement λ²
             if exact and not (np.isfinite(dec) and dec > 0):
                 exact = False  # indefinite: fall back to the projected Hessian, same eigensystem
-                p = self._newton_direction(gf, self._assemble(local))
+                p = self._newton_direction(gf, self._hess.assemble(local))
                 dec = -float(gf @ p)
             if not np.isfinite(E):
                 return X, False, "the energy is not finite (a collapsed triangle)"
@@ -782,7 +774,7 @@ class Solver:
         E, g, data, _ = self._grad_hess(X, 0.0, project=False, kink=KINK)  # the true energy, its exact Hessian
         gf = g[self.free]
         p = self._newton_direction(gf, data, rel_shift=INERTIA_SHIFT)
-        negative = self._factor.inertia()
+        negative = self._hess.inertia()
         dec = -float(gf @ p) / 2
         if negative:
             why = f"saddle point: the reduced Hessian has {negative} negative eigenvalue(s)"
@@ -804,13 +796,12 @@ class Solver:
             Unit eigenvector as a displacement field (zero at the handles).
         """
         data = self._grad_hess(X, 0.0, project=False)[2]
-        K = self._matrix(data, 0.0).copy()
-        K = (K + sp.triu(K, 1).T).tocsc()
-        if self._nf <= 400:
+        K = self._hess.full(data)
+        if K.shape[0] <= 400:
             lam, v = np.linalg.eigh(K.toarray())
             lam, v = lam[:1], v[:, :1]
         else:
-            v0 = np.ones(self._nf) / np.sqrt(self._nf)  # deterministic start vector
+            v0 = np.ones(K.shape[0]) / np.sqrt(K.shape[0])  # deterministic start vector
             lam, v = sla.eigsh(K, k=1, which="SA", v0=v0, tol=1e-6, maxiter=5000)
         return float(lam[0]), self._full(v[:, 0])
 
