@@ -863,7 +863,7 @@ class Solver:
             Extra starts (a bootstrap prediction, a previous solution); None entries are ignored, and
             starts that are flipped (barrier energies) or otherwise rejected are skipped.
         rest : bool
-            Also solve from the rest pose (tried after ``starts``).
+            Also solve from the rest pose (tried after ``starts``; also used when every start is rejected).
         keep : {"lowest", "first"}
             ``"lowest"``: run every start and keep the lowest verified minimum (global). ``"first"``: stop at
             the first start that yields a verified minimum (warm, path-following: the interactive editor).
@@ -881,8 +881,6 @@ class Solver:
         self.targets_of(targets)  # bad targets raise here, not once per start
         runs = [(f"start {k}", X0) for k, X0 in enumerate(starts) if X0 is not None]
         runs += [("rest", None)] if rest else []
-        if not runs:
-            raise ValueError("solve_best needs at least one start (rest=False and no starts given)")
         results, skipped = [], []
         for label, X0 in runs:
             try:
@@ -898,10 +896,14 @@ class Solver:
             results.append(r)
             if keep == "first" and r.converged:
                 break
-        if not results:
-            raise ValueError(f"every start was rejected: {skipped}")
+        if not results:  # every given start was rejected (flipped): the rest pose is always a valid start
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotConvergedWarning)
+                results.append(self.solve(targets, tol=tol, max_iter=max_iter))
         best = min(results, key=lambda r: (not r.converged, r.energy if np.isfinite(r.energy) else np.inf))
-        best.candidates = [c for r in results for c in r.candidates]
+        best.candidates = [c for r in results for c in r.candidates] + [
+            (f"{label} (rejected: {why})", np.inf, False) for label, why in skipped
+        ]
         if not best.converged:
             warnings.warn(
                 f"{self.energy} solve did not converge from any start: {best.reason}", NotConvergedWarning, stacklevel=2

@@ -321,3 +321,15 @@ def test_bad_handles_and_limits():
         Solver(mesh, [0, 39]).solve(mesh.V[[0, 39]], tol=-1)
     with pytest.raises(ValueError, match="two different targets"):
         Solver(mesh, [0, 39, 0]).solve(mesh.V[[0, 39, 39]])
+
+
+def test_solve_best_skips_rejected_starts():
+    bar = dop.shapes.load("bar")
+    solver = Solver(bar.mesh, bar.handles, "sarap")
+    T = bar.targets(bar.P_moving + [[0.0, 0.1]])
+    flipped = bar.mesh.V * [-1.0, 1.0]
+    res = solver.solve_best(T, starts=[flipped], rest=False)  # the only start is flipped: the rest pose is used
+    assert res.converged and res.start == "rest"
+    assert any(lab.startswith("start 0 (rejected") for lab, _, _ in res.candidates)
+    first = solver.solve_best(T, starts=[None, res.X], keep="first")
+    assert first.converged and first.start == "start 1" and first.iterations <= 3  # one per μ stage
