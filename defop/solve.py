@@ -390,12 +390,12 @@ class Solver:
         Default iteration limit (continuation stages and saddle escapes included).
     smoothing : tuple of float, optional
         S-ARAP only: the μ of the smoothed kink (:func:`defop.energies.psi_sarap_smooth`), one Newton stage
-        per entry. A final μ = 0 stage (Eq. 11 itself) is always appended: default ``(1e-5, 1e-7, 0)``.
-        Measured on 4 problems each on the aleph and the gingerbread man (moves of 5% of the diagonal,
-        against a μ → 1e-13 reference), a μ = 1e-5 optimum alone sits up to 3.9e-6 (relative energy) above
-        Eq. (11)'s minimum and 3.7e-5 of the diagonal away from it; the default schedule ends within 2e-9
-        (relative energy) of it, at 0-5 more iterations. ``(1e-5, 0)`` alone is not enough where triangles
-        sit on the kink (2.6e-7 above). The μ = 0 stage treats triangles on the kink as in check 4 (below).
+        per entry. A final μ = 0 stage (Eq. 11 itself) is always appended: default ``(1e-5, 0)``. Measured on
+        4 problems each on the aleph and the gingerbread man (moves of 5% of the diagonal, against a
+        μ → 1e-13 reference), a μ = 1e-5 optimum alone sits up to 3.9e-6 (relative energy) above Eq. (11)'s
+        minimum and 3.7e-5 of the diagonal away from it; the default ends within 2.3e-8 of it (0-3 more
+        iterations), ``(1e-5, 1e-7, 0)`` within 2e-9 (up to 5 more). The μ = 0 stage treats triangles on the
+        kink as check 4 does (below); without that it stalls 2.6e-7 above the minimum.
 
     Attributes
     ----------
@@ -406,9 +406,8 @@ class Solver:
         at ``tol``). Eq. (11) is not differentiable on its kink: S-ARAP triangles within ``KINK`` (1e-4,
         relative) of Σ = σ count as sitting on it, with the conformal part of their gradient and stiff
         anti-conformal modes (:func:`defop.energies.eigensystem`, ``kink``); the μ = 0 Newton stage uses the
-        same rule, so it stops on this decrement (measured on the 8 problems above: λ²/2 ≤ 6e-12 · E at
-        the end of the solve; without the rule it stayed up to 1.4e-6 · E, 3.4e-5 · E on the bar, at energies
-        converged to 1e-9).
+        same rule, so it stops on this decrement, normally at ``tol``. Without the rule the decrement of
+        Eq. (11) stayed up to 1.4e-6 · E (3.4e-5 · E on the bar) at energies converged to 1e-9.
 
     Notes
     -----
@@ -440,7 +439,7 @@ class Solver:
         self._biharmonic = None
         self.mu_schedule = (0.0,)
         if self.energy == "sarap":
-            mus = (1e-5, 1e-7) if smoothing is None else tuple(check_tol(m, "smoothing μ") for m in smoothing)
+            mus = (1e-5,) if smoothing is None else tuple(check_tol(m, "smoothing μ") for m in smoothing)
             if not mus:
                 raise ValueError(f"smoothing must be a non-empty sequence of μ >= 0, got {smoothing!r}")
             self.mu_schedule = mus if mus[-1] == 0 else mus + (0.0,)
