@@ -635,8 +635,8 @@ class HandleEditor:
         2. the current approximation D(·, Q);
         3. the solver's own robust start (None).
 
-        Starts with flipped triangles are skipped (barrier energies reject them); a start the
-        solver rejects with ValueError falls through to the next one.
+        :meth:`defop.solve.Solver.solve_best` with ``keep="first"`` (local, path following): the first
+        start that reaches a verified minimum wins; flipped or rejected starts are skipped.
 
         Returns
         -------
@@ -647,17 +647,10 @@ class HandleEditor:
         if self.X_gt is not None:
             starts.append(self.X_gt + self.X - np.asarray(self.operator(self.Q_gt)))
         starts.append(self.X)
-        starts = [X0 for X0 in starts if not np.any(self.mesh.flipped(X0))] + [None]
-        error = None
         t0 = time.perf_counter()
-        for X0 in starts:
-            try:
-                result = self.solver.solve(targets, X0=X0)
-                break
-            except ValueError as exc:  # rejected start: try the next one
-                error = exc
-        else:
-            raise ValueError(f"the ground-truth solver failed from every start: {error}")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", dop.solve.NotConvergedWarning)  # reported below
+            result = self.solver.solve_best(targets, starts=starts, rest=True, keep="first")
         self.gt_time = time.perf_counter() - t0
         self.gt_result = result
         self.X_gt = np.asarray(result.X, dtype=float)
