@@ -18,8 +18,8 @@ One layer used by :mod:`defop.train` and :mod:`defop.trajectories`. An entry is 
   new entry into place meanwhile, that one is kept.) Random truncations and bit flips of an entry,
   10,000 of them, gave 0 loads of wrong data (``tests/test_cache.py`` runs 600).
 
-Bumping :data:`SOLVER_SALT`
-    Increase it by one in the same commit as any change to :mod:`defop.solve` or
+Bumping :data:`SOLVER_SALT` (it is :data:`defop.solve.VERSION`)
+    Increase ``defop.solve.VERSION`` by one in the same commit as any change to :mod:`defop.solve` or
     :mod:`defop.energies` that changes the solutions (a new stopping rule, smoothing schedule, start
     policy, line search, energy formula, ...). Every cached ground truth, operator and trajectory then
     misses and is recomputed, so ``make figures`` never reuses results of the old algorithm. A refactor
@@ -41,11 +41,13 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, config
+from .solve import VERSION as _solve_version
 
 __all__ = ["Cache", "CacheWarning", "CorruptEntry", "FORMAT", "SOLVER_SALT", "key", "open_cache", "solver_settings"]
 
-#: Version of the algorithm of :mod:`defop.solve`; bump it when the solutions change (module docstring).
-SOLVER_SALT = 1
+#: Version of the algorithm of :mod:`defop.solve` (one number, :data:`defop.solve.VERSION`; bump it there when
+#: the solutions change, see the module docstring).
+SOLVER_SALT = _solve_version
 
 #: Layout of the cache entries; bump it when the arrays or metadata stored in an entry change.
 FORMAT = 1
