@@ -7,10 +7,20 @@ element-wise arithmetic, so the mesh is the same on every CPU and BLAS build (is
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .mesh import Mesh
-from .polygon import distance_to_outline, interior_point, points_in_polygon, polygon_area, resample, validate_polygon
+from .polygon import (
+    diagonal,
+    distance_to_outline,
+    interior_point,
+    points_in_polygon,
+    polygon_area,
+    resample,
+    validate_polygon,
+)
 
 #: most vertices a mesh may be asked for (Triangle takes about 3 s per million here)
 MAX_VERTICES = 1_000_000
@@ -30,8 +40,8 @@ def _triangle(outer, holes, points, max_area):
     data = {"vertices": verts, "segments": np.vstack(segs)}
     if holes:
         data["holes"] = np.array([interior_point(H) for H in holes])
-    flags = "pqQj" + (f"a{max_area:.10f}" if max_area else "")
-    out = tr.triangulate(data, flags)
+    flags = "pqQj" + (_area_flag(max_area) if max_area else "")
+    out = _run(tr, data, flags)
     # a vertex in a single triangle (an "ear" at a sharp corner) is badly constrained by FEM energies:
     # split such triangles at their centroid
     for _ in range(3):
@@ -41,8 +51,27 @@ def _triangle(outer, holes, points, max_area):
             break
         ears = F[np.isin(F, lone).any(axis=1)]
         data["vertices"] = np.vstack([data["vertices"], V[ears].mean(axis=1)])
-        out = tr.triangulate(data, flags)
+        out = _run(tr, data, flags)
     return out["vertices"], out["triangles"]
+
+
+def _area_flag(max_area):
+    """Triangle's area flag in plain decimals (it misreads exponents), at least 6 significant digits."""
+    digits = max(10, 6 - math.floor(math.log10(max_area)))
+    return f"a{max_area:.{digits}f}"
+
+
+def _run(tr, data, flags):
+    try:
+        return tr.triangulate(data, flags)
+    except RuntimeError as e:  # the outline was validated, so this should not happen
+        raise ValueError(f"Triangle could not mesh the outline ({e})") from None
+
+
+def _unit_scale(outer):
+    """A power of two that brings a very small or very large outline near unit size (exact scaling)."""
+    e = math.frexp(diagonal(outer))[1]  # diagonal = m 2^e, 0.5 <= m < 1
+    return 1.0 if -2 <= e <= 5 else 2.0 ** (-e)
 
 
 def check_n_vertices(n_vertices):
@@ -143,6 +172,11 @@ def triangulate(outer, holes=(), points=None, max_area=None, n_vertices=None, h=
         h = float(np.sqrt(4 / np.sqrt(3) * max_area))
     if h is not None and (not np.isfinite(h) or h <= 0):
         raise ValueError(f"h must be a positive number, got {h!r}")
+    # Triangle's area flag is a plain decimal: mesh tiny or huge outlines at about unit size
+    s = _unit_scale(outer)
+    loops, points, area = [L * s for L in loops], points * s, area * s * s
+    max_area = None if max_area is None else max_area * s * s
+    h = None if h is None else h * s
     rs = _resampled(loops, h)
     V, F = _triangle(rs[0], rs[1:], points, max_area)
     if n_vertices is not None:
@@ -154,4 +188,4 @@ def triangulate(outer, holes=(), points=None, max_area=None, n_vertices=None, h=
             h = float(np.sqrt(4 / np.sqrt(3) * max_area))
             rs = _resampled(loops, h)
             V, F = _triangle(rs[0], rs[1:], points, max_area)
-    return Mesh(V, F)
+    return Mesh(V / s, F)
