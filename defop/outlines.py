@@ -242,7 +242,7 @@ def foreground(img, mode="auto"):
     if mode == "auto":
         border = np.concatenate([grey[0], grey[-1], grey[:, 0], grey[:, -1]])
         mode = "dark" if border.mean() >= 0.5 else "light"
-        how = f"from the border colour (mean grey {border.mean():.2f})"
+        how = f"judged from the border, mean grey {border.mean():.2f}; pass foreground= to override"
     else:
         how = f"foreground={mode!r}"
     if mode == "dark":

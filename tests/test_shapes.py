@@ -206,8 +206,16 @@ def test_light_on_dark_picture_is_found_from_the_border():
         (np.zeros((50, 50), complex), {}, "real numbers .* got dtype complex128"),
         (np.full((50, 50), 3.0), {}, r"float image values must lie in \[0,1\], got \[3, 3\]"),
         (np.full((50, 50), np.nan), {}, "NaN"),
-        (np.zeros((50, 50)), {}, "no foreground .* assumed the shape is light on a dark background .*border"),
-        (np.ones((50, 50)), {}, "no foreground .* assumed the shape is dark on a light background .*border"),
+        (
+            np.zeros((50, 50)),
+            {},
+            "no foreground .* assumed the shape is light on a dark background .*judged from the border",
+        ),
+        (
+            np.ones((50, 50)),
+            {},
+            "no foreground .* assumed the shape is dark on a light background .*judged from the border",
+        ),
         (np.zeros((50, 50)), {"foreground": "light"}, r"no foreground .*\(foreground='light'\)"),
         (np.zeros((50, 50)), {"foreground": "alpha"}, r"foreground='alpha' needs an \(H,W,4\) RGBA image"),
         (np.zeros((50, 50)), {"foreground": "purple"}, "foreground must be one of"),
