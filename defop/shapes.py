@@ -98,9 +98,9 @@ class Shape:
     outline: list = dataclasses.field(default_factory=list)
 
     def __post_init__(self):
-        self.handles = np.asarray(self.handles, dtype=np.int64).ravel()
-        self.moving = np.asarray(self.moving, dtype=bool).ravel()
         n = self.mesh.n_vertices
+        self.handles = handle_indices(self.handles, n)
+        self.moving = np.asarray(self.moving, dtype=bool).ravel()
         if len(self.moving) != len(self.handles):
             raise ValueError(f"moving has {len(self.moving)} entries for {len(self.handles)} handles")
         bad = np.flatnonzero((self.handles < 0) | (self.handles >= n))
@@ -169,6 +169,40 @@ class Shape:
             f"Shape({self.name!r}, {self.mesh.n_vertices} vertices, {self.mesh.n_faces} triangles, "
             f"{self.n_moving} moving + {len(self.handles) - self.n_moving} fixed handles)"
         )
+
+
+def handle_indices(handles, n):
+    """Handle vertex indices as an int64 array: integers (or integral floats), or a boolean mask.
+
+    Parameters
+    ----------
+    handles : (h,) int array-like or (n,) bool array-like
+    n : int
+        Number of mesh vertices.
+
+    Returns
+    -------
+    idx : (h,) int64 numpy array
+
+    Raises
+    ------
+    ValueError
+        A non-integral index (1.7 is not truncated to 1), a mask of the wrong length, or another dtype.
+    """
+    h = np.asarray(handles)
+    if h.dtype == bool:
+        if h.shape != (n,):
+            raise ValueError(f"a boolean handle mask needs one entry per vertex ({n}), got shape {h.shape}")
+        return np.flatnonzero(h).astype(np.int64)
+    h = h.ravel()
+    if np.issubdtype(h.dtype, np.floating):
+        bad = ~np.isfinite(h) | (h != np.round(h))
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"handle {k} is {h[k].item()!r}, not an integer vertex index")
+    elif not np.issubdtype(h.dtype, np.integer):
+        raise ValueError(f"handles must be integer vertex indices or a boolean mask, got dtype {h.dtype}")
+    return h.astype(np.int64)
 
 
 def from_polygon(

@@ -251,3 +251,16 @@ def test_regions_are_classes_that_still_read_like_dicts():
     assert all(isinstance(r, dop.regions.Mixture) for r in s.regions[:8])
     assert s.regions[0]["kind"] == "mixture" and s.regions[8]["radius"] == 0.12
     assert dop.regions.as_region(s.regions[0].to_dict()) == s.regions[0]
+
+
+def test_shape_handle_indices_are_integers_or_a_mask():
+    mesh = shapes.load("bar", n_vertices=200).mesh
+    one = [{"kind": "disc", "radius": 0.1}]
+    with pytest.raises(ValueError, match=r"handle 0 is 1.7, not an integer vertex index"):
+        shapes.Shape("s", mesh, [1.7, 2.9], [True, False], one)
+    assert shapes.Shape("s", mesh, [1.0, 2.0], [True, False], one).handles.tolist() == [1, 2]
+    mask = np.zeros(mesh.n_vertices, bool)
+    mask[[3, 5]] = True
+    assert shapes.Shape("s", mesh, mask, [True, False], one).handles.tolist() == [3, 5]
+    with pytest.raises(ValueError, match="boolean handle mask needs one entry per vertex"):
+        shapes.Shape("s", mesh, mask[:10], [True, False], one)
