@@ -98,18 +98,29 @@ def check_max_area(max_area, area):
 
 
 def _check_points(points, loops):
+    """Handle points inside the shape or exactly on its boundary, not a hair's breadth from it."""
     points = np.zeros((0, 2)) if points is None else np.atleast_2d(np.asarray(points, float))
     if points.ndim != 2 or points.shape[1] != 2:
         raise ValueError(f"points must have shape (k,2), got {points.shape}")
-    if len(points) and not np.isfinite(points).all():
+    if not len(points):
+        return points
+    if not np.isfinite(points).all():
         raise ValueError(f"handle {int(np.argwhere(~np.isfinite(points))[0, 0])} has NaN or infinite coordinates")
-    inside = points_in_polygon(points, loops) if len(points) else np.ones(0, bool)
+    d = distance_to_outline(points, loops)
+    tol = 1e-10 * diagonal(np.vstack(loops))
+    close = (d > 0) & (d <= tol)  # Triangle would make slivers; exactly on the boundary is fine
+    if close.any():
+        k = int(np.flatnonzero(close)[0])
+        raise ValueError(
+            f"handle {k} at ({points[k, 0]:.6g}, {points[k, 1]:.6g}) is {d[k]:.3g} from the boundary: put it on "
+            f"the boundary or at least {tol:.3g} inside"
+        )
+    inside = points_in_polygon(points, loops) | (d == 0)
     if not inside.all():
         k = int(np.flatnonzero(~inside)[0])
-        d = distance_to_outline(points[k : k + 1], loops)[0]
         raise ValueError(
             f"handle {k} at ({points[k, 0]:.4g}, {points[k, 1]:.4g}) is outside the shape "
-            f"(nearest boundary point is {d:.3g} away)"
+            f"(nearest boundary point is {d[k]:.3g} away)"
         )
     return points
 

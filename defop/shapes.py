@@ -258,9 +258,12 @@ def from_polygon(
     outer, holes = validate_polygon(outer, holes)
     mesh = triangulate(outer, holes, points=H, n_vertices=n_vertices, max_area=max_area)
     idx, dist = mesh.nearest_vertex(H)
-    if not np.all(dist == 0):  # Triangle keeps input points exactly
+    if not np.all(dist == 0):  # Triangle keeps input points exactly, unless resampling left one outside
         k = int(np.argmax(dist))
-        raise ValueError(f"handle {k} is not a mesh vertex (nearest is {dist[k]:.3g} away)")
+        raise ValueError(
+            f"handle {k} at ({H[k, 0]:.4g}, {H[k, 1]:.4g}) is not a mesh vertex: it lies outside the outline "
+            f"resampled at the mesh spacing (nearest vertex {dist[k]:.3g} away); move it inside or use more vertices"
+        )
     moving = np.ones(len(H), bool) if moving is None else np.asarray(moving, bool)
     if regions is None:
         r = region_scale * mesh.bbox_diagonal / 2

@@ -180,3 +180,16 @@ def test_random_pinched_polygons_always_raise(P, data):
             Q[j] = 0.5 * (P[i] + P[k])  # touch the middle of edge i
     with pytest.raises(ValueError, match="touches|crosses|spike|zero area|repeats"):
         shapes.from_polygon(Q, handles=[[0.0, 0.0]], n_vertices=150)
+
+
+def test_handles_on_near_and_outside_the_boundary():
+    unit, hole = square(0, 0, 1), square(0.4, 0.4, 0.2)
+    on_hole = shapes.from_polygon(unit, [hole], handles=[[0.5, 0.4], [0.2, 0.2]], n_vertices=200)
+    assert np.array_equal(on_hole.P, [[0.5, 0.4], [0.2, 0.2]])  # exactly on a boundary is a valid handle
+    on_outer = shapes.from_polygon(unit, handles=[[0.5, 0.0], [0.0, 0.0]], n_vertices=200)
+    assert np.array_equal(on_outer.P, [[0.5, 0.0], [0.0, 0.0]])
+    for x in (1e-14, -1e-14):  # a hair's breadth inside or outside would give slivers
+        with pytest.raises(ValueError, match=r"handle 0 at \(.*, 0.5\) is 1e-14 from the boundary"):
+            shapes.from_polygon(unit, handles=[[x, 0.5]], n_vertices=200)
+    with pytest.raises(ValueError, match=r"handle 1 at \(0.5, 0.5\) is outside the shape \(nearest boundary"):
+        shapes.from_polygon(unit, [hole], handles=[[0.2, 0.2], [0.5, 0.5]], n_vertices=200)
