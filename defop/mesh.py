@@ -90,7 +90,7 @@ def _orient(F, a):
 
 
 def _check_manifold(F):
-    """Every edge in at most two triangles, and an interior edge used once in each direction."""
+    """Every edge in at most two triangles, an interior edge used once in each direction, one fan per vertex."""
     E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     tri = np.tile(np.arange(len(F)), 3)
     key = np.sort(E, axis=1)
@@ -102,6 +102,14 @@ def _check_manifold(F):
         raise ValueError(
             f"edge ({int(uniq[k, 0])}, {int(uniq[k, 1])}) is shared by {int(counts[k])} triangles "
             f"({', '.join(map(str, ts))}): the mesh is not a manifold"
+        )
+    boundary = uniq[counts == 1]
+    per_vertex = np.bincount(boundary.ravel(), minlength=int(F.max()) + 1)
+    if (per_vertex > 2).any():
+        v = int(np.flatnonzero(per_vertex > 2)[0])
+        raise ValueError(
+            f"vertex {v} is not a manifold vertex: {int(per_vertex[v])} boundary edges meet there (its triangles "
+            "form separate fans, as where two pieces touch at a corner)"
         )
     d_uniq, d_counts = np.unique(E, axis=0, return_counts=True)
     if (d_counts > 1).any():
@@ -129,7 +137,8 @@ class Mesh:
     ValueError
         For wrong shapes, non-finite coordinates, out-of-range indices,
         degenerate (zero-area) triangles, inverted triangles (a mesh that folds
-        over itself), edges shared by more than two triangles, or vertices no
+        over itself), edges shared by more than two triangles, vertices where
+        separate fans meet, or vertices no
         triangle uses; the message names the triangle, edge or vertex.
     """
 

@@ -147,3 +147,10 @@ def test_extension_is_case_insensitive(grid, tmp_path, name):
     grid.save(tmp_path / name)
     assert sorted(p.name for p in tmp_path.iterdir()) == [name]
     assert dop.mesh.read_mesh(tmp_path / name) == grid
+
+
+def test_bowtie_vertex_is_named():
+    """Two triangles touching at one vertex: the boundary is not a set of simple loops."""
+    V = np.array([[0, 0], [1, 0], [0, 1], [-1, 0], [0, -1.0]])
+    with pytest.raises(ValueError, match="vertex 0 is not a manifold vertex: 4 boundary edges meet there"):
+        Mesh(V, np.array([[0, 1, 2], [0, 3, 4]]))
