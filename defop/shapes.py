@@ -100,7 +100,10 @@ class Shape:
     def __post_init__(self):
         n = self.mesh.n_vertices
         self.handles = handle_indices(self.handles, n)
-        self.moving = np.asarray(self.moving, dtype=bool).ravel()
+        mv = np.asarray(self.moving).ravel()
+        if mv.dtype != bool and not (np.issubdtype(mv.dtype, np.number) and np.isin(mv, (0, 1)).all()):
+            raise ValueError(f"moving must be one True/False flag per handle, got {self.moving!r}")
+        self.moving = mv.astype(bool)
         if len(self.moving) != len(self.handles):
             raise ValueError(f"moving has {len(self.moving)} entries for {len(self.handles)} handles")
         bad = np.flatnonzero((self.handles < 0) | (self.handles >= n))
@@ -264,10 +267,10 @@ def from_polygon(
             f"handle {k} at ({H[k, 0]:.4g}, {H[k, 1]:.4g}) is not a mesh vertex: it lies outside the outline "
             f"resampled at the mesh spacing (nearest vertex {dist[k]:.3g} away); move it inside or use more vertices"
         )
-    moving = np.ones(len(H), bool) if moving is None else np.asarray(moving, bool)
+    moving = np.ones(len(H), bool) if moving is None else moving  # Shape checks the flags
     if regions is None:
         r = region_scale * mesh.bbox_diagonal / 2
-        regions = [Disc(r) for _ in range(int(moving.sum()))]
+        regions = [Disc(r) for _ in range(int(np.count_nonzero(moving)))]
     return Shape(name, mesh, idx, moving, list(regions), description, [outer, *holes])
 
 

@@ -264,3 +264,10 @@ def test_shape_handle_indices_are_integers_or_a_mask():
     assert shapes.Shape("s", mesh, mask, [True, False], one).handles.tolist() == [3, 5]
     with pytest.raises(ValueError, match="boolean handle mask needs one entry per vertex"):
         shapes.Shape("s", mesh, mask[:10], [True, False], one)
+
+
+def test_moving_flags_are_booleans_not_indices():
+    with pytest.raises(ValueError, match="moving must be one True/False flag per handle"):
+        shapes.from_polygon(SQUARE, handles=[[0.2, 0.2], [0.8, 0.8]], moving=[0, 2], n_vertices=100)
+    s = shapes.from_polygon(SQUARE, handles=[[0.2, 0.2], [0.8, 0.8]], moving=[1, 0], n_vertices=100)
+    assert s.moving.tolist() == [True, False]
