@@ -251,12 +251,15 @@ def foreground(img, mode="auto"):
 
 
 def _blur(Z, sigma):
-    """Gaussian blur by a separable kernel built with ``math.exp`` (numpy's exp is CPU-dispatched)."""
+    """Near-Gaussian blur by a binomial kernel (variance n/4 = sigma²), separable.
+
+    The weights C(n,k)/2^n are exact dyadic numbers, so blurring a 0/1 mask is exact arithmetic: no
+    ``exp`` (numpy's is CPU-dispatched, libm's has FMA variants), the same field on every CPU.
+    """
     from scipy.ndimage import correlate1d
 
-    r = int(4 * sigma + 0.5)
-    w = np.array([math.exp(-0.5 * (k / sigma) ** 2) for k in range(-r, r + 1)])
-    w = w / math.fsum(w)
+    n = max(2, 2 * round(2 * sigma * sigma))  # even: a centred kernel
+    w = np.array([math.comb(n, k) for k in range(n + 1)], float) / 2.0**n
     return correlate1d(correlate1d(Z, w, axis=0, mode="reflect"), w, axis=1, mode="reflect")
 
 
@@ -270,7 +273,8 @@ def image_outline(image, threshold=0.5, smooth=1.0, foreground_mode="auto"):
     threshold : float
         Pixels whose foreground value (see :func:`foreground`) exceeds it are inside.
     smooth : float
-        Gaussian blur (pixels) before extracting the contour, to remove pixel stairs.
+        Blur radius (pixels, the standard deviation of a binomial kernel) before extracting the contour,
+        to remove pixel stairs.
     foreground_mode : str
         See :func:`foreground`.
 
