@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from .outlines import capsule, chain, ellipse, implicit_outline, union
+from .outlines import capsule, chain, cos_sin, ellipse, implicit_outline, union
 from .polygon import polygon_area
 from .regions import Disc, Ellipse, Mixture, Voronoi
 
@@ -129,10 +129,9 @@ def _octopus():
     parts = [ellipse((0, 0.35), 0.32, 0.38)]
     tips = []
     s = np.linspace(0, 1, 12)
-    wave = 0.1 * np.array([math.sin(2 * math.pi * v) for v in s]) * s
+    wave = 0.1 * np.array([cos_sin(2 * math.pi * v)[1] for v in s]) * s
     for k in range(8):
-        ang = math.pi * (1.0 + k / 7)  # fan out below the head
-        d = np.array([math.cos(ang), math.sin(ang)])
+        d = np.array(cos_sin(math.pi * (1.0 + k / 7)))  # fan out below the head
         base = np.array([0.2 * d[0], 0.2 + 0.2 * d[1]])
         nrm = np.array([-d[1], d[0]])
         curve = base + (s * 0.8)[:, None] * d[None] + wave[:, None] * nrm[None]

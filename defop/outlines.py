@@ -99,6 +99,16 @@ def implicit_outline(field, bbox, resolution=400):
     return outline_from_field(Z, x, y, 0.0)
 
 
+def cos_sin(angle):
+    """cos and sin of an angle, rounded to multiples of 2^-40.
+
+    libm's last bit may differ between builds (glibc has FMA variants of sin/cos); rounding to a coarser
+    grid makes such a difference vanish except with a probability of about 2^-12 per value.
+    """
+    g = 2.0**40
+    return round(math.cos(angle) * g) / g, round(math.sin(angle) * g) / g
+
+
 # --------------------------------------------- primitives: "inside-ness" fields, union by max
 def capsule(a, b, ra, rb=None):
     """Tapered capsule from a (radius ra) to b (radius rb): field = radius(t) - distance.
@@ -129,7 +139,7 @@ def ellipse(c, rx, ry, angle=0.0):
     f : callable, ``f(P (k,2)) -> (k,)``
     """
     c = np.asarray(c, float)
-    ca, sa = math.cos(angle), math.sin(angle)
+    ca, sa = cos_sin(angle)
 
     def f(P):
         px, py = P[:, 0] - c[0], P[:, 1] - c[1]
