@@ -155,11 +155,11 @@ def test_random_star_polygons_always_mesh(P):
     s = shapes.from_polygon(P, handles=[[0.0, 0.0]], n_vertices=150)
     assert np.all(s.mesh.areas > 0)
     assert np.array_equal(s.P, [[0.0, 0.0]])
-    # the outline is resampled along the polygon's edges at the mesh spacing (corners sharper than 20°
-    # kept exactly, gentler ones cut by a chord): the boundary stays close to the polygon, the area too
+    # the outline is resampled along the polygon's edges at the mesh spacing h (about 10% of the size at
+    # 150 vertices): corners sharper than 20° are kept exactly, gentler ones cut by a chord of length ~h
     boundary = s.mesh.V[np.concatenate(s.mesh.boundary_loops())]
-    assert polygon.distance_to_outline(boundary, [P]).max() <= 1e-2 * polygon.diagonal(P)
-    assert s.mesh.areas.sum() == pytest.approx(abs(polygon.polygon_area(P)), rel=2e-2)
+    assert polygon.distance_to_outline(boundary, [P]).max() <= 0.05 * polygon.diagonal(P)
+    assert s.mesh.areas.sum() == pytest.approx(abs(polygon.polygon_area(P)), rel=0.1)
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -183,13 +183,21 @@ def test_random_pinched_polygons_always_raise(P, data):
 
 
 def test_handles_on_near_and_outside_the_boundary():
+    """Handles at least 1e-6 of the size inside: one on the boundary segfaulted Triangle once in a full test
+    run, one 1e-9 inside gave 68 zero-area triangles."""
     unit, hole = square(0, 0, 1), square(0.4, 0.4, 0.2)
-    on_hole = shapes.from_polygon(unit, [hole], handles=[[0.5, 0.4], [0.2, 0.2]], n_vertices=200)
-    assert np.array_equal(on_hole.P, [[0.5, 0.4], [0.2, 0.2]])  # exactly on a boundary is a valid handle
-    on_outer = shapes.from_polygon(unit, handles=[[0.5, 0.0], [0.0, 0.0]], n_vertices=200)
-    assert np.array_equal(on_outer.P, [[0.5, 0.0], [0.0, 0.0]])
-    for x in (1e-14, -1e-14):  # a hair's breadth inside or outside would give slivers
-        with pytest.raises(ValueError, match=r"handle 0 at \(.*, 0.5\) is 1e-14 from the boundary"):
-            shapes.from_polygon(unit, handles=[[x, 0.5]], n_vertices=200)
-    with pytest.raises(ValueError, match=r"handle 1 at \(0.5, 0.5\) is outside the shape \(nearest boundary"):
-        shapes.from_polygon(unit, [hole], handles=[[0.2, 0.2], [0.5, 0.5]], n_vertices=200)
+    cases = [
+        ([[0.2, 0.2], [0.5, 0.4]], [hole], r"handle 1 at \(0.5, 0.4\) is on the boundary of the shape"),
+        ([[0.5, 0.0]], [], r"handle 0 at \(0.5, 0\) is on the boundary of the shape \(nearest boundary point is 0"),
+        ([[0.0, 0.0]], [], r"handle 0 at \(0, 0\) is on the boundary"),
+        ([[1e-14, 0.5]], [], r"handle 0 at \(1e-14, 0.5\) is on the boundary .* 1e-14 away"),
+        ([[-1e-14, 0.5]], [], r"handle 0 at \(-1e-14, 0.5\) is on the boundary"),  # within the tolerance
+        ([[0.2, 0.2], [0.5, 0.5]], [hole], r"handle 1 at \(0.5, 0.5\) is outside the shape \(nearest boundary"),
+    ]
+    for handles, holes, match in cases:
+        with pytest.raises(ValueError, match=match):
+            shapes.from_polygon(unit, holes, handles=handles, n_vertices=200)
+    with pytest.raises(ValueError, match=r"handle 0 at \(1e-09, 0.5\) is on the boundary .* at least 1.41e-06 inside"):
+        shapes.from_polygon(unit, handles=[[1e-9, 0.5]], n_vertices=200)
+    s = shapes.from_polygon(unit, [hole], handles=[[1e-5, 0.5], [0.5, 0.4 - 1e-5]], n_vertices=200)
+    assert np.array_equal(s.P, [[1e-5, 0.5], [0.5, 0.4 - 1e-5]]) and np.all(s.mesh.areas > 0)
