@@ -111,10 +111,11 @@ def _check_points(points, loops):
     inside = points_in_polygon(points, loops) & (d > tol)
     if not inside.all():
         k = int(np.flatnonzero(~inside)[0])
-        where = "on the boundary of" if d[k] <= tol else "outside"
+        on = d[k] <= tol
         raise ValueError(
-            f"handle {k} at ({points[k, 0]:.4g}, {points[k, 1]:.4g}) is {where} the shape "
-            f"(nearest boundary point is {d[k]:.3g} away); handles must lie at least {tol:.3g} inside"
+            f"handle {k} at ({points[k, 0]:.4g}, {points[k, 1]:.4g}) is {'on the boundary of' if on else 'outside'} "
+            f"the shape (nearest boundary point is {d[k]:.3g} away)"
+            + (f"; handles must lie at least {tol:.3g} inside" if on else "")
         )
     return points
 
