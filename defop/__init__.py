@@ -21,6 +21,11 @@ except PackageNotFoundError:  # running from a source tree without install
 _SUBMODULES = (
     "mesh",
     "shapes",
+    "polygon",
+    "meshing",
+    "outlines",
+    "models",
+    "regions",
     "energies",
     "solve",
     "spatial",

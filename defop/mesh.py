@@ -52,6 +52,76 @@ def _check_V(V, name="V"):
     return V
 
 
+def _check_F(F, n):
+    """F as an (m,3) int64 array of indices into n vertices; ValueError naming the bad entry."""
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[1] != 3:
+        raise ValueError(f"F must have shape (m,3), got {F.shape}")
+    if len(F) == 0:
+        raise ValueError("F has no triangles")
+    if F.dtype == bool or not (np.issubdtype(F.dtype, np.integer) or np.issubdtype(F.dtype, np.floating)):
+        raise ValueError(f"F must hold integer vertex indices, got dtype {F.dtype}")
+    if not np.issubdtype(F.dtype, np.integer):
+        bad = ~np.isfinite(F) | (F != np.round(F))
+        if bad.any():
+            t, j = (int(x) for x in np.argwhere(bad)[0])
+            raise ValueError(f"F must hold integer vertex indices: triangle {t} has {F[t, j].item()!r}")
+    bad = (F < 0) | (F >= n)
+    if bad.any():
+        t, j = (int(x) for x in np.argwhere(bad)[0])
+        raise ValueError(
+            f"triangle {t} indexes vertex {F[t, j].item()!r}, but V has {n} vertices (valid indices 0 to {n - 1})"
+        )
+    return F.astype(np.int64)
+
+
+def _orient(F, a):
+    """F counter-clockwise: all-clockwise input is flipped; a mix means inverted triangles."""
+    cw = a < 0
+    if cw.all():
+        return np.ascontiguousarray(F[:, [0, 2, 1]])
+    if cw.any():
+        t = int(np.flatnonzero(cw)[0])
+        raise ValueError(
+            f"triangle {t} is inverted (clockwise, signed area {a[t]:.3g}) while {int((~cw).sum())} triangles are "
+            f"counter-clockwise ({int(cw.sum())} inverted in all): the mesh folds over itself"
+        )
+    return F
+
+
+def _check_manifold(F):
+    """Every edge in at most two triangles, an interior edge used once in each direction, one fan per vertex."""
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    tri = np.tile(np.arange(len(F)), 3)
+    key = np.sort(E, axis=1)
+    uniq, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    if (counts > 2).any():
+        k = int(np.flatnonzero(counts > 2)[0])
+        ts = np.sort(tri[inv == k])
+        raise ValueError(
+            f"edge ({int(uniq[k, 0])}, {int(uniq[k, 1])}) is shared by {int(counts[k])} triangles "
+            f"({', '.join(map(str, ts))}): the mesh is not a manifold"
+        )
+    boundary = uniq[counts == 1]
+    per_vertex = np.bincount(boundary.ravel(), minlength=int(F.max()) + 1)
+    if (per_vertex > 2).any():
+        v = int(np.flatnonzero(per_vertex > 2)[0])
+        raise ValueError(
+            f"vertex {v} is not a manifold vertex: {int(per_vertex[v])} boundary edges meet there (its triangles "
+            "form separate fans, as where two pieces touch at a corner)"
+        )
+    d_uniq, d_counts = np.unique(E, axis=0, return_counts=True)
+    if (d_counts > 1).any():
+        k = int(np.flatnonzero(d_counts > 1)[0])
+        i, j = (int(x) for x in d_uniq[k])
+        ts = np.sort(tri[(E[:, 0] == i) & (E[:, 1] == j)])
+        raise ValueError(
+            f"edge ({i}, {j}) is used in the same direction by triangles {', '.join(map(str, ts))}: "
+            "their orientations disagree (the mesh folds over itself)"
+        )
+
+
 class Mesh:
     """A triangulated planar domain Ω.
 
@@ -60,36 +130,35 @@ class Mesh:
     V : (n,2) numpy array
         Vertex positions (float64).
     F : (m,3) numpy int array
-        Triangles. Clockwise triangles are re-oriented counter-clockwise.
+        Triangles, all counter-clockwise or all clockwise (then re-oriented).
 
     Raises
     ------
     ValueError
-        For wrong shapes, non-finite coordinates, out-of-range indices or
-        degenerate (zero-area) triangles.
+        For wrong shapes, non-finite coordinates, out-of-range indices,
+        degenerate (zero-area) triangles, inverted triangles (a mesh that folds
+        over itself), edges shared by more than two triangles, vertices where
+        separate fans meet, or vertices no
+        triangle uses; the message names the triangle, edge or vertex.
     """
 
     def __init__(self, V, F):
         V = _check_V(V)
-        F = np.asarray(F)
-        if F.ndim != 2 or F.shape[1] != 3:
-            raise ValueError(f"F must have shape (m,3), got {F.shape}")
-        if len(F) == 0:
-            raise ValueError("F has no triangles")
-        if not np.issubdtype(F.dtype, np.integer):
-            if not np.all(F == np.round(F)):
-                raise ValueError("F must hold integer vertex indices")
-        F = F.astype(np.int64)
-        if F.min() < 0 or F.max() >= len(V):
-            raise ValueError(f"F indexes vertex {int(F.max())} but V has only {len(V)} vertices")
+        F = _check_F(F, len(V))
         a = signed_areas(V, F)
-        F = np.where((a < 0)[:, None], F[:, [0, 2, 1]], F)
-        a = np.abs(a)
         scale = max(np.ptp(V, axis=0).max(), 1e-300) ** 2
-        tiny = a <= 1e-14 * scale
+        tiny = np.abs(a) <= 1e-14 * scale
         if tiny.any():
             first = int(np.flatnonzero(tiny)[0])
             raise ValueError(f"{int(tiny.sum())} degenerate (zero-area) triangles, first is triangle {first}")
+        F = _orient(F, a)
+        _check_manifold(F)
+        unused = np.flatnonzero(np.bincount(F.ravel(), minlength=len(V)) == 0)
+        if len(unused):
+            raise ValueError(
+                f"{len(unused)} vertices are not used by any triangle, first is vertex {int(unused[0])}; "
+                "remove them (handle indices refer to rows of V)"
+            )
         self.V = np.ascontiguousarray(V)
         self.F = np.ascontiguousarray(F)
 
@@ -113,7 +182,8 @@ class Mesh:
     @cached_property
     def bbox_diagonal(self) -> float:
         """Length of the bounding-box diagonal."""
-        return float(np.linalg.norm(np.ptp(self.V, axis=0)))
+        ext = np.ptp(self.V, axis=0)
+        return float(np.sqrt(ext[0] * ext[0] + ext[1] * ext[1]))  # element-wise: the same on every BLAS
 
     # ------------------------------------------------------------- boundary
     def boundary_loops(self):
@@ -264,7 +334,8 @@ def write_mesh(path, mesh):
     path = Path(path)
     ext = path.suffix.lower()
     if ext == ".npz":
-        np.savez(path, V=mesh.V, F=mesh.F)
+        with open(path, "wb") as f:  # np.savez(path) would append ".npz" to "m.NPZ"
+            np.savez(f, V=mesh.V, F=mesh.F)
     elif ext in (".obj", ".off"):
         V3 = np.hstack([mesh.V, np.zeros((mesh.n_vertices, 1))])
         igl.write_triangle_mesh(str(path), V3, mesh.F.astype(np.int64), igl.FileEncoding.Ascii)

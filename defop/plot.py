@@ -10,6 +10,8 @@ import numpy as np
 from matplotlib import patches
 from matplotlib import pyplot as plt
 
+from .regions import as_region
+
 MOVING = "#d62728"
 FIXED = "#1f77b4"
 FILL = "#f2d7a6"
@@ -81,14 +83,13 @@ def plot_handles(ax, X, handles, moving=None, size=30, zorder=5):
 
 
 def region_outlines(center, region, P=None, index=None, n=96):
-    """Closed outlines of a sampling region, for drawing.
+    """Closed outlines of a sampling region, for drawing (see :meth:`defop.regions.Region.outlines`).
 
     Parameters
     ----------
     center : (2,) numpy array
         The moving handle's rest position p_l.
-    region : dict
-        A region as in :mod:`defop.shapes` (``disc``, ``circle``, ``gaussian``, ``voronoi``, ``mixture``).
+    region : defop.regions.Region or dict
     P : (n,2) numpy array, optional
         All moving handles' rest positions (needed for ``voronoi``).
     index : int, optional
@@ -99,49 +100,9 @@ def region_outlines(center, region, P=None, index=None, n=96):
     Returns
     -------
     outlines : list of ((k,2) numpy array, str)
-        Polygons with a line style (``"-"`` or ``"--"``).
+        Polygons with a line style (``"-"``, ``"--"`` or ``":"``).
     """
-    c = np.asarray(center, float)
-    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
-    unit = np.column_stack([np.cos(t), np.sin(t)])
-    kind = region["kind"]
-    if kind in ("disc", "circle"):
-        return [(c + region["radius"] * unit, "-" if kind == "disc" else "--")]
-    if kind == "ellipse":
-        return [(c + unit * np.asarray(region["axes"], float), "-")]
-    if kind == "gaussian":
-        return [(c + region["sigma"] * unit, "--"), (c + 2 * region["sigma"] * unit, ":")]
-    if kind == "voronoi":
-        poly = c + region["radius"] * unit
-        if P is not None and index is not None:
-            P = np.asarray(P, float)
-            for j, q in enumerate(P):
-                if j != index and not np.allclose(q, c):
-                    poly = _clip_halfplane(poly, c, q)
-        return [(poly, "-")]
-    if kind == "mixture":
-        out = []
-        for comp in region["components"]:
-            out += region_outlines(c, comp, P, index, n)
-        return out
-    raise ValueError(f"unknown region kind {kind!r}")
-
-
-def _clip_halfplane(poly, p, q):
-    """Clip a polygon to the half-plane of points closer to p than to q (Sutherland-Hodgman)."""
-    nrm = q - p
-    off = nrm @ (p + q) / 2
-    inside = poly @ nrm <= off
-    out = []
-    for i in range(len(poly)):
-        a, b = poly[i], poly[(i + 1) % len(poly)]
-        ia, ib = inside[i], inside[(i + 1) % len(poly)]
-        if ia:
-            out.append(a)
-        if ia != ib:
-            s = (off - a @ nrm) / ((b - a) @ nrm)
-            out.append(a + s * (b - a))
-    return np.array(out) if out else poly[:0]
+    return as_region(region).outlines(center, P, index, n)
 
 
 def plot_regions(ax, P_moving, regions, color=REGION):
@@ -152,7 +113,7 @@ def plot_regions(ax, P_moving, regions, color=REGION):
     ax : matplotlib Axes
     P_moving : (n,2) numpy array
         Rest positions of the moving handles.
-    regions : list of dict
+    regions : list of defop.regions.Region or dict
         One region per moving handle.
     """
     for i, (c, region) in enumerate(zip(np.asarray(P_moving), regions, strict=True)):

@@ -11,23 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from .shapes import check_region
-
-
-def _disc(rng, k, radius):
-    r = radius * np.sqrt(rng.uniform(size=k))
-    t = rng.uniform(0, 2 * np.pi, size=k)
-    return np.column_stack([r * np.cos(t), r * np.sin(t)])
+from .regions import as_region
 
 
 def sample_region(rng, region, center, m, P=None, index=None):
-    """m points of one handle's region.
+    """m points of one handle's region (see :meth:`defop.regions.Region.sample`).
 
     Parameters
     ----------
     rng : numpy.random.Generator
-    region : dict
-        See :class:`defop.shapes.Shape`.
+    region : defop.regions.Region or dict
     center : (2,) numpy array
         The handle's rest position p_l.
     m : int
@@ -40,41 +33,7 @@ def sample_region(rng, region, center, m, P=None, index=None):
     -------
     points : (m,2) numpy array
     """
-    kind = region["kind"]
-    c = np.asarray(center, float)
-    if kind == "disc":
-        return c + _disc(rng, m, region["radius"])
-    if kind == "ellipse":
-        return c + _disc(rng, m, 1.0) * np.asarray(region["axes"], float)
-    if kind == "circle":
-        t = rng.uniform(0, 2 * np.pi, size=m)
-        return c + region["radius"] * np.column_stack([np.cos(t), np.sin(t)])
-    if kind == "gaussian":
-        return c + rng.normal(scale=region["sigma"], size=(m, 2))
-    if kind == "voronoi":
-        others = np.delete(np.asarray(P, float), index, axis=0) if P is not None else np.zeros((0, 2))
-        out = np.empty((0, 2))
-        for _ in range(1000):
-            cand = c + _disc(rng, max(2 * (m - len(out)), 16), region["radius"])
-            if len(others):
-                d_own = np.sum((cand - c) ** 2, axis=1)
-                d_other = np.min(np.sum((cand[:, None] - others[None]) ** 2, axis=-1), axis=1)
-                cand = cand[d_own <= d_other]
-            out = np.vstack([out, cand])
-            if len(out) >= m:
-                return out[:m]
-        raise ValueError(f"the Voronoi region of handle {index} is too small to sample")
-    if kind == "mixture":
-        w = np.asarray(region["weights"], float)
-        comp = rng.choice(len(w), size=m, p=w / w.sum())
-        out = np.empty((m, 2))
-        for j, sub in enumerate(region["components"]):
-            sel = np.flatnonzero(comp == j)
-            if len(sel):
-                out[sel] = sample_region(rng, sub, c, len(sel), P, index)
-        return out
-    check_region(region)
-    raise AssertionError  # pragma: no cover
+    return as_region(region).sample(rng, center, m, P, index)
 
 
 def sample_handles(P, regions, m, rng):
@@ -84,7 +43,7 @@ def sample_handles(P, regions, m, rng):
     ----------
     P : (n,2) numpy array
         Rest positions of the moving handles.
-    regions : list of dict
+    regions : list of defop.regions.Region or dict
         One region per moving handle.
     m : int
         Number of samples.
@@ -100,12 +59,11 @@ def sample_handles(P, regions, m, rng):
         raise ValueError(f"{len(regions)} regions for {len(P)} moving handles")
     if int(m) != m or m < 1:
         raise ValueError(f"m must be a positive integer, got {m!r}")
-    for i, r in enumerate(regions):
-        check_region(r, f"region {i}")
+    regions = [as_region(r, f"region {i}") for i, r in enumerate(regions)]
     rng = np.random.default_rng(rng)
     Q = np.empty((int(m), len(P), 2))
     for i, region in enumerate(regions):
-        Q[:, i] = sample_region(rng, region, P[i], int(m), P, i)
+        Q[:, i] = region.sample(rng, P[i], int(m), P, i)
     return Q
 
 

@@ -85,7 +85,10 @@ def test_write_read_round_trip(grid, tmp_path, ext):
     "V, F, match",
     [
         (np.array([[0, 0], [1, np.nan], [0, 1.0]]), np.array([[0, 1, 2]]), "NaN"),
-        (np.array([[0, 0], [1, 0], [0, 1.0]]), np.array([[0, 1, 3]]), "indexes vertex 3"),
+        (np.array([[0, 0], [1, 0], [0, 1.0]]), np.array([[0, 1, 3]]), "triangle 0 indexes vertex 3, but V has 3"),
+        (np.array([[0, 0], [1, 0], [0, 1.0]]), np.array([[0, 1, -1]]), "triangle 0 indexes vertex -1, but V has 3"),
+        (np.array([[0, 0], [1, 0], [0, 1.0]]), np.array([[0, 1, 2.5]]), "integer vertex indices: triangle 0 has 2.5"),
+        (np.array([[0, 0], [1, 0], [0, 1.0]]), np.array([[0, 1, 2]], dtype=complex), "dtype complex"),
         (np.array([[0, 0], [1, 0], [2, 0.0]]), np.array([[0, 1, 2]]), "degenerate"),
         (np.zeros((3, 3)), np.array([[0, 1, 2]]), r"shape \(n,2\)"),
     ],
@@ -98,3 +101,56 @@ def test_bad_mesh_input(V, F, match):
 def test_unknown_format(tmp_path, grid):
     with pytest.raises(ValueError, match="unknown mesh format"):
         grid.save(tmp_path / "m.stl")
+
+
+SQUARE_V = np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]])
+
+
+def test_folded_triangle_is_rejected_not_reoriented():
+    """Before: a folded triangle was silently flipped (area 1.5 instead of 1.0)."""
+    V = np.vstack([SQUARE_V, [[0.5, 1.5]]])
+    F = np.array([[0, 1, 2], [0, 2, 3], [2, 3, 4]])  # the third is clockwise: folded over the second
+    with pytest.raises(ValueError, match=r"triangle 2 is inverted \(clockwise, signed area -0.25\)"):
+        Mesh(V, F)
+
+
+def test_all_clockwise_mesh_is_reoriented_consistently(grid):
+    cw = Mesh(grid.V, grid.F[:, ::-1])
+    assert np.all(dop.mesh.signed_areas(cw.V, cw.F) > 0) and cw.areas.sum() == pytest.approx(2.0)
+
+
+def test_non_manifold_edge_is_named():
+    """Before: accepted, and boundary_loops returned a one-vertex loop."""
+    V = np.array([[0, 0], [1, 0], [0.5, 1], [0.5, -1], [1.5, 0.5]])
+    F = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])
+    with pytest.raises(ValueError, match=r"edge \(0, 1\) is shared by 3 triangles \(0, 1, 2\)"):
+        Mesh(V, F)
+
+
+def test_edge_used_twice_in_one_direction_is_a_fold():
+    V = np.array([[0, 0], [1, 0], [0.5, 1], [0.5, 0.5]])
+    F = np.array([[0, 1, 2], [0, 1, 3]])  # both counter-clockwise, both on the same side of edge (0, 1)
+    with pytest.raises(ValueError, match=r"edge \(0, 1\) is used in the same direction by triangles 0, 1"):
+        Mesh(V, F)
+
+
+def test_unreferenced_vertex_is_named():
+    """Before: accepted, and a later solve failed with "matmul: dimension mismatch"."""
+    V = np.vstack([SQUARE_V, [[5.0, 5.0]], [[6.0, 5.0]]])
+    with pytest.raises(ValueError, match="2 vertices are not used by any triangle, first is vertex 4"):
+        Mesh(V, np.array([[0, 1, 2], [0, 2, 3]]))
+
+
+@pytest.mark.parametrize("name", ["m.NPZ", "m.Npz", "m.npz", "m.OBJ", "m.OFF"])
+def test_extension_is_case_insensitive(grid, tmp_path, name):
+    """Before: save('m.NPZ') wrote m.NPZ.npz, which read_mesh('m.NPZ') could not find."""
+    grid.save(tmp_path / name)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
+    assert dop.mesh.read_mesh(tmp_path / name) == grid
+
+
+def test_bowtie_vertex_is_named():
+    """Two triangles touching at one vertex: the boundary is not a set of simple loops."""
+    V = np.array([[0, 0], [1, 0], [0, 1], [-1, 0], [0, -1.0]])
+    with pytest.raises(ValueError, match="vertex 0 is not a manifold vertex: 4 boundary edges meet there"):
+        Mesh(V, np.array([[0, 1, 2], [0, 3, 4]]))

@@ -157,3 +157,117 @@ def test_image_without_foreground():
 def test_bad_region():
     with pytest.raises(ValueError, match="unknown kind 'square'"):
         shapes.from_polygon(SQUARE, handles=[[0.5, 0.5]], regions=[{"kind": "square"}], n_vertices=100)
+
+
+# ---------------------------------------------------------------- images: one foreground rule for every layout
+def _dark_rectangle_on_white():
+    yy, xx = np.mgrid[:120, :160]
+    grey = np.ones((120, 160))
+    grey[(abs(xx - 80) < 50) & (abs(yy - 60) < 30)] = 0.0
+    return grey
+
+
+def test_same_picture_same_mesh_in_every_layout(tmp_path):
+    """Before: a 2-D array or an L-mode PNG meshed the background, an RGB copy the shape."""
+    from PIL import Image
+
+    grey = _dark_rectangle_on_white()
+    rgb = np.repeat(grey[..., None], 3, axis=2)
+    u8 = (grey * 255).astype(np.uint8)
+    Image.fromarray(u8, mode="L").save(tmp_path / "l.png")
+    Image.fromarray(np.repeat(u8[..., None], 3, axis=2), mode="RGB").save(tmp_path / "rgb.png")
+    layouts = {
+        "grey": grey,
+        "grey uint8": u8,
+        "bool": grey > 0.5,
+        "rgb": rgb,
+        "rgba opaque": np.concatenate([rgb, np.ones((120, 160, 1))], axis=2),
+        "L png": tmp_path / "l.png",
+        "RGB png": tmp_path / "rgb.png",
+    }
+    meshes = {k: shapes.from_image(v, n_vertices=300, size=np.hypot(100, 60)).mesh for k, v in layouts.items()}
+    for k, m in meshes.items():
+        assert m == meshes["grey"], k
+    assert meshes["grey"].areas.sum() == pytest.approx(100 * 60, rel=0.03)  # the rectangle, not the background
+    explicit = shapes.from_image(grey, n_vertices=300, size=np.hypot(100, 60), foreground="dark").mesh
+    assert explicit == meshes["grey"]
+
+
+def test_light_on_dark_picture_is_found_from_the_border():
+    inverted = 1.0 - _dark_rectangle_on_white()
+    s = shapes.from_image(inverted, n_vertices=300, size=np.hypot(100, 60))
+    assert s.mesh.areas.sum() == pytest.approx(100 * 60, rel=0.03)
+
+
+@pytest.mark.parametrize(
+    "image, kw, match",
+    [
+        (np.zeros((50, 50, 2)), {}, r"\(H,W,3\) RGB or \(H,W,4\) RGBA; got shape \(50, 50, 2\)"),
+        (np.zeros((50, 50), complex), {}, "real numbers .* got dtype complex128"),
+        (np.full((50, 50), 3.0), {}, r"float image values must lie in \[0,1\], got \[3, 3\]"),
+        (np.full((50, 50), np.nan), {}, "NaN"),
+        (
+            np.zeros((50, 50)),
+            {},
+            "no foreground .* assumed the shape is light on a dark background .*judged from the border",
+        ),
+        (
+            np.ones((50, 50)),
+            {},
+            "no foreground .* assumed the shape is dark on a light background .*judged from the border",
+        ),
+        (np.zeros((50, 50)), {"foreground": "light"}, r"no foreground .*\(foreground='light'\)"),
+        (np.zeros((50, 50)), {"foreground": "alpha"}, r"foreground='alpha' needs an \(H,W,4\) RGBA image"),
+        (np.zeros((50, 50)), {"foreground": "purple"}, "foreground must be one of"),
+        (np.zeros((50, 50)), {"threshold": 1.5}, "threshold must lie strictly between 0 and 1"),
+    ],
+)
+def test_bad_images(image, kw, match):
+    with pytest.raises(ValueError, match=match):
+        shapes.from_image(image, **kw)
+
+
+def test_facade_keeps_the_public_names():
+    for name in (
+        "Shape",
+        "load",
+        "names",
+        "from_polygon",
+        "from_image",
+        "triangulate",
+        "polygon_area",
+        "points_in_polygon",
+        "image_outline",
+        "implicit_outline",
+        "capsule",
+        "check_region",
+    ):
+        assert callable(getattr(shapes, name)), name
+    assert set(shapes.names()) == set(dop.models.CATALOGUE)
+
+
+def test_regions_are_classes_that_still_read_like_dicts():
+    s = shapes.load("octopus", n_vertices=600)
+    assert all(isinstance(r, dop.regions.Mixture) for r in s.regions[:8])
+    assert s.regions[0]["kind"] == "mixture" and s.regions[8]["radius"] == 0.12
+    assert dop.regions.as_region(s.regions[0].to_dict()) == s.regions[0]
+
+
+def test_shape_handle_indices_are_integers_or_a_mask():
+    mesh = shapes.load("bar", n_vertices=200).mesh
+    one = [{"kind": "disc", "radius": 0.1}]
+    with pytest.raises(ValueError, match=r"handle 0 is 1.7, not an integer vertex index"):
+        shapes.Shape("s", mesh, [1.7, 2.9], [True, False], one)
+    assert shapes.Shape("s", mesh, [1.0, 2.0], [True, False], one).handles.tolist() == [1, 2]
+    mask = np.zeros(mesh.n_vertices, bool)
+    mask[[3, 5]] = True
+    assert shapes.Shape("s", mesh, mask, [True, False], one).handles.tolist() == [3, 5]
+    with pytest.raises(ValueError, match="boolean handle mask needs one entry per vertex"):
+        shapes.Shape("s", mesh, mask[:10], [True, False], one)
+
+
+def test_moving_flags_are_booleans_not_indices():
+    with pytest.raises(ValueError, match="moving must be one True/False flag per handle"):
+        shapes.from_polygon(SQUARE, handles=[[0.2, 0.2], [0.8, 0.8]], moving=[0, 2], n_vertices=100)
+    s = shapes.from_polygon(SQUARE, handles=[[0.2, 0.2], [0.8, 0.8]], moving=[1, 0], n_vertices=100)
+    assert s.moving.tolist() == [True, False]

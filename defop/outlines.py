@@ -1,0 +1,319 @@
+"""Outlines from implicit fields and from images (silhouettes).
+
+Procedural shapes are unions of tapered capsules and ellipses, given as "inside-ness" fields
+(positive inside, about a distance near the boundary), sampled on a grid and contoured by contourpy.
+All fields are element-wise arithmetic, never BLAS (``@``, ``np.dot``): the outline, and so the
+Triangle mesh, is the same on every CPU (issue #13).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .polygon import points_in_polygon, polygon_area
+
+FOREGROUNDS = ("auto", "dark", "light", "alpha")
+
+
+# ------------------------------------------------------------------------------- level sets
+def _level_set_loops(Z, x, y, level):
+    """Closed contour loops of Z = level (Z > level is inside), outer loops CCW, holes CW."""
+    import contourpy
+
+    gen = contourpy.contour_generator(x, y, Z, line_type=contourpy.LineType.Separate)
+    eps = 1e-9 * max(x[-1] - x[0], y[-1] - y[0])  # the contour passes a grid point: near-duplicate points
+    loops = []
+    for L in gen.lines(level):
+        L = np.asarray(L)
+        if len(L) > 1 and np.array_equal(L[0], L[-1]):
+            L = L[:-1]
+        d = L - np.roll(L, 1, axis=0)
+        L = L[np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2) > eps]
+        if len(L) >= 3 and abs(polygon_area(L)) > 0:
+            loops.append(L)
+    return loops
+
+
+def outline_from_field(Z, x, y, level=0.0, min_area_frac=1e-3):
+    """The largest component of {Z > level} as (outer, holes).
+
+    Parameters
+    ----------
+    Z : (ny,nx) numpy array
+    x : (nx,) numpy array
+    y : (ny,) numpy array
+    level : float
+    min_area_frac : float
+        Holes smaller than this fraction of the outer area are dropped.
+
+    Returns
+    -------
+    outer : (k,2) numpy array or None
+        None when the set is empty.
+    holes : list of (l,2) numpy array
+    """
+    loops = _level_set_loops(Z, x, y, level)
+    if not loops:
+        return None, []
+    areas = np.array([abs(polygon_area(L)) for L in loops])
+    order = np.argsort(-areas, kind="stable")
+    outer = loops[order[0]]
+    holes = []
+    for k in order[1:]:
+        L = loops[k]
+        if areas[k] < min_area_frac * areas[order[0]]:
+            continue
+        if points_in_polygon(L[:1], [outer])[0]:
+            # a loop inside the outer one is a hole unless it sits inside another hole (an island)
+            if not any(points_in_polygon(L[:1], [h])[0] for h in holes):
+                holes.append(L)
+    return outer, holes
+
+
+def implicit_outline(field, bbox, resolution=400):
+    """Outline of {field > 0} sampled on a grid (for procedural shapes).
+
+    Parameters
+    ----------
+    field : callable
+        ``field(P (k,2)) -> (k,)``, positive inside.
+    bbox : (2,2) array-like
+        ``[[xmin, ymin], [xmax, ymax]]``.
+    resolution : int
+        Grid points along the longer side.
+
+    Returns
+    -------
+    outer : (k,2) numpy array
+    holes : list of (l,2) numpy array
+    """
+    (x0, y0), (x1, y1) = np.asarray(bbox, float)
+    s = max(x1 - x0, y1 - y0) / resolution
+    x = np.arange(x0, x1 + s, s)
+    y = np.arange(y0, y1 + s, s)
+    X, Y = np.meshgrid(x, y)
+    Z = field(np.column_stack([X.ravel(), Y.ravel()])).reshape(X.shape)
+    return outline_from_field(Z, x, y, 0.0)
+
+
+def cos_sin(angle):
+    """cos and sin of an angle, rounded to multiples of 2^-40.
+
+    libm's last bit may differ between builds (glibc has FMA variants of sin/cos); rounding to a coarser
+    grid makes such a difference vanish except with a probability of about 2^-12 per value.
+    """
+    g = 2.0**40
+    return round(math.cos(angle) * g) / g, round(math.sin(angle) * g) / g
+
+
+# --------------------------------------------- primitives: "inside-ness" fields, union by max
+def capsule(a, b, ra, rb=None):
+    """Tapered capsule from a (radius ra) to b (radius rb): field = radius(t) - distance.
+
+    Returns
+    -------
+    f : callable, ``f(P (k,2)) -> (k,)``
+    """
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    rb = ra if rb is None else rb
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    dd = dx * dx + dy * dy
+
+    def f(P):
+        px, py = P[:, 0] - a[0], P[:, 1] - a[1]
+        t = np.clip((px * dx + py * dy) / dd, 0, 1)
+        ex, ey = px - t * dx, py - t * dy
+        return ra + (rb - ra) * t - np.sqrt(ex * ex + ey * ey)
+
+    return f
+
+
+def ellipse(c, rx, ry, angle=0.0):
+    """Ellipse field: scaled so that it behaves like a distance near the boundary.
+
+    Returns
+    -------
+    f : callable, ``f(P (k,2)) -> (k,)``
+    """
+    c = np.asarray(c, float)
+    ca, sa = cos_sin(angle)
+
+    def f(P):
+        px, py = P[:, 0] - c[0], P[:, 1] - c[1]
+        u, v = px * ca + py * sa, py * ca - px * sa
+        return min(rx, ry) * (1 - np.sqrt((u / rx) ** 2 + (v / ry) ** 2))
+
+    return f
+
+
+def chain(points, r0, r1):
+    """A tapered tube along a polyline (union of capsules), radius r0 → r1.
+
+    Returns
+    -------
+    f : callable, ``f(P (k,2)) -> (k,)``
+    """
+    pts = np.asarray(points, float)
+    d = np.diff(pts, axis=0)
+    L = np.concatenate([[0], np.cumsum(np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2))])
+    r = r0 + (r1 - r0) * L / L[-1]
+    parts = [capsule(pts[i], pts[i + 1], r[i], r[i + 1]) for i in range(len(pts) - 1)]
+    return union(*parts)
+
+
+def union(*fields):
+    """Union of fields (their maximum)."""
+
+    def f(P):
+        return np.max([g(P) for g in fields], axis=0)
+
+    return f
+
+
+def subtract(f, g):
+    """Difference of fields: inside f and outside g."""
+
+    def h(P):
+        return np.minimum(f(P), -g(P))
+
+    return h
+
+
+# ----------------------------------------------------------------------------------- images
+def load_image(image):
+    """An image as a float array in [0,1]: (H,W), (H,W,3) or (H,W,4).
+
+    Integer images are scaled by their type's maximum (255 for uint8), boolean ones map to 0/1.
+
+    Raises
+    ------
+    ValueError
+        A missing file, a complex or non-numeric dtype, NaN, a layout other than (H,W), (H,W,3),
+        (H,W,4), or floats outside [0,1].
+    """
+    if isinstance(image, (str, Path)):
+        path = Path(image)
+        if not path.exists():
+            raise ValueError(f"no such image file: {path}")
+        from matplotlib.image import imread  # reading a file, not plotting
+
+        image = imread(path)
+    img = np.asarray(image)
+    if img.dtype == bool:
+        img = img.astype(float)
+    elif np.issubdtype(img.dtype, np.integer):
+        top = img.max(initial=0)
+        img = img.astype(float) / (1.0 if top <= 1 else 255.0 if top <= 255 else float(np.iinfo(img.dtype).max))
+    elif not np.issubdtype(img.dtype, np.floating):
+        raise ValueError(f"an image must hold real numbers (bool, integer or float), got dtype {img.dtype}")
+    img = np.asarray(img, float)
+    layouts = "(H,W) grey, (H,W,3) RGB or (H,W,4) RGBA"
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[..., 0]
+    if not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] in (3, 4))):
+        raise ValueError(f"an image must be {layouts}; got shape {img.shape}")
+    if min(img.shape[:2]) < 3:
+        raise ValueError(f"the image is too small to hold a shape: {img.shape[1]} x {img.shape[0]} pixels")
+    if not np.isfinite(img).all():
+        raise ValueError("the image has NaN or infinite values")
+    if img.min() < 0 or img.max() > 1:
+        raise ValueError(f"float image values must lie in [0,1], got [{img.min():.3g}, {img.max():.3g}]")
+    return img
+
+
+def foreground(img, mode="auto"):
+    """How much each pixel is foreground, in [0,1], and a sentence saying what was assumed.
+
+    Parameters
+    ----------
+    img : (H,W), (H,W,3) or (H,W,4) numpy array in [0,1]
+    mode : str
+        ``"alpha"``: the alpha channel; ``"dark"``: dark shapes on a light background;
+        ``"light"``: light shapes on a dark background; ``"auto"``: the alpha channel when it varies,
+        otherwise whatever differs from the image border (a light border means a dark shape).
+        Grey, RGB and RGBA layouts of the same picture give the same foreground.
+
+    Returns
+    -------
+    fg : (H,W) numpy array
+    assumed : str
+    """
+    if mode not in FOREGROUNDS:
+        raise ValueError(f"foreground must be one of {FOREGROUNDS}, got {mode!r}")
+    has_alpha = img.ndim == 3 and img.shape[2] == 4
+    if mode == "alpha" or (mode == "auto" and has_alpha and np.ptp(img[..., 3]) > 0):
+        if not has_alpha:
+            raise ValueError(f"foreground='alpha' needs an (H,W,4) RGBA image, got shape {img.shape}")
+        return img[..., 3], "the shape is the opaque part (alpha channel)"
+    grey = img if img.ndim == 2 else img[..., :3].mean(axis=2)
+    if mode == "auto":
+        border = np.concatenate([grey[0], grey[-1], grey[:, 0], grey[:, -1]])
+        mode = "dark" if border.mean() >= 0.5 else "light"
+        how = f"judged from the border, mean grey {border.mean():.2f}; pass foreground= to override"
+    else:
+        how = f"foreground={mode!r}"
+    if mode == "dark":
+        return 1.0 - grey, f"the shape is dark on a light background ({how})"
+    return grey, f"the shape is light on a dark background ({how})"
+
+
+def _blur(Z, sigma):
+    """Near-Gaussian blur by a binomial kernel (variance n/4 = sigma²), separable.
+
+    The weights C(n,k)/2^n are exact dyadic numbers, so blurring a 0/1 mask is exact arithmetic: no
+    ``exp`` (numpy's is CPU-dispatched, libm's has FMA variants), the same field on every CPU.
+    """
+    from scipy.ndimage import correlate1d
+
+    n = max(2, 2 * round(2 * sigma * sigma))  # even: a centred kernel
+    w = np.array([math.comb(n, k) for k in range(n + 1)], float) / 2.0**n
+    return correlate1d(correlate1d(Z, w, axis=0, mode="reflect"), w, axis=1, mode="reflect")
+
+
+def image_outline(image, threshold=0.5, smooth=1.0, foreground_mode="auto"):
+    """Silhouette of an image as polygons (largest connected component, with its holes).
+
+    Parameters
+    ----------
+    image : (H,W) or (H,W,3|4) numpy array, or a path to an image file
+        See :func:`load_image`.
+    threshold : float
+        Pixels whose foreground value (see :func:`foreground`) exceeds it are inside.
+    smooth : float
+        Blur radius (pixels, the standard deviation of a binomial kernel) before extracting the contour,
+        to remove pixel stairs.
+    foreground_mode : str
+        See :func:`foreground`.
+
+    Returns
+    -------
+    outer : (k,2) numpy array
+        In pixel units, y up, origin at the bottom-left.
+    holes : list of (l,2) numpy array
+
+    Raises
+    ------
+    ValueError
+        A bad image, or one with no foreground or only foreground (the message says which
+        foreground was assumed).
+    """
+    if not (np.isscalar(threshold) and np.isfinite(threshold) and 0 < threshold < 1):
+        raise ValueError(f"threshold must lie strictly between 0 and 1, got {threshold!r}")
+    fg, assumed = foreground(load_image(image), foreground_mode)
+    mask = fg > threshold
+    if not mask.any():
+        raise ValueError(f"the image has no foreground (no pixel above threshold {threshold}); assumed {assumed}")
+    if mask.all():
+        raise ValueError(f"the image is all foreground; the silhouette needs a background around it; assumed {assumed}")
+    Z = np.pad(mask.astype(float), 2)
+    if smooth:
+        Z = _blur(Z, smooth)
+    Z = Z[::-1]  # y up
+    h, w = Z.shape
+    outer, holes = outline_from_field(Z, np.arange(w) - 2.0, np.arange(h) - 2.0, 0.5)
+    if outer is None:
+        raise ValueError(f"the image has no foreground region large enough to mesh; assumed {assumed}")
+    return outer, holes
