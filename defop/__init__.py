@@ -37,6 +37,7 @@ _SUBMODULES = (
     "config",
     "trajectories",
     "experiments",
+    "figure_data",
 )
 
 

@@ -1,0 +1,176 @@
+"""Computations behind individual figures that the general modules do not cover.
+
+* :func:`column_path`, :func:`lowest_of` and :func:`column_jumps`: Fig. 10 (global against local optima
+  along vertical drags of the bar's handle, and the hysteresis between them);
+* :func:`arc_samples`: Fig. 7 (training configurations along a bending arc, m = 17);
+* :func:`fit_diagnostics`: Figs. 2 and 8 (why a richer Ψ can lose to a poorer one: train against held-out
+  error and the conditioning of the handle-basis matrix Ψ(Q_k)).
+
+No plotting here (:mod:`defop.plot`), no notebook state.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from .analysis import approximation_error
+from .solve import NotConvergedWarning, Solver
+from .trajectories import Trajectory, discontinuities
+
+__all__ = ["column_path", "lowest_of", "column_jumps", "arc_samples", "arc_point", "fit_diagnostics"]
+
+
+def column_path(ny, nx, start="bottom"):
+    """A boustrophedon scan of a (ny, nx) grid by columns: a user dragging the handle up and down.
+
+    Column 0 (the smallest x) is swept first, from the bottom (``start="bottom"``) or the top, then
+    column 1 in the other direction, ... Every step moves to a 4-neighbour.
+
+    Returns
+    -------
+    path : (ny*nx, 2) numpy int array
+        Grid indices ``(i, j)`` in visiting order.
+    """
+    if ny < 1 or nx < 1:
+        raise ValueError(f"grid shape must be positive, got ({ny}, {nx})")
+    if start not in ("bottom", "top"):
+        raise ValueError(f"start must be 'bottom' or 'top', got {start!r}")
+    path = []
+    for j in range(nx):
+        up = (j % 2 == 0) == (start == "bottom")
+        path.extend((i, j) for i in (range(ny) if up else range(ny - 1, -1, -1)))
+    return np.asarray(path, dtype=np.int64)
+
+
+def lowest_of(shape, runs, energy="sarap", solver_kw=None):
+    """The global ground truth as the lowest verified minimum over several trajectories' solutions.
+
+    At every grid point, :meth:`defop.solve.Solver.solve_best` restarts from each run's solution at that
+    point (e.g. the rest-pose solve of ``ground_truth_trajectories(mode="global")`` and the warm-started
+    drags of ``mode="local"``) and keeps the lowest verified minimum. The result is therefore at most
+    the energy of every run at every Q (up to the solver's tolerance), which a single start cannot promise.
+
+    Parameters
+    ----------
+    shape : Shape
+    runs : sequence of Trajectory
+        On one grid, for the handle ``moving = 0``.
+    energy : str
+    solver_kw : dict, optional
+
+    Returns
+    -------
+    Trajectory
+        ``kind="global"``, with ``energy`` and ``converged`` filled in.
+    """
+    runs = list(runs)
+    if not runs:
+        raise ValueError("lowest_of needs at least one trajectory")
+    grid = runs[0].grid
+    if any(r.X.shape != runs[0].X.shape for r in runs):
+        raise ValueError("every trajectory must be on the same grid")
+    solver = Solver(shape.mesh, shape.handles, energy=energy, **dict(solver_kw or {}))
+    Q = grid.positions
+    ny, nx = grid.shape
+    X = np.empty_like(runs[0].X)
+    E = np.empty((ny, nx))
+    conv = np.zeros((ny, nx), dtype=bool)
+    for i in range(ny):
+        for j in range(nx):
+            q = np.asarray(shape.P_moving, float).copy()
+            q[0] = Q[i, j]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotConvergedWarning)
+                r = solver.solve_best(shape.targets(q), starts=[run.X[i, j] for run in runs], rest=False)
+            X[i, j], E[i, j], conv[i, j] = r.X, r.energy, r.converged
+    return Trajectory(grid=grid, X=X, rest=shape.mesh.V.copy(), kind="global", converged=conv, energy=E)
+
+
+def column_jumps(grid, D, factor=8.0):
+    """Where each column of a trajectory jumps along y.
+
+    Parameters
+    ----------
+    grid : HandleGrid
+    D : (ny, nx) or (ny, nx, c) numpy array
+        A trajectory (e.g. ``traj.of(v)``).
+    factor : float
+        As in :func:`defop.trajectories.discontinuities`.
+
+    Returns
+    -------
+    y : (nx,) numpy array
+        Per column, the mean q_y − p_y of the midpoints of its jumping vertical edges (NaN if none).
+    """
+    _, ey = discontinuities(D, factor)
+    mid = 0.5 * (grid.ys[1:] + grid.ys[:-1])
+    return np.array([mid[ey[:, j]].mean() if ey[:, j].any() else np.nan for j in range(ey.shape[1])])
+
+
+def arc_samples(pivot, tip, angle, m, rng, shrink=(0.0, 0.2)):
+    """m handle positions on an annular sector around ``pivot``: a cantilever's tip bending up and down.
+
+    Angles are stratified (one uniform draw in each of m equal bins of [−angle, angle]), radii uniform in
+    [(1 − shrink[1]) r, (1 − shrink[0]) r] with r = |tip − pivot| (a bent bar's chord is shorter).
+
+    Parameters
+    ----------
+    pivot, tip : (2,) array_like
+        The clamped end and the rest position of the moving handle.
+    angle : float
+        Largest bending angle, radians.
+    m : int
+    rng : numpy.random.Generator
+    shrink : (2,) tuple of float
+
+    Returns
+    -------
+    Q : (m,1,2) numpy array
+        One moving handle per configuration (``train(..., samples=Q)``).
+    """
+    if m < 1 or not 0 < angle < np.pi:
+        raise ValueError(f"need m >= 1 and 0 < angle < pi, got m={m}, angle={angle}")
+    pivot, tip = np.asarray(pivot, float), np.asarray(tip, float)
+    r0 = np.linalg.norm(tip - pivot)
+    a0 = np.arctan2(*(tip - pivot)[::-1])
+    edges = np.linspace(-angle, angle, m + 1)
+    a = a0 + edges[:-1] + rng.uniform(size=m) * np.diff(edges)
+    r = r0 * (1 - rng.uniform(shrink[0], shrink[1], size=m))
+    return (pivot + r[:, None] * np.column_stack([np.cos(a), np.sin(a)]))[:, None, :]
+
+
+def arc_point(pivot, tip, a, shrink=0.0):
+    """(k,1,2) handle positions at bending angles ``a`` (radians) on the arc of :func:`arc_samples`."""
+    pivot, tip = np.asarray(pivot, float), np.asarray(tip, float)
+    r0 = np.linalg.norm(tip - pivot) * (1 - shrink)
+    a0 = np.arctan2(*(tip - pivot)[::-1]) + np.atleast_1d(np.asarray(a, float))
+    return (pivot + r0 * np.column_stack([np.cos(a0), np.sin(a0)]))[:, None, :]
+
+
+def fit_diagnostics(op, Q_train, X_train, Q_test, X_test):
+    """Why a fit generalises or not: train and held-out error (8a)/n and the conditioning of Ψ(Q_k).
+
+    Parameters
+    ----------
+    op : DefOp
+    Q_train, Q_test : (m,n,2) numpy arrays
+    X_train, X_test : (m,n_vertices,2) numpy arrays
+
+    Returns
+    -------
+    dict
+        ``train``, ``test``: error (8a)/n; ``cond``: 2-norm condition number of the (m, |Ψ|) matrix
+        Ψ(Q_k) (the fit's handle-basis design matrix); ``size``: |Ψ|; ``m``: number of training samples.
+    """
+    Psi = np.asarray(op.psi(np.asarray(Q_train, float)))
+    s = np.linalg.svd(Psi, compute_uv=False)
+    return {
+        "train": approximation_error(op, Q_train, X_train),
+        "test": approximation_error(op, Q_test, X_test),
+        "cond": float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
+        "size": int(op.handle_basis.size),
+        "m": int(len(Q_train)),
+    }
+
