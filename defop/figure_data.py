@@ -109,21 +109,22 @@ def column_jumps(grid, D, factor=8.0):
     return np.array([mid[ey[:, j]].mean() if ey[:, j].any() else np.nan for j in range(ey.shape[1])])
 
 
-def arc_samples(pivot, tip, angle, m, rng, shrink=(0.0, 0.2)):
-    """m handle positions on an annular sector around ``pivot``: a cantilever's tip bending up and down.
+def arc_samples(pivot, tip, angle, m, rng, jitter=0.02):
+    """m handle positions of a cantilever's tip bending up and down around ``pivot`` (the clamped end).
 
-    Angles are stratified (one uniform draw in each of m equal bins of [−angle, angle]), radii uniform in
-    [(1 − shrink[1]) r, (1 − shrink[0]) r] with r = |tip − pivot| (a bent bar's chord is shorter).
+    A bar of length r = |tip − pivot| bent into a circular arc whose chord turns by the angle a has the
+    chord length r·sin(a)/a; the samples sit on that curve (:func:`arc_point`), at stratified angles (one
+    uniform draw in each of m equal bins of [−angle, angle]), with radial jitter uniform in ±``jitter``·r.
 
     Parameters
     ----------
     pivot, tip : (2,) array_like
         The clamped end and the rest position of the moving handle.
     angle : float
-        Largest bending angle, radians.
+        Largest chord angle, radians.
     m : int
     rng : numpy.random.Generator
-    shrink : (2,) tuple of float
+    jitter : float
 
     Returns
     -------
@@ -132,21 +133,21 @@ def arc_samples(pivot, tip, angle, m, rng, shrink=(0.0, 0.2)):
     """
     if m < 1 or not 0 < angle < np.pi:
         raise ValueError(f"need m >= 1 and 0 < angle < pi, got m={m}, angle={angle}")
-    pivot, tip = np.asarray(pivot, float), np.asarray(tip, float)
-    r0 = np.linalg.norm(tip - pivot)
-    a0 = np.arctan2(*(tip - pivot)[::-1])
     edges = np.linspace(-angle, angle, m + 1)
-    a = a0 + edges[:-1] + rng.uniform(size=m) * np.diff(edges)
-    r = r0 * (1 - rng.uniform(shrink[0], shrink[1], size=m))
-    return (pivot + r[:, None] * np.column_stack([np.cos(a), np.sin(a)]))[:, None, :]
+    a = edges[:-1] + rng.uniform(size=m) * np.diff(edges)
+    return arc_point(pivot, tip, a, 1 + rng.uniform(-jitter, jitter, size=m))
 
 
-def arc_point(pivot, tip, a, shrink=0.0):
-    """(k,1,2) handle positions at bending angles ``a`` (radians) on the arc of :func:`arc_samples`."""
+def arc_point(pivot, tip, a, scale=1.0):
+    """(k,1,2) tip positions of a bar bent into circular arcs whose chords turn by the angles ``a`` (radians).
+
+    The chord has length scale·r·sin(a)/a with r = |tip − pivot| (the bar keeps its length).
+    """
     pivot, tip = np.asarray(pivot, float), np.asarray(tip, float)
-    r0 = np.linalg.norm(tip - pivot) * (1 - shrink)
-    a0 = np.arctan2(*(tip - pivot)[::-1]) + np.atleast_1d(np.asarray(a, float))
-    return (pivot + r0 * np.column_stack([np.cos(a0), np.sin(a0)]))[:, None, :]
+    a = np.atleast_1d(np.asarray(a, float))
+    r = np.linalg.norm(tip - pivot) * np.sinc(a / np.pi) * scale
+    a0 = np.arctan2(*(tip - pivot)[::-1]) + a
+    return (pivot + r[:, None] * np.column_stack([np.cos(a0), np.sin(a0)]))[:, None, :]
 
 
 def fit_diagnostics(op, Q_train, X_train, Q_test, X_test):
@@ -173,4 +174,3 @@ def fit_diagnostics(op, Q_train, X_train, Q_test, X_test):
         "size": int(op.handle_basis.size),
         "m": int(len(Q_train)),
     }
-
