@@ -19,7 +19,7 @@ from .analysis import approximation_error
 from .solve import NotConvergedWarning, Solver
 from .trajectories import Trajectory, discontinuities
 
-__all__ = ["column_path", "lowest_of", "column_jumps", "arc_samples", "arc_point", "fit_diagnostics"]
+__all__ = ["column_path", "lowest_of", "column_jumps", "arc_samples", "arc_point", "fit_diagnostics", "subspace_floor"]
 
 
 def column_path(ny, nx, start="bottom"):
@@ -151,7 +151,7 @@ def arc_point(pivot, tip, a, scale=1.0):
 
 
 def fit_diagnostics(op, Q_train, X_train, Q_test, X_test):
-    """Why a fit generalises or not: train and held-out error (8a)/n and the conditioning of Ψ(Q_k).
+    """Why a fit generalises or not: train and held-out error per sample and the conditioning of Ψ(Q_k).
 
     Parameters
     ----------
@@ -162,15 +162,47 @@ def fit_diagnostics(op, Q_train, X_train, Q_test, X_test):
     Returns
     -------
     dict
-        ``train``, ``test``: error (8a)/n; ``cond``: 2-norm condition number of the (m, |Ψ|) matrix
-        Ψ(Q_k) (the fit's handle-basis design matrix); ``size``: |Ψ|; ``m``: number of training samples.
+        ``train``, ``test``: error (8a)/n divided by the number of samples in the set (so the two compare; the
+        sum over samples is :func:`defop.analysis.approximation_error`); ``cond``: 2-norm condition number of
+        the (m, |Ψ|) matrix Ψ(Q_k) (the fit's handle-basis design matrix);
+        ``size``: |Ψ|; ``m``: number of training samples.
     """
     Psi = np.asarray(op.psi(np.asarray(Q_train, float)))
     s = np.linalg.svd(Psi, compute_uv=False)
     return {
-        "train": approximation_error(op, Q_train, X_train),
-        "test": approximation_error(op, Q_test, X_test),
+        "train": approximation_error(op, Q_train, X_train) / len(Q_train),
+        "test": approximation_error(op, Q_test, X_test) / len(Q_test),
         "cond": float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
         "size": int(op.handle_basis.size),
         "m": int(len(Q_train)),
     }
+
+
+def subspace_floor(mesh, X, spatial="reduced", k=100):
+    """The error (8a)/n of the best deformation in span Φ: the M-orthogonal projection of each X onto Φ.
+
+    No handle basis Ψ can do better than this floor, so it bounds what a richer Ψ can gain over a poorer one
+    for a reduced Φ (Fig. 2).
+
+    Parameters
+    ----------
+    mesh : Mesh
+    X : (k,n_vertices,2) numpy array
+        Ground-truth deformations.
+    spatial : str or defop.spatial.SpatialBasis
+    k : int
+        Size of the reduced Φ (as in :func:`defop.fit.fit`).
+
+    Returns
+    -------
+    float
+        (1 / n_vertices) Σ_k ‖X_k − Π_Φ X_k‖²_M, the same normalisation as
+        :func:`defop.analysis.approximation_error`.
+    """
+    from .spatial import make_spatial
+
+    basis = make_spatial(mesh, spatial, k) if isinstance(spatial, str) else spatial
+    X = np.asarray(X, float)
+    R = X - np.einsum("ip,kpd->kid", np.asarray(basis.U), basis.coefficients(X))
+    m = mesh.mass_matrix.diagonal()
+    return float(np.einsum("v,kvc->", m, R**2) / mesh.n_vertices)
