@@ -203,6 +203,6 @@ def subspace_floor(mesh, X, spatial="reduced", k=100):
 
     basis = make_spatial(mesh, spatial, k) if isinstance(spatial, str) else spatial
     X = np.asarray(X, float)
-    R = X - np.einsum("ip,kpd->kid", np.asarray(basis.U), basis.coefficients(X))
+    R = X - np.stack([basis.evaluate(A) for A in basis.coefficients(X)])
     m = mesh.mass_matrix.diagonal()
     return float(np.einsum("v,kvc->", m, R**2) / mesh.n_vertices)
