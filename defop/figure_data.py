@@ -2,9 +2,10 @@
 
 * :func:`column_path`, :func:`lowest_of` and :func:`column_jumps`: Fig. 10 (global against local optima
   along vertical drags of the bar's handle, and the hysteresis between them);
-* :func:`arc_samples`: Fig. 7 (training configurations along a bending arc, m = 17);
+* :func:`arc_samples` and :func:`arc_point`: Fig. 7 (configurations along a bending cantilever's tip path);
 * :func:`fit_diagnostics`: Figs. 2 and 8 (why a richer Ψ can lose to a poorer one: train against held-out
-  error and the conditioning of the handle-basis matrix Ψ(Q_k)).
+  error and the conditioning of the handle-basis matrix Ψ(Q_k));
+* :func:`subspace_floor`: Fig. 2 (the best error any Ψ can reach with a reduced Φ).
 
 No plotting here (:mod:`defop.plot`), no notebook state.
 """
