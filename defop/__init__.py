@@ -46,6 +46,7 @@ _SUBMODULES = (
     "compare",
     "warp",
     "plot_peers",
+    "figure_data",
 )
 
 

@@ -1,0 +1,209 @@
+"""Computations behind individual figures that the general modules do not cover.
+
+* :func:`column_path`, :func:`lowest_of` and :func:`column_jumps`: Fig. 10 (global against local optima
+  along vertical drags of the bar's handle, and the hysteresis between them);
+* :func:`arc_samples` and :func:`arc_point`: Fig. 7 (configurations along a bending cantilever's tip path);
+* :func:`fit_diagnostics`: Figs. 2 and 8 (why a richer Ψ can lose to a poorer one: train against held-out
+  error and the conditioning of the handle-basis matrix Ψ(Q_k));
+* :func:`subspace_floor`: Fig. 2 (the best error any Ψ can reach with a reduced Φ).
+
+No plotting here (:mod:`defop.plot`), no notebook state.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from .analysis import approximation_error
+from .solve import NotConvergedWarning, Solver
+from .trajectories import Trajectory, discontinuities
+
+__all__ = ["column_path", "lowest_of", "column_jumps", "arc_samples", "arc_point", "fit_diagnostics", "subspace_floor"]
+
+
+def column_path(ny, nx, start="bottom"):
+    """A boustrophedon scan of a (ny, nx) grid by columns: a user dragging the handle up and down.
+
+    Column 0 (the smallest x) is swept first, from the bottom (``start="bottom"``) or the top, then
+    column 1 in the other direction, ... Every step moves to a 4-neighbour.
+
+    Returns
+    -------
+    path : (ny*nx, 2) numpy int array
+        Grid indices ``(i, j)`` in visiting order.
+    """
+    if ny < 1 or nx < 1:
+        raise ValueError(f"grid shape must be positive, got ({ny}, {nx})")
+    if start not in ("bottom", "top"):
+        raise ValueError(f"start must be 'bottom' or 'top', got {start!r}")
+    path = []
+    for j in range(nx):
+        up = (j % 2 == 0) == (start == "bottom")
+        path.extend((i, j) for i in (range(ny) if up else range(ny - 1, -1, -1)))
+    return np.asarray(path, dtype=np.int64)
+
+
+def lowest_of(shape, runs, energy="sarap", solver_kw=None):
+    """The global ground truth as the lowest verified minimum over several trajectories' solutions.
+
+    At every grid point, :meth:`defop.solve.Solver.solve_best` restarts from each run's solution at that
+    point (e.g. the rest-pose solve of ``ground_truth_trajectories(mode="global")`` and the warm-started
+    drags of ``mode="local"``) and keeps the lowest verified minimum. The result is therefore at most
+    the energy of every run at every Q (up to the solver's tolerance), which a single start cannot promise.
+
+    Parameters
+    ----------
+    shape : Shape
+    runs : sequence of Trajectory
+        On one grid, for the handle ``moving = 0``.
+    energy : str
+    solver_kw : dict, optional
+
+    Returns
+    -------
+    Trajectory
+        ``kind="global"``, with ``energy`` and ``converged`` filled in.
+    """
+    runs = list(runs)
+    if not runs:
+        raise ValueError("lowest_of needs at least one trajectory")
+    grid = runs[0].grid
+    if any(r.X.shape != runs[0].X.shape for r in runs):
+        raise ValueError("every trajectory must be on the same grid")
+    solver = Solver(shape.mesh, shape.handles, energy=energy, **dict(solver_kw or {}))
+    Q = grid.positions
+    ny, nx = grid.shape
+    X = np.empty_like(runs[0].X)
+    E = np.empty((ny, nx))
+    conv = np.zeros((ny, nx), dtype=bool)
+    for i in range(ny):
+        for j in range(nx):
+            q = np.asarray(shape.P_moving, float).copy()
+            q[0] = Q[i, j]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotConvergedWarning)
+                r = solver.solve_best(shape.targets(q), starts=[run.X[i, j] for run in runs], rest=False)
+            X[i, j], E[i, j], conv[i, j] = r.X, r.energy, r.converged
+    return Trajectory(grid=grid, X=X, rest=shape.mesh.V.copy(), kind="global", converged=conv, energy=E)
+
+
+def column_jumps(grid, D, factor=8.0):
+    """Where each column of a trajectory jumps along y.
+
+    Parameters
+    ----------
+    grid : HandleGrid
+    D : (ny, nx) or (ny, nx, c) numpy array
+        A trajectory (e.g. ``traj.of(v)``).
+    factor : float
+        As in :func:`defop.trajectories.discontinuities`.
+
+    Returns
+    -------
+    y : (nx,) numpy array
+        Per column, the mean q_y − p_y of the midpoints of its jumping vertical edges (NaN if none).
+    """
+    _, ey = discontinuities(D, factor)
+    mid = 0.5 * (grid.ys[1:] + grid.ys[:-1])
+    return np.array([mid[ey[:, j]].mean() if ey[:, j].any() else np.nan for j in range(ey.shape[1])])
+
+
+def arc_samples(pivot, tip, angle, m, rng, jitter=0.02):
+    """m handle positions of a cantilever's tip bending up and down around ``pivot`` (the clamped end).
+
+    A bar of length r = |tip − pivot| bent into a circular arc whose chord turns by the angle a has the
+    chord length r·sin(a)/a; the samples sit on that curve (:func:`arc_point`), at stratified angles (one
+    uniform draw in each of m equal bins of [−angle, angle]), with radial jitter uniform in ±``jitter``·r.
+
+    Parameters
+    ----------
+    pivot, tip : (2,) array_like
+        The clamped end and the rest position of the moving handle.
+    angle : float
+        Largest chord angle, radians.
+    m : int
+    rng : numpy.random.Generator
+    jitter : float
+
+    Returns
+    -------
+    Q : (m,1,2) numpy array
+        One moving handle per configuration (``train(..., samples=Q)``).
+    """
+    if m < 1 or not 0 < angle < np.pi:
+        raise ValueError(f"need m >= 1 and 0 < angle < pi, got m={m}, angle={angle}")
+    edges = np.linspace(-angle, angle, m + 1)
+    a = edges[:-1] + rng.uniform(size=m) * np.diff(edges)
+    return arc_point(pivot, tip, a, 1 + rng.uniform(-jitter, jitter, size=m))
+
+
+def arc_point(pivot, tip, a, scale=1.0):
+    """(k,1,2) tip positions of a bar bent into circular arcs whose chords turn by the angles ``a`` (radians).
+
+    The chord has length scale·r·sin(a)/a with r = |tip − pivot| (the bar keeps its length).
+    """
+    pivot, tip = np.asarray(pivot, float), np.asarray(tip, float)
+    a = np.atleast_1d(np.asarray(a, float))
+    r = np.linalg.norm(tip - pivot) * np.sinc(a / np.pi) * scale
+    a0 = np.arctan2(*(tip - pivot)[::-1]) + a
+    return (pivot + r[:, None] * np.column_stack([np.cos(a0), np.sin(a0)]))[:, None, :]
+
+
+def fit_diagnostics(op, Q_train, X_train, Q_test, X_test):
+    """Why a fit generalises or not: train and held-out error per sample and the conditioning of Ψ(Q_k).
+
+    Parameters
+    ----------
+    op : DefOp
+    Q_train, Q_test : (m,n,2) numpy arrays
+    X_train, X_test : (m,n_vertices,2) numpy arrays
+
+    Returns
+    -------
+    dict
+        ``train``, ``test``: error (8a)/n divided by the number of samples in the set (so the two compare; the
+        sum over samples is :func:`defop.analysis.approximation_error`); ``cond``: 2-norm condition number of
+        the (m, |Ψ|) matrix Ψ(Q_k) (the fit's handle-basis design matrix);
+        ``size``: |Ψ|; ``m``: number of training samples.
+    """
+    Psi = np.asarray(op.psi(np.asarray(Q_train, float)))
+    s = np.linalg.svd(Psi, compute_uv=False)
+    return {
+        "train": approximation_error(op, Q_train, X_train) / len(Q_train),
+        "test": approximation_error(op, Q_test, X_test) / len(Q_test),
+        "cond": float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
+        "size": int(op.handle_basis.size),
+        "m": int(len(Q_train)),
+    }
+
+
+def subspace_floor(mesh, X, spatial="reduced", k=100):
+    """The error (8a)/n of the best deformation in span Φ: the M-orthogonal projection of each X onto Φ.
+
+    No handle basis Ψ can do better than this floor, so it bounds what a richer Ψ can gain over a poorer one
+    for a reduced Φ (Fig. 2).
+
+    Parameters
+    ----------
+    mesh : Mesh
+    X : (k,n_vertices,2) numpy array
+        Ground-truth deformations.
+    spatial : str or defop.spatial.SpatialBasis
+    k : int
+        Size of the reduced Φ (as in :func:`defop.fit.fit`).
+
+    Returns
+    -------
+    float
+        (1 / n_vertices) Σ_k ‖X_k − Π_Φ X_k‖²_M, the same normalisation as
+        :func:`defop.analysis.approximation_error`.
+    """
+    from .spatial import make_spatial
+
+    basis = make_spatial(mesh, spatial, k) if isinstance(spatial, str) else spatial
+    X = np.asarray(X, float)
+    R = X - np.stack([basis.evaluate(A) for A in basis.coefficients(X)])
+    m = mesh.mass_matrix.diagonal()
+    return float(np.einsum("v,kvc->", m, R**2) / mesh.n_vertices)

@@ -1,0 +1,103 @@
+"""defop.figure_data: the helpers behind Figs. 2, 7, 8 and 10."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import defop as dop
+from defop import figure_data as fd
+from defop.trajectories import _check_path
+
+
+@given(st.integers(1, 12), st.integers(1, 12), st.sampled_from(["bottom", "top"]))
+def test_column_path_visits_every_point_once_between_neighbours(ny, nx, start):
+    path = fd.column_path(ny, nx, start)
+    _check_path(path, (ny, nx))  # raises unless a 4-neighbour path visiting every point once
+    assert tuple(path[0]) == ((0, 0) if start == "bottom" else (ny - 1, 0))
+    assert (np.diff(path[:ny, 1]) == 0).all()  # the first column is swept first
+
+
+def test_column_path_rejects_bad_input():
+    with pytest.raises(ValueError, match="positive"):
+        fd.column_path(0, 3)
+    with pytest.raises(ValueError, match="start"):
+        fd.column_path(3, 3, "left")
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 40), st.floats(0.05, 3.0), st.integers(0, 2**31))
+def test_arc_samples_lie_on_the_bending_curve(m, angle, seed):
+    pivot, tip = np.array([0.02, 0.1]), np.array([0.96, 0.1])
+    Q = fd.arc_samples(pivot, tip, angle, m, np.random.default_rng(seed), jitter=0.02)
+    assert Q.shape == (m, 1, 2)
+    d = Q[:, 0] - pivot
+    a = np.arctan2(d[:, 1], d[:, 0])
+    assert (np.abs(a) <= angle + 1e-12).all()
+    # stratified: exactly one sample per bin of the angle range
+    counts = np.histogram(a, bins=np.linspace(-angle, angle, m + 1))[0]
+    assert (counts == 1).all()
+    chord = np.linalg.norm(tip - pivot) * np.sinc(a / np.pi)  # a bent bar keeps its length
+    np.testing.assert_array_less(np.abs(np.linalg.norm(d, axis=1) / chord - 1), 0.02 + 1e-12)
+
+
+def test_arc_point_rest_and_quarter_circle():
+    pivot, tip = np.array([0.0, 0.0]), np.array([1.0, 0.0])
+    np.testing.assert_allclose(fd.arc_point(pivot, tip, 0.0)[0, 0], tip)
+    # a chord turned by π/4 is the chord of a quarter circle of length 1: radius 2/π, chord 2√2/π
+    q = fd.arc_point(pivot, tip, np.pi / 4)[0, 0]
+    np.testing.assert_allclose(np.linalg.norm(q), 2 * np.sqrt(2) / np.pi)
+    np.testing.assert_allclose(np.arctan2(q[1], q[0]), np.pi / 4)
+    with pytest.raises(ValueError):
+        fd.arc_samples(pivot, tip, 4.0, 5, np.random.default_rng(0))
+
+
+@pytest.fixture(scope="module")
+def bar():
+    return dop.shapes.load("bar", n_vertices=250)
+
+
+def test_subspace_floor_zero_for_affine_maps_and_hat(bar):
+    rng = np.random.default_rng(3)
+    V = bar.mesh.V
+    A = np.eye(2) + 0.3 * rng.standard_normal((2, 2))
+    X = np.stack([V @ A.T + [0.1, -0.2], V])
+    assert fd.subspace_floor(bar.mesh, X, "reduced", 20) < 1e-20  # affine maps are in span Φ
+    Xr = V + 0.05 * rng.standard_normal(V.shape)
+    assert fd.subspace_floor(bar.mesh, Xr[None], "hat") < 1e-25  # hat functions span everything
+    assert fd.subspace_floor(bar.mesh, Xr[None], "reduced", 20) > 1e-6  # noise is not smooth
+
+
+def test_fit_diagnostics_interpolating_fit_has_zero_training_error(bar):
+    rng = np.random.default_rng(0)
+    Q = bar.P_moving[None] + rng.uniform(-0.05, 0.05, (6, 1, 2))
+    X, ok = dop.train.solve_samples(bar, Q, "sarap", n_jobs=1, progress=False)
+    assert ok.all()
+    op = dop.fit.fit_shape(bar, Q[:4], X[:4], "tps")  # TPS reproduces its samples (Prop. 1)
+    d = fd.fit_diagnostics(op, Q[:4], X[:4], Q[4:], X[4:])
+    assert d["train"] < 1e-20 < d["test"]
+    assert d["m"] == 4 and d["size"] == op.handle_basis.size and d["cond"] >= 1
+
+
+def test_lowest_of_is_at_most_every_run(bar):
+    grid = dop.trajectories.handle_grid(bar.P_moving[0], 0.25, 3)
+    runs = [
+        dop.trajectories.ground_truth_trajectories(
+            bar, grid, "sarap", mode="local", path=fd.column_path(3, 3, s), cache=False
+        )
+        for s in ("bottom", "top")
+    ]
+    g = fd.lowest_of(bar, runs)
+    assert g.converged.all() and g.kind == "global"
+    for r in runs:
+        assert (g.energy <= r.energy * (1 + 1e-6) + 1e-14).all()
+    with pytest.raises(ValueError):
+        fd.lowest_of(bar, [])
+
+
+def test_column_jumps_finds_a_step():
+    grid = dop.trajectories.handle_grid(np.zeros(2), 1.0, 5)
+    D = np.where(grid.displacements[..., 1] > 0.1, 1.0, 0.0) + 0.01 * grid.displacements[..., 0]
+    y = fd.column_jumps(grid, D)
+    np.testing.assert_allclose(y, 0.25)  # between the rows y = 0 and y = 0.5
+    assert np.isnan(fd.column_jumps(grid, 0.01 * grid.displacements[..., 0] + 0.02 * grid.displacements[..., 1])).all()
