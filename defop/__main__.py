@@ -14,7 +14,7 @@ def main(argv=None):
     fig.add_argument("--fast", action="store_true", help="CI-sized runs (DEFOP_FAST=1); outputs are not stored")
     fig.add_argument("--no-store", action="store_true", help="do not write outputs back into the notebooks")
     fig.add_argument("--clean", action="store_true", help="a clean run: delete the figures and the cache first")
-    fig.add_argument("--timeout", type=float, default=600, help="per-cell timeout in seconds (default 600)")
+    fig.add_argument("--timeout", type=float, default=None, help="per-cell timeout in seconds (default: defop.figures.CELL_TIMEOUT)")
     fig.add_argument("--no-record", action="store_true", help="do not update figures/runtimes.json")
     norm = sub.add_parser(
         "normalise", help="normalise stored notebooks (metadata, widget outputs) as the main job does"
@@ -27,13 +27,13 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     if args.command == "figures":
-        from .figures import RUNTIMES, regenerate
+        from .figures import CELL_TIMEOUT, RUNTIMES, regenerate
 
         report = regenerate(
             only=args.only,
             fast=args.fast,
             store=False if args.no_store else None,
-            timeout=args.timeout,
+            timeout=CELL_TIMEOUT if args.timeout is None else args.timeout,
             clean=args.clean,
             record=None if args.no_record else RUNTIMES,
         )
