@@ -14,7 +14,9 @@ def main(argv=None):
     fig.add_argument("--fast", action="store_true", help="CI-sized runs (DEFOP_FAST=1); outputs are not stored")
     fig.add_argument("--no-store", action="store_true", help="do not write outputs back into the notebooks")
     fig.add_argument("--clean", action="store_true", help="a clean run: delete the figures and the cache first")
-    fig.add_argument("--timeout", type=float, default=None, help="per-cell timeout in seconds (default: defop.figures.CELL_TIMEOUT)")
+    fig.add_argument(
+        "--timeout", type=float, default=None, help="per-cell timeout in seconds (default: defop.figures.CELL_TIMEOUT)"
+    )
     fig.add_argument("--no-record", action="store_true", help="do not update figures/runtimes.json")
     norm = sub.add_parser(
         "normalise", help="normalise stored notebooks (metadata, widget outputs) as the main job does"

@@ -28,6 +28,8 @@ KINDS = ("linear", "quadratic", "cubic", "tps")
 
 
 def _check_Q(Q, n):
+    if np.iscomplexobj(Q):  # float() would drop the imaginary part with only a ComplexWarning
+        raise ValueError("Q must be real; got a complex array")
     Q = np.asarray(Q, dtype=float)
     if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, 2):
         raise ValueError(f"Q must have shape ({n}, 2) or (k, {n}, 2) for {n} moving handles, got {Q.shape}")
@@ -272,7 +274,10 @@ class TPSBasis(HandleBasis):
         dup = np.argwhere(np.triu(d2 <= (1e-12) ** 2, 1))
         if len(dup):
             i, j = dup[0]
-            raise ValueError(f"duplicate TPS centres: samples {i} and {j} are the same handle configuration")
+            raise ValueError(
+                f"duplicate TPS centres {i} and {j} (0-based): the same handle configuration; in a fit, centre 0 "
+                f"is the rest pose P and centre c is the sample Q_k with k = c - 1 (0-based)"
+            )
         self._cz_sq = np.sum(self._cz**2, axis=1)
         self._cz_m2 = -2.0 * self._cz
 

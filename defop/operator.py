@@ -196,6 +196,8 @@ class DefOp:
 
     def _evaluate(self, Q, fast, out=None):
         """(★) for Q (n,2) or (k,n,2), validated; ``out`` (k, 2 n_vertices) float64 receives the result."""
+        if np.iscomplexobj(Q):  # float() would drop the imaginary part with only a ComplexWarning
+            raise ValueError("Q must be real; got a complex array")
         Q = np.asarray(Q, dtype=float)
         z = self.handle_basis.z(Q)  # validates shape and NaN
         Q2 = Q.reshape(-1, self.n_moving, 2)
@@ -246,9 +248,13 @@ class DefOp:
         -------
         X : (k,n_vertices,2) numpy array
         """
+        if np.iscomplexobj(Qs):
+            raise ValueError("Q must be real; got a complex array")
         Qs = np.asarray(Qs, dtype=float)
         if Qs.ndim != 3:
             raise ValueError(f"Qs must have shape (k, {self.n_moving}, 2), got {Qs.shape}")
+        if len(Qs) == 0:  # no frame: an empty batch, like numpy
+            return np.empty((0, self.n_vertices, 2)) if out is None else out
         if out is not None:
             if out.shape != (len(Qs), self.n_vertices, 2) or out.dtype != np.float64 or not out.flags.c_contiguous:
                 raise ValueError(f"out must be a C-contiguous float64 array of shape {(len(Qs), self.n_vertices, 2)}")
@@ -259,9 +265,9 @@ class DefOp:
     def evaluate_fast(self, Q):
         """D(·, Q) for one configuration, the interactive path: (★) with float32 W_F or the factors.
 
-        The shape of Q is not checked; a non-finite Ψ(Q) raises, as in :meth:`__call__`. The float32 W_F
-        rounds the free vertices by about 1e-6 of the bounding-box diagonal (aleph TPS-500); the handles
-        and the rest pose stay exact.
+        Q must have the shape of P (a cheap check; no copy); a non-finite Ψ(Q) raises, as in
+        :meth:`__call__`. The float32 W_F rounds the free vertices by about 1e-6 of the bounding-box
+        diagonal (aleph TPS-500); the handles and the rest pose stay exact.
 
         Parameters
         ----------
@@ -271,6 +277,8 @@ class DefOp:
         -------
         X : (n_vertices,2) numpy array
         """
+        if np.shape(Q) != self.handle_basis.P.shape:  # broadcasting would move every handle to one point
+            raise ValueError(f"Q must have shape {self.handle_basis.P.shape} (the moving handles), got {np.shape(Q)}")
         dz = (Q - self.handle_basis.P).ravel()
         d = self.handle_basis.delta_one(dz / self.handle_basis.scale)
         if self.factors is None:

@@ -34,6 +34,7 @@ def polygon_area(poly):
     area : float
     """
     P = np.asarray(poly, float)
+    P = P - P[0]  # about the first vertex: far from the origin the products would cancel (a square at 1e8)
     x, y = P[:, 0], P[:, 1]
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 

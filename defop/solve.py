@@ -597,7 +597,9 @@ class Solver:
         start : {"local", "global"}
             ``"local"``: one path from ``X0`` (warm start, path following; saddles are still escaped).
             ``"global"``: :meth:`solve_best` from the rest pose and ``X0`` (when given), the lower
-            verified minimum.
+            verified minimum. This is a documented multi-start, not a certificate: where the energy has
+            several minima it can miss a lower one that no start leads to (a stranger's test found an
+            ARAP bar pushed 0.35 along its axis whose up-bent start verified at 3% lower energy).
 
         Returns
         -------

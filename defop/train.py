@@ -144,13 +144,19 @@ def _load_gt(store, key, m, n_vertices):
     return None if entry is None else (entry[0]["X"], entry[0]["converged"], entry[1])
 
 
-def _operator_reader(shape):
-    """``DefOp.load`` plus the checks that the cached operator belongs to ``shape``."""
+def _operator_reader(shape, basis, spatial, n_samples):
+    """``DefOp.load`` plus the checks that the cached operator is the one asked for: ``shape``'s mesh and
+    handles, the handle basis Ψ, the spatial basis Φ and the sample count (a misplaced entry is not used)."""
 
     def read(path):
         op = DefOp.load(path)
         if op.mesh.V.shape != shape.mesh.V.shape or not np.array_equal(op.handles, shape.handles):
             raise cache_mod.CorruptEntry("the operator does not match the shape's mesh and handles")
+        got = (op.handle_basis.kind, op.meta.get("spatial"), op.meta.get("n_samples"))
+        if got != (basis, spatial, n_samples):
+            raise cache_mod.CorruptEntry(
+                f"the operator is (Ψ, Φ, m) = {got}, not the requested {(basis, spatial, n_samples)}"
+            )
         if not np.isfinite(op.W).all():
             raise cache_mod.CorruptEntry("the operator's coefficients have NaN or infinite entries")
         return op
@@ -432,7 +438,7 @@ def train(
         op_key = cache_mod.key("op", gt_key, basis, spatial, params["k"])
     times = {}
     t0 = time.perf_counter()
-    op = None if store is None else store.load_with("op", op_key, _operator_reader(shape))
+    op = None if store is None else store.load_with("op", op_key, _operator_reader(shape, basis, spatial, m))
     if op is not None:
         times["load"] = time.perf_counter() - t0
         gt = _load_gt(store, gt_key, m, mesh.n_vertices)

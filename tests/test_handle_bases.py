@@ -70,7 +70,7 @@ def test_tps_kernel_and_side_conditions():
 
 
 def test_bad_input():
-    with pytest.raises(ValueError, match="duplicate TPS centres: samples 0 and 2"):
+    with pytest.raises(ValueError, match="duplicate TPS centres 0 and 2"):
         hb.TPSBasis(P, np.stack([P + 1, P + 2, P + 1]))
     b = hb.make_basis("quadratic", P)
     with pytest.raises(ValueError, match=r"Q must have shape \(3, 2\) or \(k, 3, 2\)"):

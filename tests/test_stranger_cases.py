@@ -1,0 +1,78 @@
+"""Cases found by an independent stranger's test of issues 12, 14 and 15 (each failed before its fix)."""
+
+from __future__ import annotations
+
+import shutil
+import warnings
+
+import numpy as np
+import pytest
+
+import defop as dop
+
+
+@pytest.fixture(scope="module")
+def bar_op(tmp_path_factory):
+    shape = dop.shapes.load("bar", n_vertices=200)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        op, _ = dop.train.train(shape, "arap", "tps", m=8, seed=1, progress=False, cache=False)
+    return op
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e3, 1e8, -1e9])
+def test_a_unit_square_far_from_the_origin_meshes(offset):
+    """The shoelace area cancelled to 0 at an offset of 1e8 ('the outer polygon has zero area')."""
+    sq = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float) + offset
+    assert dop.polygon.polygon_area(sq) == 1.0
+    shape = dop.shapes.from_polygon(sq, handles=[[offset + 0.5, offset + 0.5]], n_vertices=100)
+    assert abs(shape.mesh.areas.sum() - 1.0) < 1e-6
+
+
+def test_evaluate_fast_rejects_a_q_of_the_wrong_shape(bar_op):
+    """A (1,2) Q was broadcast onto every moving handle: a silently wrong deformation."""
+    n = bar_op.n_moving
+    with pytest.raises(ValueError, match=rf"Q must have shape \({n}, 2\)"):
+        bar_op.evaluate_fast(np.zeros((n + 1, 2)))
+    with pytest.raises(ValueError, match="Q must have shape"):
+        bar_op.evaluate_fast(bar_op.P.ravel())
+    assert np.array_equal(bar_op.evaluate_fast(bar_op.P), bar_op.mesh.V)  # (8b) on the fast path
+
+
+def test_an_empty_batch_is_an_empty_answer(bar_op):
+    X = bar_op.evaluate_batch(np.zeros((0,) + bar_op.P.shape))
+    assert X.shape == (0, bar_op.n_vertices, 2)
+
+
+def test_complex_q_is_rejected_not_truncated(bar_op):
+    with pytest.raises(ValueError, match="must be real"):
+        bar_op(bar_op.P + 0j)
+    with pytest.raises(ValueError, match="must be real"):
+        bar_op.evaluate_batch((bar_op.P + 0j)[None])
+
+
+def test_a_misplaced_operator_entry_is_not_used(tmp_path, monkeypatch):
+    """A linear operator copied over the TPS entry came back as the 'TPS' operator, with no warning."""
+    monkeypatch.setenv("DEFOP_CACHE", str(tmp_path))
+    shape = dop.shapes.load("bar", n_vertices=200)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        dop.train.train(shape, "arap", "tps", m=8, seed=1, progress=False)
+        dop.train.train(shape, "arap", "linear", m=8, seed=1, progress=False)
+    entries = sorted(tmp_path.glob("op-*.npz"))
+    assert len(entries) == 2
+    kinds = {p: dop.operator.DefOp.load(p).handle_basis.kind for p in entries}
+    tps = next(p for p, k in kinds.items() if k == "tps")
+    lin = next(p for p, k in kinds.items() if k == "linear")
+    shutil.copyfile(lin, tps)
+    with pytest.warns(dop.cache.CacheWarning, match="not the requested"):
+        op, record = dop.train.train(shape, "arap", "tps", m=8, seed=1, progress=False)
+    assert op.handle_basis.kind == "tps" and record.cache != "operator"
+
+
+def test_duplicate_samples_are_named_with_their_own_index():
+    shape = dop.shapes.load("bar", n_vertices=200)
+    samples = dop.sampling.sample_shape(shape, 6, np.random.default_rng(0))
+    samples[2] = samples[0]
+    with pytest.raises(ValueError, match=r"centres 1 and 3 .*Q_k with k = c - 1"):
+        dop.train.train(shape, "arap", "tps", samples=samples, progress=False, cache=False)
