@@ -231,6 +231,16 @@ class BrowserEditor(anywidget.AnyWidget):
         self._sync(q=self.state.Q.ravel().tolist())
         self._send_ground_truth()
 
+    def _repr_mimebundle_(self, **kwargs):
+        """The live widget plus a static fallback (:func:`defop.widgets.static_bundle`): a picture of the
+        editor and one line of text, which a stored notebook shows without a kernel."""
+        from .widgets import static_bundle  # matplotlib only when displayed
+
+        bundle = super()._repr_mimebundle_(**kwargs) or {}
+        if isinstance(bundle, tuple):  # (data, metadata)
+            bundle = bundle[0]
+        return {**bundle, **static_bundle(self.state)}
+
     def _sync(self, **traits):
         self._syncing = True
         try:

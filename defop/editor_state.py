@@ -122,6 +122,9 @@ def ground_truth_error(mesh, X, X_gt):
 class EditorState:
     """Moving handles Q, the deformation X = D(·, Q) and the ground truth of one shape.
 
+    Every view (the in-page editor of :mod:`defop.browser`, the matplotlib canvas and the ipywidgets
+    controls of :mod:`defop.widgets`) draws this object and calls its methods; tests drive the same methods.
+
     Parameters
     ----------
     shape : defop.shapes.Shape or str
@@ -133,16 +136,19 @@ class EditorState:
     energy : str
         Energy of the operators and of the ground-truth solve.
     m : int, optional
-        Training samples for :func:`defop.train.train` (its default when None).
+        Training samples Q_k; raised to :func:`defop.train.min_samples` of the basis and the shape's moving
+        handles (so every shape trains), :data:`defop.train.DEFAULT_M` when None.
     kinds : sequence of str
         The bases offered.
     trainer : callable, optional
-        ``trainer(shape, kind) -> DefOp``; default :func:`defop.train.train`.
+        ``trainer(shape, kind) -> DefOp``; default :func:`defop.train.train` with ``m`` and ``train_kw``.
     solver : object, optional
-        Ground-truth solver with ``solve(targets (h,2), X0=None)`` returning a result with ``X`` and
-        ``converged``; default a :class:`defop.solve.Solver` built on first use.
+        Ground-truth solver with ``solve_best(targets (h,2), starts=..., rest=..., keep=...)`` returning a
+        result with ``X`` and ``converged``; default a :class:`defop.solve.Solver` built on first use.
     pick_radius : float
         Picking distance as a fraction of the bounding-box diagonal.
+    train_kw : dict, optional
+        Extra keyword arguments of :func:`defop.train.train` (``spatial``, ``seed``, ``progress``, ...).
 
     Attributes
     ----------
@@ -152,6 +158,10 @@ class EditorState:
         Current positions of the moving handles.
     X : (n_vertices,2) numpy array
         D(·, Q) of the current basis.
+    active : int or None
+        The handle being dragged (:meth:`press` / :meth:`drag` / :meth:`release`).
+    eval_time : float
+        Seconds of the last evaluation of D(·, Q).
     X_gt : (n_vertices,2) numpy array or None
         The last ground truth D^E(·, Q_gt), None when off or not solved yet.
     gt_error : dict or None
@@ -159,7 +169,7 @@ class EditorState:
     """
 
     def __init__(self, shape, operators=None, *, basis="tps", energy="sarap", m=None, kinds=KINDS, trainer=None,
-                 solver=None, pick_radius=0.05):
+                 solver=None, pick_radius=0.05, train_kw=None):
         if isinstance(shape, str):
             shape = dop.shapes.load(shape)
         self.kinds = tuple(kinds)
@@ -168,7 +178,10 @@ class EditorState:
                 raise ValueError(f"basis {kind!r} is not offered; choose one of {self.kinds}")
         if not pick_radius > 0:
             raise ValueError(f"pick_radius must be positive, got {pick_radius}")
+        if shape.n_moving == 0:
+            raise ValueError(f"shape {shape.name!r} has no moving handle to drag")
         self.shape, self.mesh, self.energy, self.m = shape, shape.mesh, energy, m
+        self.train_kw = dict(train_kw or {})
         self.operators = dict(operators or {})
         for op in self.operators.values():
             op.check_mesh(self.mesh)
@@ -180,12 +193,13 @@ class EditorState:
         self.regions = region_polygons(self.P, shape.regions)
         self.kind = basis
         self.gt_enabled = False
+        self.active, self.eval_time = None, 0.0
         self.get_operator(basis)
         self.reset()
 
     # ------------------------------------------------------------------ operators
     def get_operator(self, kind):
-        """The DefOp of basis ``kind`` (trained on first use).
+        """The DefOp of basis ``kind`` (trained on first use, with at least the samples the basis needs).
 
         Returns
         -------
@@ -197,8 +211,11 @@ class EditorState:
             if self.trainer is not None:
                 op = self.trainer(self.shape, kind)
             else:
-                kw = {} if self.m is None else {"m": self.m}
-                op, _record = dop.train.train(self.shape, energy=self.energy, basis=kind, progress=False, **kw)
+                kw = {"energy": self.energy, "basis": kind, "progress": False, **self.train_kw}
+                if "samples" not in kw:
+                    m = dop.train.DEFAULT_M if self.m is None else int(self.m)
+                    kw["m"] = max(m, dop.train.min_samples(kind, self.shape.n_moving))
+                op, _record = dop.train.train(self.shape, **kw)
             op.check_mesh(self.mesh)
             self.operators[kind] = op
         return self.operators[kind]
@@ -213,10 +230,17 @@ class EditorState:
         self.get_operator(kind)
         self.kind = kind
         self._evaluate()
+        if self.gt_enabled:
+            self.update_ground_truth()
 
     # ------------------------------------------------------------------ handles
     def set_Q(self, Q):
         """Move all moving handles to ``Q (n,2)`` and re-evaluate (the ground truth too, when on)."""
+        self._move(Q)
+        if self.gt_enabled:
+            self.update_ground_truth()
+
+    def _move(self, Q):
         Q = np.array(Q, dtype=float)
         if Q.shape != self.P.shape:
             raise ValueError(f"Q must have shape {self.P.shape} (the moving handles), got {Q.shape}")
@@ -237,6 +261,7 @@ class EditorState:
     def reset(self):
         """Back to the rest pose Q = P; forgets the ground truth's warm start."""
         self.X_gt = self.Q_gt = self.gt_result = self.gt_error = self.gt_time = None
+        self.active = None
         self.set_Q(self.P)
 
     def pick(self, x, y):
@@ -244,6 +269,38 @@ class EditorState:
         d = np.hypot(self.Q[:, 0] - x, self.Q[:, 1] - y)
         i = int(np.argmin(d))
         return i if d[i] <= self.pick_radius * self.diag else None
+
+    # ------------------------------------------------------------------ a drag (what a pointer does)
+    def press(self, x, y):
+        """Start dragging the handle nearest to (x, y); returns its index, or None when none is near."""
+        self.active = self.pick(x, y)
+        return self.active
+
+    def drag(self, x, y):
+        """Move the dragged handle to (x, y): D(·, Q) only, the ground truth waits for :meth:`release`.
+
+        Returns
+        -------
+        bool
+            False when no handle is being dragged.
+        """
+        if self.active is None:
+            return False
+        Q = self.Q.copy()
+        Q[self.active] = (x, y)
+        self._move(Q)
+        return True
+
+    def release(self, x=None, y=None):
+        """End the drag (at (x, y) when given) and refresh the ground truth when it is on."""
+        if self.active is None:
+            return False
+        i, self.active = self.active, None
+        Q = self.Q.copy()
+        if x is not None and y is not None:
+            Q[i] = (x, y)
+        self.set_Q(Q)
+        return True
 
     def outside_regions(self, Q=None):
         """Indices of the moving handles outside their sampling region (the operator extrapolates there).
@@ -260,12 +317,20 @@ class EditorState:
         Q = self.Q if Q is None else np.asarray(Q, float)
         return [i for i, polys in enumerate(self.regions) if polys and not any(inside_polygon(Q[i], p) for p in polys)]
 
+    @property
+    def flipped(self):
+        """(m,) bool numpy array: the triangles that D(·, Q) flips (det J ≤ 0)."""
+        return np.asarray(self.mesh.flipped(self.X), dtype=bool)
+
     def _evaluate(self):
+        t0 = time.perf_counter()
         with warnings.catch_warnings():  # the readout reports extrapolation through outside_regions
             warnings.simplefilter("ignore", ExtrapolationWarning)
-            self.X = np.asarray(self.operator(self.Q), dtype=float)
-        if self.gt_enabled:
-            self.update_ground_truth()
+            X = np.asarray(self.operator(self.Q), dtype=float)
+        self.eval_time = time.perf_counter() - t0
+        if X.shape != self.mesh.V.shape or not np.isfinite(X).all():
+            raise ValueError(f"the {self.kind} DefOp returned an invalid deformation (shape {X.shape})")
+        self.X = X
 
     # ------------------------------------------------------------------ ground truth
     @property
@@ -288,12 +353,7 @@ class EditorState:
 
         Starts, in order: the previous ground truth moved by the approximation's step
         ``X_gt + D(·, Q) − D(·, Q_gt)`` (it meets the handle constraints because D interpolates them,
-        Prop. 2), then D(·, Q), then the solver's own start; starts with flipped triangles are skipped and a
-        start the solver rejects (ValueError) falls through to the next.
-
-        Returns
-        -------
-        X_gt : (n_vertices,2) numpy array
+        Prop. 2), then D(·, Q), then the rest pose.
         """
         starts = []
         if self.X_gt is not None:
@@ -317,6 +377,7 @@ class EditorState:
         self.gt_error = ground_truth_error(self.mesh, self.X, self.X_gt)
         return self.X_gt
 
+    # ------------------------------------------------------------------ text
     def ground_truth_text(self):
         """One line for the readout: solve time, convergence, flips and the error (or an empty string)."""
         if not self.gt_enabled or self.gt_error is None:
@@ -325,3 +386,12 @@ class EditorState:
         conv = "" if getattr(self.gt_result, "converged", True) else " (solver NOT converged)"
         return (f"ground truth: {1e3 * self.gt_time:.0f} ms{conv}, {e['flips_gt']} flips; error rms "
                 f"{100 * e['rms']:.2f}% / max {100 * e['max']:.2f}% of the diagonal")
+
+    def readout_text(self):
+        """One line: basis, evaluation time, flips, extrapolating handles and (when on) the ground truth."""
+        parts = [f"{self.kind}: evaluation {1e3 * self.eval_time:.2f} ms",
+                 f"flipped triangles: {int(self.flipped.sum())}"]
+        outside = self.outside_regions()
+        if outside:
+            parts.append(f"handle {', '.join(map(str, outside))} outside its sampling region (extrapolation)")
+        return " · ".join([*parts, self.ground_truth_text()] if self.gt_enabled else parts)
