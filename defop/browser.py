@@ -2,9 +2,10 @@
 
 Python sends the trained operator once (:func:`defop_to_payload`: Ψ's kind and centres or monomial
 plan, the float32 factors, the mesh and the handles); ``static/defop_editor.js`` evaluates
-D(·, Q) = (Ψ(Q) A) B (Eq. 3) on every pointer move with the formulas of :mod:`defop.handle_bases` and
-draws the mesh on a canvas. The kernel is used only for what must run in Python: the ground-truth
-overlay (a warm-started solve of problem 6), switching basis or shape, and reading Q back on release.
+D(·, Q) = x + δψ(Q) A B (Eq. 3 in the form (★) of :mod:`defop.operator`) on every pointer move with
+the formulas of :mod:`defop.handle_bases` and draws the mesh on a canvas. The kernel is used only for
+what must run in Python: the ground-truth overlay (a warm-started solve of problem 6), switching basis
+or shape, and reading Q back on release.
 
 - :class:`BrowserEditor`: the Jupyter widget (anywidget), a view of an :class:`~defop.editor_state.EditorState`;
 - :func:`to_html`: one self-contained offline page dragging the same operator (no Python, no network).
@@ -62,7 +63,8 @@ def defop_to_payload(op, regions=None):
     Parameters
     ----------
     op : defop.operator.DefOp
-        Uses the compressed factors ``(A, B)`` when present, otherwise W as a single factor.
+        Uses the compressed factors ``(A, B)`` of W_F when present, otherwise W_F (W[1:] with the handle
+        columns zeroed) as a single factor: the page evaluates (★) of :mod:`defop.operator`.
     regions : list of list of (k,2) numpy array, optional
         Sampling-region polygons per moving handle (:func:`defop.editor_state.region_polygons`); default:
         discs through the farthest training sample.
@@ -95,11 +97,12 @@ def defop_to_payload(op, regions=None):
         p["centers"] = np.asarray(basis.z(basis.centers), np.float64)  # z_k = (Q_k − P)/scale, (m, 2n)
     else:
         p["parent"], p["factor"] = _polynomial_plan(basis.monomials)
+    # (★) of defop.operator: D(·, Q) = x + δψ(Q) W_F, the moving handles' columns set to Q − P exactly
     if op.factors is not None:
         p["A"], p["B"] = (np.asarray(f, np.float32) for f in op.factors)
         p["rank"] = int(p["A"].shape[1])
     else:
-        p["A"] = np.asarray(op.W, np.float32)
+        p["A"] = np.asarray(op._WF, np.float32)  # W[1:] with the handle columns zeroed
     return p
 
 

@@ -72,10 +72,11 @@ def node_eval(op, Qs, tmp_path, regions=None):
 
 
 def _float32_bound(op, Q):
-    """|D_js − D| ≤ u·Σ_j |ψ_j(Q)| |W_jc| per coordinate: W stored in float32 (relative error ≤ u = 2^-24),
-    products accumulated in float64 (their error is ~1e-16 relative, far below)."""
-    psi = np.abs(op.psi(Q))
-    return (U32 * (psi @ np.abs(op.W)) + 1e-12 * op.mesh.bbox_diagonal).reshape(-1, 2)
+    """|D_js − D| ≤ u·Σ_j |δψ_j(Q)| |W_F,jc| per coordinate ((★) of defop.operator): W_F stored in float32
+    (relative error ≤ u = 2^-24), products accumulated in float64 (their error is ~1e-16 relative, far below)."""
+    basis = op.handle_basis
+    dpsi = np.abs(basis.delta_z(np.atleast_2d(basis.z(Q))))[0]
+    return (U32 * (dpsi @ np.abs(op._WF)) + 1e-12 * op.mesh.bbox_diagonal).reshape(-1, 2)
 
 
 def _displacements(n):
