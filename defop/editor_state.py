@@ -143,8 +143,8 @@ class EditorState:
     trainer : callable, optional
         ``trainer(shape, kind) -> DefOp``; default :func:`defop.train.train` with ``m`` and ``train_kw``.
     solver : object, optional
-        Ground-truth solver with ``solve_best(targets (h,2), starts=..., rest=..., keep=...)`` returning a
-        result with ``X`` and ``converged``; default a :class:`defop.solve.Solver` built on first use.
+        Ground-truth solver with :meth:`~defop.solve.Solver.solve_best`'s signature, returning a result with
+        ``X`` and ``converged``; default a :class:`defop.solve.Solver` built on first use.
     pick_radius : float
         Picking distance as a fraction of the bounding-box diagonal.
     train_kw : dict, optional
@@ -351,26 +351,26 @@ class EditorState:
     def update_ground_truth(self):
         """Solve the variational DefOp (problem 6) at Q, warm-started, and measure the approximation's error.
 
-        Starts, in order: the previous ground truth moved by the approximation's step
-        ``X_gt + D(·, Q) − D(·, Q_gt)`` (it meets the handle constraints because D interpolates them,
-        Prop. 2), then D(·, Q), then the rest pose.
+        The one warm-start policy of the editor: :meth:`defop.solve.Solver.solve_best` with ``keep="first"``
+        (local, path following) over the starts, in order: the previous ground truth moved by the
+        approximation's step ``X_gt + D(·, Q) − D(·, Q_gt)`` (it meets the handle constraints because D
+        interpolates them, Prop. 2), then D(·, Q), then the rest pose. The first start that reaches a
+        verified minimum wins; flipped or rejected starts are skipped.
+
+        Returns
+        -------
+        X_gt : (n_vertices,2) numpy array
         """
         starts = []
         if self.X_gt is not None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", ExtrapolationWarning)
                 starts.append(self.X_gt + self.X - np.asarray(self.operator(self.Q_gt)))
-        starts = [X0 for X0 in [*starts, self.X] if not np.any(self.mesh.flipped(X0))] + [None]
-        targets = self.shape.targets(self.Q)
-        t0, error = time.perf_counter(), None
-        for X0 in starts:
-            try:
-                result = self.solver.solve(targets, X0=X0)
-                break
-            except ValueError as exc:
-                error = exc
-        else:
-            raise ValueError(f"the ground-truth solver failed from every start: {error}")
+        starts.append(self.X)
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", dop.solve.NotConvergedWarning)  # the readout reports it
+            result = self.solver.solve_best(self.shape.targets(self.Q), starts=starts, rest=True, keep="first")
         self.gt_time = time.perf_counter() - t0
         self.gt_result = result
         self.X_gt, self.Q_gt = np.asarray(result.X, dtype=float), self.Q.copy()

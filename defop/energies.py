@@ -83,7 +83,7 @@ def signed_svd(J):
     return _rot(phi), S, _rot(-theta)
 
 
-def _psi_sarap_smooth(t1, t2, ok, mu):
+def psi_sarap_smooth(t1, t2, ok, mu):
     """S-ARAP as a smooth maximum of its two orderings, for Newton.
 
     With Σ ≥ σ, Eq. (11) equals max(f, g) where f = (σ1−1)² + (1/σ2−1)² and g = (σ2−1)² + (1/σ1−1)²
@@ -115,10 +115,10 @@ def _psi_sarap_smooth(t1, t2, ok, mu):
     return psi, p1, p2, p11, p22, p12, twist, flip
 
 
-def _psi(energy, s1, s2, mu=0.0):
+def psi_derivatives(energy, s1, s2, mu=0.0):
     """ψ and its derivatives in the signed singular values: (ψ, ψ1, ψ2, ψ11, ψ22, ψ12, twist, flip).
 
-    ``mu > 0`` selects the smoothed S-ARAP of :func:`_psi_sarap_smooth` (ignored by the others).
+    ``mu > 0`` selects the smoothed S-ARAP of :func:`psi_sarap_smooth` (ignored by the others).
     """
     inf = np.inf
     if energy == "arap":
@@ -135,7 +135,7 @@ def _psi(energy, s1, s2, mu=0.0):
     t1 = np.where(ok, s1, 1.0)
     t2 = np.where(ok, s2, 1.0)
     if energy == "sarap" and mu > 0:
-        return _psi_sarap_smooth(t1, t2, ok, mu)
+        return psi_sarap_smooth(t1, t2, ok, mu)
     if energy == "sarap":
         psi = np.where(ok, (t1 - 1) ** 2 + (1 / t2 - 1) ** 2, inf)
         p1 = 2 * (t1 - 1)
@@ -165,7 +165,7 @@ def _psi(energy, s1, s2, mu=0.0):
     raise AssertionError  # pragma: no cover
 
 
-def _psi_value(energy, s1, s2, mu=0.0, both=False):
+def psi_value(energy, s1, s2, mu=0.0, both=False):
     """ψ alone (no derivatives), for line searches; ``both=True`` returns (ψ_μ, ψ) for S-ARAP."""
     if energy == "arap":
         psi = (s1 - 1) ** 2 + (s2 - 1) ** 2
@@ -199,8 +199,8 @@ def density(J, energy, mu=0.0):
         +inf on flipped triangles for the barrier energies.
     """
     check_energy(energy)
-    S = _svd_frame(J)[0]
-    return _psi_value(energy, S[:, 0], S[:, 1], mu)
+    S = svd_frame(J)[0]
+    return psi_value(energy, S[:, 0], S[:, 1], mu)
 
 
 def gradient(J, energy, mu=0.0):
@@ -219,11 +219,11 @@ def gradient(J, energy, mu=0.0):
     """
     check_energy(energy)
     U, S, V = signed_svd(J)
-    psi, p1, p2 = _psi(energy, S[:, 0], S[:, 1], mu)[:3]
+    psi, p1, p2 = psi_derivatives(energy, S[:, 0], S[:, 1], mu)[:3]
     return psi, np.matmul(U * np.stack([p1, p2], -1)[:, None, :], np.swapaxes(V, 1, 2))
 
 
-def _svd_frame(J):
+def svd_frame(J):
     """Signed singular values and the rotation/reflection frame of 2×2 matrices, without trigonometry.
 
     With α = φ+θ and β = φ−θ the angles of :func:`signed_svd` (U = R(φ), Vᵀ = R(θ)), every
@@ -249,7 +249,7 @@ def _svd_frame(J):
     return np.stack([Qn + Rn, Qn - Rn], axis=-1), ca, sa, cb, sb
 
 
-def eigensystem(J, energy, project=True, mu=0.0):
+def eigensystem(J, energy, project=True, mu=0.0, kink=0.0):
     """ψ, ∂ψ/∂J and the analytic eigensystem of the Hessian ∂²ψ/∂vec(J)² per triangle.
 
     The eigenmatrices (Smith, de Goes & Kim 2019), orthonormal in vec(J) = [J00, J01, J10, J11]:
@@ -263,7 +263,12 @@ def eigensystem(J, energy, project=True, mu=0.0):
     project : bool
         Clamp negative eigenvalues to zero (PSD).
     mu : float
-        S-ARAP smoothing (see :func:`_psi_sarap_smooth`).
+        S-ARAP smoothing (see :func:`psi_sarap_smooth`).
+    kink : float
+        S-ARAP with ``mu = 0`` only: triangles with Σ − σ ≤ ``kink`` · Σ are taken to sit on Eq. (11)'s kink,
+        where ψ is not differentiable: their gradient is the conformal part alone (the subgradient of the
+        cone |Σ − σ| that is symmetric in Σ, σ) and the two anti-conformal modes get a curvature 1e8 times
+        their scale (motion off the kink is not modelled). Used by the verification of a minimum.
 
     Returns
     -------
@@ -276,8 +281,8 @@ def eigensystem(J, energy, project=True, mu=0.0):
         ``modes[t, :, k]`` is the k-th unit eigenvector, vec of the eigenmatrix.
     """
     check_energy(energy)
-    S, ca, sa, cb, sb = _svd_frame(J)
-    psi, p1, p2, p11, p22, p12, twist, flip = _psi(energy, S[:, 0], S[:, 1], mu)
+    S, ca, sa, cb, sb = svd_frame(J)
+    psi, p1, p2, p11, p22, p12, twist, flip = psi_derivatives(energy, S[:, 0], S[:, 1], mu)
     r = 1 / np.sqrt(2)
     e_rot = np.stack([ca, -sa, sa, ca], axis=-1) * r  # vec R(α)/√2
     e_ref = np.stack([cb, sb, sb, -cb], axis=-1) * r  # vec R(β)Z/√2
@@ -293,6 +298,14 @@ def eigensystem(J, energy, project=True, mu=0.0):
     s1 = ((c + s_) * r)[:, None] * e_rot + ((c - s_) * r)[:, None] * e_ref  # U diag(c, s) Vᵀ
     s2 = ((c - s_) * r)[:, None] * e_rot - ((c + s_) * r)[:, None] * e_ref  # U diag(−s, c) Vᵀ
     lam = np.stack([mean + rad, mean - rad, np.where(np.isfinite(twist), twist, -np.inf), flip], axis=-1)
+    if energy == "sarap" and mu == 0 and kink > 0:
+        on = (S[:, 0] - S[:, 1] <= kink * S[:, 0]) & (S[:, 1] > 0)
+        if on.any():
+            big = 1e8 * (1 + np.abs(p11) + np.abs(p22))
+            grad = np.where(on[:, None], ((p1 + p2) * r)[:, None] * e_rot, grad)
+            lam = np.where(on[:, None], np.stack([(p11 + p22) / 2, big, lam[:, 2], big], axis=-1), lam)
+            s1 = np.where(on[:, None], e_rot, s1)
+            s2 = np.where(on[:, None], e_ref, s2)
     if project:
         lam = np.maximum(lam, 0.0)
     lam = np.where(np.isfinite(lam), lam, 0.0)

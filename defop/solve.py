@@ -13,17 +13,34 @@ mesh, the handle set and the energy, then solves by projected Newton:
 * once the decrement is small (λ²/2 ≤ 1e-2·E) the exact Hessian replaces the projected one while
   it gives a descent direction: the clamped eigenvalues make projected Newton converge only
   linearly near the optimum (aleph, warm S-ARAP solve: 28 → 6 iterations);
-* Armijo backtracking; for the barrier energies (S-ARAP, isometric) the step is first capped by
-  the flip-free maximum step of Smith & Schaefer (2015), so no triangle ever flips;
-* stopping rule: the Newton decrement λ² = −gᵀp relative to the energy, λ²/2 ≤ tol·E.
+* one line search (:func:`line_search`, shared with :func:`solve_lbfgs`): for the barrier energies
+  (S-ARAP, isometric) the step is first capped by the flip-free maximum step of Smith & Schaefer
+  (2015), so no triangle ever flips, then Armijo backtracking;
+* S-ARAP's kink (Eq. 11 is not differentiable on conformal Jacobians) is smoothed by μ for the first
+  Newton stages; the last stage always minimises Eq. (11) itself (μ = 0).
 
-Starts: any flip-free map can warm-start a solve (``X0``); its handles need not be at the
+``converged`` means a **verified local minimum** (:meth:`Solver.verify`), checked at the returned X
+after the handles are written onto their targets: (1) the energy is finite; (2) every handle sits on
+its target to 1e-12 of the bounding-box diagonal; (3) for barrier energies, no triangle is flipped or
+collapsed; (4) the Newton decrement of the true energy (Eq. 10 / 11, μ = 0; at S-ARAP's kink, its conformal part) is
+small; (5) the exact
+reduced Hessian has no negative eigenvalue (beyond a 1e-8 relative shift), read from the inertia of its
+LDLᵀ factorisation (Sylvester's law: the signs of D). ``reason`` names the check that failed.
+
+A saddle is not an end state: when check (5) fails, the solve steps off along the most negative
+curvature direction (Lanczos on the reduced Hessian, run only then), in both directions, continues
+Newton from each and keeps the lower verified minimum.
+
+Starts: any flip-free map can warm-start a local solve (``X0``); its handles need not be at the
 targets. From the start, the handles are moved to their targets through a biharmonic
 extension of their displacement; for the barrier energies, if that would flip a triangle, the
 handles are moved progressively (continuation), re-solving at each intermediate stage, halving
 the stage length when a stage would flip. Every start handed to Newton is flip-free.
+:meth:`Solver.solve_best` is the one multi-start policy: local solves from several starts (the rest
+pose, a bootstrap prediction, a previous solution), keeping the lowest verified minimum;
+``solve(..., start="global")`` uses it.
 
-Baselines on the same energies: :func:`solve_lbfgs` (scipy's L-BFGS, the paper's method) and,
+Baselines on the same energies: :func:`solve_lbfgs` (the paper's method, L-BFGS) and,
 for ARAP, :func:`solve_libigl_arap` (libigl's local–global ARAP, ``ARAP_ENERGY_TYPE_ELEMENTS``).
 """
 
@@ -44,9 +61,20 @@ try:  # QDLDL reuses the symbolic factorisation (AMD ordering, elimination tree)
 except ImportError:  # pragma: no cover - exercised only without the dependency
     qdldl = None
 
+#: bumped whenever a change to the solver moves its solutions (cache keys of ground truth should include it)
+VERSION = 2
+#: handles must sit on their targets to this fraction of the bounding-box diagonal (check 2)
+HANDLE_TOL = 1e-12
+#: targets farther than this many bounding-box diagonals from the mesh are rejected (the energy overflows)
+MAX_TARGET_DISTANCE = 1e6
+#: relative diagonal shift under which a negative Hessian eigenvalue counts as round-off (check 5)
+INERTIA_SHIFT = 1e-8
+#: S-ARAP triangles with Σ − σ ≤ KINK · Σ sit on Eq. (11)'s kink for check 4 (:func:`defop.energies.eigensystem`)
+KINK = 1e-4
+
 
 class NotConvergedWarning(RuntimeWarning):
-    """A solve stopped at its iteration limit before meeting its tolerance."""
+    """A solve stopped before reaching a verified local minimum."""
 
 
 @dataclasses.dataclass
@@ -58,20 +86,27 @@ class SolveResult:
     X : (n,2) numpy array
         Deformed positions; ``X[handles] == targets``.
     energy : float
-        Final E(X).
+        Final E(X) (the true energy, Eq. 10 / 11).
     energy_history : (k,) numpy array
         E after each iteration (the start first).
     time_history : (k,) numpy array
         Seconds since the start of the solve at each entry of ``energy_history``.
     iterations : int
-        Newton (or L-BFGS / local-global) iterations, continuation stages included.
+        Newton (or L-BFGS / local-global) iterations, continuation stages and escapes included.
     time : float
         Wall-clock seconds.
     converged : bool
+        X is a verified local minimum (all five checks of :meth:`Solver.verify` pass).
     reason : str
-        Why it stopped.
+        Why it stopped; when not converged, which check failed.
     flips : int
-        Flipped triangles in ``X``.
+        Flipped or collapsed triangles in ``X``.
+    start : str
+        Which start the result came from: ``"X0"``, ``"rest"``, ``"start k"`` (k-th start given to
+        :meth:`Solver.solve_best`), followed by ``" > escape +"`` / ``" > escape -"`` for each saddle escape.
+    candidates : list of tuple
+        (start, energy, converged) of every local minimum or end point the solve reached, escapes and
+        other starts included (the result itself is one of them).
     """
 
     X: np.ndarray
@@ -83,6 +118,20 @@ class SolveResult:
     converged: bool
     reason: str
     flips: int = 0
+    start: str = ""
+    candidates: list = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
+class Verification:
+    """Outcome of :meth:`Solver.verify`: ``ok``, the first failed check (``failed``, "" if none) and why."""
+
+    ok: bool
+    failed: str
+    reason: str
+    energy: float
+    decrement: float = np.nan
+    negative: int = 0
 
 
 def count_flips(mesh, X):
@@ -100,61 +149,228 @@ def count_flips(mesh, X):
     return int(np.count_nonzero(mesh.flipped(X)))
 
 
-def _check_handles(mesh, handles):
+def check_tol(tol, name="tol"):
+    """A tolerance: a finite float ≥ 0, else ValueError."""
+    try:
+        t = float(tol)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number >= 0, got {tol!r}") from None
+    if not (np.isfinite(t) and t >= 0):
+        raise ValueError(f"{name} must be a finite number >= 0, got {tol!r}")
+    return t
+
+
+def check_max_iter(max_iter):
+    """An iteration limit: an integer ≥ 1 (an integer-valued float is accepted), else ValueError."""
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer, float, np.floating)):
+        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+    if not (np.isfinite(max_iter) and max_iter >= 1 and float(max_iter) == int(max_iter)):
+        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+    return int(max_iter)
+
+
+def check_handles(mesh, handles):
+    """Validate point handles: vertex indices, or a boolean mask with one entry per vertex.
+
+    Parameters
+    ----------
+    mesh : defop.mesh.Mesh
+    handles : (h,) int array-like or (n_vertices,) bool array-like
+        Integer-valued floats (``[3.0, 7.0]``) are accepted as indices; other floats are rejected.
+        Order is kept; duplicates are allowed (:meth:`Solver.targets_of` checks their targets agree).
+
+    Returns
+    -------
+    handles : (h,) int64 numpy array
+
+    Raises
+    ------
+    ValueError
+        Empty, not 1-d, non-integer, out of range, or a mask of the wrong length.
+    """
     h = np.asarray(handles)
+    n = mesh.n_vertices
+    if h.dtype == bool:
+        if h.shape != (n,):
+            raise ValueError(f"a boolean handle mask needs one entry per vertex ({n}), got shape {h.shape}")
+        h = np.flatnonzero(h)
     if h.ndim != 1 or len(h) == 0:
         raise ValueError(f"handles must be a non-empty 1-d array of vertex indices, got shape {h.shape}")
     if not np.issubdtype(h.dtype, np.integer):
-        if not np.all(np.equal(np.mod(h, 1), 0)):
-            raise ValueError("handles must be integer vertex indices")
-        h = h.astype(np.int64)
-    bad = np.flatnonzero((h < 0) | (h >= mesh.n_vertices))
+        if not np.issubdtype(h.dtype, np.floating):
+            raise ValueError(f"handles must be integer vertex indices, got dtype {h.dtype}")
+        bad = np.flatnonzero(~np.isfinite(h) | (np.mod(h, 1) != 0))
+        if len(bad):
+            k = int(bad[0])
+            raise ValueError(f"handles must be integer vertex indices; handle {k} is {float(h[k])!r}")
+    h = h.astype(np.int64)
+    bad = np.flatnonzero((h < 0) | (h >= n))
     if len(bad):
         raise ValueError(
-            f"handle {int(bad[0])} is vertex index {int(h[bad[0]])}, "
-            f"out of range for a mesh of {mesh.n_vertices} vertices"
+            f"handle {int(bad[0])} is vertex index {int(h[bad[0]])}, out of range for a mesh of {n} vertices"
         )
-    return h.astype(np.int64)
+    return h
 
 
-def _check_targets(targets, handles):
+def check_targets(targets, handles, mesh=None):
+    """Validate targets: one finite row per handle, not absurdly far from the mesh.
+
+    Parameters
+    ----------
+    targets : (h,2) array-like
+    handles : (h,) int numpy array
+    mesh : defop.mesh.Mesh, optional
+        When given, targets farther than ``MAX_TARGET_DISTANCE`` bounding-box diagonals from the mesh's
+        centre are rejected (the energy would overflow to inf: e.g. a target at 1e300).
+
+    Returns
+    -------
+    T : (h,2) float numpy array
+    """
     T = np.asarray(targets, dtype=float)
     if T.shape != (len(handles), 2):
         raise ValueError(f"targets must have shape ({len(handles)}, 2), one row per handle, got {T.shape}")
     if not np.isfinite(T).all():
         k = int(np.argwhere(~np.isfinite(T))[0, 0])
         raise ValueError(f"target {k} of handle vertex {int(handles[k])} is not finite: {T[k]}")
+    if mesh is not None:
+        d = mesh.bbox_diagonal
+        far = np.abs(T - mesh.V.mean(axis=0)).max(axis=1) / d  # max-norm: no overflow at 1e300
+        if far.max() > MAX_TARGET_DISTANCE:
+            k = int(np.argmax(far))
+            raise ValueError(
+                f"target {k} of handle vertex {int(handles[k])} is {far[k]:.3g} bounding-box diagonals from the "
+                f"mesh (more than {MAX_TARGET_DISTANCE:g}): the energy would overflow"
+            )
     return T
 
 
-def _unique_handles(handles, targets):
-    """Merge handles given twice with the same target; raise if a vertex gets two targets."""
-    uniq, first, inv = np.unique(handles, return_index=True, return_inverse=True)
-    if len(uniq) == len(handles):
-        return handles, targets
-    for k in range(len(handles)):
-        j = first[inv[k]]
-        if not np.allclose(targets[k], targets[j], rtol=0, atol=1e-12):
-            raise ValueError(
-                f"vertex {int(handles[k])} is given two different targets: {tuple(targets[j])} and {tuple(targets[k])}"
-            )
-    return handles[first], targets[first]
+def line_search(fun, X, P, E, slope, mesh=None, min_step=1e-12, c=1e-4):
+    """Armijo backtracking along P, first capped by the flip-free maximum step when ``mesh`` is given.
+
+    The one line search of :class:`Solver` (Newton) and :func:`solve_lbfgs`.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(X) -> tuple`` whose first entry is the energy to decrease (further entries are passed back).
+    X, P : (n,2) numpy arrays
+        Current point (flip-free for a barrier energy) and search direction.
+    E : float
+        ``fun(X)[0]``.
+    slope : float
+        Directional derivative gᵀp < 0.
+    mesh : defop.mesh.Mesh, optional
+        Barrier energies: cap the step at :func:`defop.energies.max_flip_free_step`.
+    min_step : float
+        Give up below this step.
+    c : float
+        Armijo constant.
+
+    Returns
+    -------
+    found : tuple or None
+        ``(step, X + step·P, fun(X + step·P))``, or None when no step ≥ ``min_step`` decreases enough.
+    """
+    step = 1.0
+    if mesh is not None:
+        step = en.max_flip_free_step(mesh.jacobians(X), mesh.jacobians(P))
+    while step >= min_step:
+        Xn = X + step * P
+        val = fun(Xn)
+        if val[0] <= E + c * step * slope:
+            return step, Xn, val
+        step *= 0.5
+    return None
 
 
-class _Factor:
-    """Sparse SPD solve with the symbolic analysis done once (QDLDL) or, without qdldl, SuperLU."""
+class _ReducedHessian:
+    """The Hessian on the free dofs: a fixed sparsity pattern, assembly, an LDLᵀ and its inertia.
 
-    def __init__(self):
-        self._solver = None
+    The upper triangle of the free-free block is assembled in CSC order (QDLDL's input), so only its values
+    change between iterations; QDLDL computes the AMD ordering and the symbolic analysis once and reuses them
+    in every ``update``. Without qdldl, SuperLU (no inertia).
+    """
 
-    def solve(self, A, b):
-        if qdldl is not None:
-            if self._solver is None:
-                self._solver = qdldl.Solver(A, upper=True)
-            else:
-                self._solver.update(A, upper=True)
-            return self._solver.solve(b)
-        return sla.splu(A, permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True)).solve(b)
+    def __init__(self, mesh, free):
+        F = mesh.F
+        m = len(F)
+        dofs = np.stack([2 * F, 2 * F + 1], axis=-1).reshape(m, 6)  # local dof 2i+c -> global
+        rows = np.repeat(dofs, 6, axis=1).ravel()
+        cols = np.tile(dofs, (1, 6)).ravel()
+        gmap = -np.ones(2 * mesh.n_vertices, np.int64)
+        gmap[free] = np.arange(len(free))
+        r, c = gmap[rows], gmap[cols]
+        keep = (r >= 0) & (c >= 0) & (r <= c)  # upper triangle of the free-free block
+        self._keep = np.flatnonzero(keep)
+        nf = self.nf = len(free)
+        uniq, self._inv = np.unique(c[keep] * nf + r[keep], return_inverse=True)  # column-major = CSC
+        self._rows = (uniq % nf).astype(np.int32)
+        self._ptr = np.concatenate([[0], np.cumsum(np.bincount(uniq // nf, minlength=nf))]).astype(np.int32)
+        self._nnz = len(uniq)
+        self._diag = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
+        self._K = self._qdldl = None
+
+    def __getstate__(self):
+        return {**self.__dict__, "_K": None, "_qdldl": None}
+
+    def assemble(self, local, project=True):
+        """Values in the pattern from per-triangle modes W (m,6,4) and A_t·λ (m,4); ``project`` clamps the
+        element eigenvalues at 0 (the PSD projection)."""
+        W, lamA = local
+        if project:
+            lamA = np.maximum(lamA, 0.0)
+        K_loc = np.matmul(W * lamA[:, None, :], np.swapaxes(W, 1, 2))  # (m,6,6)
+        return np.bincount(self._inv, weights=K_loc.reshape(-1)[self._keep], minlength=self._nnz)
+
+    def matrix(self, data, rel_shift=0.0):
+        """The upper-triangular CSC matrix with these values plus ``rel_shift`` · mean|diag| on the diagonal."""
+        if self._K is None:  # the pattern is fixed: build the matrix once, then only overwrite its values
+            self._K = sp.csc_matrix((data.copy(), self._rows, self._ptr), shape=(self.nf, self.nf))
+        self._K.data[:] = data
+        self._K.data[self._diag] += rel_shift * max(float(np.mean(np.abs(data[self._diag]))), 1e-300)
+        return self._K
+
+    def full(self, data):
+        """The symmetric matrix (both triangles), CSC."""
+        K = self.matrix(data).copy()
+        return (K + sp.triu(K, 1).T).tocsc()
+
+    def solve(self, data, b, rel_shift):
+        """K⁻¹ b with K = ``matrix(data, rel_shift)``; factorises."""
+        K = self.matrix(data, rel_shift)
+        if qdldl is None:  # pragma: no cover - exercised only without the dependency
+            self._qdldl = None
+            lu = sla.splu((K + sp.triu(K, 1).T).tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
+            return lu.solve(b)
+        if self._qdldl is None:
+            self._qdldl = qdldl.Solver(K, upper=True)
+        else:
+            self._qdldl.update(K, upper=True)
+        return self._qdldl.solve(b)
+
+    def inertia(self):
+        """Negative pivots of the last LDLᵀ (Sylvester: negative eigenvalues of the shifted K), None without qdldl."""
+        return None if self._qdldl is None else int(np.count_nonzero(self._qdldl.factors()[1] < 0))
+
+
+class _Log:
+    """Iteration budget and energy/time history shared by the stages of one solve."""
+
+    def __init__(self, budget):
+        self.budget = budget
+        self.iters = 0
+        self.t0 = time.perf_counter()
+        self.E, self.t = [], []
+        self.candidates = []
+
+    @property
+    def exhausted(self):
+        return self.iters >= self.budget
+
+    def record(self, E):
+        self.E.append(E)
+        self.t.append(time.perf_counter() - self.t0)
 
 
 class Solver:
@@ -163,21 +379,35 @@ class Solver:
     Parameters
     ----------
     mesh : defop.mesh.Mesh
-    handles : (h,) int numpy array
-        Vertex indices of all constrained vertices (moving and fixed handles). A vertex listed
-        twice must get the same target each time.
+    handles : (h,) int numpy array or (n_vertices,) bool numpy array
+        Constrained vertices (moving and fixed handles), in any order (see :func:`check_handles`).
+        Targets are always given in this order. A vertex listed twice must get the same target each time.
     energy : str
         ``"arap"`` (Eq. 10), ``"sarap"`` (Eq. 11) or ``"isometric"``.
     tol : float
-        Default stopping tolerance: the Newton decrement λ²/2 ≤ tol · E.
+        Default tolerance: Newton stops at a decrement λ²/2 ≤ tol · E (check 4 uses ``verify_tol``).
     max_iter : int
-        Default iteration limit (continuation stages included).
+        Default iteration limit (continuation stages and saddle escapes included).
     smoothing : tuple of float, optional
-        S-ARAP only: the μ of the smoothed kink (:func:`defop.energies._psi_sarap_smooth`), one Newton
-        stage per entry, the last to ``tol``. The default ``(1e-5,)`` moves the minimiser by at most
-        1.3e-5 of the bounding-box diagonal from the μ → 1e-9 limit (aleph, measured), two orders below
-        the error of any fitted operator; ``(1e-5, 1e-7, 1e-9)`` reaches Eq. (11)'s own minimum to
-        a relative energy gap below 1e-8, at about twice the iterations.
+        S-ARAP only: the μ of the smoothed kink (:func:`defop.energies.psi_sarap_smooth`), one Newton stage
+        per entry. A final μ = 0 stage (Eq. 11 itself) is always appended: default ``(1e-5, 0)``. Measured on
+        4 problems each on the aleph and the gingerbread man (moves of 5% of the diagonal, against a
+        μ → 1e-13 reference), a μ = 1e-5 optimum alone sits up to 3.9e-6 (relative energy) above Eq. (11)'s
+        minimum and 3.7e-5 of the diagonal away from it; the default ends within 2.3e-8 of it (0-3 more
+        iterations), ``(1e-5, 1e-7, 0)`` within 2e-9 (up to 5 more). The μ = 0 stage treats triangles on the
+        kink as check 4 does (below); without that it stalls 2.6e-7 above the minimum.
+
+    Attributes
+    ----------
+    handles : (u,) int numpy array
+        The unique handle vertices, sorted. ``handles_given`` keeps the order of the constructor.
+    verify_tol : float
+        Check 4: the true energy's Newton decrement λ²/2 ≤ verify_tol · E (default 1e-6; Newton itself stops
+        at ``tol``). Eq. (11) is not differentiable on its kink: S-ARAP triangles within ``KINK`` (1e-4,
+        relative) of Σ = σ count as sitting on it, with the conformal part of their gradient and stiff
+        anti-conformal modes (:func:`defop.energies.eigensystem`, ``kink``); the μ = 0 Newton stage uses the
+        same rule, so it stops on this decrement, normally at ``tol``. Without the rule the decrement of
+        Eq. (11) stayed up to 1.4e-6 · E (3.4e-5 · E on the bar) at energies converged to 1e-9.
 
     Notes
     -----
@@ -193,70 +423,68 @@ class Solver:
         self.mesh = mesh
         self.energy = en.check_energy(energy)
         self.barrier = en.is_barrier(energy)
-        self.handles_given = _check_handles(mesh, handles)
-        self.handles = np.unique(self.handles_given)
-        self.tol = float(tol)
-        self.max_iter = int(max_iter)
+        self.handles_given = check_handles(mesh, handles)
+        #: unique sorted handle vertices; ``targets_given[k]`` belongs to ``handles[_slot[k]]``
+        self.handles, self._slot = np.unique(self.handles_given, return_inverse=True)
+        self.tol = check_tol(tol)
+        self.max_iter = check_max_iter(max_iter)
         n = mesh.n_vertices
+        if len(self.handles) == n:
+            raise ValueError(f"every one of the {n} vertices is a handle: there is nothing to solve for")
         is_handle = np.zeros(n, bool)
         is_handle[self.handles] = True
         self.free_vertices = np.flatnonzero(~is_handle)
         self.free = np.column_stack([2 * self.free_vertices, 2 * self.free_vertices + 1]).ravel()
-        self._precompute_pattern()
-        self._factor = _Factor()
+        self._hess = _ReducedHessian(mesh, self.free)
         self._biharmonic = None
-        #: S-ARAP's kink on conformal Jacobians is smoothed by μ (energies._psi_sarap_smooth)
-        if self.energy != "sarap":
-            self.mu_schedule = (0.0,)
-        else:
-            self.mu_schedule = (1e-5,) if smoothing is None else tuple(float(m) for m in smoothing)
-            if not self.mu_schedule or min(self.mu_schedule) < 0:
+        self.mu_schedule = (0.0,)
+        if self.energy == "sarap":
+            mus = (1e-5,) if smoothing is None else tuple(check_tol(m, "smoothing μ") for m in smoothing)
+            if not mus:
                 raise ValueError(f"smoothing must be a non-empty sequence of μ >= 0, got {smoothing!r}")
+            self.mu_schedule = mus if mus[-1] == 0 else mus + (0.0,)
+        self.verify_tol = 1e-6
+        #: the μ = 0 stage and check 4 treat S-ARAP triangles within KINK of Σ = σ as on the kink
+        self._kink = KINK
+        #: energies below this (1e-12 · area) count as zero in relative tests (ARAP and S-ARAP vanish at rest)
+        self._energy_floor = 1e-12 * float(mesh.areas.sum())
         #: switch from the projected to the exact Hessian once λ²/2 ≤ exact_switch · E
         self.exact_switch = 1e-2
-        #: tolerance of the intermediate μ stages of a smoothing schedule. Converging each stage tightly
-        #: matters: from a loosely converged stage, Newton on the next, sharper kink (curvature ~ 1/μ)
-        #: crawls with tiny steps — measured on 4 problems per shape with (1e-5, 1e-7, 1e-9), a stage
-        #: tolerance of 1e-4 took up to 0.80 s (gingerbread) and 0.28 s (aleph) to a gap of 1e-8, 1e-8
-        #: took at most 0.08 s
+        #: tolerance of the intermediate μ stages: from a loosely converged stage, Newton on the next, sharper
+        #: kink (curvature ~ 1/μ) crawls with tiny steps (measured: stage tolerance 1e-4 took up to 0.80 s on
+        #: the gingerbread man where 1e-8 took 0.08 s)
         self.stage_tol = 1e-8
-
-    # ------------------------------------------------------------------ precomputation
-    def _precompute_pattern(self):
-        mesh = self.mesh
-        F = mesh.F
-        m = len(F)
-        dofs = np.stack([2 * F, 2 * F + 1], axis=-1).reshape(m, 6)  # local dof 2i+c -> global
-        rows = np.repeat(dofs, 6, axis=1).ravel()
-        cols = np.tile(dofs, (1, 6)).ravel()
-        ndof = 2 * mesh.n_vertices
-        gmap = -np.ones(ndof, np.int64)
-        gmap[self.free] = np.arange(len(self.free))
-        r, c = gmap[rows], gmap[cols]
-        keep = (r >= 0) & (c >= 0) & (r <= c)  # upper triangle of the free-free block (QDLDL input)
-        self._keep = np.flatnonzero(keep)
-        nf = len(self.free)
-        key = c[keep] * nf + r[keep]  # column-major order = CSC
-        uniq, inv = np.unique(key, return_inverse=True)
-        self._inv = inv
-        self._csc_rows = (uniq % nf).astype(np.int32)
-        colcount = np.bincount(uniq // nf, minlength=nf)
-        self._csc_ptr = np.concatenate([[0], np.cumsum(colcount)]).astype(np.int32)
-        self._nnz = len(uniq)
-        self._nf = nf
-        diag = uniq[(uniq % nf) == (uniq // nf)]
-        self._diag_pos = np.searchsorted(uniq, diag)
+        #: saddle escapes per solve (each tries both directions)
+        self.max_escapes = 4
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_factor"] = None
         state["_biharmonic"] = None
-        state.pop("_K", None)
         return state
 
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self._factor = _Factor()
+    # ------------------------------------------------------------------ targets
+    def targets_of(self, targets):
+        """Validate targets given in the constructor's handle order; return them per unique handle.
+
+        Parameters
+        ----------
+        targets : (h,2) array-like
+            One row per entry of the ``handles`` given to the constructor.
+
+        Returns
+        -------
+        T : (u,2) numpy array
+            ``T[j]`` is the target of vertex ``self.handles[j]``.
+        """
+        Tg = check_targets(targets, self.handles_given, self.mesh)
+        T = np.empty((len(self.handles), 2))
+        T[self._slot] = Tg
+        bad = np.flatnonzero(np.abs(Tg - T[self._slot]).max(axis=1) > 1e-12 * self.mesh.bbox_diagonal)
+        if len(bad):
+            k = int(bad[0])
+            v = int(self.handles_given[k])
+            raise ValueError(f"vertex {v} is given two different targets: {tuple(T[self._slot[k]])} and {tuple(Tg[k])}")
+        return T
 
     # ------------------------------------------------------------------ energy pieces
     def energy_of(self, X, mu=0.0):
@@ -268,22 +496,21 @@ class Solver:
         if not mu:
             E = self.energy_of(X)
             return E, E
-        S = en._svd_frame(self.mesh.jacobians(X))[0]
-        A = self.mesh.areas
-        smooth, exact = en._psi_value(self.energy, S[:, 0], S[:, 1], mu, both=True)
-        return float(A @ smooth), float(A @ exact)
+        S = en.svd_frame(self.mesh.jacobians(X))[0]
+        smooth, exact = en.psi_value(self.energy, S[:, 0], S[:, 1], mu, both=True)
+        return float(self.mesh.areas @ smooth), float(self.mesh.areas @ exact)
 
-    def _grad_hess(self, X, mu=0.0, project=True):
+    def _grad_hess(self, X, mu=0.0, project=True, kink=0.0):
         """E, the gradient (2n,) and the Hessian values in the fixed upper-triangular CSC pattern.
 
         Per triangle, K_t = A_t Σ_k λ_k w_k w_kᵀ with w_k = B_tᵀ vec(M_k) for the eigenpairs (λ_k, M_k)
         of :func:`defop.energies.eigensystem`: no 4×4 Hessian is formed. Also returns ``local``, with
-        which :meth:`_assemble` rebuilds the projected Hessian without a second eigensystem.
+        which :meth:`_ReducedHessian.assemble` rebuilds the projected Hessian without a second eigensystem.
         """
         mesh = self.mesh
         G = mesh.jacobian_operator
         J = (G @ np.asarray(X, dtype=float).ravel()).reshape(-1, 2, 2)
-        psi, grad, lam, modes = en.eigensystem(J, self.energy, project=False, mu=mu)
+        psi, grad, lam, modes = en.eigensystem(J, self.energy, project=False, mu=mu, kink=kink)
         A = mesh.areas
         E = float(A @ psi)
         g = G.T @ (A[:, None] * grad).ravel()
@@ -292,29 +519,18 @@ class Solver:
         # w_k[2i+a] = Σ_b ∇φ_i[b] M_k[a,b]: one (3,2)@(2,8) product per triangle
         Mb = np.ascontiguousarray(modes.reshape(m, 2, 2, 4).transpose(0, 2, 1, 3)).reshape(m, 2, 8)
         local = (np.matmul(D, Mb).reshape(m, 6, 4), lam * A[:, None])
-        return E, g, self._assemble(local, project), local
+        return E, g, self._hess.assemble(local, project), local
 
-    def _assemble(self, local, project=True):
-        """Hessian values in the CSC pattern from per-triangle modes W (m,6,4) and A_t·λ (m,4); ``project``
-        clamps the element eigenvalues at 0 (the PSD projection)."""
-        W, lamA = local
-        if project:
-            lamA = np.maximum(lamA, 0.0)
-        K_loc = np.matmul(W * lamA[:, None, :], np.swapaxes(W, 1, 2))  # (m,6,6)
-        return np.bincount(self._inv, weights=K_loc.reshape(-1)[self._keep], minlength=self._nnz)
-
-    def _newton_direction(self, g_free, data):
+    def _newton_direction(self, g_free, data, rel_shift=1e-10):
         # a tiny relative diagonal shift keeps the projected (PSD) Hessian definite; the exact Hessian
         # may be indefinite: the caller checks that the direction descends
-        shift = 1e-10 * max(float(np.mean(np.abs(data[self._diag_pos]))), 1e-300)
-        K = getattr(self, "_K", None)
-        if K is None:  # the pattern is fixed: build the CSC matrix once, then only overwrite its values
-            K = self._K = sp.csc_matrix((data.copy(), self._csc_rows, self._csc_ptr), shape=(self._nf, self._nf))
-        K.data[:] = data
-        K.data[self._diag_pos] += shift
-        if qdldl is None:
-            K = K + sp.triu(K, 1).T
-        return -self._factor.solve(K, g_free)
+        return -self._hess.solve(data, g_free, rel_shift)
+
+    def _full(self, p):
+        """(n,2) field from free-dof values ``p`` (zero at the handles)."""
+        P = np.zeros(2 * self.mesh.n_vertices)
+        P[self.free] = p
+        return P.reshape(-1, 2)
 
     # ------------------------------------------------------------------ starts
     def _biharmonic_solver(self):
@@ -331,8 +547,8 @@ class Solver:
 
         Parameters
         ----------
-        displacement : (h,2) numpy array
-            Displacement of each (unique) handle vertex, in the order of ``self.handles``.
+        displacement : (u,2) numpy array
+            Displacement of each unique handle vertex, in the order of ``self.handles`` (sorted).
 
         Returns
         -------
@@ -345,189 +561,359 @@ class Solver:
         D[self.free_vertices] = -lu.solve(np.asarray(Qfh @ displacement))
         return D
 
+    def _check_start(self, X0):
+        if X0 is None:
+            return self.mesh.V.copy()
+        X = np.array(X0, dtype=float)
+        if X.shape != self.mesh.V.shape:
+            raise ValueError(f"X0 must have shape {self.mesh.V.shape}, got {X.shape}")
+        if not np.isfinite(X).all():
+            raise ValueError("X0 has NaN or infinite entries")
+        if self.barrier and np.any(self.mesh.flipped(X)):
+            bad = np.flatnonzero(self.mesh.flipped(X))
+            raise ValueError(
+                f"X0 has {len(bad)} flipped triangle(s) (first: triangle {int(bad[0])}); "
+                f"the {self.energy} energy is a barrier and needs a flip-free start"
+            )
+        return X
+
     # ------------------------------------------------------------------ solve
-    def solve(self, targets, X0=None, tol=None, max_iter=None, max_stages=64):
-        """Minimise the energy with the handles at ``targets``.
+    def solve(self, targets, X0=None, tol=None, max_iter=None, max_stages=64, start="local"):
+        """Minimise the energy with the handles at ``targets``; ``converged`` means a verified local minimum.
 
         Parameters
         ----------
         targets : (h,2) numpy array
-            Target positions, one row per entry of ``handles`` given to the constructor.
+            Target positions, one row per entry of ``handles`` given to the constructor (in that order).
         X0 : (n,2) numpy array, optional
-            Warm start (any map; flip-free for a barrier energy). Its handle rows need not be at
-            the targets. Default: the rest pose.
+            Start (any map; flip-free for a barrier energy). Its handle rows need not be at the
+            targets. Default: the rest pose.
         tol : float, optional
             Newton-decrement tolerance relative to the energy (default ``self.tol``).
         max_iter : int, optional
             Iteration limit (default ``self.max_iter``).
         max_stages : int
             Limit on continuation stages for far moves.
+        start : {"local", "global"}
+            ``"local"``: one path from ``X0`` (warm start, path following; saddles are still escaped).
+            ``"global"``: :meth:`solve_best` from the rest pose and ``X0`` (when given), the lower
+            verified minimum.
 
         Returns
         -------
         result : SolveResult
-            ``converged`` is False (and a :class:`NotConvergedWarning` is issued) when the
-            iteration limit was hit.
+            ``converged`` is False (and a :class:`NotConvergedWarning` is issued) when a check of
+            :meth:`verify` fails or the iteration limit was hit; ``reason`` says which.
 
         Raises
         ------
         ValueError
-            Targets of the wrong shape or not finite, a vertex with two different targets,
-            or a flipped start for a barrier energy.
+            Targets of the wrong shape, not finite or absurdly far, a vertex with two different
+            targets, an invalid ``tol``/``max_iter``, or a flipped start for a barrier energy.
         """
-        t0 = time.perf_counter()
-        tol = self.tol if tol is None else float(tol)
-        max_iter = self.max_iter if max_iter is None else int(max_iter)
-        T = _check_targets(targets, self.handles_given)
-        _, T = _unique_handles(self.handles_given, T)
-        mesh = self.mesh
-        if X0 is None:
-            X = mesh.V.copy()
+        if start == "global":
+            return self.solve_best(targets, starts=() if X0 is None else (X0,), tol=tol, max_iter=max_iter)
+        if start != "local":
+            raise ValueError(f"start must be 'local' or 'global', got {start!r}")
+        result = self._local(targets, X0, tol, max_iter, max_stages, "rest" if X0 is None else "X0")
+        if not result.converged:
+            warnings.warn(f"{self.energy} solve did not converge: {result.reason}", NotConvergedWarning, stacklevel=2)
+        return result
+
+    def _local(self, targets, X0, tol, max_iter, max_stages, label):
+        """One local solve (continuation, Newton, saddle escapes), verified; no warning."""
+        tol = self.tol if tol is None else check_tol(tol)
+        log = _Log(self.max_iter if max_iter is None else check_max_iter(max_iter))
+        T = self.targets_of(targets)
+        X = self._check_start(X0)
+        X, reached, reason, ok = self._continuation(log, X, T, tol, max_stages)
+        check = None
+        if reached:
+            X, label, reason, ok, check = self._escape(log, X, T, tol, label, reason, ok, self.max_escapes)
         else:
-            X = np.array(X0, dtype=float)
-            if X.shape != mesh.V.shape:
-                raise ValueError(f"X0 must have shape {mesh.V.shape}, got {X.shape}")
-            if not np.isfinite(X).all():
-                raise ValueError("X0 has NaN or infinite entries")
-            if self.barrier:
-                nf = count_flips(mesh, X)
-                if nf:
-                    raise ValueError(
-                        f"X0 has {nf} flipped triangle(s) (first: triangle {int(np.flatnonzero(mesh.flipped(X))[0])}); "
-                        f"the {self.energy} energy is a barrier and needs a flip-free start"
-                    )
-        hist_E, hist_t = [], []
-        state = {"iters": 0}
-        budget = max_iter
+            log.candidates.append((label, self.energy_of(X), False))
+        return self._result(log, X, T, reason, label, ok and reached, check)
 
-        def newton(X, tol, limit):
-            """Newton at fixed handles; S-ARAP runs through its smoothing schedule. Returns (X, converged, reason)."""
-            for i, mu in enumerate(self.mu_schedule):
-                last = i == len(self.mu_schedule) - 1
-                X, converged, reason = newton_mu(X, tol if last else max(tol, self.stage_tol), limit, mu)
-                if not converged and state["iters"] >= budget:
-                    break  # an intermediate stage only has to be a good start for the next μ
-            return X, converged, reason
+    def _result(self, log, X, T, reason, label, ok, check=None):
+        check = self.verify(X, T) if check is None else check
+        converged = bool(ok and check.ok)
+        if not check.ok:
+            reason = f"{reason}; check failed: {check.reason}"
+        return SolveResult(
+            X=X,
+            energy=check.energy,
+            energy_history=np.array(log.E),
+            time_history=np.array(log.t),
+            iterations=log.iters,
+            time=time.perf_counter() - log.t0,
+            converged=converged,
+            reason=reason,
+            flips=count_flips(self.mesh, X),
+            start=label,
+            candidates=list(log.candidates),
+        )
 
-        def newton_mu(X, tol, limit, mu):
-            E, E_true = self._energies(X, mu)
-            hist_E.append(E_true)
-            hist_t.append(time.perf_counter() - t0)
-            stalls = 0
-            rel_dec = np.inf
-            exact_ok = True
-            for _ in range(limit):
-                if state["iters"] >= budget:
-                    return X, False, f"iteration limit {budget} reached"
-                exact = exact_ok and rel_dec <= self.exact_switch
-                # near the optimum: the exact Hessian gives quadratic convergence where the projected
-                # one (clamped element eigenvalues) converges only linearly; use it while it descends
-                E, g, data, local = self._grad_hess(X, mu, project=not exact)
-                gf = g[self.free]
-                p = self._newton_direction(gf, data)
-                dec = -float(gf @ p)  # Newton decrement λ²
-                if exact and not (np.isfinite(dec) and dec > 0):
-                    exact = False  # indefinite: fall back to the projected Hessian, same eigensystem
-                    p = self._newton_direction(gf, self._assemble(local))
-                    dec = -float(gf @ p)
-                if not np.isfinite(dec):
-                    return X, False, "Newton direction is not finite (degenerate Hessian)"
-                rel_dec = dec / 2 / max(E, 1e-300)
-                if dec / 2 <= tol * max(E, 1e-300) or E == 0.0:
-                    return X, True, f"Newton decrement λ²/2 = {dec / 2:.2e} <= tol·E"
-                state["iters"] += 1
-                P = np.zeros(2 * mesh.n_vertices)
-                P[self.free] = p
-                P = P.reshape(-1, 2)
-                step = 1.0
-                if self.barrier:
-                    step = en.max_flip_free_step(mesh.jacobians(X), mesh.jacobians(P))
-                slope = -dec
-                while True:
-                    Xn = X + step * P
-                    En, En_true = self._energies(Xn, mu)
-                    if En <= E + 1e-4 * step * slope:
-                        break
-                    step *= 0.5
-                    if exact and step < 1e-3:  # the exact Hessian's model is poor here: back to the projected one
-                        exact_ok = False
-                        break
-                    if step < 1e-12:
-                        hist_E.append(self.energy_of(X))
-                        hist_t.append(time.perf_counter() - t0)
-                        converged = dec / 2 <= 1e-6 * max(E, 1e-300)  # at round-off: as good as it gets
-                        why = "line search stalled at round-off" if converged else "line search failed"
-                        return X, converged, why
-                if exact and not exact_ok:
-                    state["iters"] -= 1
-                    continue
-                X = Xn
-                hist_E.append(En_true)
-                hist_t.append(time.perf_counter() - t0)
-                if exact and step == 1.0 and dec / 2 <= 10 * tol * max(E, 1e-300):
-                    # a full exact Newton step from λ²/2 ≤ 10·tol·E lands within O(λ⁴) of the optimum
-                    # (quadratic convergence): the next decrement would pass; skip computing it
-                    return X, True, f"full Newton step from λ²/2 = {dec / 2:.2e} <= 10·tol·E"
-                # S-ARAP triangles sitting on the (smoothed) kink make the last digits converge linearly:
-                # three steps in a row that each gain less than tol·E mean the energy has converged
-                stalls = stalls + 1 if E - En <= tol * E else 0
-                if stalls >= 3:
-                    return X, True, f"energy stagnated: 3 steps each reduced E by <= {tol:g}·E"
-            return X, False, f"iteration limit {limit} reached"
+    def _continuation(self, log, X, T, tol, max_stages):
+        """Move the handles from X's to T (barrier energies: in flip-free stages), Newton at each stage.
 
-        # move the handles from where X has them to the targets (continuation for barrier energies)
+        Returns (X, reached, reason, ok): ``reached`` is False when the handles could not be moved all the way,
+        ``ok`` whether the last Newton stage met its tolerance.
+        """
+        mesh = self.mesh
         start_h = X[self.handles].copy()
-        s = 0.0
-        frac = 1.0
-        stages = 0
-        converged, reason = True, ""
+        s, frac, stages = 0.0, 1.0, 0
+        reason = ""
         while s < 1.0:
-            stages += 1
-            if stages > max_stages:
-                converged, reason = False, f"continuation needed more than {max_stages} stages"
-                break
+            if stages >= max_stages:
+                return X, False, f"continuation needed more than {max_stages} stages", False
             s_next = min(1.0, s + frac)
-            D = self.extend((s_next - s) * (T - start_h))
-            Xt = X + D
+            Xt = X + self.extend((s_next - s) * (T - start_h))
             if self.barrier and np.any(mesh.flipped(Xt)):
                 frac /= 2
                 if frac < 1e-6:
-                    converged, reason = False, "could not move the handles without flipping a triangle"
-                    break
-                stages -= 1
+                    return X, False, "could not move the handles without flipping a triangle", False
                 continue
+            stages += 1
             Xt[self.handles] = start_h + s_next * (T - start_h)
+            if self.barrier and s_next >= 1.0 and np.any(mesh.flipped(Xt)):
+                return X, False, "the targets collapse or flip a triangle between handles", False
             s = s_next
-            stage_tol = tol if s >= 1.0 else max(tol, 1e-4)
-            X, converged, reason = newton(Xt, stage_tol, budget - state["iters"])
-            if not converged and s < 1.0 and state["iters"] < budget:
-                converged = True  # an intermediate stage only needs to be a good start
-            if state["iters"] >= budget and not converged:
-                break
+            X, converged, reason = self._newton(log, Xt, tol if s >= 1.0 else max(tol, 1e-4))
+            if log.exhausted and not converged:
+                return X, s >= 1.0, reason, False
             frac = min(1.0 - s, 2 * frac) if s < 1.0 else frac
-        if s < 1.0 and converged:
-            converged, reason = False, "iteration limit reached during continuation"
-        if converged and stages > 1:
+        if stages > 1:
             reason += f" (after {stages} continuation stages)"
+        return X, True, reason, converged
+
+    def _newton(self, log, X, tol):
+        """Newton at fixed handles; S-ARAP runs through its smoothing schedule, ending on Eq. (11) itself."""
+        for i, mu in enumerate(self.mu_schedule):
+            last = i == len(self.mu_schedule) - 1
+            X, converged, reason = self._newton_stage(log, X, tol if last else max(tol, self.stage_tol), mu)
+            if log.exhausted:
+                break
+        return X, converged, reason
+
+    def _newton_stage(self, log, X, tol, mu):
+        """Projected (then exact) Newton on E_μ from a flip-free X. Returns (X, converged, reason)."""
+        E, E_true = self._energies(X, mu)
+        log.record(E_true)
+        stalls, rel_dec, exact_ok = 0, np.inf, True
+        fun = (lambda Y: self._energies(Y, mu)) if mu else (lambda Y: (self.energy_of(Y), None))
+        while True:
+            if log.exhausted:
+                return X, False, f"iteration limit {log.budget} reached"
+            exact = exact_ok and rel_dec <= self.exact_switch
+            # near the optimum the exact Hessian converges quadratically where the projected one (clamped
+            # element eigenvalues) converges only linearly; use it while it descends
+            E, g, data, local = self._grad_hess(X, mu, project=not exact, kink=0.0 if mu else self._kink)
+            gf = g[self.free]
+            p = self._newton_direction(gf, data)
+            dec = -float(gf @ p)  # Newton decrement λ²
+            if exact and not (np.isfinite(dec) and dec > 0):
+                exact = False  # indefinite: fall back to the projected Hessian, same eigensystem
+                p = self._newton_direction(gf, self._hess.assemble(local))
+                dec = -float(gf @ p)
+            if not np.isfinite(E):
+                return X, False, "the energy is not finite (a collapsed triangle)"
+            if not np.isfinite(dec):
+                return X, False, "Newton direction is not finite (degenerate Hessian)"
+            rel_dec = dec / 2 / max(E, self._energy_floor)
+            if dec / 2 <= tol * max(E, self._energy_floor):
+                return X, True, f"Newton decrement λ²/2 = {dec / 2:.2e} <= tol·E"
+            mesh = self.mesh if self.barrier else None
+            found = line_search(fun, X, self._full(p), E, -dec, mesh, min_step=1e-3 if exact else 1e-12)
+            if found is None and exact:  # the exact Hessian's model is poor here: back to the projected one
+                exact_ok = False
+                continue
+            log.iters += 1
+            if found is None:
+                log.record(self.energy_of(X))
+                ok = dec / 2 <= 1e-6 * max(E, self._energy_floor)  # at round-off: as good as it gets
+                return X, ok, "line search stalled at round-off" if ok else "line search failed"
+            step, X, (En, En_true) = found
+            log.record(En if En_true is None else En_true)
+            if exact and step == 1.0 and dec / 2 <= 10 * tol * max(E, self._energy_floor):
+                # a full exact Newton step from λ²/2 ≤ 10·tol·E lands within O(λ⁴) of the optimum
+                return X, True, f"full Newton step from λ²/2 = {dec / 2:.2e} <= 10·tol·E"
+            # triangles on S-ARAP's kink make the last digits converge linearly: three steps in a row that
+            # each gain less than tol·E mean the energy has converged
+            stalls = stalls + 1 if E - En <= tol * E else 0
+            if stalls >= 3:
+                return X, True, f"energy stagnated: 3 steps each reduced E by <= {tol:g}·E"
+
+    # ------------------------------------------------------------------ verification and saddles
+    def verify(self, X, T, tol=None):
+        """The five checks behind ``converged``, at X (handles already on their targets).
+
+        Parameters
+        ----------
+        X : (n,2) numpy array
+        T : (u,2) numpy array
+            Targets per unique handle (:meth:`targets_of`).
+        tol : float, optional
+            Check 4's tolerance (default ``verify_tol``).
+
+        Returns
+        -------
+        check : Verification
+            ``failed`` is one of "energy", "handles", "flips", "decrement", "saddle" (or "").
+        """
+        tol = self.verify_tol if tol is None else tol
+        mesh = self.mesh
         E = self.energy_of(X)
-        result = SolveResult(
-            X=X,
-            energy=E,
-            energy_history=np.array(hist_E),
-            time_history=np.array(hist_t),
-            iterations=state["iters"],
-            time=time.perf_counter() - t0,
-            converged=bool(converged and s >= 1.0),
-            reason=reason,
-            flips=count_flips(mesh, X),
-        )
-        if not result.converged:
-            warnings.warn(f"{self.energy} solve did not converge: {reason}", NotConvergedWarning, stacklevel=2)
-        return result
+        flips = count_flips(mesh, X)
+        if not np.isfinite(E):
+            return Verification(
+                False, "energy", f"energy is not finite (E = {E}, {flips} flipped/collapsed triangles)", E
+            )
+        err = float(np.abs(X[self.handles] - T).max()) / mesh.bbox_diagonal
+        if not err <= HANDLE_TOL:
+            return Verification(False, "handles", f"a handle is {err:.2e} of the diagonal off its target", E)
+        if self.barrier and flips:
+            return Verification(False, "flips", f"{flips} flipped or collapsed triangle(s)", E)
+        E, g, data, _ = self._grad_hess(X, 0.0, project=False, kink=self._kink)  # the true energy, its exact Hessian
+        gf = g[self.free]
+        p = self._newton_direction(gf, data, rel_shift=INERTIA_SHIFT)
+        negative = self._hess.inertia()
+        dec = -float(gf @ p) / 2
+        if negative:
+            why = f"saddle point: the reduced Hessian has {negative} negative eigenvalue(s)"
+            return Verification(False, "saddle", why, E, dec, negative)
+        if not (np.isfinite(dec) and dec <= tol * max(E, self._energy_floor)):
+            why = f"the true energy's Newton decrement λ²/2 = {dec:.2e} > {tol:g}·E"
+            return Verification(False, "decrement", why, E, dec)
+        return Verification(True, "", "", E, dec, 0)
+
+    def negative_curvature(self, X):
+        """The most negative eigenpair of the exact reduced Hessian of the true energy at X.
+
+        Lanczos (ARPACK) on the free-free block; called only when the inertia showed a negative pivot.
+
+        Returns
+        -------
+        lam : float
+        D : (n,2) numpy array
+            Unit eigenvector as a displacement field (zero at the handles).
+        """
+        data = self._grad_hess(X, 0.0, project=False)[2]
+        K = self._hess.full(data)
+        if K.shape[0] <= 400:
+            lam, v = np.linalg.eigh(K.toarray())
+            lam, v = lam[:1], v[:, :1]
+        else:
+            v0 = np.ones(K.shape[0]) / np.sqrt(K.shape[0])  # deterministic start vector
+            lam, v = sla.eigsh(K, k=1, which="SA", v0=v0, tol=1e-6, maxiter=5000)
+        return float(lam[0]), self._full(v[:, 0])
+
+    def _step_off(self, X, D):
+        """A flip-free point along D from the saddle X with lower energy, or None."""
+        E = self.energy_of(X)
+        step = 0.05 * self.mesh.bbox_diagonal / max(float(np.abs(D).max()), 1e-300)
+        if self.barrier:
+            step *= en.max_flip_free_step(self.mesh.jacobians(X), self.mesh.jacobians(step * D))
+        for _ in range(40):
+            Xs = X + step * D
+            if self.energy_of(Xs) < E - 1e-12 * abs(E):
+                return Xs
+            step *= 0.5
+        return None
+
+    def _escape(self, log, X, T, tol, label, reason, ok, escapes):
+        """At a saddle, step off along negative curvature both ways, Newton on, keep the lower verified minimum.
+
+        Returns (X, label, reason, ok, check) of the best end point (``check`` its :meth:`verify`).
+        """
+        check = self.verify(X, T)
+        if check.failed != "saddle" or escapes == 0 or log.exhausted:
+            log.candidates.append((label, check.energy, bool(ok and check.ok)))
+            return X, label, reason, ok, check
+        log.candidates.append((label, check.energy, False))
+        _, D = self.negative_curvature(X)
+        best = (X, label, reason, ok, check)
+        best_key = (True, check.energy)
+        for sign in (1.0, -1.0):
+            Xs = self._step_off(X, sign * D)
+            if Xs is None or log.exhausted:
+                continue
+            Xs, ok_s, why = self._newton(log, Xs, tol)
+            why = f"{why} (escaped a saddle with {check.negative} negative eigenvalue(s))"
+            lab = f"{label} > escape {'+' if sign > 0 else '-'}"
+            out = self._escape(log, Xs, T, tol, lab, why, ok_s, escapes - 1)
+            key = (not (out[3] and out[4].ok), out[4].energy)
+            if key < best_key:
+                best, best_key = out, key
+        return best
+
+    # ------------------------------------------------------------------ the one multi-start policy
+    def solve_best(self, targets, starts=(), rest=True, keep="lowest", tol=None, max_iter=None):
+        """Local solves from several starts; the lowest-energy verified minimum (the one multi-start policy).
+
+        Every local solve escapes saddles along negative curvature (both directions), so the candidates
+        are: each given start, the rest pose (for barrier energies reached through flip-free continuation),
+        and the escapes from any saddle on the way.
+
+        Parameters
+        ----------
+        targets : (h,2) numpy array
+            One row per handle given to the constructor.
+        starts : sequence of (n,2) numpy arrays or None
+            Extra starts (a bootstrap prediction, a previous solution); None entries are ignored, and
+            starts that are flipped (barrier energies) or otherwise rejected are skipped.
+        rest : bool
+            Also solve from the rest pose (tried after ``starts``; also used when every start is rejected).
+        keep : {"lowest", "first"}
+            ``"lowest"``: run every start and keep the lowest verified minimum (global). ``"first"``: stop at
+            the first start that yields a verified minimum (warm, path-following: the interactive editor).
+        tol, max_iter : optional
+            As in :meth:`solve` (``max_iter`` per start).
+
+        Returns
+        -------
+        result : SolveResult
+            ``start`` names the winning start (``"start k"`` or ``"rest"``, plus any escapes);
+            ``candidates`` lists (start, energy, converged) for every end point reached.
+        """
+        if keep not in ("lowest", "first"):
+            raise ValueError(f"keep must be 'lowest' or 'first', got {keep!r}")
+        self.targets_of(targets)  # bad targets raise here, not once per start
+        runs = [(f"start {k}", X0) for k, X0 in enumerate(starts) if X0 is not None]
+        runs += [("rest", None)] if rest else []
+        results, skipped = [], []
+        for label, X0 in runs:
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", NotConvergedWarning)
+                    r = self.solve(targets, X0=X0, tol=tol, max_iter=max_iter)
+            except ValueError as exc:  # a rejected start (flipped, wrong shape): the next one
+                skipped.append((label, str(exc)))
+                continue
+            if X0 is not None:  # "X0 > escape ..." -> "start k > escape ..."
+                r.start = label + r.start[2:]
+                r.candidates = [(label + lab[2:], E, ok) for lab, E, ok in r.candidates]
+            results.append(r)
+            if keep == "first" and r.converged:
+                break
+        if not results:  # every given start was rejected (flipped): the rest pose is always a valid start
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotConvergedWarning)
+                results.append(self.solve(targets, tol=tol, max_iter=max_iter))
+        best = min(results, key=lambda r: (not r.converged, r.energy if np.isfinite(r.energy) else np.inf))
+        best.candidates = [c for r in results for c in r.candidates] + [
+            (f"{label} (rejected: {why})", np.inf, False) for label, why in skipped
+        ]
+        if not best.converged:
+            warnings.warn(
+                f"{self.energy} solve did not converge from any start: {best.reason}", NotConvergedWarning, stacklevel=2
+            )
+        return best
 
 
 def solve(mesh, handles, targets, energy="sarap", X0=None, **kw):
-    """One-shot :class:`Solver` (``Solver(mesh, handles, energy).solve(targets, X0, **kw)``).
+    """One-shot :class:`Solver`: ``Solver(mesh, handles, energy).solve(targets, X0, **kw)``.
+
+    ``start="global"`` selects the multi-start policy of :meth:`Solver.solve_best`.
 
     Returns
     -------
@@ -536,22 +922,38 @@ def solve(mesh, handles, targets, energy="sarap", X0=None, **kw):
     return Solver(mesh, handles, energy).solve(targets, X0=X0, **kw)
 
 
+def _lbfgs_direction(g, S, Y):
+    """Two-loop recursion (Nocedal & Wright, Alg. 7.4): −H_k g from the correction pairs."""
+    q = -g.copy()
+    alphas = []
+    for s_, y_ in zip(reversed(S), reversed(Y)):
+        a = (s_ @ q) / (y_ @ s_)
+        alphas.append(a)
+        q -= a * y_
+    if S:
+        q *= (S[-1] @ Y[-1]) / (Y[-1] @ Y[-1])
+    for (s_, y_), a in zip(zip(S, Y), reversed(alphas)):
+        q += (a - (y_ @ q) / (y_ @ s_)) * s_
+    return q
+
+
 def solve_lbfgs(mesh, handles, targets, energy="sarap", X0=None, tol=1e-10, max_iter=20000, memory=20):
     """The paper's baseline: L-BFGS on the same energy with the handles eliminated.
 
     scipy's L-BFGS-B aborts its line search as soon as a trial step flips a triangle (the barrier
     energies are +inf there), so this is the textbook two-loop L-BFGS (Nocedal & Wright, Alg. 7.4)
-    with the same line search as :class:`Solver`: the flip-free maximum step for barrier energies,
-    then Armijo backtracking. It starts from the same map as :meth:`Solver.solve` would.
+    with the same :func:`line_search` as :class:`Solver`. It starts from the same map as
+    :meth:`Solver.solve` would. It minimises Eq. (11) itself (no smoothing).
 
     Parameters
     ----------
     mesh : defop.mesh.Mesh
     handles : (h,) int numpy array
     targets : (h,2) numpy array
+        One row per handle, in the order of ``handles``.
     energy : str
     X0 : (n,2) numpy array, optional
-        A start (flip-free for barrier energies) with the handles at the targets; default
+        A start (flip-free for barrier energies); its handle rows are set to the targets. Default
         :func:`start_for`.
     tol : float
         Stop when an iteration reduces the energy by less than ``tol`` · E.
@@ -562,18 +964,17 @@ def solve_lbfgs(mesh, handles, targets, energy="sarap", X0=None, tol=1e-10, max_
     Returns
     -------
     result : SolveResult
+        ``converged`` also requires the checks of :meth:`Solver.verify`.
     """
     solver = Solver(mesh, handles, energy)
-    T = _check_targets(targets, solver.handles_given)
-    _, T = _unique_handles(solver.handles_given, T)
-    if X0 is None:
-        X0 = start_for(solver, T)
-    X = np.array(X0, dtype=float)
+    tol, max_iter = check_tol(tol), check_max_iter(max_iter)
+    T = solver.targets_of(targets)
+    X = np.array(start_for(solver, targets) if X0 is None else X0, dtype=float)
     X[solver.handles] = T
     if solver.barrier and count_flips(mesh, X):
         raise ValueError("the L-BFGS start has flipped triangles; the barrier energy needs a flip-free start")
     free = solver.free
-    t0 = time.perf_counter()
+    log = _Log(max_iter)
 
     def fun(X):
         psi, dpsi = en.gradient(mesh.jacobians(X), energy)
@@ -582,45 +983,29 @@ def solve_lbfgs(mesh, handles, targets, energy="sarap", X0=None, tol=1e-10, max_
         return E, g[free]
 
     E, g = fun(X)
-    hist_E, hist_t = [E], [0.0]
+    log.record(E)
     S, Y = [], []
-    converged, reason = False, f"iteration limit {max_iter} reached"
-    it = 0
-    while it < max_iter:
-        it += 1
-        q = -g.copy()
-        alphas = []
-        for s_, y_ in zip(reversed(S), reversed(Y)):
-            a = (s_ @ q) / (y_ @ s_)
-            alphas.append(a)
-            q -= a * y_
-        if S:
-            q *= (S[-1] @ Y[-1]) / (Y[-1] @ Y[-1])
-        for (s_, y_), a in zip(zip(S, Y), reversed(alphas)):
-            b = (y_ @ q) / (y_ @ s_)
-            q += (a - b) * s_
-        p = q
+    ok, reason = False, f"iteration limit {max_iter} reached"
+    while not log.exhausted:
+        log.iters += 1
+        p = _lbfgs_direction(g, S, Y)
         slope = float(g @ p)
         if slope >= 0:  # not a descent direction: restart from steepest descent
             S, Y = [], []
             p, slope = -g, -float(g @ g)
-        P = np.zeros(2 * mesh.n_vertices)
-        P[free] = p
-        P = P.reshape(-1, 2)
-        step = 1.0
-        if solver.barrier:
-            step = en.max_flip_free_step(mesh.jacobians(X), mesh.jacobians(P))
-        while True:
-            Xn = X + step * P
-            En = solver.energy_of(Xn)
-            if En <= E + 1e-4 * step * slope:
-                break
-            step *= 0.5
-            if step < 1e-16:
-                break
-        if step < 1e-16:
-            converged, reason = True, "line search stalled: no further decrease at round-off"
+        found = line_search(
+            lambda Z: (solver.energy_of(Z),),
+            X,
+            solver._full(p),
+            E,
+            slope,
+            mesh if solver.barrier else None,
+            min_step=1e-16,
+        )
+        if found is None:
+            ok, reason = True, "line search stalled: no further decrease at round-off"
             break
+        step, Xn, _ = found
         En, gn = fun(Xn)
         S.append(step * p)
         Y.append(gn - g)
@@ -629,14 +1014,11 @@ def solve_lbfgs(mesh, handles, targets, energy="sarap", X0=None, tol=1e-10, max_
             Y.pop(0)
         decrease = E - En
         X, E, g = Xn, En, gn
-        hist_E.append(E)
-        hist_t.append(time.perf_counter() - t0)
+        log.record(E)
         if decrease <= tol * E:
-            converged, reason = True, f"energy decrease {decrease:.2e} <= tol·E"
+            ok, reason = True, f"energy decrease {decrease:.2e} <= tol·E"
             break
-    return SolveResult(
-        X, E, np.array(hist_E), np.array(hist_t), it, time.perf_counter() - t0, converged, reason, count_flips(mesh, X)
-    )
+    return solver._result(log, X, T, reason, "X0" if X0 is not None else "rest", ok)
 
 
 def start_for(solver, targets):
@@ -647,17 +1029,20 @@ def start_for(solver, targets):
     ----------
     solver : Solver
     targets : (h,2) numpy array
-        One row per unique handle (``solver.handles``).
+        One row per handle given to the solver (``solver.handles_given``, in that order).
 
     Returns
     -------
     X0 : (n,2) numpy array
     """
     mesh = solver.mesh
-    X = mesh.V + solver.extend(targets - mesh.V[solver.handles])
-    X[solver.handles] = targets
+    T = solver.targets_of(targets)
+    X = mesh.V + solver.extend(T - mesh.V[solver.handles])
+    X[solver.handles] = T
     if solver.barrier and count_flips(mesh, X):
-        X = solver.solve(targets, tol=1e-4).X  # a flip-free (approximate) minimiser as the start
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotConvergedWarning)
+            X = solver.solve(targets, tol=1e-4).X  # a flip-free (approximate) minimiser as the start
     return X
 
 
@@ -682,13 +1067,14 @@ def solve_libigl_arap(mesh, handles, targets, X0=None, iterations=100, history=F
     Returns
     -------
     result : SolveResult
-        ``converged`` is True when the last iteration changed the energy by less than 1e-10 relative.
+        ``converged`` is True when the last iteration changed the energy by less than 1e-10 relative and
+        the checks of :meth:`Solver.verify` pass.
     """
     import igl
 
-    h = _check_handles(mesh, handles)
-    T = _check_targets(targets, h)
-    h, T = _unique_handles(h, T)
+    solver = Solver(mesh, handles, "arap")
+    T = solver.targets_of(targets)
+    h = solver.handles
     U = mesh.V.copy() if X0 is None else np.array(X0, dtype=float)
     U[h] = T
     t0 = time.perf_counter()
@@ -712,6 +1098,8 @@ def solve_libigl_arap(mesh, handles, targets, X0=None, iterations=100, history=F
         hist_t.append(time.perf_counter() - t0)
     E = hist_E[-1]
     conv = len(hist_E) > 2 and abs(hist_E[-2] - E) <= 1e-10 * max(E, 1e-300)
+    check = solver.verify(np.asarray(U), T)
+    reason = f"{iterations} local-global iterations" + ("" if check.ok else f"; check failed: {check.reason}")
     return SolveResult(
         np.array(U),
         E,
@@ -719,7 +1107,7 @@ def solve_libigl_arap(mesh, handles, targets, X0=None, iterations=100, history=F
         np.array(hist_t),
         int(iterations),
         time.perf_counter() - t0,
-        bool(conv),
-        f"{iterations} local-global iterations",
+        bool(conv and check.ok),
+        reason,
         count_flips(mesh, U),
     )

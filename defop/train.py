@@ -4,9 +4,10 @@ Stages, each timed in the :class:`TrainingRecord`:
 
 1. **bootstrap**: the first 2n + 1 samples (n moving handles) are solved from the rest pose and a
    *linear* operator is fitted to them;
-2. **solve**: every other sample is solved warm-started from that linear operator's prediction
-   (skipped when it flips a triangle under a barrier energy); ``rounds > 1`` repeats this stage
-   warm-started from the latest operator;
+2. **solve**: every other sample is solved globally (:meth:`defop.solve.Solver.solve_best`): from the
+   rest pose and from that linear operator's prediction (skipped when it flips a triangle under a
+   barrier energy), keeping the lowest verified minimum; ``rounds > 1`` re-solves every sample from its
+   current solution and the prediction of a smooth fit, keeping the lower;
 3. **fit**: the final basis (problem 8).
 
 Sample solves run in parallel with joblib on every core by default (``DEFOP_N_JOBS``), through
@@ -157,21 +158,14 @@ def _operator_reader(shape):
     return read
 
 
-def _solve_chunk(solver, targets, starts):
+def _solve_chunk(solver, targets, starts, rest=True):
+    """:meth:`Solver.solve_best` per sample: its starts (None, one map or a list of maps) and the rest pose."""
     out = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotConvergedWarning)
         for T, X0 in zip(targets, starts):
-            try:
-                r = solver.solve(T, X0=X0)
-            except ValueError:  # a rejected warm start: solve from the rest pose
-                r = solver.solve(T)
-            if not r.converged and X0 is not None:
-                # a warm start can lead into a poor, slowly converging local minimum (measured: 1 in 1,000
-                # octopus samples, at twice the energy the cold start reaches): try the solver's own start
-                cold = solver.solve(T)
-                if (cold.converged, -cold.energy) > (r.converged, -r.energy):
-                    r = cold
+            extra = [] if X0 is None else list(X0) if isinstance(X0, (list, tuple)) else [X0]
+            r = solver.solve_best(T, starts=extra, rest=rest)
             out.append((r.X, r.converged))
     return out
 
@@ -205,25 +199,29 @@ def _progress(total, desc, enabled):
     return tqdm(total=total, desc=desc, leave=False)
 
 
-def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress=True, desc="solving"):
-    """Solve problem (6) at every sample, in parallel.
+def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress=True, desc="solving", rest=True):
+    """Solve problem (6) at every sample, in parallel: the lowest verified minimum over the starts
+    (:meth:`defop.solve.Solver.solve_best`).
 
     Parameters
     ----------
     shape : defop.shapes.Shape
     samples : (m,n,2) numpy array
     energy : str
-    X0 : (m,n_vertices,2) numpy array or list of (n_vertices,2) arrays or None, optional
-        Warm starts (None entries: the solver's own flip-free start).
+    X0 : (m,n_vertices,2) numpy array or list, optional
+        Extra starts per sample: None, one (n_vertices,2) map, or a list of maps.
     n_jobs : int, optional
         Workers (default ``dop.config.n_jobs()``: all cores); 1 solves in this process.
     progress : bool
         A tqdm progress bar.
+    rest : bool
+        Also solve from the rest pose (through flip-free continuation).
 
     Returns
     -------
     X : (m,n_vertices,2) numpy array
     converged : (m,) bool numpy array
+        Verified local minimum (see :meth:`defop.solve.Solver.verify`).
     """
     from joblib import Parallel, delayed
 
@@ -241,7 +239,7 @@ def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress
     results = []
     if n_jobs == 1 or m <= 2:
         for i in range(m):
-            results += _solve_chunk(solver, targets[i : i + 1], starts[i : i + 1])
+            results += _solve_chunk(solver, targets[i : i + 1], starts[i : i + 1], rest)
             if bar:
                 bar.update(1)
     else:
@@ -251,7 +249,7 @@ def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress
         bounds = np.linspace(0, m, n_chunks + 1).astype(int)
         chunks = [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
         gen = Parallel(n_jobs=n_jobs, return_as="generator")(
-            delayed(_solve_chunk)(solver, targets[a:b], starts[a:b]) for a, b in chunks
+            delayed(_solve_chunk)(solver, targets[a:b], starts[a:b], rest) for a, b in chunks
         )
         for (a, b), res in zip(chunks, gen):
             results += res
@@ -296,9 +294,9 @@ def sample_ground_truth(shape, samples, energy="sarap", X0=None, n_jobs=None, pr
 def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cache=True):
     """Held-out test samples and their ground truth, solved like the training samples.
 
-    Each test configuration is solved from the solver's own start and, when ``like`` is given,
-    also warm-started from ``like(Q)``; the lower-energy solution is kept (the rule of the training
-    rounds), so the test set sits on the same branches as the training set.
+    Each test configuration is solved globally (:meth:`defop.solve.Solver.solve_best`): from the rest
+    pose and, when ``like`` is given, also from ``like(Q)``; the lowest verified minimum is kept (the rule
+    of the training solves), so the test set sits on the same branches as the training set.
 
     Parameters
     ----------
@@ -333,12 +331,9 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
     Q = sample_shape(shape, m, np.random.default_rng(seed))
     X, conv = sample_ground_truth(shape, Q, energy, None, n_jobs, progress, cache)
     if like is not None:
-        starts = _warm_starts(like, Q, shape.mesh, energy)
-        X2, c2 = solve_samples(shape, Q, energy, starts, n_jobs, progress, desc="warm test solves")
-        solver = Solver(shape.mesh, shape.handles, energy)
-        better = np.array([solver.energy_of(a) < solver.energy_of(b) for a, b in zip(X2, X)])
-        X, conv = X.copy(), conv.copy()
-        X[better], conv[better] = X2[better], c2[better]
+        # the rest-pose solutions (cached) and like's predictions as the starts of one multi-start solve
+        starts = [[x, w] for x, w in zip(X, _warm_starts(like, Q, shape.mesh, energy))]
+        X, conv = solve_samples(shape, Q, energy, starts, n_jobs, progress, desc="warm test solves", rest=False)
     return Q, X, conv
 
 
@@ -468,11 +463,9 @@ def train(
             # a smooth predictor (not an interpolant, which would reproduce a bad local minimum)
             smooth = "quadratic" if m + 1 >= 1 + 3 * n + 2 * n * n else "linear"
             inter = fit(shape.mesh, shape.handles, shape.moving, samples, X, smooth, "hat", meta=meta)
-            starts = _warm_starts(inter, samples, shape.mesh, energy)
-            X2, c2 = solve_samples(shape, samples, energy, starts, n_jobs, progress, desc="re-solves")
-            solver = Solver(shape.mesh, shape.handles, energy)
-            better = np.array([solver.energy_of(a) < solver.energy_of(b) for a, b in zip(X2, X)])
-            X[better], conv[better] = X2[better], c2[better]
+            # the current solutions and the smooth fit's predictions: the lower verified minimum of the two
+            starts = [[x, w] for x, w in zip(X, _warm_starts(inter, samples, shape.mesh, energy))]
+            X, conv = solve_samples(shape, samples, energy, starts, n_jobs, progress, desc="re-solves", rest=False)
         times["solve"] = time.perf_counter() - t0
         if store is not None:
             store.store("gt", gt_key, {"X": X, "converged": conv}, meta={"times": times})

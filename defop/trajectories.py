@@ -16,8 +16,9 @@ Facts the notebooks check with this module:
 * The variational DefOp of a non-convex energy is the minimiser of problem (6) and can jump
   when the minimiser switches branch; ``neighbour_jumps``/``jump_ratio``/``discontinuities``
   detect the jumps on the grid.
-* "Global" ground truth: every grid point is solved independently from the solver's
-  automatic flip-free start (no history). "Local" ground truth: the solves are warm-started
+* "Global" ground truth: every grid point is solved independently by the solver's multi-start
+  (``start="global"``: rest pose, saddles escaped, lowest verified minimum; no history). "Local"
+  ground truth: the solves are warm-started
   along a path through the grid (a serpentine scan, like a user dragging the handle), so the
   result depends on the path (§5, Fig. 10).
 
@@ -31,8 +32,6 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from . import _options as opt
 from . import cache as cache_mod
@@ -283,13 +282,14 @@ def _solver_for(shape, energy, solver_kw):
     return Solver(shape.mesh, shape.handles, energy=energy, **solver_kw)
 
 
-def _solve_one(solver, targets, X0, solve_kw):
-    r = solver.solve(targets, X0=X0, **solve_kw)
+def _solve_one(solver, targets, X0, solve_kw, start="local"):
+    r = solver.solve(targets, X0=X0, start=start, **solve_kw)
     return np.asarray(r.X), float(r.energy), bool(r.converged)
 
 
 def _solve_chunk(solver, targets_list, solve_kw):
-    return [_solve_one(solver, t, None, solve_kw) for t in targets_list]
+    """The "global" ground truth: :meth:`defop.solve.Solver.solve_best` from the rest pose, saddles escaped."""
+    return [_solve_one(solver, t, None, solve_kw, start="global") for t in targets_list]
 
 
 def _cache_key(shape, grid, energy, mode, moving, path, solver, solve_kw):
@@ -305,47 +305,14 @@ def _trajectory_expect(grid, n_vertices):
     return {"X": ((ny, nx, n_vertices, 2), "f"), "energy": ((ny, nx), "f"), "converged": ((ny, nx), "b")}
 
 
-def _harmonic_weight(mesh, handles, moving_vertex):
-    """(n,) discrete harmonic function: 1 at the moving handle, 0 at the other handles.
+def _warm_started_solve(solver, X_prev, targets, solve_kw):
+    """Solve problem (6) at ``targets`` starting from the previous solution ``X_prev`` (path following).
 
-    Used to carry a small handle step into the interior when warm-starting (a translation if
-    the moving handle is the only handle).
+    The solver moves the handles from ``X_prev``'s positions to ``targets`` itself (biharmonic extension,
+    flip-free continuation stages when a barrier energy needs them), so every Newton stage starts flip-free
+    from a nearby local minimum; saddles are escaped, but no other start is tried ("local").
     """
-    handles = np.asarray(handles, dtype=np.int64)
-    others = handles[handles != moving_vertex]
-    n = mesh.n_vertices
-    if len(others) == 0:
-        return np.ones(n)
-    L = sp.csr_matrix(mesh.cotmatrix)
-    known = np.concatenate([[moving_vertex], others])
-    vals = np.zeros(len(known))
-    vals[0] = 1.0
-    free = np.setdiff1d(np.arange(n), known)
-    w = np.zeros(n)
-    w[known] = vals
-    Lff = L[free][:, free]
-    rhs = -L[free][:, known] @ vals
-    w[free] = spla.spsolve(Lff.tocsc(), rhs)
-    return w
-
-
-def _warm_started_solve(solver, mesh, weight, X_prev, q_prev, targets, hidx, solve_kw, depth=0, max_depth=8):
-    """Solve problem (6) at ``targets`` starting from the previous solution ``X_prev``.
-
-    The step of the moving handle (q_prev -> targets[hidx]) is carried into the interior with the
-    harmonic ``weight``; if that start has flipped triangles the step is halved (continuation:
-    solve at the midpoint first), so every solve starts flip-free from a nearby local minimum.
-    """
-    q_new = targets[hidx]
-    X0 = X_prev + weight[:, None] * (q_new - q_prev)[None, :]
-    if not mesh.flipped(X0).any():
-        return _solve_one(solver, targets, X0, solve_kw)
-    if depth >= max_depth:
-        raise ValueError(f"warm start flips triangles even after {max_depth} step halvings (step {q_new - q_prev})")
-    mid = targets.copy()
-    mid[hidx] = 0.5 * (q_prev + q_new)
-    X_mid, _, _ = _warm_started_solve(solver, mesh, weight, X_prev, q_prev, mid, hidx, solve_kw, depth + 1, max_depth)
-    return _warm_started_solve(solver, mesh, weight, X_mid, mid[hidx], targets, hidx, solve_kw, depth + 1, max_depth)
+    return _solve_one(solver, targets, X_prev, solve_kw)
 
 
 def ground_truth_trajectories(
@@ -373,8 +340,9 @@ def ground_truth_trajectories(
     energy : str
         "sarap" (Eq. 11), "arap" (Eq. 10) or "isometric".
     mode : {"global", "local"}
-        "global": every grid point solved independently from the solver's automatic flip-free
-        start (no history; parallel over ``n_jobs``). "local": solved in the order ``path``
+        "global": every grid point solved independently, ``Solver.solve(..., start="global")`` (the
+        rest pose through flip-free continuation, saddles escaped along negative curvature, the lowest
+        verified minimum; parallel over ``n_jobs``). "local": solved in the order ``path``
         (default: ``serpentine_path``), each warm-started from the previous solution.
     path : (k, 2) numpy int array, optional
         Visiting order for "local"; must visit every grid point once and move between 4-neighbours.
@@ -434,7 +402,6 @@ def ground_truth_trajectories(
 
     Qm = _moving_batch(grid, len(P_moving), moving, P_moving)
     targets = np.stack([shape.targets(q) for q in Qm])  # (k, h, 2)
-    hidx = int(np.flatnonzero(shape.moving)[moving])  # row of the moving handle in `targets`
     solver = _solver_for(shape, energy, solver_kw)
     n = shape.mesh.n_vertices
     X = np.empty((ny * nx, n, 2))
@@ -454,15 +421,12 @@ def ground_truth_trajectories(
             for k, (Xk, ek, ck) in zip(c, res):
                 X[k], E[k], conv[k] = Xk, ek, ck
     else:
-        weight = _harmonic_weight(shape.mesh, shape.handles, int(shape.handles[hidx]))
         flat = path[:, 0] * nx + path[:, 1]
         k0 = flat[0]
         X[k0], E[k0], conv[k0] = _solve_one(solver, targets[k0], None, solve_kw)
         prev = k0
         for k in _maybe_tqdm(flat[1:], progress, len(flat) - 1, "warm-started solves"):
-            X[k], E[k], conv[k] = _warm_started_solve(
-                solver, shape.mesh, weight, X[prev], targets[prev][hidx], targets[k], hidx, solve_kw
-            )
+            X[k], E[k], conv[k] = _warm_started_solve(solver, X[prev], targets[k], solve_kw)
             prev = k
 
     if not conv.all():

@@ -137,22 +137,27 @@ def test_bad_input_is_rejected(state, setup):
 
 
 def test_ground_truth_is_solved_on_release_only(state):
-    """Slowest part (a few S-ARAP solves on ~150 vertices): one warm solve per release, none per drag frame."""
+    """Slowest part (a few S-ARAP solves on ~150 vertices): one warm solve per release, none per drag frame,
+    through the one warm-start policy (Solver.solve_best, keep="first") starting from the moved ground truth."""
     calls = []
     solver = state.solver
-    original = solver.solve_best if hasattr(solver, "solve_best") else solver.solve
-    name = "solve_best" if hasattr(solver, "solve_best") else "solve"
+    original = solver.solve_best
 
-    def recording(*args, **kw):
-        calls.append(kw)
-        return original(*args, **kw)
+    def recording(targets, starts=(), **kw):
+        calls.append(([np.array(X0) for X0 in starts], kw))
+        return original(targets, starts=starts, **kw)
 
-    setattr(solver, name, recording)
+    solver.solve_best = recording
     state.set_ground_truth(True)
     np.testing.assert_allclose(state.X_gt, state.mesh.V, atol=1e-6)  # at rest the ground truth is the rest pose
-    n_on = len(calls)
+    assert len(calls) == 1 and calls[0][1]["keep"] == "first"
+    X_gt0, X0 = state.X_gt.copy(), state.X.copy()
     _drag(state, 0, state.Q[0] + _offset(state))
-    assert len(calls) - n_on <= (n_on if name == "solve" else 1)  # the release, not the 6 drag frames
+    assert len(calls) == 2  # the release, not the 6 drag frames
+    starts, _kw = calls[1]
+    np.testing.assert_allclose(starts[0], X_gt0 + state.X - X0, atol=1e-9)  # the previous one moved by D's step
+    np.testing.assert_allclose(starts[1], state.X)
+    assert state.gt_result.converged
     np.testing.assert_allclose(state.X_gt[state.shape.handles], state.shape.targets(state.Q), atol=1e-8)
     assert 0 < state.gt_error["rms"] < 0.1  # a DefOp trained on 12 samples is close, not equal
     assert "error rms" in state.readout_text()
