@@ -28,7 +28,7 @@ import anywidget
 import numpy as np
 import traitlets
 
-from .editor_state import EditorState, reach_polygons, region_polygons
+from .editor_state import EditorState, ground_truth_text, reach_polygons, region_polygons
 
 JS_PATH = Path(__file__).with_name("static") / "defop_editor.js"
 _DTYPES = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u1": np.uint8}
@@ -268,7 +268,7 @@ class BrowserEditor(anywidget.AnyWidget):
     def _send_ground_truth(self):
         s = self.state
         if s.gt_enabled and s.X_gt is not None:
-            self._sync(gt_meta={"text": s.ground_truth_text()}, gt_data=s.X_gt.astype(np.float32).tobytes())
+            self._sync(gt_meta={"text": ground_truth_text(s)}, gt_data=s.X_gt.astype(np.float32).tobytes())
         else:
             self._sync(gt_meta={"text": ""}, gt_data=b"")
 

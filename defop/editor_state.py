@@ -8,6 +8,7 @@ Example
 -------
 >>> state = EditorState("bar", m=40)                 # doctest: +SKIP
 >>> state.set_handle(0, state.P[0] + [0.1, 0.2])      # doctest: +SKIP
+>>> state.press(*state.Q[0]); state.drag(1.0, 0.3); state.release()   # what a pointer does  # doctest: +SKIP
 >>> state.outside_regions()                           # doctest: +SKIP
 >>> state.set_ground_truth(True); state.gt_error      # doctest: +SKIP
 """
@@ -122,8 +123,7 @@ def ground_truth_error(mesh, X, X_gt):
 class EditorState:
     """Moving handles Q, the deformation X = D(·, Q) and the ground truth of one shape.
 
-    Every view (the in-page editor of :mod:`defop.browser`, the matplotlib canvas and the ipywidgets
-    controls of :mod:`defop.widgets`) draws this object and calls its methods; tests drive the same methods.
+    The views (:mod:`defop.browser`, :mod:`defop.widgets`) draw it and call its methods, as the tests do.
 
     Parameters
     ----------
@@ -377,21 +377,40 @@ class EditorState:
         self.gt_error = ground_truth_error(self.mesh, self.X, self.X_gt)
         return self.X_gt
 
-    # ------------------------------------------------------------------ text
-    def ground_truth_text(self):
-        """One line for the readout: solve time, convergence, flips and the error (or an empty string)."""
-        if not self.gt_enabled or self.gt_error is None:
-            return ""
-        e = self.gt_error
-        conv = "" if getattr(self.gt_result, "converged", True) else " (solver NOT converged)"
-        return (f"ground truth: {1e3 * self.gt_time:.0f} ms{conv}, {e['flips_gt']} flips; error rms "
-                f"{100 * e['rms']:.2f}% / max {100 * e['max']:.2f}% of the diagonal")
 
-    def readout_text(self):
-        """One line: basis, evaluation time, flips, extrapolating handles and (when on) the ground truth."""
-        parts = [f"{self.kind}: evaluation {1e3 * self.eval_time:.2f} ms",
-                 f"flipped triangles: {int(self.flipped.sum())}"]
-        outside = self.outside_regions()
-        if outside:
-            parts.append(f"handle {', '.join(map(str, outside))} outside its sampling region (extrapolation)")
-        return " · ".join([*parts, self.ground_truth_text()] if self.gt_enabled else parts)
+def ground_truth_text(state):
+    """One line for the readout: solve time, convergence, flips and the error (or an empty string).
+
+    Parameters
+    ----------
+    state : EditorState
+
+    Returns
+    -------
+    str
+    """
+    if not state.gt_enabled or state.gt_error is None:
+        return ""
+    e = state.gt_error
+    conv = "" if getattr(state.gt_result, "converged", True) else " (solver NOT converged)"
+    return (f"ground truth: {1e3 * state.gt_time:.0f} ms{conv}, {e['flips_gt']} flips; error rms "
+            f"{100 * e['rms']:.2f}% / max {100 * e['max']:.2f}% of the diagonal")
+
+
+def readout_text(state):
+    """One line: basis, evaluation time, flips, extrapolating handles and (when on) the ground truth.
+
+    Parameters
+    ----------
+    state : EditorState
+
+    Returns
+    -------
+    str
+    """
+    parts = [f"{state.kind}: evaluation {1e3 * state.eval_time:.2f} ms",
+             f"flipped triangles: {int(state.flipped.sum())}"]
+    outside = state.outside_regions()
+    if outside:
+        parts.append(f"handle {', '.join(map(str, outside))} outside its sampling region (extrapolation)")
+    return " · ".join([*parts, ground_truth_text(state)] if state.gt_enabled else parts)

@@ -27,7 +27,7 @@ import numpy as np
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
-from .editor_state import EditorState
+from .editor_state import EditorState, readout_text
 
 __all__ = ["CanvasView", "Controls", "HandleEditor", "static_bundle", "static_png"]
 
@@ -249,7 +249,7 @@ class Controls:
                 sx.value, sy.value = float(np.clip(q[0], sx.min, sx.max)), float(np.clip(q[1], sy.min, sy.max))
         finally:
             self._syncing = False
-        self.readout.value = f"<span>{html.escape(s.readout_text())}</span>"
+        self.readout.value = f"<span>{html.escape(readout_text(s))}</span>"
         Q = np.round(s.Q, 6).tolist()
         uv = json.dumps(np.round(positions, 6).tolist()) if positions is not None else "[]"
         text = ", ".join(f"q{i} = ({q[0]:.3f}, {q[1]:.3f})" for i, q in enumerate(Q))

@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 
 import defop as dop
 from defop import browser
-from defop.editor_state import EditorState, inside_polygon
+from defop.editor_state import EditorState, ground_truth_text, inside_polygon
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVER = ROOT / "tests" / "js" / "eval_operator.mjs"
@@ -249,9 +249,9 @@ def test_state_ground_truth(operators, shape):
     np.testing.assert_array_equal(state.Q_gt, state.Q)
     e = state.gt_error
     assert 0 < e["rms"] <= e["max"] < 0.05 and e["flips_gt"] == 0
-    assert "error rms" in state.ground_truth_text()
+    assert "error rms" in ground_truth_text(state)
     state.set_ground_truth(False)
-    assert state.gt_error is None and state.ground_truth_text() == ""
+    assert state.gt_error is None and ground_truth_text(state) == ""
 
 
 def test_widget_kernel_side(operators, shape):

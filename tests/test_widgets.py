@@ -22,7 +22,7 @@ from matplotlib.backend_bases import MouseEvent
 from PIL import Image
 
 import defop as dop
-from defop.editor_state import EditorState
+from defop.editor_state import EditorState, readout_text
 
 M_TRAIN = 12  # samples per operator: enough for the linear basis (1 + 2n functions) on the bar
 
@@ -92,7 +92,7 @@ def test_drag_moves_handle_and_mesh_and_interpolates(state, dx, dy, kind):
     np.testing.assert_allclose(state.X[fixed], V[fixed], atol=1e-8)
     if np.hypot(dx, dy) > 0.05:
         assert np.abs(state.X - V).max() > 0.04 * state.diag  # the mesh moved
-    assert state.eval_time > 0 and "evaluation" in state.readout_text()
+    assert state.eval_time > 0 and "evaluation" in readout_text(state)
 
 
 def test_press_away_from_handles_picks_nothing(state):
@@ -106,7 +106,7 @@ def test_press_away_from_handles_picks_nothing(state):
 def test_readout_warns_when_a_handle_leaves_its_region(state):
     state.set_handle(0, state.P[0] + [3 * state.diag, 0.0])
     assert state.outside_regions() == [0]
-    assert "outside its sampling region" in state.readout_text()
+    assert "outside its sampling region" in readout_text(state)
 
 
 def test_switching_basis_changes_the_operator(state):
@@ -160,9 +160,9 @@ def test_ground_truth_is_solved_on_release_only(state):
     assert state.gt_result.converged
     np.testing.assert_allclose(state.X_gt[state.shape.handles], state.shape.targets(state.Q), atol=1e-8)
     assert 0 < state.gt_error["rms"] < 0.1  # a DefOp trained on 12 samples is close, not equal
-    assert "error rms" in state.readout_text()
+    assert "error rms" in readout_text(state)
     state.set_ground_truth(False)
-    assert state.gt_error is None and "ground truth" not in state.readout_text()
+    assert state.gt_error is None and "ground truth" not in readout_text(state)
 
 
 # ---------------------------------------------------------------------------------------------- views
