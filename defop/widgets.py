@@ -239,9 +239,11 @@ class Controls:
         ----------
         positions : (n,2) numpy array, optional
             Handle positions on the canvas as fractions (:meth:`CanvasView.handle_fractions`), written into
-            the handle readout's ``data-uv`` for the browser test.
+            the handle readout's ``data-uv`` for the benchmark's pointer (the last ones given are kept).
         """
         s = self.state
+        if positions is not None:
+            self._positions = np.round(positions, 6).tolist()
         self._syncing = True
         try:
             self.basis.value, self.ground_truth.value = s.kind, s.gt_enabled
@@ -251,7 +253,7 @@ class Controls:
             self._syncing = False
         self.readout.value = f"<span>{html.escape(readout_text(s))}</span>"
         Q = np.round(s.Q, 6).tolist()
-        uv = json.dumps(np.round(positions, 6).tolist()) if positions is not None else "[]"
+        uv = json.dumps(getattr(self, "_positions", []))
         text = ", ".join(f"q{i} = ({q[0]:.3f}, {q[1]:.3f})" for i, q in enumerate(Q))
         self.handle_readout.value = (f"<span class='defop-handle-data' data-q='{json.dumps(Q)}' data-uv='{uv}'>"
                                      f"{html.escape(text)}</span>")
@@ -281,12 +283,16 @@ class HandleEditor:
     def __init__(self, shape, operators=None, *, figsize=None, **state_kw):
         self.state = shape if isinstance(shape, EditorState) else EditorState(shape, operators, **state_kw)
         self.canvas = CanvasView(self.state, figsize=figsize, on_change=self._canvas_changed)
-        self.controls = Controls(self.state, on_change=self.canvas.refresh)
+        self.controls = Controls(self.state, on_change=self._controls_changed)
         self._canvas_changed()
 
     def _canvas_changed(self):
         if hasattr(self, "controls"):
             self.controls.refresh(self.canvas.handle_fractions())
+
+    def _controls_changed(self):
+        self.canvas.refresh()
+        self._canvas_changed()
 
     @property
     def widget(self):
