@@ -162,6 +162,8 @@ class EditorState:
         The handle being dragged (:meth:`press` / :meth:`drag` / :meth:`release`).
     eval_time : float
         Seconds of the last evaluation of D(·, Q).
+    flipped : (m,) bool numpy array
+        The triangles D(·, Q) flips (det J ≤ 0).
     X_gt : (n_vertices,2) numpy array or None
         The last ground truth D^E(·, Q_gt), None when off or not solved yet.
     gt_error : dict or None
@@ -317,11 +319,6 @@ class EditorState:
         Q = self.Q if Q is None else np.asarray(Q, float)
         return [i for i, polys in enumerate(self.regions) if polys and not any(inside_polygon(Q[i], p) for p in polys)]
 
-    @property
-    def flipped(self):
-        """(m,) bool numpy array: the triangles that D(·, Q) flips (det J ≤ 0)."""
-        return np.asarray(self.mesh.flipped(self.X), dtype=bool)
-
     def _evaluate(self):
         t0 = time.perf_counter()
         with warnings.catch_warnings():  # the readout reports extrapolation through outside_regions
@@ -331,6 +328,7 @@ class EditorState:
         if X.shape != self.mesh.V.shape or not np.isfinite(X).all():
             raise ValueError(f"the {self.kind} DefOp returned an invalid deformation (shape {X.shape})")
         self.X = X
+        self.flipped = np.asarray(self.mesh.flipped(X), dtype=bool)  # (m,) the triangles D(·, Q) flips
 
     # ------------------------------------------------------------------ ground truth
     @property

@@ -45,7 +45,8 @@ class CanvasView:
     state : defop.editor_state.EditorState
     interactive : bool
         Create the figure with pyplot (an ipympl canvas under ``%matplotlib widget``) and connect the mouse
-        to the state's drag methods; False draws on a plain Agg :class:`~matplotlib.figure.Figure`.
+        to the state's drag methods; False draws on a plain Agg :class:`~matplotlib.figure.Figure`, with the
+        sampling regions (dashed; left out of the interactive canvas, which redraws every artist per frame).
     figsize : (2,) tuple, optional
         Inches; default from the shape's aspect ratio.
     on_change : callable, optional
@@ -71,7 +72,7 @@ class CanvasView:
         else:
             self.fig = Figure(figsize=figsize)
         self.ax = self.fig.add_subplot()
-        self._build_artists()
+        self._build_artists(regions=not interactive)
         self.fig.tight_layout()
         self._cids = []
         if interactive:
@@ -80,7 +81,7 @@ class CanvasView:
                 ("button_release_event", self._release))]
         self.refresh()
 
-    def _build_artists(self):
+    def _build_artists(self, regions):
         s, ax = self.state, self.ax
         ax.set_xlim(*self.xlim)
         ax.set_ylim(*self.ylim)
@@ -88,7 +89,7 @@ class CanvasView:
         ax.set_autoscale_on(False)
         ax.set_xticks([])
         ax.set_yticks([])
-        for polys in s.regions:
+        for polys in s.regions if regions else []:  # the static picture only: ipympl redraws every artist
             for poly in polys:
                 ax.plot(*np.vstack([poly, poly[:1]]).T, color=_REGION, lw=0.8, ls="--", zorder=1)
         F = s.mesh.F
