@@ -38,6 +38,8 @@ _SUBMODULES = (
     "plot",
     "render",
     "widgets",
+    "editor_state",
+    "browser",
     "figures",
     "config",
     "trajectories",

@@ -2,9 +2,10 @@
 
 Python sends the trained operator once (:func:`defop_to_payload`: Ψ's kind and centres or monomial
 plan, the float32 factors, the mesh and the handles); ``static/defop_editor.js`` evaluates
-D(·, Q) = (Ψ(Q) A) B (Eq. 3) on every pointer move with the formulas of :mod:`defop.handle_bases` and
-draws the mesh on a canvas. The kernel is used only for what must run in Python: the ground-truth
-overlay (a warm-started solve of problem 6), switching basis or shape, and reading Q back on release.
+D(·, Q) = x + δψ(Q) A B (Eq. 3 in the form (★) of :mod:`defop.operator`) on every pointer move with
+the formulas of :mod:`defop.handle_bases` and draws the mesh on a canvas. The kernel is used only for
+what must run in Python: the ground-truth overlay (a warm-started solve of problem 6), switching basis
+or shape, and reading Q back on release.
 
 - :class:`BrowserEditor`: the Jupyter widget (anywidget), a view of an :class:`~defop.editor_state.EditorState`;
 - :func:`to_html`: one self-contained offline page dragging the same operator (no Python, no network).
@@ -27,7 +28,7 @@ import anywidget
 import numpy as np
 import traitlets
 
-from .editor_state import EditorState, reach_polygons, region_polygons
+from .editor_state import EditorState, ground_truth_text, reach_polygons, region_polygons
 
 JS_PATH = Path(__file__).with_name("static") / "defop_editor.js"
 _DTYPES = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u1": np.uint8}
@@ -62,7 +63,8 @@ def defop_to_payload(op, regions=None):
     Parameters
     ----------
     op : defop.operator.DefOp
-        Uses the compressed factors ``(A, B)`` when present, otherwise W as a single factor.
+        Uses the compressed factors ``(A, B)`` of W_F when present, otherwise W_F (W[1:] with the handle
+        columns zeroed) as a single factor: the page evaluates (★) of :mod:`defop.operator`.
     regions : list of list of (k,2) numpy array, optional
         Sampling-region polygons per moving handle (:func:`defop.editor_state.region_polygons`); default:
         discs through the farthest training sample.
@@ -95,11 +97,12 @@ def defop_to_payload(op, regions=None):
         p["centers"] = np.asarray(basis.z(basis.centers), np.float64)  # z_k = (Q_k − P)/scale, (m, 2n)
     else:
         p["parent"], p["factor"] = _polynomial_plan(basis.monomials)
+    # (★) of defop.operator: D(·, Q) = x + δψ(Q) W_F, the moving handles' columns set to Q − P exactly
     if op.factors is not None:
         p["A"], p["B"] = (np.asarray(f, np.float32) for f in op.factors)
         p["rank"] = int(p["A"].shape[1])
     else:
-        p["A"] = np.asarray(op.W, np.float32)
+        p["A"] = np.asarray(op._WF, np.float32)  # W[1:] with the handle columns zeroed
     return p
 
 
@@ -231,6 +234,16 @@ class BrowserEditor(anywidget.AnyWidget):
         self._sync(q=self.state.Q.ravel().tolist())
         self._send_ground_truth()
 
+    def _repr_mimebundle_(self, **kwargs):
+        """The live widget plus a static fallback (:func:`defop.widgets.static_bundle`): a picture of the
+        editor and one line of text, which a stored notebook shows without a kernel."""
+        from .widgets import static_bundle  # matplotlib only when displayed
+
+        bundle = super()._repr_mimebundle_(**kwargs) or {}
+        if isinstance(bundle, tuple):  # (data, metadata)
+            bundle = bundle[0]
+        return {**bundle, **static_bundle(self.state)}
+
     def _sync(self, **traits):
         self._syncing = True
         try:
@@ -255,7 +268,7 @@ class BrowserEditor(anywidget.AnyWidget):
     def _send_ground_truth(self):
         s = self.state
         if s.gt_enabled and s.X_gt is not None:
-            self._sync(gt_meta={"text": s.ground_truth_text()}, gt_data=s.X_gt.astype(np.float32).tobytes())
+            self._sync(gt_meta={"text": ground_truth_text(s)}, gt_data=s.X_gt.astype(np.float32).tobytes())
         else:
             self._sync(gt_meta={"text": ""}, gt_data=b"")
 

@@ -8,6 +8,7 @@ Example
 -------
 >>> state = EditorState("bar", m=40)                 # doctest: +SKIP
 >>> state.set_handle(0, state.P[0] + [0.1, 0.2])      # doctest: +SKIP
+>>> state.press(*state.Q[0]); state.drag(1.0, 0.3); state.release()   # what a pointer does  # doctest: +SKIP
 >>> state.outside_regions()                           # doctest: +SKIP
 >>> state.set_ground_truth(True); state.gt_error      # doctest: +SKIP
 """
@@ -122,6 +123,8 @@ def ground_truth_error(mesh, X, X_gt):
 class EditorState:
     """Moving handles Q, the deformation X = D(·, Q) and the ground truth of one shape.
 
+    The views (:mod:`defop.browser`, :mod:`defop.widgets`) draw it and call its methods, as the tests do.
+
     Parameters
     ----------
     shape : defop.shapes.Shape or str
@@ -133,16 +136,19 @@ class EditorState:
     energy : str
         Energy of the operators and of the ground-truth solve.
     m : int, optional
-        Training samples for :func:`defop.train.train` (its default when None).
+        Training samples Q_k; raised to :func:`defop.train.min_samples` of the basis and the shape's moving
+        handles (so every shape trains), :data:`defop.train.DEFAULT_M` when None.
     kinds : sequence of str
         The bases offered.
     trainer : callable, optional
-        ``trainer(shape, kind) -> DefOp``; default :func:`defop.train.train`.
+        ``trainer(shape, kind) -> DefOp``; default :func:`defop.train.train` with ``m`` and ``train_kw``.
     solver : object, optional
-        Ground-truth solver with ``solve(targets (h,2), X0=None)`` returning a result with ``X`` and
-        ``converged``; default a :class:`defop.solve.Solver` built on first use.
+        Ground-truth solver with :meth:`~defop.solve.Solver.solve_best`'s signature, returning a result with
+        ``X`` and ``converged``; default a :class:`defop.solve.Solver` built on first use.
     pick_radius : float
         Picking distance as a fraction of the bounding-box diagonal.
+    train_kw : dict, optional
+        Extra keyword arguments of :func:`defop.train.train` (``spatial``, ``seed``, ``progress``, ...).
 
     Attributes
     ----------
@@ -152,6 +158,12 @@ class EditorState:
         Current positions of the moving handles.
     X : (n_vertices,2) numpy array
         D(·, Q) of the current basis.
+    active : int or None
+        The handle being dragged (:meth:`press` / :meth:`drag` / :meth:`release`).
+    eval_time : float
+        Seconds of the last evaluation of D(·, Q).
+    flipped : (m,) bool numpy array
+        The triangles D(·, Q) flips (det J ≤ 0).
     X_gt : (n_vertices,2) numpy array or None
         The last ground truth D^E(·, Q_gt), None when off or not solved yet.
     gt_error : dict or None
@@ -159,7 +171,7 @@ class EditorState:
     """
 
     def __init__(self, shape, operators=None, *, basis="tps", energy="sarap", m=None, kinds=KINDS, trainer=None,
-                 solver=None, pick_radius=0.05):
+                 solver=None, pick_radius=0.05, train_kw=None):
         if isinstance(shape, str):
             shape = dop.shapes.load(shape)
         self.kinds = tuple(kinds)
@@ -168,7 +180,10 @@ class EditorState:
                 raise ValueError(f"basis {kind!r} is not offered; choose one of {self.kinds}")
         if not pick_radius > 0:
             raise ValueError(f"pick_radius must be positive, got {pick_radius}")
+        if shape.n_moving == 0:
+            raise ValueError(f"shape {shape.name!r} has no moving handle to drag")
         self.shape, self.mesh, self.energy, self.m = shape, shape.mesh, energy, m
+        self.train_kw = dict(train_kw or {})
         self.operators = dict(operators or {})
         for op in self.operators.values():
             op.check_mesh(self.mesh)
@@ -180,12 +195,13 @@ class EditorState:
         self.regions = region_polygons(self.P, shape.regions)
         self.kind = basis
         self.gt_enabled = False
+        self.active, self.eval_time = None, 0.0
         self.get_operator(basis)
         self.reset()
 
     # ------------------------------------------------------------------ operators
     def get_operator(self, kind):
-        """The DefOp of basis ``kind`` (trained on first use).
+        """The DefOp of basis ``kind`` (trained on first use, with at least the samples the basis needs).
 
         Returns
         -------
@@ -197,8 +213,11 @@ class EditorState:
             if self.trainer is not None:
                 op = self.trainer(self.shape, kind)
             else:
-                kw = {} if self.m is None else {"m": self.m}
-                op, _record = dop.train.train(self.shape, energy=self.energy, basis=kind, progress=False, **kw)
+                kw = {"energy": self.energy, "basis": kind, "progress": False, **self.train_kw}
+                if "samples" not in kw:
+                    m = dop.train.DEFAULT_M if self.m is None else int(self.m)
+                    kw["m"] = max(m, dop.train.min_samples(kind, self.shape.n_moving))
+                op, _record = dop.train.train(self.shape, **kw)
             op.check_mesh(self.mesh)
             self.operators[kind] = op
         return self.operators[kind]
@@ -213,10 +232,17 @@ class EditorState:
         self.get_operator(kind)
         self.kind = kind
         self._evaluate()
+        if self.gt_enabled:
+            self.update_ground_truth()
 
     # ------------------------------------------------------------------ handles
     def set_Q(self, Q):
         """Move all moving handles to ``Q (n,2)`` and re-evaluate (the ground truth too, when on)."""
+        self._move(Q)
+        if self.gt_enabled:
+            self.update_ground_truth()
+
+    def _move(self, Q):
         Q = np.array(Q, dtype=float)
         if Q.shape != self.P.shape:
             raise ValueError(f"Q must have shape {self.P.shape} (the moving handles), got {Q.shape}")
@@ -237,6 +263,7 @@ class EditorState:
     def reset(self):
         """Back to the rest pose Q = P; forgets the ground truth's warm start."""
         self.X_gt = self.Q_gt = self.gt_result = self.gt_error = self.gt_time = None
+        self.active = None
         self.set_Q(self.P)
 
     def pick(self, x, y):
@@ -244,6 +271,38 @@ class EditorState:
         d = np.hypot(self.Q[:, 0] - x, self.Q[:, 1] - y)
         i = int(np.argmin(d))
         return i if d[i] <= self.pick_radius * self.diag else None
+
+    # ------------------------------------------------------------------ a drag (what a pointer does)
+    def press(self, x, y):
+        """Start dragging the handle nearest to (x, y); returns its index, or None when none is near."""
+        self.active = self.pick(x, y)
+        return self.active
+
+    def drag(self, x, y):
+        """Move the dragged handle to (x, y): D(·, Q) only, the ground truth waits for :meth:`release`.
+
+        Returns
+        -------
+        bool
+            False when no handle is being dragged.
+        """
+        if self.active is None:
+            return False
+        Q = self.Q.copy()
+        Q[self.active] = (x, y)
+        self._move(Q)
+        return True
+
+    def release(self, x=None, y=None):
+        """End the drag (at (x, y) when given) and refresh the ground truth when it is on."""
+        if self.active is None:
+            return False
+        i, self.active = self.active, None
+        Q = self.Q.copy()
+        if x is not None and y is not None:
+            Q[i] = (x, y)
+        self.set_Q(Q)
+        return True
 
     def outside_regions(self, Q=None):
         """Indices of the moving handles outside their sampling region (the operator extrapolates there).
@@ -261,11 +320,15 @@ class EditorState:
         return [i for i, polys in enumerate(self.regions) if polys and not any(inside_polygon(Q[i], p) for p in polys)]
 
     def _evaluate(self):
+        t0 = time.perf_counter()
         with warnings.catch_warnings():  # the readout reports extrapolation through outside_regions
             warnings.simplefilter("ignore", ExtrapolationWarning)
-            self.X = np.asarray(self.operator(self.Q), dtype=float)
-        if self.gt_enabled:
-            self.update_ground_truth()
+            X = np.asarray(self.operator(self.Q), dtype=float)
+        self.eval_time = time.perf_counter() - t0
+        if X.shape != self.mesh.V.shape or not np.isfinite(X).all():
+            raise ValueError(f"the {self.kind} DefOp returned an invalid deformation (shape {X.shape})")
+        self.X = X
+        self.flipped = np.asarray(self.mesh.flipped(X), dtype=bool)  # (m,) the triangles D(·, Q) flips
 
     # ------------------------------------------------------------------ ground truth
     @property
@@ -286,10 +349,11 @@ class EditorState:
     def update_ground_truth(self):
         """Solve the variational DefOp (problem 6) at Q, warm-started, and measure the approximation's error.
 
-        Starts, in order: the previous ground truth moved by the approximation's step
-        ``X_gt + D(·, Q) − D(·, Q_gt)`` (it meets the handle constraints because D interpolates them,
-        Prop. 2), then D(·, Q), then the solver's own start; starts with flipped triangles are skipped and a
-        start the solver rejects (ValueError) falls through to the next.
+        The one warm-start policy of the editor: :meth:`defop.solve.Solver.solve_best` with ``keep="first"``
+        (local, path following) over the starts, in order: the previous ground truth moved by the
+        approximation's step ``X_gt + D(·, Q) − D(·, Q_gt)`` (it meets the handle constraints because D
+        interpolates them, Prop. 2), then D(·, Q), then the rest pose. The first start that reaches a
+        verified minimum wins; flipped or rejected starts are skipped.
 
         Returns
         -------
@@ -300,28 +364,51 @@ class EditorState:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", ExtrapolationWarning)
                 starts.append(self.X_gt + self.X - np.asarray(self.operator(self.Q_gt)))
-        starts = [X0 for X0 in [*starts, self.X] if not np.any(self.mesh.flipped(X0))] + [None]
-        targets = self.shape.targets(self.Q)
-        t0, error = time.perf_counter(), None
-        for X0 in starts:
-            try:
-                result = self.solver.solve(targets, X0=X0)
-                break
-            except ValueError as exc:
-                error = exc
-        else:
-            raise ValueError(f"the ground-truth solver failed from every start: {error}")
+        starts.append(self.X)
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", dop.solve.NotConvergedWarning)  # the readout reports it
+            result = self.solver.solve_best(self.shape.targets(self.Q), starts=starts, rest=True, keep="first")
         self.gt_time = time.perf_counter() - t0
         self.gt_result = result
         self.X_gt, self.Q_gt = np.asarray(result.X, dtype=float), self.Q.copy()
         self.gt_error = ground_truth_error(self.mesh, self.X, self.X_gt)
         return self.X_gt
 
-    def ground_truth_text(self):
-        """One line for the readout: solve time, convergence, flips and the error (or an empty string)."""
-        if not self.gt_enabled or self.gt_error is None:
-            return ""
-        e = self.gt_error
-        conv = "" if getattr(self.gt_result, "converged", True) else " (solver NOT converged)"
-        return (f"ground truth: {1e3 * self.gt_time:.0f} ms{conv}, {e['flips_gt']} flips; error rms "
-                f"{100 * e['rms']:.2f}% / max {100 * e['max']:.2f}% of the diagonal")
+
+def ground_truth_text(state):
+    """One line for the readout: solve time, convergence, flips and the error (or an empty string).
+
+    Parameters
+    ----------
+    state : EditorState
+
+    Returns
+    -------
+    str
+    """
+    if not state.gt_enabled or state.gt_error is None:
+        return ""
+    e = state.gt_error
+    conv = "" if getattr(state.gt_result, "converged", True) else " (solver NOT converged)"
+    return (f"ground truth: {1e3 * state.gt_time:.0f} ms{conv}, {e['flips_gt']} flips; error rms "
+            f"{100 * e['rms']:.2f}% / max {100 * e['max']:.2f}% of the diagonal")
+
+
+def readout_text(state):
+    """One line: basis, evaluation time, flips, extrapolating handles and (when on) the ground truth.
+
+    Parameters
+    ----------
+    state : EditorState
+
+    Returns
+    -------
+    str
+    """
+    parts = [f"{state.kind}: evaluation {1e3 * state.eval_time:.2f} ms",
+             f"flipped triangles: {int(state.flipped.sum())}"]
+    outside = state.outside_regions()
+    if outside:
+        parts.append(f"handle {', '.join(map(str, outside))} outside its sampling region (extrapolation)")
+    return " · ".join([*parts, ground_truth_text(state)] if state.gt_enabled else parts)

@@ -19,7 +19,7 @@ What the job guarantees:
   notebook's seconds, the date and the machine. :func:`update_stated_times` writes those numbers into
   the "Run time" lines of the notebook headers, ``notebooks/README.md`` and ``README.md``.
 * **No churn.** Stored notebooks are normalised by :func:`normalise` (nbstripout, keeping outputs):
-  no execution counts, timing or widget-state metadata, no interpreter version, and widget outputs
+  execution counts 1, 2, ... in order, no timing or widget-state metadata, no interpreter version, and widget outputs
   keep only their static picture and text line, so a regeneration that changes nothing gives no diff.
 """
 
@@ -106,8 +106,8 @@ def normalise(nb):
     """Normalise a notebook for storing: the same content gives the same file on every machine.
 
     nbstripout (the Jupyter community's notebook cleaner, used by many projects as a git filter) with
-    outputs and cell ids kept: it drops execution counts, per-cell timing metadata, stored widget state
-    and the interpreter version. Widget outputs keep only their static picture and text line.
+    outputs and cell ids kept: it drops per-cell timing metadata, stored widget state and the interpreter
+    version, and numbers the code cells 1, 2, ... Widget outputs keep only their static picture and text line.
 
     Parameters
     ----------
@@ -121,9 +121,12 @@ def normalise(nb):
     from nbstripout import strip_output
 
     strip_output(nb, keep_output=True, keep_count=False, keep_id=True, extra_keys=list(STRIP_KEYS))
-    for cell in nb.cells:
-        if cell.cell_type == "code":
-            cell.outputs = _static_outputs(cell.outputs)
+    code = [cell for cell in nb.cells if cell.cell_type == "code"]
+    for count, cell in enumerate(code, start=1):
+        cell.outputs = _static_outputs(cell.outputs)
+        # numbered 1, 2, ... as a run-all numbers them (the same on every machine): nbval only compares the
+        # outputs of cells with a count ("Unrun reference cell has outputs" otherwise)
+        cell.execution_count = count
     return nb
 
 

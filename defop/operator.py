@@ -363,6 +363,24 @@ class DefOp:
             )
 
     # ------------------------------------------------------------------ I/O
+    def to_html(self, path, shape=None, title=None):
+        """Write one self-contained page that drags this operator offline (see :func:`defop.browser.to_html`).
+
+        Parameters
+        ----------
+        path : str or pathlib.Path
+        shape : defop.shapes.Shape, optional
+            Its sampling regions are drawn and used for the extrapolation warning.
+        title : str, optional
+
+        Returns
+        -------
+        path : pathlib.Path
+        """
+        from .browser import to_html  # the presentation layer, imported only when a page is written
+
+        return to_html(self, path, shape=shape, title=title)
+
     def save(self, path):
         """Save as .npz: arrays plus JSON metadata (exact round trip).
 

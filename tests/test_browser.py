@@ -2,10 +2,11 @@
 
 A JupyterLab server is started on localhost (random free port, known token, throw-away
 config/runtime/settings directories), headless Chromium is driven with Playwright, the
-playground notebook (a temporary copy) is run with "Run All Cells", and a handle is dragged on
-the ipympl canvas with the mouse. The test asserts that the kernel-side state followed the
-mouse (the handle readout shows the new Q, at the pixel where the mouse was released) and that
-the canvas pixels changed.
+playground notebook (a temporary copy) is run with "Run All Cells", and a handle of the in-page
+editor (:class:`defop.browser.BrowserEditor`) is dragged with the mouse. The test asserts that the
+editor fits in one screen, the handle followed the pointer, the mesh moved (the page's X and the
+canvas pixels) and Q came back to Python (``editor.Q`` read through the kernel). With
+``DEFOP_SCREENSHOT=path`` the page after the drag is saved there.
 
 Needs Debian's ``chromium`` (``apt-get install -y --no-install-recommends chromium``) and the
 Python ``playwright`` package (``pip install playwright``; no ``playwright install``: the system
@@ -172,9 +173,22 @@ _CELL_ERRORS = """() => window.jupyterapp.shell.currentWidget.content.widgets
     .map(o => o.ename + ': ' + o.evalue)"""
 
 
-def _handle_data(page):
-    data = page.locator(".defop-handles .defop-handle-data").first
-    return np.array(json.loads(data.get_attribute("data-q"))), np.array(json.loads(data.get_attribute("data-uv")))
+_EDITOR = "document.querySelector('.defop-editor').parentNode.defopEditor"
+
+_KERNEL_Q = """async () => {
+    const kernel = window.jupyterapp.shell.currentWidget.sessionContext.session.kernel;
+    const future = kernel.requestExecute({code: 'import json; print(json.dumps(editor.Q.tolist()))'});
+    let out = '';
+    future.onIOPub = (msg) => { if (msg.header.msg_type === 'stream') out += msg.content.text; };
+    await future.done;
+    return out;
+}"""
+
+
+def _page_state(page):
+    X = np.array(page.evaluate(f"() => Array.from({_EDITOR}.st.X)")).reshape(-1, 2)
+    Q = np.array(page.evaluate(f"() => Array.from({_EDITOR}.st.Q)")).reshape(-1, 2)
+    return X, Q
 
 
 def test_drag_handle_in_jupyterlab(lab):
@@ -184,7 +198,7 @@ def test_drag_handle_in_jupyterlab(lab):
 
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
-        page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        page = browser.new_page(viewport={"width": 1400, "height": 900})
         console = []
         page.on("console", lambda msg: console.append(f"{msg.type}: {msg.text}"))
         try:
@@ -211,49 +225,47 @@ def _drive(page, lab):
     errors = page.evaluate(_CELL_ERRORS)
     assert not errors, "a cell failed: " + "; ".join(errors)
 
-    # the ipympl canvas of the editor and its handle readout
-    canvas = page.locator(".jupyter-matplotlib-canvas-div").first
+    # the in-page editor (an anywidget): canvas, controls and readout fit in one screen
+    canvas = page.locator(".defop-editor canvas.defop-canvas").first
     canvas.wait_for(state="visible")
-    page.locator(".defop-handles .defop-handle-data").first.wait_for(state="attached")
-    canvas.scroll_into_view_if_needed()
-    page.wait_for_timeout(1000)  # let ipympl paint the first frame
-    Q0, uv0 = _handle_data(page)
+    page.locator(".defop-editor").first.scroll_into_view_if_needed()
+    page.wait_for_timeout(500)
+    viewport = page.viewport_size
+    for part in (".defop-editor canvas.defop-canvas", ".defop-editor .defop-controls", ".defop-editor .defop-readout"):
+        b = page.locator(part).first.bounding_box()
+        assert b["y"] >= 0 and b["y"] + b["height"] <= viewport["height"], (part, b, viewport)
+        assert b["x"] >= 0 and b["x"] + b["width"] <= viewport["width"], (part, b, viewport)
+    page.screenshot(path=str(lab["tmp"] / "playground.png"))
+    X0, Q0 = _page_state(page)
     box = canvas.bounding_box()
-    assert box["width"] > 100 and box["height"] > 100, box
-    before = _png_to_array(canvas.screenshot(path=str(lab["tmp"] / "canvas-before.png")))
+    before = _png_to_array(canvas.screenshot())
 
-    # 3. drag the first moving handle by (dx, dy) screen pixels
-    x0 = box["x"] + uv0[0, 0] * box["width"]
-    y0 = box["y"] + uv0[0, 1] * box["height"]
-    dx, dy = 0.10 * box["width"], -0.12 * box["height"]  # right and up
+    # 3. drag the first moving handle right and up with the mouse
+    u, v = page.evaluate(f"() => {_EDITOR}.handleScreen(0)")
+    x0, y0 = box["x"] + u, box["y"] + v
+    dx, dy = 50, -40
     page.mouse.move(x0, y0)
     page.mouse.down()
     for t in np.linspace(0.1, 1.0, 12):
         page.mouse.move(x0 + t * dx, y0 + t * dy)
-        page.wait_for_timeout(40)
+        page.wait_for_timeout(30)
     page.mouse.up()
-
-    # 4. the kernel saw the drag: the readout shows the new Q, where the mouse was released
-    page.wait_for_function(
-        """(q0) => {
-            const e = document.querySelector('.defop-handles .defop-handle-data');
-            return e && e.getAttribute('data-q') !== q0;
-        }""",
-        arg=json.dumps(Q0.tolist()),
-        timeout=30_000,
-    )
+    end = np.array(page.evaluate(f"([u, v]) => {_EDITOR}.st.view.toData(u, v)", [u + dx, v + dy]))
+    X1, Q1 = _page_state(page)
     page.wait_for_function(_KERNEL_IDLE, timeout=30_000)
-    page.wait_for_timeout(1000)  # the last frame reaches the canvas
-    Q1, uv1 = _handle_data(page)
-    assert Q1[0, 0] > Q0[0, 0] and Q1[0, 1] > Q0[0, 1], (
-        Q0,
-        Q1,
-    )  # screen right/up = data +x/+y
-    expected = uv0[0] + [dx / box["width"], dy / box["height"]]
-    np.testing.assert_allclose(uv1[0], expected, atol=0.02)
-    np.testing.assert_allclose(Q1[1:], Q0[1:])  # the other handles stayed
+    page.wait_for_timeout(300)
     after = _png_to_array(canvas.screenshot(path=str(lab["tmp"] / "canvas-after.png")))
-    assert before.shape == after.shape
-    strip = int(0.08 * after.shape[1])  # ipympl's toolbar fades in on the left while the mouse is over the canvas
-    changed = np.mean(np.any(np.abs(after[:, strip:] - before[:, strip:]) > 30, axis=2))
+
+    # 4. the handle followed the pointer, the mesh moved in the page, and Q came back to Python
+    np.testing.assert_allclose(Q1[0], end, atol=1e-9)
+    assert Q1[0, 0] > Q0[0, 0] and Q1[0, 1] > Q0[0, 1], (Q0, Q1)  # screen right/up = data +x/+y
+    np.testing.assert_allclose(Q1[1:], Q0[1:])  # the other handles stayed
+    diag = np.linalg.norm(np.ptp(X0, axis=0))
+    assert np.max(np.linalg.norm(X1 - X0, axis=1)) > 0.01 * diag
+    changed = np.mean(np.any(np.abs(after - before) > 30, axis=2))
     assert changed > 0.005, f"only {changed:.2%} of the canvas pixels changed"
+    Q_py = np.array(json.loads(page.evaluate(_KERNEL_Q)))
+    np.testing.assert_allclose(Q_py, Q1, atol=1e-12)
+    page.screenshot(path=str(lab["tmp"] / "playground-after.png"))
+    if os.environ.get("DEFOP_SCREENSHOT"):
+        shutil.copy(lab["tmp"] / "playground-after.png", os.environ["DEFOP_SCREENSHOT"])

@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 
 import defop as dop
 from defop import browser
-from defop.editor_state import EditorState, inside_polygon
+from defop.editor_state import EditorState, ground_truth_text, inside_polygon
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVER = ROOT / "tests" / "js" / "eval_operator.mjs"
@@ -72,10 +72,11 @@ def node_eval(op, Qs, tmp_path, regions=None):
 
 
 def _float32_bound(op, Q):
-    """|D_js − D| ≤ u·Σ_j |ψ_j(Q)| |W_jc| per coordinate: W stored in float32 (relative error ≤ u = 2^-24),
-    products accumulated in float64 (their error is ~1e-16 relative, far below)."""
-    psi = np.abs(op.psi(Q))
-    return (U32 * (psi @ np.abs(op.W)) + 1e-12 * op.mesh.bbox_diagonal).reshape(-1, 2)
+    """|D_js − D| ≤ u·Σ_j |δψ_j(Q)| |W_F,jc| per coordinate ((★) of defop.operator): W_F stored in float32
+    (relative error ≤ u = 2^-24), products accumulated in float64 (their error is ~1e-16 relative, far below)."""
+    basis = op.handle_basis
+    dpsi = np.abs(basis.delta_z(np.atleast_2d(basis.z(Q))))[0]
+    return (U32 * (dpsi @ np.abs(op._WF)) + 1e-12 * op.mesh.bbox_diagonal).reshape(-1, 2)
 
 
 def _displacements(n):
@@ -248,9 +249,9 @@ def test_state_ground_truth(operators, shape):
     np.testing.assert_array_equal(state.Q_gt, state.Q)
     e = state.gt_error
     assert 0 < e["rms"] <= e["max"] < 0.05 and e["flips_gt"] == 0
-    assert "error rms" in state.ground_truth_text()
+    assert "error rms" in ground_truth_text(state)
     state.set_ground_truth(False)
-    assert state.gt_error is None and state.ground_truth_text() == ""
+    assert state.gt_error is None and ground_truth_text(state) == ""
 
 
 def test_widget_kernel_side(operators, shape):

@@ -98,7 +98,7 @@ def test_normalise_drops_churn_and_keeps_outputs():
     out = figures.normalise(copy.deepcopy(nb))
     assert "widgets" not in out.metadata and "version" not in out.metadata.language_info
     assert out.metadata.kernelspec == nb.metadata.kernelspec
-    assert out.cells[0].execution_count is None and "execution" not in out.cells[0].metadata
+    assert out.cells[0].execution_count == 1 and "execution" not in out.cells[0].metadata  # numbered as a run-all
     assert out.cells[0].id == nb.cells[0].id
     kinds = [o.get("data", {}).keys() or o.text for o in out.cells[0].outputs]
     assert kinds == [{"image/png", "text/plain"}, "kept\n"]

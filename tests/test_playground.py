@@ -1,4 +1,4 @@
-"""The playground (notebook 11): every shape can be picked, and the notebook never hangs under the main job."""
+"""The playground (notebook 11): every shape of the in-page editor's menu trains, and the notebook never hangs."""
 
 from __future__ import annotations
 
@@ -7,38 +7,34 @@ import pytest
 
 import defop as dop
 from defop import figures
+from defop.browser import BrowserEditor
+from defop.editor_state import EditorState
 
 
-def test_picker_trains_every_shape_with_enough_samples_and_shows_progress(tmp_path, monkeypatch):
+def test_every_shape_in_the_menu_trains_with_enough_samples(tmp_path, monkeypatch):
     """Each shape trains (empty cache) with at least the fewest samples its moving handles need (m=1 asks
-    for fewer), and the progress bar under the dropdown counts the sample solves."""
+    for fewer), as the page's shape menu does; a drag then interpolates the handle (Prop. 2)."""
     monkeypatch.setenv("DEFOP_CACHE", str(tmp_path))
-    steps = []
-    picker = dop.widgets.shape_picker(value="bar", m=1)
-    label, bar = picker.children[1].children
-    bar.observe(lambda change: steps.append((change["name"], change["new"])), names=["value", "max"])
-    for name in dop.shapes.names():
-        if name != "bar":
-            steps.clear()
-            picker.children[0].value = name  # the dropdown, as a user picks
-        editor = picker.editor
-        assert editor.shape.name == name
-        need = dop.widgets.min_samples("tps", editor.shape.n_moving)
-        assert len(editor.operator.handle_basis.centers) >= need + 1  # the samples and the rest pose
-        if name != "bar":
-            assert ("value", need) in steps, f"{name}: the bar never counted {need} solves: {steps[:6]}"
-        # a drag interpolates the handle exactly at an untrained Q (Prop. 2)
-        q = editor.Q[0] + 0.05 * editor.diag
-        editor.set_handle(0, q)
-        assert np.abs(editor.X[editor.shape.moving_handles[0]] - q).max() < 1e-9
-    assert bar.layout.display == "none" and label.value == ""  # hidden once trained
+    monkeypatch.setenv("DEFOP_N_JOBS", "1")
+    names = dop.shapes.names()
+    editor = BrowserEditor("bar", shapes=names, m=1)
+    assert editor.payload_meta["scalars"]["shapes"] == list(names)
+    for name in names:
+        editor.shape_name = name  # the page's shape menu
+        s = editor.state
+        assert s.shape.name == name and editor.payload_meta["scalars"]["n_vertices"] == s.mesh.n_vertices
+        need = dop.train.min_samples("tps", s.shape.n_moving)
+        assert len(s.operator.handle_basis.centers) >= need + 1  # the samples and the rest pose
+        q = s.Q[0] + 0.05 * s.diag
+        editor.q = np.vstack([q, s.Q[1:]]).ravel().tolist()  # a release in the page
+        np.testing.assert_allclose(s.X[s.shape.moving_handles[0]], q, atol=1e-9 * s.diag)
 
 
-@pytest.mark.parametrize("kind", dop.widgets.BASES)
+@pytest.mark.parametrize("kind", dop.handle_bases.KINDS)
 def test_min_samples_is_the_fewest_the_fit_accepts(kind):
     """Checked against problem (8) itself: the fit takes min_samples samples and rejects one fewer."""
     shape = dop.shapes.load("u_shape")
-    need = dop.widgets.min_samples(kind, shape.n_moving)
+    need = dop.train.min_samples(kind, shape.n_moving)
     rng = np.random.default_rng(1)
     samples = dop.sampling.sample_shape(shape, need, rng)
     X = shape.mesh.V + 0.01 * rng.standard_normal((need, *shape.mesh.V.shape))
@@ -48,11 +44,22 @@ def test_min_samples_is_the_fewest_the_fit_accepts(kind):
         dop.fit.fit(*args, samples[1:], X[1:], kind, "hat")
 
 
-def test_a_basis_switch_trains_with_its_own_minimum():
-    editor = dop.widgets.HandleEditor("u_shape", m=1)
-    editor.set_basis("quadratic")
-    assert editor.operator.handle_basis.size == dop.handle_bases.basis_size("quadratic", 2)
-    editor.close()
+def test_a_basis_switch_trains_with_its_own_minimum(tmp_path, monkeypatch):
+    monkeypatch.setenv("DEFOP_CACHE", str(tmp_path))
+    state = EditorState("u_shape", m=1)
+    state.set_basis("quadratic")
+    assert state.operator.handle_basis.size == dop.handle_bases.basis_size("quadratic", 2)
+
+
+def test_the_stored_output_is_a_picture_and_a_line(tmp_path, monkeypatch):
+    """What a stored notebook keeps of the editor (figures.normalise drops the widget view)."""
+    monkeypatch.setenv("DEFOP_CACHE", str(tmp_path))
+    editor = BrowserEditor("u_shape", m=5)
+    bundle = editor._repr_mimebundle_()
+    assert figures.WIDGET_VIEW in bundle
+    out = figures._static_outputs([{"output_type": "display_data", "data": dict(bundle), "metadata": {}}])
+    assert set(out[0]["data"]) == {"image/png", "text/plain"}
+    assert out[0]["data"]["text/plain"].startswith("Handle editor: u_shape")
 
 
 @pytest.mark.slow

@@ -1,8 +1,9 @@
-"""The handle editor, driven headlessly (Agg): callbacks, real matplotlib mouse events, controls.
+"""The editor's state driven through its public API, and the matplotlib / ipywidgets views that show it (Agg).
 
 The operators are real DefOps trained with few samples on a coarse bar (cached in a temporary
 DEFOP_CACHE), so the checks exercise the actual evaluation path: the interpolation property
-(handles map exactly to Q, problem 8c), the rest pose D(·, P) = x (8b), and bases that differ.
+(handles map exactly to Q, Prop. 2), the rest pose D(·, P) = x (8b), and bases that differ.
+Views are checked through what a user sees (the PNG, the readouts, the control values), not their artists.
 """
 
 from __future__ import annotations
@@ -11,11 +12,17 @@ import matplotlib
 
 matplotlib.use("Agg")
 
+import io
+
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from matplotlib.backend_bases import MouseEvent
+from PIL import Image
 
 import defop as dop
+from defop.editor_state import EditorState, readout_text
 
 M_TRAIN = 12  # samples per operator: enough for the linear basis (1 + 2n functions) on the bar
 
@@ -35,176 +42,188 @@ def setup(tmp_path_factory):
 
 
 @pytest.fixture
-def editor(setup):
+def state(setup):
     shape, operators = setup
-    ed = dop.widgets.HandleEditor(shape, operators=dict(operators), basis="tps")
+    return EditorState(shape, dict(operators), basis="tps", kinds=("linear", "tps"))
+
+
+@pytest.fixture
+def editor(state):
+    ed = dop.widgets.HandleEditor(state)
     yield ed
     ed.close()
 
 
-def _offset(ed):
+def _offset(s):
     """A displacement of 15% of the diagonal, up and to the right (inside the axes)."""
-    return np.array([0.15, 0.10]) * ed.diag
+    return np.array([0.15, 0.10]) * s.diag
 
 
-def _drag(ed, i, target, steps=6):
-    start = ed.Q[i].copy()
-    assert ed.on_press(*start) == i
+def _drag(s, i, target, steps=6):
+    start = s.Q[i].copy()
+    assert s.press(*start) == i
     for t in np.linspace(0.0, 1.0, steps):
-        ed.on_motion(*(start + t * (target - start)))
-    assert ed.on_release()
+        assert s.drag(*(start + t * (target - start)))
+    assert s.release()
 
 
-def _mouse(ed, name, xy_data, button=1):
-    """Fire a real matplotlib MouseEvent at a data point through the canvas callbacks."""
-    ed.fig.canvas.draw()
-    x, y = ed.ax.transData.transform(xy_data)
-    event = MouseEvent(name, ed.fig.canvas, x, y, button=button)
-    ed.fig.canvas.callbacks.process(name, event)
-    return event
+def _png(data):
+    return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"), dtype=np.int16)
 
 
-def test_rest_pose_at_start(editor):
-    np.testing.assert_allclose(editor.Q, editor.shape.P_moving)
-    np.testing.assert_allclose(editor.X, editor.mesh.V, atol=1e-8)  # (8b): D(·, P) = x
+def test_rest_pose_at_start(state):
+    np.testing.assert_allclose(state.Q, state.shape.P_moving)
+    np.testing.assert_allclose(state.X, state.mesh.V, atol=1e-8)  # (8b): D(·, P) = x
+    assert state.active is None and not state.flipped.any()
 
 
-def test_drag_moves_handle_and_mesh_and_interpolates(editor):
-    V = editor.mesh.V
-    target = editor.Q[0] + _offset(editor)
-    _drag(editor, 0, target)
-    np.testing.assert_allclose(editor.Q[0], target)
-    np.testing.assert_allclose(editor.Q[1:], editor.P[1:])  # only the picked handle moved
-    assert editor.active is None
-    assert np.abs(editor.X - V).max() > 0.05 * editor.diag  # the mesh moved
-    np.testing.assert_allclose(editor.X[editor.moving_idx], editor.Q, atol=1e-8)  # (8c): handles interpolated
-    if len(editor.fixed_idx):
-        np.testing.assert_allclose(editor.X[editor.fixed_idx], V[editor.fixed_idx], atol=1e-8)
-    # the artists show the new state
-    np.testing.assert_allclose(np.column_stack(editor._handle_artist.get_data()), editor.Q)
-    paths = editor._mesh_artist.get_paths()
-    np.testing.assert_allclose(paths[0].vertices[:3], editor.X[editor.mesh.F[0]])
-    assert "fps" in editor.readout_text()
-    assert editor.fps is not None and editor.fps > 0
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(dx=st.floats(-0.3, 0.3), dy=st.floats(-0.3, 0.3), kind=st.sampled_from(["linear", "tps"]))
+def test_drag_moves_handle_and_mesh_and_interpolates(state, dx, dy, kind):
+    state.reset()
+    state.set_basis(kind)
+    V = state.mesh.V
+    target = state.Q[0] + np.array([dx, dy]) * state.diag
+    _drag(state, 0, target)
+    np.testing.assert_allclose(state.Q[0], target)
+    assert state.active is None
+    np.testing.assert_allclose(state.X[state.shape.moving_handles], state.Q, atol=1e-8)  # Prop. 2
+    fixed = state.shape.fixed_handles
+    np.testing.assert_allclose(state.X[fixed], V[fixed], atol=1e-8)
+    if np.hypot(dx, dy) > 0.05:
+        assert np.abs(state.X - V).max() > 0.04 * state.diag  # the mesh moved
+    assert state.eval_time > 0 and "evaluation" in readout_text(state)
 
 
-def test_press_away_from_handles_picks_nothing(editor):
-    far = editor.Q[0] + np.array([0.0, 3 * editor.pick_radius])
-    assert editor.on_press(*far) is None
-    assert not editor.on_motion(*(far + 0.1))
-    assert not editor.on_release()
-    np.testing.assert_allclose(editor.Q, editor.P)
+def test_press_away_from_handles_picks_nothing(state):
+    far = state.Q[0] + np.array([0.0, 3 * state.pick_radius * state.diag])
+    assert state.press(*far) is None
+    assert not state.drag(*(far + 0.1))
+    assert not state.release()
+    np.testing.assert_allclose(state.Q, state.P)
 
 
-def test_matplotlib_mouse_events_are_wired(editor):
-    start = editor.Q[0].copy()
-    target = start + _offset(editor)
-    _mouse(editor, "button_press_event", start)
-    assert editor.active == 0
-    _mouse(editor, "motion_notify_event", 0.5 * (start + target))
-    _mouse(editor, "motion_notify_event", target)
-    _mouse(editor, "button_release_event", target)
-    assert editor.active is None
-    pixel = (editor.xlim[1] - editor.xlim[0]) / editor.ax.bbox.width  # MouseEvent rounds to whole pixels
-    np.testing.assert_allclose(editor.Q[0], target, atol=2 * pixel)
-    np.testing.assert_allclose(editor.X[editor.moving_idx], editor.Q, atol=1e-8)
-    # the right mouse button does not pick
-    _mouse(editor, "button_press_event", editor.Q[0], button=3)
-    assert editor.active is None
-    # the canvas-fraction readout (used by the browser test) matches the pixel transform
-    uv = editor.handle_canvas_fractions()
-    x, y = editor.ax.transData.transform(editor.Q[0])
-    np.testing.assert_allclose(uv[0], [x / editor.fig.bbox.width, 1 - y / editor.fig.bbox.height])
+def test_readout_warns_when_a_handle_leaves_its_region(state):
+    state.set_handle(0, state.P[0] + [3 * state.diag, 0.0])
+    assert state.outside_regions() == [0]
+    assert "outside its sampling region" in readout_text(state)
 
 
-def test_switching_basis_changes_the_operator(editor):
-    Q = editor.P + _offset(editor)
-    editor.set_Q(Q)
-    X_tps = editor.X.copy()
-    editor.set_basis("linear")
-    assert editor.kind == "linear" and editor.basis_dropdown.value == "linear"
-    assert editor.operator is editor.operators["linear"]
-    assert np.abs(editor.X - X_tps).max() > 1e-4 * editor.diag  # same Q, different DefOp
-    np.testing.assert_allclose(editor.X[editor.moving_idx], Q, atol=1e-8)
-    editor.basis_dropdown.value = "tps"  # the dropdown drives set_basis
-    assert editor.kind == "tps"
-    np.testing.assert_allclose(editor.X, X_tps)
-    with pytest.raises(ValueError, match="unknown"):
-        editor.set_basis("quartic")
+def test_switching_basis_changes_the_operator(state):
+    Q = state.P + _offset(state)
+    state.set_Q(Q)
+    X_tps = state.X.copy()
+    state.set_basis("linear")
+    assert state.kind == "linear" and state.operator is state.operators["linear"]
+    assert np.abs(state.X - X_tps).max() > 1e-4 * state.diag  # same Q, different DefOp
+    np.testing.assert_allclose(state.X[state.shape.moving_handles], Q, atol=1e-8)
+    state.set_basis("tps")
+    np.testing.assert_allclose(state.X, X_tps)
+    with pytest.raises(ValueError, match="not offered"):
+        state.set_basis("quartic")
 
 
-def test_reset_restores_rest_pose(editor):
-    _drag(editor, 0, editor.Q[0] + _offset(editor))
-    editor.reset()
-    np.testing.assert_allclose(editor.Q, editor.P)
-    np.testing.assert_allclose(editor.X, editor.mesh.V, atol=1e-8)
-    np.testing.assert_allclose([(sx.value, sy.value) for sx, sy in editor.sliders], editor.P)
-    editor.reset_button.click()  # the button is wired too
-    np.testing.assert_allclose(editor.Q, editor.P)
-
-
-def test_sliders_follow_drags_and_drive_handles(editor):
-    target = editor.Q[0] + _offset(editor)
-    _drag(editor, 0, target)
-    sx, sy = editor.sliders[0]
-    assert (sx.value, sy.value) == pytest.approx(tuple(target))
-    sy.value = float(editor.P[0, 1] - 0.1 * editor.diag)  # the slider moves the handle
-    assert editor.Q[0, 1] == pytest.approx(sy.value)
-    assert editor.Q[0, 0] == pytest.approx(target[0])
-    np.testing.assert_allclose(editor.X[editor.moving_idx], editor.Q, atol=1e-8)
-
-
-def test_bad_input_is_rejected(editor, setup):
+def test_bad_input_is_rejected(state, setup):
     with pytest.raises(ValueError, match="shape"):
-        editor.set_Q(np.zeros((editor.shape.n_moving + 1, 2)))
-    Q = editor.P.copy()
+        state.set_Q(np.zeros((state.shape.n_moving + 1, 2)))
+    Q = state.P.copy()
     Q[0, 0] = np.nan
-    with pytest.raises(ValueError, match="row 0"):
-        editor.set_Q(Q)
+    with pytest.raises(ValueError, match="handle 0"):
+        state.set_Q(Q)
     with pytest.raises(ValueError, match="out of range"):
-        editor.set_handle(editor.shape.n_moving, (0.0, 0.0))
+        state.set_handle(state.shape.n_moving, (0.0, 0.0))
     with pytest.raises(ValueError, match="basis"):
-        dop.widgets.HandleEditor(setup[0], operators=setup[1], basis="spline")
+        EditorState(setup[0], operators=setup[1], basis="spline")
 
 
-def test_ground_truth_warm_started_overlay(editor):
-    """Slowest part (a few S-ARAP solves on ~150 vertices)."""
-    starts = []
-    solver = editor.solver
-    solve = solver.solve
+def test_ground_truth_is_solved_on_release_only(state):
+    """Slowest part (a few S-ARAP solves on ~150 vertices): one warm solve per release, none per drag frame,
+    through the one warm-start policy (Solver.solve_best, keep="first") starting from the moved ground truth."""
+    calls = []
+    solver = state.solver
+    original = solver.solve_best
 
-    def recording_solve(targets, X0=None, **kw):
-        starts.append(None if X0 is None else np.array(X0))
-        return solve(targets, X0=X0, **kw)
+    def recording(targets, starts=(), **kw):
+        calls.append(([np.array(X0) for X0 in starts], kw))
+        return original(targets, starts=starts, **kw)
 
-    solver.solve = recording_solve
-    editor.gt_live = False  # solve only at the end of an interaction
-    editor.set_ground_truth(True)
-    assert editor.gt_toggle.value and editor._gt_artist.get_visible()
-    np.testing.assert_allclose(editor.X_gt, editor.mesh.V, atol=1e-6)  # at rest the ground truth is the rest pose
-    target = editor.Q[0] + _offset(editor)
-    _drag(editor, 0, target)
-    assert len(starts) == 2  # once when switched on, once on release: no solve per motion frame
-    # warm start: the previous ground truth (the rest pose) moved by the DefOp's step
-    np.testing.assert_allclose(starts[1], editor.X, atol=1e-6)
-    np.testing.assert_allclose(editor.X_gt[editor.shape.handles], editor.shape.targets(editor.Q), atol=1e-8)
-    assert 0 < editor.gt_error["rms"] < 0.1  # a DefOp trained on 12 samples is close, not equal
-    assert "ground truth" in editor.readout_text()
-    paths = editor._gt_artist.get_paths()
-    np.testing.assert_allclose(paths[0].vertices[:3], editor.X_gt[editor.mesh.F[0]])
-    editor.gt_toggle.value = False  # the toggle drives set_ground_truth
-    assert not editor.gt_enabled and not editor._gt_artist.get_visible()
+    solver.solve_best = recording
+    state.set_ground_truth(True)
+    np.testing.assert_allclose(state.X_gt, state.mesh.V, atol=1e-6)  # at rest the ground truth is the rest pose
+    assert len(calls) == 1 and calls[0][1]["keep"] == "first"
+    X_gt0, X0 = state.X_gt.copy(), state.X.copy()
+    _drag(state, 0, state.Q[0] + _offset(state))
+    assert len(calls) == 2  # the release, not the 6 drag frames
+    starts, _kw = calls[1]
+    np.testing.assert_allclose(starts[0], X_gt0 + state.X - X0, atol=1e-9)  # the previous one moved by D's step
+    np.testing.assert_allclose(starts[1], state.X)
+    assert state.gt_result.converged
+    np.testing.assert_allclose(state.X_gt[state.shape.handles], state.shape.targets(state.Q), atol=1e-8)
+    assert 0 < state.gt_error["rms"] < 0.1  # a DefOp trained on 12 samples is close, not equal
+    assert "error rms" in readout_text(state)
+    state.set_ground_truth(False)
+    assert state.gt_error is None and "ground truth" not in readout_text(state)
 
 
-def test_static_3d_view_follows_the_deformation(editor):
-    """The PyVista view without trame: a PNG re-rendered at the end of each interaction."""
-    try:
-        render = dop.render
-    except ImportError as exc:  # render.py (infra) or pyvista missing
-        pytest.skip(f"defop.render unavailable: {exc}")
-    assert render is not None
-    image = editor.view_3d(backend="static")
-    first = image.value
-    assert first[:8] == b"\x89PNG\r\n\x1a\n"
-    _drag(editor, 0, editor.Q[0] + _offset(editor))
-    assert image.value != first
+# ---------------------------------------------------------------------------------------------- views
+def test_canvas_picture_follows_the_state(state):
+    view = dop.widgets.CanvasView(state, interactive=False)
+    before = _png(view.png())
+    state.set_handle(0, state.P[0] + _offset(state))
+    view.refresh()
+    after = _png(view.png())
+    assert before.shape == after.shape
+    assert np.mean(np.any(np.abs(after - before) > 30, axis=2)) > 0.005  # the picture changed
+    uv = view.handle_fractions()[0]  # the dragged handle is drawn red where handle_fractions says
+    h, w = after.shape[:2]
+    patch = after[int(uv[1] * h) - 2:int(uv[1] * h) + 3, int(uv[0] * w) - 2:int(uv[0] * w) + 3]
+    assert (patch[..., 0] > 150).any() and (patch[..., 0] - patch[..., 2] > 60).any(), patch
+
+
+def test_matplotlib_mouse_events_drive_the_state(editor):
+    s, canvas = editor.state, editor.canvas
+
+    def mouse(name, xy, button=1):
+        canvas.fig.canvas.draw()
+        x, y = canvas.ax.transData.transform(xy)
+        canvas.fig.canvas.callbacks.process(name, MouseEvent(name, canvas.fig.canvas, x, y, button=button))
+
+    start = s.Q[0].copy()
+    target = start + _offset(s)
+    mouse("button_press_event", start)
+    assert s.active == 0
+    mouse("motion_notify_event", 0.5 * (start + target))
+    mouse("motion_notify_event", target)
+    mouse("button_release_event", target)
+    assert s.active is None
+    pixel = (canvas.xlim[1] - canvas.xlim[0]) / canvas.ax.bbox.width  # MouseEvent rounds to whole pixels
+    np.testing.assert_allclose(s.Q[0], target, atol=2 * pixel)
+    mouse("button_press_event", s.Q[0], button=3)  # the right button does not pick
+    assert s.active is None
+    sx, sy = editor.controls.sliders[0]  # the controls followed the mouse
+    assert (sx.value, sy.value) == pytest.approx(tuple(s.Q[0]))
+    assert f"{s.Q[0, 0]:.3f}" in editor.controls.handle_readout.value
+
+
+def test_controls_drive_the_state(editor):
+    s, c = editor.state, editor.controls
+    c.basis.value = "linear"
+    assert s.kind == "linear"
+    sx, sy = c.sliders[0]
+    sy.value = float(s.P[0, 1] - 0.1 * s.diag)  # a slider moves the handle
+    assert s.Q[0, 1] == pytest.approx(sy.value)
+    np.testing.assert_allclose(s.X[s.shape.moving_handles], s.Q, atol=1e-8)
+    c.reset.click()
+    np.testing.assert_allclose(s.Q, s.P)
+    assert (sx.value, sy.value) == pytest.approx(tuple(s.P[0]))
+    assert "linear: evaluation" in c.readout.value
+    assert editor.widget.children[1].value[:8] == b"\x89PNG\r\n\x1a\n"  # without ipympl: a picture
+
+
+def test_static_bundle_is_a_picture_and_a_line(state):
+    bundle = dop.widgets.static_bundle(state)
+    import base64
+
+    image = _png(base64.b64decode(bundle["image/png"]))
+    assert image.shape[0] > 100 and image.shape[1] > 200
+    assert "bar" in bundle["text/plain"] and "tps" in bundle["text/plain"]

@@ -8,8 +8,8 @@
 //
 // The payload is written by defop.browser.defop_to_payload: Ψ's kind, the rest positions P of the moving
 // handles, the normalising scale, the TPS centres z_k = (Q_k − P)/scale or the monomial plan, and the
-// float32 factors A (|Ψ| × r) and B (r × 2·n_vertices) with D(·, Q).ravel() = (Ψ(Q) A) B, or B absent and
-// A = W (|Ψ| × 2·n_vertices). Products accumulate in float64 (JavaScript numbers).
+// float32 factors A ((|Ψ|−1) × r) and B (r × 2·n_vertices) of W_F ≈ A B, or B absent and A = W_F
+// ((|Ψ|−1) × 2·n_vertices), evaluated as (★) of defop.operator. Products accumulate in float64 (JavaScript numbers).
 
 const DTYPES = { f8: Float64Array, f4: Float32Array, i4: Int32Array, u1: Uint8Array };
 
@@ -41,9 +41,10 @@ export function fromBase64(text) {
  */
 export function makeOperator(p) {
   const n = p.n_moving, d = 2 * n, size = p.size, nc = 2 * p.n_vertices;
-  const P = p.P, scale = p.scale, A = p.A, B = p.B || null, r = B ? p.rank : nc;
-  const z = new Float64Array(d), psi = new Float64Array(size);
+  const P = p.P, scale = p.scale, A = p.A, B = p.B || null, r = B ? p.rank : nc, x = p.V;
+  const z = new Float64Array(d), psi = new Float64Array(size), dpsi = new Float64Array(size - 1);
   const tmp = new Float64Array(r), out = new Float64Array(nc);
+  const movingVertices = Array.from(p.handles).filter((_, i) => p.moving[i]); // row l of Q is vertex movingVertices[l]
 
   function fillPsi(Q) {
     for (let i = 0; i < d; i++) z[i] = (Q[i] - P[i]) / scale;
@@ -62,6 +63,7 @@ export function makeOperator(p) {
     }
     return psi;
   }
+  const psi0 = Float64Array.from(fillPsi(P)).subarray(1); // Ψ(P)[1:], by the same code as every frame
 
   function rowCombination(w, M, rows, cols, res) { // res = w @ M, M row-major (rows × cols)
     res.fill(0);
@@ -74,11 +76,20 @@ export function makeOperator(p) {
     return res;
   }
 
+  // (★) of defop.operator: D(·, Q) = x + δψ(Q) W_F, then the moving handles' columns get Q − P exactly.
+  // δψ(P) = 0 bit for bit (rest pose exact, 8b); W_F is zero on every handle column (Prop. 2).
   function evaluate(Q) {
     fillPsi(Q);
-    if (!B) return rowCombination(psi, A, size, nc, out);
-    rowCombination(psi, A, size, r, tmp);
-    return rowCombination(tmp, B, r, nc, out);
+    for (let j = 0; j < size - 1; j++) dpsi[j] = psi[j + 1] - psi0[j];
+    if (B) rowCombination(rowCombination(dpsi, A, size - 1, r, tmp), B, r, nc, out);
+    else rowCombination(dpsi, A, size - 1, nc, out);
+    for (let c = 0; c < nc; c++) out[c] += x[c];
+    for (let l = 0; l < n; l++) {
+      const v = movingVertices[l];
+      out[2 * v] += Q[2 * l] - P[2 * l];
+      out[2 * v + 1] += Q[2 * l + 1] - P[2 * l + 1];
+    }
+    return out;
   }
 
   return { psi: fillPsi, evaluate, n_moving: n, n_vertices: p.n_vertices };
@@ -151,6 +162,16 @@ function buildLayout(root, opts) {
   box.append(stack, side);
   root.appendChild(box);
   return { box, canvas, glCanvas, title, basis, shape, reset, gt, warn, readout, gtReadout };
+}
+
+/** Canvas height (px) for `width`: the rest mesh plus the view's margin, between 320 and 560. */
+function fitHeight(V, width, margin) {
+  let x0 = Infinity, x1 = -Infinity, y0 = Infinity, y1 = -Infinity;
+  for (let i = 0; i < V.length; i += 2) {
+    x0 = Math.min(x0, V[i]); x1 = Math.max(x1, V[i]); y0 = Math.min(y0, V[i + 1]); y1 = Math.max(y1, V[i + 1]);
+  }
+  const pad = 2 * margin * Math.hypot(x1 - x0, y1 - y0);
+  return Math.round(Math.min(560, Math.max(320, (width * (y1 - y0 + pad)) / (x1 - x0 + pad))));
 }
 
 /** Axis-aligned view: fits the rest mesh plus a margin into the canvas, y up. */
@@ -397,24 +418,28 @@ function wireControls(editor, ctx) {
  */
 export function createEditor(root, payload, hooks = {}, options = {}) {
   const ui = buildLayout(root, { kernel: !!hooks.onGroundTruth });
-  const width = options.width || 720, height = options.height || 560;
+  const width = options.width || 720;
   const dpr = (typeof window !== "undefined" && window.devicePixelRatio) || 1;
-  for (const c of [ui.canvas, ui.glCanvas, ui.canvas.parentNode]) {
-    if (c.tagName === "CANVAS") { c.width = Math.round(width * dpr); c.height = Math.round(height * dpr); }
-    c.style.width = width + "px";
-    c.style.height = height + "px";
-  }
   const ctx = ui.canvas.getContext("2d");
-  ctx.scale(dpr, dpr);
-  const st = { width, height, active: null, outside: [], gt: null, gtVisible: false, frames: [], evalMs: [], drawMs: [] };
+  const st = { width, height: 0, active: null, outside: [], gt: null, gtVisible: false, frames: [], evalMs: [], drawMs: [] };
   const editor = { ui, st, hooks };
+  const resize = (height) => { // the canvas follows the shape's aspect, so controls and readout stay in view
+    for (const c of [ui.canvas, ui.glCanvas, ui.canvas.parentNode]) {
+      if (c.tagName === "CANVAS") { c.width = Math.round(width * dpr); c.height = Math.round(height * dpr); }
+      c.style.width = width + "px";
+      c.style.height = height + "px";
+    }
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    st.height = height;
+  };
 
   editor.load = (payload_, Q) => {
     const p = payload_;
     st.p = p;
     st.op = makeOperator(p);
-    st.view = makeView(p.V, width, height, 0.25);
-    st.gl = options.webgl === false ? null : makeGL(ui.glCanvas, p, st.view, width, height);
+    resize(options.height || fitHeight(p.V, width, 0.25));
+    st.view = makeView(p.V, width, st.height, 0.25);
+    st.gl = options.webgl === false ? null : makeGL(ui.glCanvas, p, st.view, width, st.height);
     st.Q = Float64Array.from(Q || p.P);
     st.gt = null;
     ui.title.textContent = p.title;
