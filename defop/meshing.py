@@ -91,7 +91,7 @@ def check_max_area(max_area, area):
         raise ValueError(f"max_area must be a positive number, got {max_area!r}")
     if area / max_area > 2 * MAX_VERTICES:
         raise ValueError(
-            f"max_area={max_area:.3g} would give about {area / max_area / 2:,.0f} vertices for a shape of area "
+            f"max_area={max_area:.3g} would give about {area / max_area / 2:.3g} vertices for a shape of area "
             f"{area:.3g}; at most {MAX_VERTICES:,} are allowed (use max_area >= {area / (2 * MAX_VERTICES):.3g})"
         )
     return float(max_area)

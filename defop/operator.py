@@ -155,11 +155,10 @@ class DefOp:
     def _not_finite(self, Q, what="Ψ(Q)"):
         Q = np.asarray(Q, dtype=float).reshape(-1, self.n_moving, 2)
         bad = Q[0]
-        with np.errstate(all="ignore"):
-            dist = np.sqrt(np.max(np.sum((Q - self.P) ** 2, axis=-1)))
+        dist = np.max(np.abs(Q - self.P))  # the largest coordinate offset: squaring it would overflow to inf
         return ValueError(
             f"{what} is not finite at Q = {np.array2string(bad, precision=4, threshold=20)}"
-            f"{' (first of the batch)' if len(Q) > 1 else ''}: a handle is {dist:.3g} from rest, beyond "
+            f"{' (first of the batch)' if len(Q) > 1 else ''}: a handle coordinate is {dist:.3g} from rest, beyond "
             f"what the {self.handle_basis.kind} basis can evaluate in float64 (the bounding-box diagonal is "
             f"{self.mesh.bbox_diagonal:.3g})"
         )

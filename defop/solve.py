@@ -483,7 +483,9 @@ class Solver:
         if len(bad):
             k = int(bad[0])
             v = int(self.handles_given[k])
-            raise ValueError(f"vertex {v} is given two different targets: {tuple(T[self._slot[k]])} and {tuple(Tg[k])}")
+            raise ValueError(
+                f"vertex {v} is given two different targets: {T[self._slot[k]].tolist()} and {Tg[k].tolist()}"
+            )
         return T
 
     # ------------------------------------------------------------------ energy pieces
