@@ -18,7 +18,7 @@ import numpy as np
 
 from .analysis import approximation_error
 from .solve import NotConvergedWarning, Solver
-from .trajectories import Trajectory, discontinuities
+from .trajectories import Trajectory, check_scan, discontinuities
 
 __all__ = ["column_path", "lowest_of", "column_jumps", "arc_samples", "arc_point", "fit_diagnostics", "subspace_floor"]
 
@@ -34,10 +34,7 @@ def column_path(ny, nx, start="bottom"):
     path : (ny*nx, 2) numpy int array
         Grid indices ``(i, j)`` in visiting order.
     """
-    if ny < 1 or nx < 1:
-        raise ValueError(f"grid shape must be positive, got ({ny}, {nx})")
-    if start not in ("bottom", "top"):
-        raise ValueError(f"start must be 'bottom' or 'top', got {start!r}")
+    check_scan(ny, nx, start)
     path = []
     for j in range(nx):
         up = (j % 2 == 0) == (start == "bottom")

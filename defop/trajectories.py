@@ -153,6 +153,14 @@ def handle_grid(center, radius, n, ny=None, radius_y=None):
     return HandleGrid(center=center, xs=xs, ys=ys)
 
 
+def check_scan(ny, nx, start):
+    """Validate the grid shape and start of a boustrophedon scan (:func:`serpentine_path`, column scans)."""
+    if ny < 1 or nx < 1:
+        raise ValueError(f"grid shape must be positive, got ({ny}, {nx})")
+    if start not in ("bottom", "top"):
+        raise ValueError(f"start must be 'bottom' or 'top', got {start!r}")
+
+
 def serpentine_path(ny, nx, start="bottom"):
     """A boustrophedon scan of a (ny, nx) grid: every step moves to a 4-neighbour.
 
@@ -171,10 +179,7 @@ def serpentine_path(ny, nx, start="bottom"):
     path : (ny*nx, 2) numpy int array
         Grid indices ``(i, j)`` in visiting order.
     """
-    if ny < 1 or nx < 1:
-        raise ValueError(f"grid shape must be positive, got ({ny}, {nx})")
-    if start not in ("bottom", "top"):
-        raise ValueError(f"start must be 'bottom' or 'top', got {start!r}")
+    check_scan(ny, nx, start)
     rows = range(ny) if start == "bottom" else range(ny - 1, -1, -1)
     path = []
     for r, i in enumerate(rows):
