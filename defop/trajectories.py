@@ -451,11 +451,19 @@ def _n_workers(jobs):
 
 
 def _maybe_tqdm(it, progress, total, desc):
-    if not progress:
-        return it
-    from tqdm.auto import tqdm
+    """Iterate ``it`` under the one progress policy of :func:`defop.train._progress` (text bars in the main job)."""
+    from .train import _progress
 
-    return tqdm(it, total=total, desc=desc)
+    bar = _progress(total, desc, progress)
+    if bar is None:
+        yield from it
+        return
+    try:
+        for x in it:
+            yield x
+            bar.update(1)
+    finally:
+        bar.close()
 
 
 def _check_path(path, shape):
