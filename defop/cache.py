@@ -33,6 +33,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import stat
 import tempfile
 import time
 import warnings
@@ -252,9 +253,13 @@ class Cache:
         """
         path = self.path(kind, key)
         try:
-            inode = path.stat().st_ino
+            st = path.stat()
         except FileNotFoundError:
             return None
+        if not stat.S_ISREG(st.st_mode):  # e.g. a directory made by hand: not ours to remove
+            warnings.warn(f"cache entry {path} is not a regular file; ignored, recomputing", CacheWarning, stacklevel=3)
+            return None
+        inode = st.st_ino
         try:
             return read(path)
         except _READ_ERRORS as exc:

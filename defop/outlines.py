@@ -9,6 +9,7 @@ Triangle mesh, is the same on every CPU (issue #13).
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +48,9 @@ def outline_from_field(Z, x, y, level=0.0, min_area_frac=1e-3):
     y : (ny,) numpy array
     level : float
     min_area_frac : float
-        Holes smaller than this fraction of the outer area are dropped.
+        Holes and separate regions smaller than this fraction of the outer area are dropped silently.
+        Larger separate regions (outside the largest one, or islands in its holes) are dropped with a
+        UserWarning: one mesh is one connected region.
 
     Returns
     -------
@@ -61,15 +64,24 @@ def outline_from_field(Z, x, y, level=0.0, min_area_frac=1e-3):
     areas = np.array([abs(polygon_area(L)) for L in loops])
     order = np.argsort(-areas, kind="stable")
     outer = loops[order[0]]
-    holes = []
+    holes, dropped = [], []
     for k in order[1:]:
         L = loops[k]
         if areas[k] < min_area_frac * areas[order[0]]:
             continue
-        if points_in_polygon(L[:1], [outer])[0]:
-            # a loop inside the outer one is a hole unless it sits inside another hole (an island)
-            if not any(points_in_polygon(L[:1], [h])[0] for h in holes):
-                holes.append(L)
+        # a loop inside the outer one is a hole unless it sits inside another hole (an island); islands and
+        # loops outside the outer one are separate regions
+        if points_in_polygon(L[:1], [outer])[0] and not any(points_in_polygon(L[:1], [h])[0] for h in holes):
+            holes.append(L)
+        else:
+            dropped.append(areas[k] / areas[order[0]])
+    if dropped:
+        warnings.warn(
+            f"the shape has {len(dropped) + 1} separate regions; kept the largest, dropped {len(dropped)} "
+            f"(the largest dropped one has {max(dropped):.1%} of its area)",
+            UserWarning,
+            stacklevel=2,
+        )
     return outer, holes
 
 

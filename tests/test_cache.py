@@ -203,6 +203,17 @@ def test_load_with_removes_an_entry_its_reader_rejects(tmp_path):
     assert str(path) in str(rec[0].message) and not path.exists()
 
 
+def test_an_entry_path_that_is_a_directory_is_ignored_with_a_warning_and_kept(tmp_path):
+    c = cm.Cache(tmp_path)
+    c.path("gt", "k").mkdir()
+    (c.path("gt", "k") / "user-file").write_text("not ours")
+    with pytest.warns(cm.CacheWarning, match="not a regular file"):
+        assert c.load("gt", "k", {"a": ((None,), "f")}) is None
+    with pytest.warns(cm.CacheWarning, match="could not write"):
+        assert c.store("gt", "k", {"a": np.zeros(2)}) is None  # the result is still the caller's
+    assert (c.path("gt", "k") / "user-file").read_text() == "not ours"
+
+
 def test_a_corrupt_entry_replaced_meanwhile_by_another_process_is_kept(tmp_path):
     store = cm.Cache(tmp_path)
     path = store.store("gt", "k", {"X": np.zeros(2)})

@@ -101,6 +101,19 @@ def test_from_image_disc_and_annulus():
     assert a.mesh.areas.sum() == pytest.approx(np.pi * (R**2 - (R / 2) ** 2), rel=0.05)
 
 
+def test_from_image_warns_when_it_drops_a_separate_region():
+    yy, xx = np.mgrid[:200, :300]
+    two = ((np.hypot(xx - 80, yy - 100) < 60) | (np.hypot(xx - 230, yy - 100) < 30)).astype(float)
+    with pytest.warns(UserWarning, match=r"2 separate regions; kept the largest, dropped 1 .*has 2[45]\.\d% of its area"):
+        s = shapes.from_image(two, n_vertices=400, size=1.0)
+    assert len(s.mesh.boundary_loops()) == 1
+    r = np.hypot(xx - 150, yy - 100)
+    island = ((r < 90) & (r > 50)) | (r < 20)  # an annulus with a disc inside its hole
+    with pytest.warns(UserWarning, match="dropped 1"):
+        a = shapes.from_image(island.astype(float), n_vertices=400)
+    assert len(a.mesh.boundary_loops()) == 2
+
+
 def test_from_image_png_file(tmp_path):
     from matplotlib.image import imsave
 
