@@ -222,6 +222,10 @@ def spikes(P, tol):
     return np.flatnonzero((np.abs(cross) <= tol * lens) & (dot < 0))
 
 
+#: extents a polygon may have: beyond them squared lengths and areas underflow or overflow a float
+SCALE_RANGE = (1e-60, 1e60)  # fourth powers (products of squared lengths) stay normal floats
+
+
 def validate_polygon(outer, holes=()):
     """Check that an outline with holes is something Triangle can mesh.
 
@@ -244,7 +248,7 @@ def validate_polygon(outer, holes=()):
     Raises
     ------
     ValueError
-        Naming the offending vertex, edge or hole.
+        Naming the offending vertex, edge or hole; or the extent, when it is outside :data:`SCALE_RANGE`.
     """
     if isinstance(holes, np.ndarray) and holes.ndim == 2:
         holes = [holes]  # a single hole given as an array
@@ -252,6 +256,12 @@ def validate_polygon(outer, holes=()):
     holes = [check_polygon(H, f"hole {i}") for i, H in enumerate(holes)]
     loops = [outer, *holes]
     what = loop_names(len(holes))
+    ext = np.ptp(np.vstack(loops), axis=0).max()
+    if not SCALE_RANGE[0] <= ext <= SCALE_RANGE[1]:
+        raise ValueError(
+            f"the polygon's extent {ext:.3g} is outside the supported range [{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}] "
+            "(its areas and squared lengths would underflow or overflow); rescale the coordinates"
+        )
     scale = diagonal(np.vstack(loops))
     for i, H in enumerate(holes):
         if len(H) == len(outer) and np.array_equal(np.unique(H, axis=0), np.unique(outer, axis=0)):

@@ -6,6 +6,7 @@ Triangle itself segfaults on a pinched polygon, a zero-width spike and a hole id
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import textwrap
@@ -89,7 +90,7 @@ def test_hole_outside_the_outline_is_rejected_not_left_unused():
         shapes.from_polygon(SQ, [square(6, 0, 1)], handles=[[1, 1]], n_vertices=200)
 
 
-@pytest.mark.parametrize("size", [1e-12, 1e-6, 1.0, 1e6, 1e12])
+@pytest.mark.parametrize("size", [1e-59, 1e-12, 1e-6, 1.0, 1e6, 1e12, 1e59])
 def test_tiny_and_huge_squares_mesh(size):
     """Tolerances are relative: a valid 1e-12 square is not "zero area" and meshes like a unit one."""
     S = square(0, 0, size)
@@ -98,6 +99,12 @@ def test_tiny_and_huge_squares_mesh(size):
     assert 90 <= s.mesh.n_vertices <= 110
     assert np.array_equal(s.P, [[0.5 * size, 0.5 * size]])  # the handle is a vertex, exactly
     assert meshing.triangulate(S).areas.sum() == pytest.approx(size**2, rel=1e-12)
+
+
+@pytest.mark.parametrize("size", [1e-300, 1e-61, 1e61, 1e200])
+def test_squares_beyond_float_range_are_named_not_called_pinched(size):
+    with pytest.raises(ValueError, match=re.escape(f"extent {size:.3g}") + " is outside the supported range .*rescale"):
+        shapes.from_polygon(square(0, 0, size), handles=[[0.5 * size, 0.5 * size]], n_vertices=100)
 
 
 @pytest.mark.parametrize(

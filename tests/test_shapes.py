@@ -104,7 +104,8 @@ def test_from_image_disc_and_annulus():
 def test_from_image_warns_when_it_drops_a_separate_region():
     yy, xx = np.mgrid[:200, :300]
     two = ((np.hypot(xx - 80, yy - 100) < 60) | (np.hypot(xx - 230, yy - 100) < 30)).astype(float)
-    with pytest.warns(UserWarning, match=r"2 separate regions; kept the largest, dropped 1 .*has 2[45]\.\d% of its area"):
+    message = r"2 separate regions; kept the largest, dropped 1 .*has 2[45]\.\d% of its area"
+    with pytest.warns(UserWarning, match=message):
         s = shapes.from_image(two, n_vertices=400, size=1.0)
     assert len(s.mesh.boundary_loops()) == 1
     r = np.hypot(xx - 150, yy - 100)
