@@ -182,8 +182,8 @@ def reduced_basis(mesh, k=100):
         belongs to a single triangle, which the Hessian energy does not constrain).
     """
     n = mesh.n_vertices
-    if int(k) != k or k < 3 or k >= n - 1:
-        raise ValueError(f"k must be an integer with 3 <= k < n_vertices - 1 = {n - 1}, got {k!r}")
+    if int(k) != k or k < 3 or k > n - 4:  # ARPACK finds at most n - 1 eigenpairs, and k + 3 are needed
+        raise ValueError(f"k must be an integer with 3 <= k <= n_vertices - 4 = {n - 4}, got {k!r}")
     k = int(k)
     M = mesh.mass_matrix.tocsc()
     m = M.diagonal()

@@ -50,11 +50,19 @@ def test_affine_residual_annihilates_affine_functions_only():
     assert np.abs(R @ mesh.V[:, 0] ** 2).max() > 1e-4
 
 
-@pytest.mark.parametrize("k", [2, 10_000, 5.5])
+@pytest.mark.parametrize("k", [2, 10_000, 5.5, "n-3", "n-2", "n-1"])
 def test_bad_k(k):
-    mesh = dop.shapes.load("bar").mesh
+    mesh = dop.shapes.load("bar", n_vertices=60).mesh
+    k = mesh.n_vertices - int(k[2:]) if isinstance(k, str) else k
     with pytest.raises(ValueError, match="k must be an integer"):
         spatial.reduced_basis(mesh, k)
+
+
+def test_largest_k_works():
+    mesh = dop.shapes.load("bar", n_vertices=60).mesh
+    B = spatial.reduced_basis(mesh, mesh.n_vertices - 4)
+    assert B.size == mesh.n_vertices - 4  # |Φ| = k: the affine functions are among the k
+    assert np.isfinite(B.U).all()
 
 
 def test_unknown_kind(grid):
