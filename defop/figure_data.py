@@ -5,7 +5,9 @@
 * :func:`arc_samples` and :func:`arc_point`: Fig. 7 (configurations along a bending cantilever's tip path);
 * :func:`fit_diagnostics`: Figs. 2 and 8 (why a richer Ψ can lose to a poorer one: train against held-out
   error and the conditioning of the handle-basis matrix Ψ(Q_k));
-* :func:`subspace_floor`: Fig. 2 (the best error any Ψ can reach with a reduced Φ).
+* :func:`subspace_floor`: Fig. 2 (the best error any Ψ can reach with a reduced Φ);
+* :func:`grid_error`: Figs. 3, 5 (a DefOp's error over the whole grid of a ground-truth trajectory, which
+  ranks the handle bases at a given sample count).
 
 No plotting here (:mod:`defop.plot`), no notebook state.
 """
@@ -18,9 +20,18 @@ import numpy as np
 
 from .analysis import approximation_error
 from .solve import NotConvergedWarning, Solver
-from .trajectories import Trajectory, check_scan, discontinuities
+from .trajectories import Trajectory, _defop_P_moving, _moving_batch, check_scan, discontinuities
 
-__all__ = ["column_path", "lowest_of", "column_jumps", "arc_samples", "arc_point", "fit_diagnostics", "subspace_floor"]
+__all__ = [
+    "column_path",
+    "lowest_of",
+    "column_jumps",
+    "arc_samples",
+    "arc_point",
+    "fit_diagnostics",
+    "subspace_floor",
+    "grid_error",
+]
 
 
 def column_path(ny, nx, start="bottom"):
@@ -204,3 +215,28 @@ def subspace_floor(mesh, X, spatial="reduced", k=100):
     R = X - np.stack([basis.evaluate(A) for A in basis.coefficients(X)])
     m = mesh.mass_matrix.diagonal()
     return float(np.einsum("v,kvc->", m, R**2) / mesh.n_vertices)
+
+
+def grid_error(defop, truth, moving=0):
+    """The Fig. 8 error of a DefOp over every handle position of a ground-truth trajectory's grid.
+
+    Parameters
+    ----------
+    defop : DefOp
+    truth : Trajectory
+        Ground truth (:func:`defop.trajectories.ground_truth_trajectories`) on a grid of positions of
+        the moving handle ``moving``; the other handles at rest.
+    moving : int
+        Index of the moving handle among the moving handles.
+
+    Returns
+    -------
+    float
+        (8a)/n per configuration: :func:`defop.analysis.approximation_error` over the ny·nx grid
+        configurations, divided by their number (so grids of different sizes compare).
+    """
+    X = np.asarray(truth.X, float)
+    if X.shape[2:] != (defop.n_vertices, 2):
+        raise ValueError(f"the trajectory has {X.shape[2]} vertices, the DefOp {defop.n_vertices}")
+    Q = _moving_batch(truth.grid, len(_defop_P_moving(defop)), moving, _defop_P_moving(defop))
+    return approximation_error(defop, Q, X.reshape(len(Q), -1, 2)) / len(Q)
