@@ -7,7 +7,8 @@
   error and the conditioning of the handle-basis matrix Ψ(Q_k));
 * :func:`subspace_floor`: Fig. 2 (the best error any Ψ can reach with a reduced Φ);
 * :func:`grid_error`: Figs. 3, 5 (a DefOp's error over the whole grid of a ground-truth trajectory, which
-  ranks the handle bases at a given sample count).
+  ranks the handle bases at a given sample count) and :func:`grid_errors_over_draws` (that ranking over several
+  sample draws and counts).
 
 No plotting here (:mod:`defop.plot`), no notebook state.
 """
@@ -31,6 +32,7 @@ __all__ = [
     "fit_diagnostics",
     "subspace_floor",
     "grid_error",
+    "grid_errors_over_draws",
 ]
 
 
@@ -240,3 +242,43 @@ def grid_error(defop, truth, moving=0):
         raise ValueError(f"the trajectory has {X.shape[2]} vertices, the DefOp {defop.n_vertices}")
     Q = _moving_batch(truth.grid, len(_defop_P_moving(defop)), moving, _defop_P_moving(defop))
     return approximation_error(defop, Q, X.reshape(len(Q), -1, 2)) / len(Q)
+
+
+def grid_errors_over_draws(shape, truth, regions, ms, seeds, bases, energy="sarap"):
+    """:func:`grid_error` of each handle basis fitted to several independent sample draws of several sizes.
+
+    One draw is a single outcome: whether a richer Ψ beats a poorer one at a small m can depend on where the
+    few samples fell. This trains (:func:`defop.train.train`, cached) on ``sample_handles(..., m, rng=seed)``
+    for every m and seed and measures every basis against the ground truth over the whole grid.
+
+    Parameters
+    ----------
+    shape : Shape
+    truth : Trajectory
+        Ground truth on a grid of positions of the first moving handle.
+    regions : list of defop.regions.Region or dict
+        One sampling region per moving handle (:func:`defop.sampling.sample_handles`).
+    ms : sequence of int
+        Sample counts.
+    seeds : sequence of int
+        One draw per seed.
+    bases : sequence of str
+        Handle bases Ψ.
+    energy : str
+
+    Returns
+    -------
+    errors : (len(ms), len(seeds), len(bases)) numpy array
+        (8a)/n per grid configuration.
+    """
+    from .sampling import sample_handles
+    from .train import train
+
+    errors = np.empty((len(ms), len(seeds), len(bases)))
+    for a, m in enumerate(ms):
+        for b, seed in enumerate(seeds):
+            samples = sample_handles(shape.P_moving, regions, m, rng=seed)
+            for c, basis in enumerate(bases):
+                op = train(shape, energy, basis, samples=samples, progress=False)[0]
+                errors[a, b, c] = grid_error(op, truth)
+    return errors
