@@ -5,7 +5,10 @@
 * :func:`arc_samples` and :func:`arc_point`: Fig. 7 (configurations along a bending cantilever's tip path);
 * :func:`fit_diagnostics`: Figs. 2 and 8 (why a richer Ψ can lose to a poorer one: train against held-out
   error and the conditioning of the handle-basis matrix Ψ(Q_k));
-* :func:`subspace_floor`: Fig. 2 (the best error any Ψ can reach with a reduced Φ).
+* :func:`subspace_floor`: Fig. 2 (the best error any Ψ can reach with a reduced Φ);
+* :func:`grid_error`: Figs. 3, 5 (a DefOp's error over the whole grid of a ground-truth trajectory, which
+  ranks the handle bases at a given sample count) and :func:`grid_errors_over_draws` (that ranking over several
+  sample draws and counts).
 
 No plotting here (:mod:`defop.plot`), no notebook state.
 """
@@ -18,9 +21,19 @@ import numpy as np
 
 from .analysis import approximation_error
 from .solve import NotConvergedWarning, Solver
-from .trajectories import Trajectory, check_scan, discontinuities
+from .trajectories import Trajectory, _defop_P_moving, _moving_batch, check_scan, discontinuities
 
-__all__ = ["column_path", "lowest_of", "column_jumps", "arc_samples", "arc_point", "fit_diagnostics", "subspace_floor"]
+__all__ = [
+    "column_path",
+    "lowest_of",
+    "column_jumps",
+    "arc_samples",
+    "arc_point",
+    "fit_diagnostics",
+    "subspace_floor",
+    "grid_error",
+    "grid_errors_over_draws",
+]
 
 
 def column_path(ny, nx, start="bottom"):
@@ -204,3 +217,68 @@ def subspace_floor(mesh, X, spatial="reduced", k=100):
     R = X - np.stack([basis.evaluate(A) for A in basis.coefficients(X)])
     m = mesh.mass_matrix.diagonal()
     return float(np.einsum("v,kvc->", m, R**2) / mesh.n_vertices)
+
+
+def grid_error(defop, truth, moving=0):
+    """The Fig. 8 error of a DefOp over every handle position of a ground-truth trajectory's grid.
+
+    Parameters
+    ----------
+    defop : DefOp
+    truth : Trajectory
+        Ground truth (:func:`defop.trajectories.ground_truth_trajectories`) on a grid of positions of
+        the moving handle ``moving``; the other handles at rest.
+    moving : int
+        Index of the moving handle among the moving handles.
+
+    Returns
+    -------
+    float
+        (8a)/n per configuration: :func:`defop.analysis.approximation_error` over the ny·nx grid
+        configurations, divided by their number (so grids of different sizes compare).
+    """
+    X = np.asarray(truth.X, float)
+    if X.shape[2:] != (defop.n_vertices, 2):
+        raise ValueError(f"the trajectory has {X.shape[2]} vertices, the DefOp {defop.n_vertices}")
+    Q = _moving_batch(truth.grid, len(_defop_P_moving(defop)), moving, _defop_P_moving(defop))
+    return approximation_error(defop, Q, X.reshape(len(Q), -1, 2)) / len(Q)
+
+
+def grid_errors_over_draws(shape, truth, regions, ms, seeds, bases, energy="sarap"):
+    """:func:`grid_error` of each handle basis fitted to several independent sample draws of several sizes.
+
+    One draw is a single outcome: whether a richer Ψ beats a poorer one at a small m can depend on where the
+    few samples fell. This trains (:func:`defop.train.train`, cached) on ``sample_handles(..., m, rng=seed)``
+    for every m and seed and measures every basis against the ground truth over the whole grid.
+
+    Parameters
+    ----------
+    shape : Shape
+    truth : Trajectory
+        Ground truth on a grid of positions of the first moving handle.
+    regions : list of defop.regions.Region or dict
+        One sampling region per moving handle (:func:`defop.sampling.sample_handles`).
+    ms : sequence of int
+        Sample counts.
+    seeds : sequence of int
+        One draw per seed.
+    bases : sequence of str
+        Handle bases Ψ.
+    energy : str
+
+    Returns
+    -------
+    errors : (len(ms), len(seeds), len(bases)) numpy array
+        (8a)/n per grid configuration.
+    """
+    from .sampling import sample_handles
+    from .train import train
+
+    errors = np.empty((len(ms), len(seeds), len(bases)))
+    for a, m in enumerate(ms):
+        for b, seed in enumerate(seeds):
+            samples = sample_handles(shape.P_moving, regions, m, rng=seed)
+            for c, basis in enumerate(bases):
+                op = train(shape, energy, basis, samples=samples, progress=False)[0]
+                errors[a, b, c] = grid_error(op, truth)
+    return errors

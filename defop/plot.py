@@ -305,3 +305,71 @@ def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2):
                 ax.set_title(titles[c], fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def plot_trajectories(shape, truth, approx, T, vertex, picks, jumps=None, size=3.0):
+    """Fig. 3: deformations with their approximations (top row), the trajectory of the starred point (below).
+
+    Top row: the rest pose with the starred point ``vertex``, then one panel per handle displacement in
+    ``picks``: the variational deformation (filled), the approximation ``approx`` (dashed outline), the
+    starred point on both (filled: ground truth, hollow: approximation), and the handle's position as a
+    coloured dot. Below, one column per trajectory in ``T``: its x and y components as images over the
+    handle plane, the same coloured dots, and black crosses at the ground truth's jumps.
+
+    Parameters
+    ----------
+    shape : defop.shapes.Shape
+    truth : defop.trajectories.Trajectory
+        The variational ground truth on a grid.
+    approx : defop.trajectories.Trajectory
+        The approximation drawn over it in the top row (the paper uses TPS).
+    T : dict of str -> (ny, nx, 2) numpy array
+        Trajectories T_x of ``vertex`` (columns), the ground truth first.
+    vertex : int
+        The starred point x.
+    picks : (k,2) numpy array
+        Handle displacements q − p of the top row (snapped to the nearest grid point).
+    jumps : (j,2) numpy array, optional
+        Handle displacements where the ground truth jumps (:func:`defop.trajectories.discontinuity_points`).
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    grid, mesh = truth.grid, shape.mesh
+    colors = plt.cm.tab10(np.arange(len(picks)))
+    snapped = np.array([grid.displacements[grid.nearest(d)] for d in picks])
+    ncol = max(len(picks) + 1, len(T))
+    fig = plt.figure(figsize=(size * ncol, 3.0 * size))
+    outer = fig.add_gridspec(2, 1, height_ratios=[0.7, 2], hspace=0.12)
+    top = outer[0].subgridspec(1, ncol, wspace=0.08)
+    ax = fig.add_subplot(top[0, 0])
+    plot_mesh(ax, mesh.V, mesh.F, edges=True, edge_color="#00000018")
+    plot_handles(ax, mesh.V, shape.handles, shape.moving, size=14)
+    ax.plot(*mesh.V[vertex], "*", color="k", ms=13, zorder=12)
+    ax.set_title("rest pose, starred point x", fontsize=9)
+    for k, d in enumerate(snapped):
+        ax = fig.add_subplot(top[0, k + 1])
+        X, Y = truth.deformation(d), approx.deformation(d)
+        plot_mesh(ax, mesh.V, mesh.F, X, edges=True, edge_color="#00000018")
+        plot_outline(ax, mesh, Y, color="k", lw=1.0, ls="--")
+        plot_handles(ax, X, shape.handles, shape.moving, size=14)
+        ax.plot(*X[vertex], "*", color="k", ms=13, zorder=12)
+        ax.plot(*Y[vertex], "*", mfc="none", mec="k", ms=13, zorder=12)
+        ax.plot(*(grid.center + d), "o", color=colors[k], ms=8, mec="k", zorder=11)
+        ax.set_title(f"q − p = ({d[0]:+.2f}, {d[1]:+.2f})", fontsize=9)
+    bottom = outer[1].subgridspec(2, len(T) + 1, width_ratios=[1] * len(T) + [0.06], hspace=0.4, wspace=0.25)
+    for c in range(2):
+        vmax = max(np.abs(t[..., c]).max() for t in T.values())
+        for k, (name, t) in enumerate(T.items()):
+            ax = fig.add_subplot(bottom[c, k])
+            im = ax.imshow(t[..., c], origin="lower", extent=grid.extent, cmap="coolwarm", vmin=-vmax, vmax=vmax)
+            if k == 0 and jumps is not None and len(jumps):
+                ax.plot(jumps[:, 0], jumps[:, 1], "kx", ms=4)
+            ax.scatter(*snapped.T, c=colors, s=30, edgecolors="k")
+            ax.set_title(f"{name}: T_x, {'xy'[c]} component", fontsize=9)
+            ax.set_xlabel("q_x − p_x")
+            if k == 0:
+                ax.set_ylabel("q_y − p_y")
+        fig.colorbar(im, cax=fig.add_subplot(bottom[c, len(T)]))
+    return fig

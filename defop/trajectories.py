@@ -16,6 +16,8 @@ Facts the notebooks check with this module:
 * The variational DefOp of a non-convex energy is the minimiser of problem (6) and can jump
   when the minimiser switches branch; ``neighbour_jumps``/``jump_ratio``/``discontinuities``
   detect the jumps on the grid.
+* A smooth interpolant of samples on both sides of such a jump rings: ``range_and_error`` measures how
+  far each approximation leaves the ground truth's range (the TPS overshoot of Figs. 3, 5).
 * "Global" ground truth: every grid point is solved independently by the solver's multi-start
   (``start="global"``: rest pose, saddles escaped, lowest verified minimum; no history). "Local"
   ground truth: the solves are warm-started
@@ -51,6 +53,7 @@ __all__ = [
     "neighbour_jumps",
     "path_jumps",
     "plane_fit_residual",
+    "range_and_error",
     "serpentine_path",
 ]
 
@@ -609,3 +612,54 @@ def path_jumps(D, path):
     _check_path(path, D.shape[:2])
     vals = D[path[:, 0], path[:, 1]]
     return np.linalg.norm(np.diff(vals, axis=0), axis=-1)
+
+
+def range_and_error(T, reference="ground truth", mask=None):
+    """Range of each trajectory and its largest error against a reference trajectory (Figs. 3, 5).
+
+    An approximation that *overshoots* reaches displacements the reference never reaches: it leaves
+    the reference's range, typically next to a jump of the reference.
+
+    Parameters
+    ----------
+    T : dict of str -> (ny, nx, 2) numpy array
+        Trajectories T_x of one point on one grid (e.g. ``{name: traj.of(x)}``), ``reference`` among them.
+    reference : str
+        Key of the ground truth.
+    mask : (ny, nx) numpy bool array, optional
+        Grid points to measure (default: all), e.g. leaving out points where the reference is ambiguous.
+
+    Returns
+    -------
+    dict of str -> dict
+        Per trajectory, over the measured grid points: ``low``, ``high`` (2,) numpy arrays, the smallest
+        and largest value of each component (x, y); ``extent`` (2,) numpy array, max |T_x| per component
+        (the "±" range); ``overshoot`` (2,) numpy array, how far each component leaves the reference's
+        [low, high] (0 when it stays inside); ``max_error`` float, the largest Euclidean error
+        |T_x − T_ref|; ``argmax`` (i, j), the grid index where that error is largest.
+    """
+    if reference not in T:
+        raise ValueError(f"reference {reference!r} is not among the trajectories {sorted(T)}")
+    ref = np.asarray(T[reference], dtype=float)
+    if ref.ndim != 3 or ref.shape[-1] != 2:
+        raise ValueError(f"trajectories must have shape (ny, nx, 2), got {ref.shape} for {reference!r}")
+    mask = np.ones(ref.shape[:2], dtype=bool) if mask is None else np.asarray(mask)
+    if mask.shape != ref.shape[:2] or mask.dtype != bool or not mask.any():
+        raise ValueError(f"mask must be a boolean {ref.shape[:2]} array with at least one True, got {mask.shape}")
+    lo_ref, hi_ref = ref[mask].min(axis=0), ref[mask].max(axis=0)
+    out = {}
+    for name, t in T.items():
+        t = np.asarray(t, dtype=float)
+        if t.shape != ref.shape:
+            raise ValueError(f"trajectory {name!r} has shape {t.shape}, the reference {ref.shape}")
+        err = np.where(mask, np.linalg.norm(t - ref, axis=-1), -np.inf)
+        lo, hi = t[mask].min(axis=0), t[mask].max(axis=0)
+        out[name] = {
+            "low": lo,
+            "high": hi,
+            "extent": np.abs(t[mask]).max(axis=0),
+            "overshoot": np.maximum(0.0, np.maximum(lo_ref - lo, hi - hi_ref)),
+            "max_error": float(err.max()),
+            "argmax": tuple(int(i) for i in np.unravel_index(np.argmax(err), err.shape)),
+        }
+    return out

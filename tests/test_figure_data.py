@@ -101,3 +101,30 @@ def test_column_jumps_finds_a_step():
     y = fd.column_jumps(grid, D)
     np.testing.assert_allclose(y, 0.25)  # between the rows y = 0 and y = 0.5
     assert np.isnan(fd.column_jumps(grid, 0.01 * grid.displacements[..., 0] + 0.02 * grid.displacements[..., 1])).all()
+
+
+def test_grid_error_is_zero_for_tps_through_the_grid_and_matches_the_fig8_metric(bar):
+    grid = dop.trajectories.handle_grid(bar.P_moving[0], 0.1, 3)
+    truth = dop.trajectories.ground_truth_trajectories(bar, grid, "sarap", cache=False, n_jobs=1)
+    Q = grid.positions.reshape(-1, 1, 2)
+    X = truth.X.reshape(len(Q), -1, 2)
+    tps = dop.fit.fit_shape(bar, Q, X, "tps")  # TPS reproduces every training deformation (Prop. 1)
+    assert fd.grid_error(tps, truth) < 1e-20
+    linear = dop.fit.fit_shape(bar, Q, X, "linear")
+    e = fd.grid_error(linear, truth)
+    assert e > 1e-12
+    assert e == pytest.approx(dop.analysis.approximation_error(linear, Q, X) / 9, rel=1e-12)
+    other = dop.shapes.load("bar", n_vertices=120)
+    with pytest.raises(ValueError, match="vertices"):
+        fd.grid_error(dop.fit.fit_shape(other, Q, np.repeat(other.mesh.V[None], 9, axis=0), "linear"), truth)
+
+
+def test_grid_errors_over_draws_matches_one_training_per_draw(bar):
+    grid = dop.trajectories.handle_grid(bar.P_moving[0], 0.1, 3)
+    truth = dop.trajectories.ground_truth_trajectories(bar, grid, "sarap", cache=False, n_jobs=1)
+    disc = [{"kind": "disc", "radius": 0.12}]
+    E = fd.grid_errors_over_draws(bar, truth, disc, (5, 7), (0, 1), ("linear", "quadratic"))
+    assert E.shape == (2, 2, 2) and (E > 0).all()
+    Q = dop.sampling.sample_handles(bar.P_moving, disc, 7, rng=1)
+    op = dop.train.train(bar, "sarap", "quadratic", samples=Q, progress=False)[0]
+    assert E[1, 1, 1] == pytest.approx(fd.grid_error(op, truth), rel=1e-9)

@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from defop import trajectories as tr
 from defop.mesh import Mesh
@@ -246,3 +248,58 @@ def test_ground_truth_rejects_grid_not_centred_on_the_handle(stub):
         tr.ground_truth_trajectories(shape, tr.handle_grid([5.0, 5.0], 0.5, 3), cache=False)
     with pytest.raises(ValueError, match="mode"):
         tr.ground_truth_trajectories(shape, tr.handle_grid(shape.P_moving[0], 0.5, 3), mode="both", cache=False)
+
+
+# ------------------------------------------------------- range and error (Figs. 3, 5)
+_field = st.integers(2, 6).flatmap(
+    lambda n: st.lists(st.floats(-1, 1, allow_nan=False), min_size=n * n * 2, max_size=n * n * 2).map(
+        lambda v: np.reshape(v, (n, n, 2))
+    )
+)
+
+
+@settings(max_examples=40, deadline=None)
+@given(ref=_field, c=st.tuples(st.floats(-2, 2), st.floats(-2, 2)))
+def test_range_and_error_of_a_shifted_trajectory(ref, c):
+    """T = T_ref + c: every value moves by c, so it leaves the range by |c| and errs by |c| everywhere."""
+    c = np.asarray(c)
+    inside = np.full_like(ref, 0.5) * (ref.min(axis=(0, 1)) + ref.max(axis=(0, 1)))  # constant mid-range
+    s = tr.range_and_error({"ground truth": ref, "shifted": ref + c, "inside": inside})
+    np.testing.assert_allclose(s["shifted"]["low"], ref.min(axis=(0, 1)) + c)
+    np.testing.assert_allclose(s["shifted"]["high"], ref.max(axis=(0, 1)) + c)
+    np.testing.assert_allclose(s["shifted"]["overshoot"], np.abs(c), atol=1e-12)
+    assert s["shifted"]["max_error"] == pytest.approx(np.linalg.norm(c), abs=1e-12)
+    assert s["ground truth"]["max_error"] == 0 and not s["ground truth"]["overshoot"].any()
+    assert not s["inside"]["overshoot"].any()
+    np.testing.assert_allclose(s["ground truth"]["extent"], np.abs(ref).max(axis=(0, 1)))
+
+
+def test_range_and_error_mask_leaves_out_points():
+    ref = np.zeros((3, 4, 2))
+    T = ref.copy()
+    T[1, 2] = [0.0, 5.0]  # a spike: error and overshoot 5 there
+    T[0, 0] = [0.0, -1.0]
+    s = tr.range_and_error({"ground truth": ref, "approx": T})
+    assert s["approx"]["max_error"] == 5 and s["approx"]["argmax"] == (1, 2)
+    np.testing.assert_allclose(s["approx"]["overshoot"], [0, 5])
+    mask = np.ones((3, 4), bool)
+    mask[1, 2] = False
+    m = tr.range_and_error({"ground truth": ref, "approx": T}, mask=mask)
+    assert m["approx"]["max_error"] == 1 and m["approx"]["argmax"] == (0, 0)
+    np.testing.assert_allclose(m["approx"]["overshoot"], [0, 1])
+    np.testing.assert_allclose(m["approx"]["high"], [0, 0])
+
+
+@pytest.mark.parametrize(
+    "T, kw, msg",
+    [
+        ({"a": np.zeros((2, 2, 2))}, {}, "reference 'ground truth' is not among"),
+        ({"ground truth": np.zeros((2, 2))}, {}, r"shape \(ny, nx, 2\)"),
+        ({"ground truth": np.zeros((2, 2, 2)), "b": np.zeros((3, 2, 2))}, {}, "trajectory 'b' has shape"),
+        ({"ground truth": np.zeros((2, 2, 2))}, {"mask": np.zeros((2, 2), bool)}, "at least one True"),
+        ({"ground truth": np.zeros((2, 2, 2))}, {"mask": np.ones((2, 3), bool)}, "mask must be a boolean"),
+    ],
+)
+def test_range_and_error_rejects_bad_input(T, kw, msg):
+    with pytest.raises(ValueError, match=msg):
+        tr.range_and_error(T, **kw)
