@@ -269,7 +269,11 @@ void main() { bary = bc; flip = fl; st = uv; gl_Position = vec4((pos.x - xf.x) *
 // one pass draws fill (or the picture) and wireframe: a fragment is on an edge where a barycentric coordinate is ~0.
 // The picture is sampled at the interpolated rest texture coordinate: affine on each triangle, as defop.warp does.
 const FS = `#extension GL_OES_standard_derivatives : enable
+#ifdef GL_FRAGMENT_PRECISION_HIGH
+precision highp float; // texture coordinates of large pictures need more than mediump's 11 bits
+#else
 precision mediump float;
+#endif
 varying vec3 bary; varying float flip; varying vec2 st;
 uniform vec4 fill; uniform vec4 flipped; uniform vec4 edge; uniform float edgesOnly; uniform float textured;
 uniform sampler2D picture;
