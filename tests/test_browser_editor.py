@@ -388,8 +388,10 @@ _WIDGET_NOTEBOOK = [
 
 
 @pytest.fixture
-def widget_lab(tmp_path):
-    """JupyterLab serving a two-cell notebook that shows a BrowserEditor (the pattern of tests/test_browser.py)."""
+def widget_lab(tmp_path, request):
+    """JupyterLab serving a notebook that shows a BrowserEditor (the pattern of tests/test_browser.py).
+
+    The notebook's cells are ``_WIDGET_NOTEBOOK`` unless the test passes others (indirect parametrisation)."""
     import signal
     import sys
 
@@ -399,7 +401,7 @@ def widget_lab(tmp_path):
     root = tmp_path / "notebooks"
     root.mkdir()
     nb = nbformat.v4.new_notebook(
-        cells=[nbformat.v4.new_code_cell(src) for src in _WIDGET_NOTEBOOK],
+        cells=[nbformat.v4.new_code_cell(src) for src in getattr(request, "param", _WIDGET_NOTEBOOK)],
         metadata={"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}},
     )
     nbformat.write(nb, root / "editor.ipynb")
@@ -653,45 +655,92 @@ def _open_picture_editor(page, how, op, shape, image, to_pixels, tmp_path):
     page.evaluate(_MOUNT_WIDGET, traits)
 
 
-@pytest.mark.browser
-@pytest.mark.parametrize("how", ["standalone", "widget"])
-def test_picture_editor_drag_in_chromium(operators, shape, tmp_path, how):
-    """The picture is textured on the mesh (colours at triangle centroids match the picture at the rest
-    centroids), and after a mouse drag the deformed triangles still carry their rest colours."""
-    op = operators["tps"]
-    image, to_pixels = picture_for(shape.mesh)
+def _drag_picture(page, editor, shape, image, to_pixels):
+    """Drag handle 0 of a picture editor with the mouse; assert the handle followed, the picture is textured on
+    the mesh (colours at triangle centroids match the picture at the rest centroids), and after the drag the
+    deformed triangles still carry their rest colours (the picture moved with the mesh)."""
     F = shape.mesh.F
-    with chromium_page() as page:
-        _open_picture_editor(page, how, op, shape, image, to_pixels, tmp_path)
-        editor = "window.defopEditor"
-        assert page.evaluate(f"() => {editor}.imageReady") is True
-        text = page.evaluate(f"() => {editor}.ui.readout.textContent")
-        X0 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
-        rest, before = _textured_colours(page, editor, X0[F].mean(axis=1))
-        end = mouse_drag(page, editor, 45, -35)
-        page.wait_for_timeout(100)
-        Q = np.array(page.evaluate(f"() => Array.from({editor}.st.Q)")).reshape(-1, 2)
-        X1 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
-        moved, after = _textured_colours(page, editor, X1[F].mean(axis=1))
-        page.screenshot(path=f"/tmp/defop_picture_drag_{how}.png")
-        errors, requests = page.errors, page.requests
-    assert not errors, errors
-    assert all(url.startswith(("file:", "data:", "about:", "blob:")) for url in requests), requests
+    assert page.evaluate(f"() => {editor}.imageReady") is True
+    text = page.evaluate(f"() => {editor}.ui.readout.textContent")
     assert f"picture {image.shape[1]} × {image.shape[0]} px: textured (WebGL)" in text, text
+    X0 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
+    rest, before = _textured_colours(page, editor, X0[F].mean(axis=1))
+    end = mouse_drag(page, editor, 45, -35)
+    page.wait_for_timeout(100)
+    Q = np.array(page.evaluate(f"() => Array.from({editor}.st.Q)")).reshape(-1, 2)
+    X1 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
+    moved, after = _textured_colours(page, editor, X1[F].mean(axis=1))
     # the handle followed the mouse, the mesh followed the handle
     np.testing.assert_allclose(Q[0], end, atol=1e-9)
     np.testing.assert_allclose(X1[shape.moving_handles[0]], end, atol=1e-6 * shape.mesh.bbox_diagonal)
-    assert np.linalg.norm(end - op.P[0]) > 0.05 * shape.mesh.bbox_diagonal
+    assert np.linalg.norm(end - shape.P_moving[0]) > 0.05 * shape.mesh.bbox_diagonal
     # texture, not the plain fill (0.949, 0.843, 0.651): the picture's colour at each rest centroid
     expected = _picture_colours(image, to_pixels(X0[F].mean(axis=1)))
     err_rest = np.abs(rest - expected).max(axis=1)
     fill = np.array([0.949, 0.843, 0.651])
     assert np.mean(np.abs(rest - fill).max(axis=1) > 0.1) > 0.8, "the mesh is drawn with its plain fill"
     assert np.quantile(err_rest, 0.9) < 0.06, f"rest colours differ from the picture: {np.quantile(err_rest, 0.9)}"
-    # after the drag every unflipped triangle carries its rest colours (the picture moved with the mesh) ...
+    # after the drag every unflipped triangle carries its rest colours ...
     keep = ~np.asarray(shape.mesh.flipped(X1))
     err_moved = np.abs(moved - expected)[keep].max(axis=1)
     assert np.quantile(err_moved, 0.9) < 0.06, f"the picture did not follow the mesh: {np.quantile(err_moved, 0.9)}"
     # ... and the canvas changed where the mesh moved
     changed = np.mean(np.any(np.abs(after - before) > 30 / 255, axis=2))
     assert changed > 0.005, f"only {changed:.2%} of the canvas pixels changed"
+    return Q
+
+
+@pytest.mark.browser
+@pytest.mark.parametrize("how", ["standalone", "widget"])
+def test_picture_editor_drag_in_chromium(operators, shape, tmp_path, how):
+    """The standalone page of to_html(image=...), and the widget's module mounted as anywidget does."""
+    op = operators["tps"]
+    image, to_pixels = picture_for(shape.mesh)
+    with chromium_page() as page:
+        _open_picture_editor(page, how, op, shape, image, to_pixels, tmp_path)
+        _drag_picture(page, "window.defopEditor", shape, image, to_pixels)
+        page.screenshot(path=f"/tmp/defop_picture_drag_{how}.png")
+        errors, requests = page.errors, page.requests
+    assert not errors, errors
+    assert all(url.startswith(("file:", "data:", "about:", "blob:")) for url in requests), requests
+
+
+_PICTURE_NOTEBOOK = [
+    "import json, sys\nimport defop as dop\nfrom defop.browser import BrowserEditor\n"
+    f"sys.path.insert(0, {str(ROOT / 'tests')!r})\nfrom test_browser_editor import picture_for",
+    f"shape = dop.shapes.load({SHAPE!r})\npicture, to_pixels = picture_for(shape.mesh)\n"
+    "editor = BrowserEditor(shape, basis='tps', kinds=('tps',), m=20, image=picture, image_frame=to_pixels)\n"
+    "editor.observe(lambda c: open('q.json', 'w').write(json.dumps(c['new'])), names='q')\neditor",
+]
+
+
+@pytest.mark.browser
+@pytest.mark.parametrize("widget_lab", [_PICTURE_NOTEBOOK], indirect=True, ids=["picture"])
+def test_picture_widget_drag_in_jupyterlab(widget_lab):
+    """The picture editor as a widget in JupyterLab: textured, dragged with the mouse, Q back in the kernel."""
+    from test_browser import _CELL_ERRORS, _KERNEL_IDLE, _NOTEBOOK_DONE, TOKEN
+
+    shape = dop.shapes.load(SHAPE)
+    image, to_pixels = picture_for(shape.mesh)
+    editor = "document.querySelector('.defop-editor').parentNode.defopEditor"
+    with chromium_page(viewport=(1400, 1000)) as page:
+        page.set_default_timeout(60_000)
+        page.goto(f"{widget_lab['url']}/lab/tree/editor.ipynb?token={TOKEN}")
+        page.wait_for_selector(".jp-Notebook .jp-Cell")
+        page.wait_for_function(_KERNEL_IDLE, timeout=90_000)
+        page.evaluate("() => window.jupyterapp.commands.execute('notebook:run-all-cells')")
+        page.wait_for_function(_NOTEBOOK_DONE, timeout=240_000, polling=500)
+        assert not page.evaluate(_CELL_ERRORS)
+        canvas = page.locator(".defop-editor canvas.defop-canvas").first
+        canvas.wait_for(state="visible")
+        canvas.scroll_into_view_if_needed()
+        page.wait_for_function(f"() => {editor}.imageReady !== undefined")
+        Q = _drag_picture(page, editor, shape, image, to_pixels)
+        page.screenshot(path="/tmp/defop_picture_jupyterlab.png")
+        page.wait_for_function(_KERNEL_IDLE, timeout=30_000)
+        q_file = widget_lab["root"] / "q.json"
+        for _ in range(100):
+            if q_file.exists():
+                break
+            page.wait_for_timeout(100)
+    np.testing.assert_allclose(np.reshape(json.loads(q_file.read_text()), (-1, 2)), Q, atol=1e-12)
