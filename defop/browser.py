@@ -136,13 +136,10 @@ def pixel_coordinates(mesh, image_frame):
     V_px = np.asarray(V_px, dtype=float)
     if V_px.shape != mesh.V.shape:
         raise ValueError(f"image_frame must give one pixel position per vertex, shape {mesh.V.shape}; got {V_px.shape}")
-    if not np.isfinite(V_px).all():
-        raise ValueError(f"image_frame gave a NaN or infinite pixel position (vertex {_first_bad(V_px)})")
+    bad = ~np.isfinite(V_px).all(axis=1)
+    if bad.any():
+        raise ValueError(f"image_frame gave a NaN or infinite pixel position (vertex {int(np.flatnonzero(bad)[0])})")
     return V_px
-
-
-def _first_bad(V):
-    return int(np.flatnonzero(~np.isfinite(V).all(axis=1))[0])
 
 
 def _png(img):
