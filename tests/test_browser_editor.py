@@ -744,3 +744,23 @@ def test_picture_widget_drag_in_jupyterlab(widget_lab):
                 break
             page.wait_for_timeout(100)
     np.testing.assert_allclose(np.reshape(json.loads(q_file.read_text()), (-1, 2)), Q, atol=1e-12)
+
+
+@pytest.mark.browser
+def test_picture_without_webgl_says_so(operators, shape, tmp_path):
+    """Without WebGL the 2D fallback draws the plain mesh, the readout says the picture is not drawn, and dragging
+    still works."""
+    op = operators["tps"]
+    image, to_pixels = picture_for(shape.mesh)
+    path = browser.to_html(op, tmp_path / "picture.html", shape=shape, image=image, image_frame=to_pixels)
+    with chromium_page(["--disable-3d-apis"]) as page:
+        page.goto(path.as_uri())
+        page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
+        assert page.evaluate("() => window.defopEditor.imageReady") is False
+        text = page.evaluate("() => window.defopEditor.ui.readout.textContent")
+        end = mouse_drag(page, "window.defopEditor", 40, -30)
+        Q = np.array(page.evaluate("() => Array.from(window.defopEditor.st.Q)")).reshape(-1, 2)
+        errors = page.errors
+    assert not errors, errors
+    assert f"picture {image.shape[1]} × {image.shape[0]} px: not drawn (needs WebGL)" in text, text
+    np.testing.assert_allclose(Q[0], end, atol=1e-9)
