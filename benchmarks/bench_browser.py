@@ -15,6 +15,13 @@ kernel has caught up.
 Target: >= 55 fps median in the page. Headless Chromium runs with ``--disable-gpu`` (WebGL through
 SwiftShader) on a shared 2-core machine: timings are noisy, compare the two rows of one run. Needs
 Debian's chromium, playwright and jupyterlab; ``--no-ipympl`` skips the JupyterLab part.
+
+``--image``: the picture editor of notebook 13 instead (the horse, about 2k vertices, 6 moving handles, its
+480 × 408 picture as a WebGL texture; ``python benchmarks/bench_browser.py --image [m] [n_vertices]``). The
+same operator is written twice by :func:`defop.browser.to_html`, with and without the picture, and both pages
+are dragged in one run: the rAF frame rate as above, and the frame time with the GPU's work forced to finish
+(``evaluate()`` then a one-pixel ``readPixels``, so no vsync cap: evaluation, upload, rasterisation and texture
+sampling, which SwiftShader does on the CPU), alternating the two pages three times.
 """
 
 from __future__ import annotations
@@ -67,8 +74,26 @@ def rates(stamps):
     return float(np.median(fps)), float(np.percentile(fps, 5)), len(t), (t[-1] - t[0]) / 1000
 
 
-def in_page(page_path, steps):
-    """The standalone page: frame timestamps of the editor's rAF frames, and its own per-frame timings."""
+# frames with the GPU's work forced to finish: evaluate at a Q moved along a circle, then read one pixel back
+SYNC_FRAMES = """(n) => {
+  const e = window.defopEditor, gl = e.ui.glCanvas.getContext("webgl"), px = new Uint8Array(4);
+  const q0 = [e.st.Q[0], e.st.Q[1]], r = 0.03 * e.st.view.diag, ms = [];
+  for (let k = 0; k < n; k++) {
+    const t0 = performance.now();
+    e.st.Q[0] = q0[0] + r * Math.sin(k / 5); e.st.Q[1] = q0[1] + r * (1 - Math.cos(k / 5));
+    e.evaluate();
+    gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
+    ms.push(performance.now() - t0);
+  }
+  e.st.Q[0] = q0[0]; e.st.Q[1] = q0[1]; e.evaluate();
+  return ms;
+}"""
+
+
+def in_page(page_path, steps, sync_frames=0):
+    """The standalone page: frame timestamps of the editor's rAF frames, and its own per-frame timings.
+
+    With ``sync_frames``, also the times (ms) of that many frames with the GPU's work forced to finish."""
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
@@ -76,6 +101,7 @@ def in_page(page_path, steps):
         page = chromium.new_page(viewport={"width": 1280, "height": 720})
         page.goto(page_path.as_uri())
         page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
+        textured = page.evaluate("() => window.defopEditor.imageReady || false")
         box = page.locator("canvas.defop-canvas").bounding_box()
         u, v = page.evaluate("() => window.defopEditor.handleScreen(0)")
         start = [box["x"] + u, box["y"] + v]
@@ -85,7 +111,10 @@ def in_page(page_path, steps):
         page.evaluate(DRAG, [*start, 160, -120, steps])
         res = page.evaluate("() => ({stamps: window.__stamps, evalMs: window.defopEditor.st.evalMs,"
                             " drawMs: window.defopEditor.st.drawMs})")
-        page.screenshot(path="/tmp/defop_bench_octopus.png")
+        page.evaluate("() => { window.defopEditor.onFrame = null; }")
+        res["syncMs"] = page.evaluate(SYNC_FRAMES, sync_frames) if sync_frames else []
+        res["textured"] = textured
+        page.screenshot(path=f"/tmp/defop_bench_{page_path.stem}.png")
         chromium.close()
     return res
 
@@ -113,6 +142,58 @@ def main(m=40, steps=200, ipympl=True):
     print(f"target >= 55 fps median in the page: {'met' if med >= 55 else 'NOT met'}")
 
 
+def horse(n_vertices=2000):
+    """Notebook 13's horse: its picture, the shape (its handles and sampling discs) and the mesh → pixel map."""
+    import skimage.data
+
+    from defop import plot_peers, warp
+
+    pad = 40
+    mask = np.pad(~skimage.data.horse(), pad)
+    handles_px = pad + np.array([[64, 300], [124, 296], [259, 302], [281, 305], [372, 82], [28, 232], [180, 140]],
+                                float)
+    regions = [{"kind": "disc", "radius": 0.06}] * 4 + [{"kind": "disc", "radius": 0.08}] * 2
+    to_mesh, _ = warp.image_to_mesh_frame(mask)
+    shape = dop.shapes.from_image(mask, handles=to_mesh(handles_px), moving=[True] * 6 + [False], regions=regions,
+                                  n_vertices=n_vertices, name="horse")
+    _, to_pixels = warp.image_to_mesh_frame(mask, shape.mesh)
+    return plot_peers.coat_picture(mask), shape, to_pixels
+
+
+def main_image(m=40, n_vertices=2000, steps=200, rounds=3, sync_frames=60):
+    """The picture editor beside the same page without the picture (see the module docstring)."""
+    picture, shape, to_pixels = horse(n_vertices)
+    op, _ = dop.train.train(shape, basis="tps", m=m, progress=False)
+    print(f"horse: {shape.mesh.n_vertices} vertices, {len(shape.mesh.F)} triangles, {shape.n_moving} moving handles; "
+          f"{op}; picture {picture.shape[1]} x {picture.shape[0]} px")
+    runs = {"plain mesh": [], "picture (texture)": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        pages = {"plain mesh": browser.to_html(op, Path(tmp) / "horse_plain.html", shape=shape),
+                 "picture (texture)": browser.to_html(op, Path(tmp) / "horse_picture.html", shape=shape,
+                                                      image=picture, image_frame=to_pixels)}
+        for name, path in pages.items():
+            print(f"  {name}: page {path.stat().st_size / 1e6:.2f} MB")
+        for _ in range(rounds):  # alternate the two pages: the machine's load drifts
+            for name, path in pages.items():
+                runs[name].append(in_page(path, steps, sync_frames))
+    assert all(r["textured"] for r in runs["picture (texture)"]), "the picture was not textured"
+    print(f"{steps}-step drag, one pointer event per animation frame ({rounds} runs per page, alternating); "
+          f"frame time forced to finish ({sync_frames} frames per run):")
+    sync = {}
+    for name, rs in runs.items():
+        fps = [rates(r["stamps"])[0] for r in rs]
+        sync[name] = np.concatenate([r["syncMs"] for r in rs])
+        ev, dr = (np.median(np.concatenate([r[k] for r in rs])) for k in ("evalMs", "drawMs"))
+        print(f"  {name:<18} rAF median {np.median(fps):5.1f} fps (runs: {', '.join(f'{f:.0f}' for f in fps)}); "
+              f"forced frame {np.median(sync[name]):5.2f} ms median, {np.percentile(sync[name], 90):5.2f} ms p90; "
+              f"evaluation {ev:.2f} ms, draw submission {dr:.2f} ms")
+    ratio = np.median(sync["picture (texture)"]) / np.median(sync["plain mesh"])
+    print(f"texture / plain forced frame time: {ratio:.2f}x")
+
+
 if __name__ == "__main__":
     args = [a for a in sys.argv[1:] if not a.startswith("--")]
-    main(*(int(a) for a in args[:1]), ipympl="--no-ipympl" not in sys.argv)
+    if "--image" in sys.argv:
+        main_image(*(int(a) for a in args[:2]))
+    else:
+        main(*(int(a) for a in args[:1]), ipympl="--no-ipympl" not in sys.argv)

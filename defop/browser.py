@@ -10,11 +10,17 @@ or shape, and reading Q back on release.
 - :class:`BrowserEditor`: the Jupyter widget (anywidget), a view of an :class:`~defop.editor_state.EditorState`;
 - :func:`to_html`: one self-contained offline page dragging the same operator (no Python, no network).
 
+Both can show a picture on the mesh (notebook 13): :func:`image_payload` sends it once as a PNG with one
+texture coordinate per vertex (the rest vertex in the picture's pixels, as in :mod:`defop.warp`), and the page
+draws the deformed mesh textured in WebGL, so the picture warps piecewise affinely at every pointer move.
+
 Example
 -------
 >>> editor = BrowserEditor("bar", m=40)   # doctest: +SKIP
 >>> editor                                # drag in the page; editor.Q follows on release   # doctest: +SKIP
 >>> to_html(editor.state.operator, "bar.html", shape=editor.state.shape)   # doctest: +SKIP
+>>> _, to_pixels = defop.warp.image_to_mesh_frame(mask, shape.mesh)          # doctest: +SKIP
+>>> BrowserEditor(shape, {"tps": op}, image=picture, image_frame=to_pixels)  # doctest: +SKIP
 """
 
 from __future__ import annotations
@@ -29,9 +35,14 @@ import numpy as np
 import traitlets
 
 from .editor_state import EditorState, ground_truth_text, reach_polygons, region_polygons
+from .outlines import load_image
 
 JS_PATH = Path(__file__).with_name("static") / "defop_editor.js"
 _DTYPES = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u1": np.uint8}
+# WebGL guarantees far smaller textures, but every current GPU (and Chromium's SwiftShader) takes 4096 per side;
+# the page checks MAX_TEXTURE_SIZE again and draws the untextured mesh when the picture does not fit
+MAX_IMAGE_SIDE = 4096
+MAX_IMAGE_BYTES = 16 * 2**20  # the encoded PNG, sent once to the page (a widget message, or inlined in a page)
 
 
 def mesh_edges(F):
@@ -106,6 +117,88 @@ def defop_to_payload(op, regions=None):
     return p
 
 
+def pixel_coordinates(mesh, image_frame):
+    """The rest vertices in the picture's pixels, from a mesh → pixel map or the coordinates themselves.
+
+    Parameters
+    ----------
+    mesh : defop.mesh.Mesh
+    image_frame : callable or (n_vertices,2) numpy array
+        ``to_pixels((k,2) mesh coordinates) -> (k,2) pixels``, e.g. the second result of
+        :func:`defop.warp.image_to_mesh_frame` ``(mask, mesh)``; or the rest vertices already in pixels.
+        Pixels as in :mod:`defop.warp`: x = column, y = row (down), pixel centres at integers.
+
+    Returns
+    -------
+    V_px : (n_vertices,2) numpy array
+    """
+    V_px = image_frame(mesh.V) if callable(image_frame) else image_frame
+    V_px = np.asarray(V_px, dtype=float)
+    if V_px.shape != mesh.V.shape:
+        raise ValueError(f"image_frame must give one pixel position per vertex, shape {mesh.V.shape}; got {V_px.shape}")
+    bad = ~np.isfinite(V_px).all(axis=1)
+    if bad.any():
+        raise ValueError(f"image_frame gave a NaN or infinite pixel position (vertex {int(np.flatnonzero(bad)[0])})")
+    return V_px
+
+
+def _png(img):
+    """PNG bytes of a float image in [0,1] ((H,W), (H,W,3) or (H,W,4)), 8 bits per channel."""
+    import io
+
+    from PIL import Image  # pillow: matplotlib's own image library
+
+    out = io.BytesIO()
+    Image.fromarray(np.round(img * 255).astype(np.uint8)).save(out, format="png", optimize=False)
+    return out.getvalue()
+
+
+def image_payload(image, V_px):
+    """A picture as the page's texture: PNG bytes and one texture coordinate per vertex.
+
+    Parameters
+    ----------
+    image : (H,W), (H,W,3) or (H,W,4) numpy array, or path
+        Grey, RGB or RGBA; bool, integer or float in [0,1] (validated by :func:`defop.outlines.load_image`).
+    V_px : (n_vertices,2) numpy array
+        The rest vertices in the picture's pixels (:func:`pixel_coordinates`): x = column, y = row.
+
+    Returns
+    -------
+    payload : dict
+        ``image_png`` ((bytes,) uint8 numpy array), ``uv`` ((n_vertices,2) float32 numpy array: texture
+        coordinates, ``(V_px + ½) / (W, H)``, the origin at the top-left corner of the first pixel, v down) and
+        ``image_size`` ([W, H]).
+
+    Raises
+    ------
+    ValueError
+        A bad picture (dtype, layout, NaN, empty, values outside [0,1]), a side above :data:`MAX_IMAGE_SIDE`,
+        a PNG above :data:`MAX_IMAGE_BYTES`, or a vertex more than a pixel outside the picture (a wrong frame).
+    """
+    img = load_image(image)
+    H, W = img.shape[:2]
+    if max(H, W) > MAX_IMAGE_SIDE:
+        raise ValueError(f"the picture is {W} x {H} pixels; the page takes at most {MAX_IMAGE_SIDE} per side "
+                         f"(downscale it, e.g. skimage.transform.rescale, and its pixel frame with it)")
+    V_px = np.asarray(V_px, dtype=float)
+    if V_px.ndim != 2 or V_px.shape[1] != 2 or not np.isfinite(V_px).all():
+        raise ValueError(f"V_px must be a finite (n_vertices, 2) array, got shape {V_px.shape}")
+    lo, hi = np.array([-0.5, -0.5]), np.array([W - 0.5, H - 0.5])  # the picture's outer pixel edges
+    gap = np.maximum(lo - V_px, 0).max(axis=1) + np.maximum(V_px - hi, 0).max(axis=1)
+    if gap.max() > 1.0:
+        i = int(np.argmax(gap))
+        raise ValueError(f"vertex {i} maps to pixel ({V_px[i, 0]:.1f}, {V_px[i, 1]:.1f}), {gap[i]:.1f} px outside "
+                         f"the {W} x {H} picture: image_frame must map the mesh to this picture's pixels "
+                         f"(x = column, y = row down)")
+    png = _png(img)
+    if len(png) > MAX_IMAGE_BYTES:
+        raise ValueError(f"the picture is {len(png) / 2**20:.1f} MiB as PNG; the page takes at most "
+                         f"{MAX_IMAGE_BYTES / 2**20:.0f} MiB (downscale it)")
+    uv = ((V_px + 0.5) / [W, H]).astype(np.float32)
+    return {"image_png": np.frombuffer(png, np.uint8), "uv": uv, "image_size": [int(W), int(H)]}
+
+
 def encode_payload(payload):
     """Split a payload into JSON metadata and one byte buffer (arrays at 8-byte-aligned offsets).
 
@@ -147,7 +240,7 @@ window.defopEditor = mountStandalone(document.getElementById("defop-app"), {meta
 """
 
 
-def to_html(op, path, shape=None, title=None):
+def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     """Write one self-contained page that drags ``op`` offline (inline script, no network access).
 
     Parameters
@@ -158,6 +251,10 @@ def to_html(op, path, shape=None, title=None):
         Its sampling regions are drawn and used for the extrapolation warning; default: discs through the
         farthest training sample of each handle.
     title : str, optional
+    image : (H,W), (H,W,3) or (H,W,4) numpy array, or path, optional
+        A picture drawn on the deformed mesh (see :func:`image_payload`); inlined as a PNG.
+    image_frame : callable or (n_vertices,2) numpy array
+        Required with ``image``: the mesh → pixel map or the rest vertices in pixels (:func:`pixel_coordinates`).
 
     Returns
     -------
@@ -170,6 +267,8 @@ def to_html(op, path, shape=None, title=None):
     payload = defop_to_payload(op, regions)
     title = title or f"defop: {op.meta.get('shape', 'shape')}, Ψ = {op.handle_basis.kind}"
     payload.update(title=title, kinds=[op.handle_basis.kind])
+    if image is not None or image_frame is not None:
+        payload.update(_image_for(op.mesh, image, image_frame))
     meta, data = encode_payload(payload)
     text = _PAGE.format(
         title=html.escape(title),
@@ -182,6 +281,12 @@ def to_html(op, path, shape=None, title=None):
     return path
 
 
+def _image_for(mesh, image, image_frame):
+    if image is None or image_frame is None:
+        raise ValueError("image and image_frame go together: the picture and where the mesh lies in its pixels")
+    return image_payload(image, pixel_coordinates(mesh, image_frame))
+
+
 class BrowserEditor(anywidget.AnyWidget):
     """Drag the handles of a shape in the page; D(·, Q) is evaluated in JavaScript.
 
@@ -191,7 +296,15 @@ class BrowserEditor(anywidget.AnyWidget):
     operators : dict, optional
         Trained DefOps by basis kind.
     shapes : sequence of str, optional
-        Shape names offered in the page (switching trains in the kernel).
+        Shape names offered in the page (switching trains in the kernel); not with ``image``.
+    image : (H,W), (H,W,3) or (H,W,4) numpy array, or path, optional
+        A picture drawn on the deformed mesh as a WebGL texture, so dragging a handle warps it (notebook 13).
+        Grey, RGB or RGBA; bool, integer or float in [0,1]. Sent to the page once, as a PNG
+        (:func:`image_payload`; at most :data:`MAX_IMAGE_SIDE` pixels per side).
+    image_frame : callable or (n_vertices,2) numpy array
+        Required with ``image``: where the rest mesh lies in the picture, as a mesh → pixel map such as the
+        second result of :func:`defop.warp.image_to_mesh_frame` ``(mask, shape.mesh)``, or as the rest vertices
+        in pixels (x = column, y = row down).
     **state_kw
         Passed to :class:`~defop.editor_state.EditorState` (``basis``, ``energy``, ``m``, ``kinds``,
         ``trainer``, ``solver``, ``pick_radius``).
@@ -210,13 +323,20 @@ class BrowserEditor(anywidget.AnyWidget):
     ground_truth = traitlets.Bool(False).tag(sync=True)
     gt_meta = traitlets.Dict().tag(sync=True)
     gt_data = traitlets.Bytes().tag(sync=True)
+    image_meta = traitlets.Dict().tag(sync=True)  # the picture: set once, kept across basis switches
+    image_data = traitlets.Bytes().tag(sync=True)
 
-    def __init__(self, shape, operators=None, *, shapes=None, **state_kw):
+    def __init__(self, shape, operators=None, *, shapes=None, image=None, image_frame=None, **state_kw):
         super().__init__()
+        if (image is not None or image_frame is not None) and shapes:
+            raise ValueError("a picture belongs to one shape's mesh: pass either image or shapes, not both")
         self._state_kw = state_kw
         self._shapes = list(shapes or [])
         self._syncing = False
         self.state = EditorState(shape, operators, **state_kw)
+        if image is not None or image_frame is not None:
+            meta, data = encode_payload(_image_for(self.state.mesh, image, image_frame))
+            self._sync(image_meta=meta, image_data=data)
         self._send_operator()
         self.observe(self._on_q, names="q")
         self.observe(self._on_basis, names="basis")

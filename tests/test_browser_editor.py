@@ -5,6 +5,8 @@
   storage of the factors, with the bound stated in :func:`_float32_bound`.
 - :class:`defop.editor_state.EditorState` is driven through its public API only.
 - The standalone page of :func:`defop.browser.to_html` is dragged in headless Chromium (Playwright).
+- A picture on the mesh (:func:`defop.browser.image_payload`): validated in Python, textured in WebGL in
+  Chromium, where the rendered colours are compared with the picture before and after a mouse drag.
 """
 
 from __future__ import annotations
@@ -293,48 +295,72 @@ def test_javascript_is_package_data():
 
 
 # ---------------------------------------------------------------------------------------------- (d)
-@pytest.mark.browser
-@pytest.mark.parametrize("webgl", [True, False], ids=["webgl", "canvas2d"])
-def test_standalone_page_drag_in_chromium(operators, shape, tmp_path, webgl):
-    """The page drags offline; without WebGL (``--disable-3d-apis``) it falls back to the 2D canvas."""
+@contextlib.contextmanager
+def chromium_page(extra_args=(), viewport=(1280, 720)):
+    """A page of headless Debian Chromium driven by Playwright (skips when either is missing).
+
+    The page records its requests and uncaught errors in ``page.requests`` and ``page.errors``.
+    """
     sync_api = pytest.importorskip("playwright.sync_api", reason="the Python package playwright is not installed")
     if not (os.path.isfile(CHROMIUM) and os.access(CHROMIUM, os.X_OK)):
         pytest.skip(f"no Chromium at {CHROMIUM}")
     from test_browser import CHROMIUM_ARGS
 
+    with sync_api.sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS + list(extra_args))
+        try:
+            page = chromium.new_page(viewport={"width": viewport[0], "height": viewport[1]})
+            page.requests, page.errors = [], []
+            page.on("request", lambda r: page.requests.append(r.url))
+            page.on("pageerror", lambda e: page.errors.append(str(e)))
+            yield page
+        finally:
+            chromium.close()
+
+
+def mouse_drag(page, editor, dx, dy, steps=10):
+    """Drag moving handle 0 of the page's editor (a JS expression) by (dx, dy) screen pixels with the mouse.
+
+    Returns
+    -------
+    end : (2,) numpy array
+        Where the pointer was released, in the mesh's coordinates (the page's view).
+    """
+    box = page.locator("canvas.defop-canvas").bounding_box()
+    u, v = page.evaluate(f"() => {editor}.handleScreen(0)")
+    x0, y0 = box["x"] + u, box["y"] + v
+    page.mouse.move(x0, y0)
+    page.mouse.down()
+    for t in np.linspace(0.1, 1.0, steps):
+        page.mouse.move(x0 + dx * t, y0 + dy * t)
+        page.wait_for_timeout(20)
+    page.mouse.up()
+    return np.array(page.evaluate(f"([u, v]) => {editor}.st.view.toData(u, v)", [u + dx, v + dy]))
+
+
+@pytest.mark.browser
+@pytest.mark.parametrize("webgl", [True, False], ids=["webgl", "canvas2d"])
+def test_standalone_page_drag_in_chromium(operators, shape, tmp_path, webgl):
+    """The page drags offline; without WebGL (``--disable-3d-apis``) it falls back to the 2D canvas."""
     op = operators["tps"]
     page_path = browser.to_html(op, tmp_path / "u_shape.html", shape=shape)
     text = page_path.read_text()
     assert "http://" not in text and "https://" not in text  # nothing to fetch: works offline
-    with sync_api.sync_playwright() as p:
-        args = CHROMIUM_ARGS + ([] if webgl else ["--disable-3d-apis"])
-        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=args)
-        page = chromium.new_page(viewport={"width": 1280, "height": 720})
-        requests, errors = [], []
-        page.on("request", lambda r: requests.append(r.url))
-        page.on("pageerror", lambda e: errors.append(str(e)))
+    with chromium_page([] if webgl else ["--disable-3d-apis"]) as page:
         page.goto(page_path.as_uri())
         page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
         X0 = np.array(page.evaluate("() => Array.from(window.defopEditor.st.X)")).reshape(-1, 2)
-        box = page.locator("canvas.defop-canvas").bounding_box()
-        u, v = page.evaluate("() => window.defopEditor.handleScreen(0)")
-        x0, y0 = box["x"] + u, box["y"] + v
-        page.mouse.move(x0, y0)
-        page.mouse.down()
-        for t in np.linspace(0.1, 1.0, 10):
-            page.mouse.move(x0 + 40 * t, y0 - 30 * t)
-            page.wait_for_timeout(20)
-        page.mouse.up()
+        end = mouse_drag(page, "window.defopEditor", 40, -30)
         state = page.evaluate(
-            "([u, v]) => { const e = window.defopEditor; return {Q: Array.from(e.st.Q), X: Array.from(e.st.X),"
-            " end: e.st.view.toData(u, v), warn: e.ui.warn.textContent, gl: e.st.gl !== null} }",
-            [u + 40, v - 30],
+            "() => { const e = window.defopEditor; return {Q: Array.from(e.st.Q), X: Array.from(e.st.X),"
+            " warn: e.ui.warn.textContent, gl: e.st.gl !== null} }"
         )
         far = page.evaluate(  # a handle far outside its sampling region: the readout warns
             "() => { const e = window.defopEditor; e.st.Q[2] += 0.3; e.evaluate(); return e.ui.warn.textContent; }"
         )
         page.screenshot(path=f"/tmp/defop_standalone_drag_{'webgl' if webgl else 'canvas2d'}.png")
-        chromium.close()
+        errors, requests = page.errors, page.requests
+    state["end"] = end
     assert not errors, errors
     assert far.startswith("handle 1 outside its sampling region"), far
     assert state["warn"] == ""
@@ -362,8 +388,10 @@ _WIDGET_NOTEBOOK = [
 
 
 @pytest.fixture
-def widget_lab(tmp_path):
-    """JupyterLab serving a two-cell notebook that shows a BrowserEditor (the pattern of tests/test_browser.py)."""
+def widget_lab(tmp_path, request):
+    """JupyterLab serving a notebook that shows a BrowserEditor (the pattern of tests/test_browser.py).
+
+    The notebook's cells are ``_WIDGET_NOTEBOOK`` unless the test passes others (indirect parametrisation)."""
     import signal
     import sys
 
@@ -373,7 +401,7 @@ def widget_lab(tmp_path):
     root = tmp_path / "notebooks"
     root.mkdir()
     nb = nbformat.v4.new_notebook(
-        cells=[nbformat.v4.new_code_cell(src) for src in _WIDGET_NOTEBOOK],
+        cells=[nbformat.v4.new_code_cell(src) for src in getattr(request, "param", _WIDGET_NOTEBOOK)],
         metadata={"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}},
     )
     nbformat.write(nb, root / "editor.ipynb")
@@ -463,3 +491,276 @@ def test_anywidget_drag_in_jupyterlab(widget_lab):
     np.testing.assert_allclose(Q_py[0], end, atol=1e-9)
     np.testing.assert_allclose(X1[dop.shapes.load(SHAPE).moving_handles[0]], end, atol=1e-6 * diag)
     assert "flips" in gt_text and "NOT converged" not in gt_text, gt_text
+
+
+# ---------------------------------------------------------------------------------------------- (f) a picture
+def picture_for(mesh, width=300, margin=10):
+    """A smooth colour field (no sharp edge, so a colour pins down a position) and a mesh → pixel map.
+
+    Returns
+    -------
+    image : (H,width,3) float numpy array in [0.1, 0.9]
+    to_pixels : callable
+        (k,2) mesh coordinates → (k,2) pixels (x = column, y = row down): the mesh's bounding box scaled into
+        the picture with ``margin`` pixels around it.
+    """
+    lo, hi = mesh.V.min(axis=0), mesh.V.max(axis=0)
+    s = (width - 2 * margin) / (hi - lo)[0]
+    H = int(np.ceil((hi - lo)[1] * s)) + 2 * margin
+
+    def to_pixels(X):
+        X = np.asarray(X, float)
+        return np.column_stack([margin + (X[:, 0] - lo[0]) * s, H - margin - (X[:, 1] - lo[1]) * s])
+
+    y, x = np.mgrid[0:H, 0:width].astype(float)
+    image = np.stack([0.5 + 0.4 * np.sin(x / 23), 0.5 + 0.4 * np.sin(y / 17 + 1), 0.5 + 0.4 * np.cos((x + y) / 31)],
+                     axis=-1)
+    return image, to_pixels
+
+
+def _png_array(data):
+    import io
+
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(bytes(data))))
+
+
+@settings(max_examples=12, deadline=None)
+@given(layout=st.sampled_from([(), (3,), (4,), (1,)]), dtype=st.sampled_from(["uint8", "float32", "float64", "bool"]),
+       h=st.integers(3, 40), w=st.integers(3, 40), seed=st.integers(0, 2**16))
+def test_image_payload_png_round_trip(layout, dtype, h, w, seed):
+    """Grey, RGB, RGBA and (H,W,1) pictures of every accepted dtype reach the page as the same 8-bit picture."""
+    rng = np.random.default_rng(seed)
+    img = rng.random((h, w, *layout))
+    img = (img > 0.5) if dtype == "bool" else (np.round(img * 255).astype(np.uint8) if dtype == "uint8" else
+                                               img.astype(dtype))
+    V_px = rng.uniform(-0.5, [w - 0.5, h - 0.5], size=(7, 2))
+    p = browser.image_payload(img, V_px)
+    expected = dop.outlines.load_image(img)
+    back = _png_array(p["image_png"])
+    assert back.shape == expected.shape and back.dtype == np.uint8
+    np.testing.assert_array_equal(back, np.round(expected * 255).astype(np.uint8))
+    assert p["image_size"] == [w, h]
+    np.testing.assert_allclose(p["uv"] * [w, h] - 0.5, V_px, atol=1e-5 * max(w, h))  # float32 texture coordinates
+
+
+@pytest.mark.parametrize(("image", "match"), [
+    (np.zeros((0, 0, 3)), "too small"),
+    (np.zeros((5,)), "must be"),
+    (np.zeros((20, 20, 2)), "must be"),
+    (np.full((20, 20, 3), np.nan), "NaN"),
+    (np.zeros((20, 20), complex), "real numbers"),
+    (np.full((20, 20), 1.5), r"\[0,1\]"),
+    (np.zeros((20, browser.MAX_IMAGE_SIDE + 1)), "at most 4096 per side"),
+], ids=["empty", "1d", "two-channels", "nan", "complex", "out-of-range", "too-large"])
+def test_image_payload_rejects_bad_pictures(image, match):
+    with pytest.raises(ValueError, match=match):
+        browser.image_payload(image, np.zeros((3, 2)))
+
+
+def test_image_frame_is_checked(operators, shape, monkeypatch):
+    op = operators["tps"]
+    image, to_pixels = picture_for(shape.mesh)
+    with pytest.raises(ValueError, match=r"vertex \d+ maps to pixel .* outside the 300 x \d+ picture"):
+        browser.BrowserEditor(shape, {"tps": op}, image=image, image_frame=lambda X: 1000 * X)  # a wrong frame
+    with pytest.raises(ValueError, match="one pixel position per vertex"):
+        browser.BrowserEditor(shape, {"tps": op}, image=image, image_frame=to_pixels(shape.mesh.V)[:-1])
+    bad = to_pixels(shape.mesh.V)
+    bad[7] = np.nan
+    with pytest.raises(ValueError, match=r"NaN or infinite pixel position \(vertex 7\)"):
+        browser.to_html(op, "unused.html", image=image, image_frame=bad)
+    with pytest.raises(ValueError, match="go together"):
+        browser.BrowserEditor(shape, {"tps": op}, image=image)
+    with pytest.raises(ValueError, match="go together"):
+        browser.to_html(op, "unused.html", image_frame=to_pixels)
+    with pytest.raises(ValueError, match="either image or shapes"):
+        browser.BrowserEditor(shape, {"tps": op}, image=image, image_frame=to_pixels, shapes=["u_shape", "bar"])
+    monkeypatch.setattr(browser, "MAX_IMAGE_BYTES", 1000)
+    with pytest.raises(ValueError, match="MiB as PNG"):
+        browser.BrowserEditor(shape, {"tps": op}, image=image, image_frame=to_pixels)
+
+
+def test_widget_sends_the_picture_once(operators, shape):
+    image, to_pixels = picture_for(shape.mesh)
+    editor = browser.BrowserEditor(shape, dict(operators), basis="tps", image=image, image_frame=to_pixels)
+    meta, data = editor.image_meta, editor.image_data
+    assert meta["scalars"]["image_size"] == [image.shape[1], image.shape[0]]
+    a = meta["arrays"]
+    png = np.frombuffer(data, np.uint8, a["image_png"]["length"], a["image_png"]["offset"])
+    np.testing.assert_array_equal(_png_array(png), np.round(image * 255).astype(np.uint8))
+    uv = np.frombuffer(data, np.float32, a["uv"]["length"], a["uv"]["offset"]).reshape(-1, 2)
+    V_px = to_pixels(shape.mesh.V)
+    np.testing.assert_allclose(uv * [image.shape[1], image.shape[0]] - 0.5, V_px, atol=1e-4)  # rest pose → picture
+    assert "image_png" not in editor.payload_meta["arrays"]  # not in the operator's payload (resent on a basis switch)
+    sent = []
+    editor.observe(lambda c: sent.append(c["name"]), names=["image_data", "payload_data"])
+    editor.basis = "linear"
+    assert sent == ["payload_data"] and editor.image_data is data
+
+
+def _textured_colours(page, editor, points):
+    """The canvas colours at mesh points (k,2) of the current pose, in [0,1] (a screenshot of the canvas)."""
+    from test_browser import _png_to_array
+
+    screen = np.array(page.evaluate(f"(pts) => pts.map(([x, y]) => {editor}.st.view.toScreen(x, y))",
+                                    np.asarray(points).tolist()))
+    shot = _png_to_array(page.locator("canvas.defop-canvas").first.screenshot()) / 255.0
+    ij = np.floor(screen).astype(int)
+    return shot[ij[:, 1], ij[:, 0]], shot
+
+
+def _picture_colours(image, px):
+    """The picture sampled bilinearly at pixel positions (k,2) (x = column, y = row), as the texture is."""
+    from scipy.ndimage import map_coordinates
+
+    return np.stack([map_coordinates(image[..., c], [px[:, 1], px[:, 0]], order=1, mode="nearest")
+                     for c in range(image.shape[2])], axis=-1)
+
+
+_WIDGET_HOST = """<!DOCTYPE html><html><head><meta charset="utf-8"></head><body><div id="host"></div>
+<script type="module">
+{js}
+window.defopRender = render; window.defopDecode = fromBase64;
+</script></body></html>"""
+
+# anywidget's contract with the module: render({model, el}) with model.get/set/on/save_changes
+_MOUNT_WIDGET = """(traits) => {
+  const values = {};
+  for (const [k, v] of Object.entries(traits)) {
+    values[k] = v && v.base64 !== undefined ? new DataView(window.defopDecode(v.base64).buffer) : v;
+  }
+  const model = { get: (k) => values[k], set: (k, v) => { values[k] = v; }, on: () => {}, save_changes: () => {} };
+  const el = document.getElementById("host");
+  window.defopRender({ model, el });
+  window.defopEditor = el.defopEditor;
+}"""
+
+
+def _open_picture_editor(page, how, op, shape, image, to_pixels, tmp_path):
+    """The picture editor in the page: the standalone HTML of to_html, or the anywidget's module with its traits."""
+    if how == "standalone":
+        path = browser.to_html(op, tmp_path / "picture.html", shape=shape, image=image, image_frame=to_pixels)
+        page.goto(path.as_uri())
+        page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
+        return
+    widget = browser.BrowserEditor(shape, {"tps": op}, kinds=("tps",), image=image, image_frame=to_pixels)
+    traits = {k: getattr(widget, k) for k in ("payload_meta", "q", "gt_meta", "image_meta")}
+    for k in ("payload_data", "gt_data", "image_data"):
+        traits[k] = {"base64": base64.b64encode(getattr(widget, k)).decode()}
+    host = tmp_path / "host.html"
+    host.write_text(_WIDGET_HOST.format(js=browser.JS_PATH.read_text()))
+    page.goto(host.as_uri())
+    page.wait_for_function("() => window.defopRender")
+    page.evaluate(_MOUNT_WIDGET, traits)
+
+
+def _drag_picture(page, editor, shape, image, to_pixels):
+    """Drag handle 0 of a picture editor with the mouse; assert the handle followed, the picture is textured on
+    the mesh (colours at triangle centroids match the picture at the rest centroids), and after the drag the
+    deformed triangles still carry their rest colours (the picture moved with the mesh)."""
+    F = shape.mesh.F
+    assert page.evaluate(f"() => {editor}.imageReady") is True
+    text = page.evaluate(f"() => {editor}.ui.readout.textContent")
+    assert f"picture {image.shape[1]} × {image.shape[0]} px: textured (WebGL)" in text, text
+    X0 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
+    rest, before = _textured_colours(page, editor, X0[F].mean(axis=1))
+    end = mouse_drag(page, editor, 45, -35)
+    page.wait_for_timeout(100)
+    Q = np.array(page.evaluate(f"() => Array.from({editor}.st.Q)")).reshape(-1, 2)
+    X1 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
+    moved, after = _textured_colours(page, editor, X1[F].mean(axis=1))
+    # the handle followed the mouse, the mesh followed the handle
+    np.testing.assert_allclose(Q[0], end, atol=1e-9)
+    np.testing.assert_allclose(X1[shape.moving_handles[0]], end, atol=1e-6 * shape.mesh.bbox_diagonal)
+    assert np.linalg.norm(end - shape.P_moving[0]) > 0.05 * shape.mesh.bbox_diagonal
+    # texture, not the plain fill (0.949, 0.843, 0.651): the picture's colour at each rest centroid
+    expected = _picture_colours(image, to_pixels(X0[F].mean(axis=1)))
+    err_rest = np.abs(rest - expected).max(axis=1)
+    fill = np.array([0.949, 0.843, 0.651])
+    assert np.mean(np.abs(rest - fill).max(axis=1) > 0.1) > 0.8, "the mesh is drawn with its plain fill"
+    assert np.quantile(err_rest, 0.9) < 0.06, f"rest colours differ from the picture: {np.quantile(err_rest, 0.9)}"
+    # after the drag every unflipped triangle carries its rest colours ...
+    keep = ~np.asarray(shape.mesh.flipped(X1))
+    err_moved = np.abs(moved - expected)[keep].max(axis=1)
+    assert np.quantile(err_moved, 0.9) < 0.06, f"the picture did not follow the mesh: {np.quantile(err_moved, 0.9)}"
+    # ... and the canvas changed where the mesh moved
+    changed = np.mean(np.any(np.abs(after - before) > 30 / 255, axis=2))
+    assert changed > 0.005, f"only {changed:.2%} of the canvas pixels changed"
+    return Q
+
+
+@pytest.mark.browser
+@pytest.mark.parametrize("how", ["standalone", "widget"])
+def test_picture_editor_drag_in_chromium(operators, shape, tmp_path, how):
+    """The standalone page of to_html(image=...), and the widget's module mounted as anywidget does."""
+    op = operators["tps"]
+    image, to_pixels = picture_for(shape.mesh)
+    with chromium_page() as page:
+        _open_picture_editor(page, how, op, shape, image, to_pixels, tmp_path)
+        _drag_picture(page, "window.defopEditor", shape, image, to_pixels)
+        page.screenshot(path=f"/tmp/defop_picture_drag_{how}.png")
+        errors, requests = page.errors, page.requests
+    assert not errors, errors
+    assert all(url.startswith(("file:", "data:", "about:", "blob:")) for url in requests), requests
+
+
+_PICTURE_NOTEBOOK = [
+    "import json, sys\nimport defop as dop\nfrom defop.browser import BrowserEditor\n"
+    f"sys.path.insert(0, {str(ROOT / 'tests')!r})\nfrom test_browser_editor import picture_for",
+    f"shape = dop.shapes.load({SHAPE!r})\npicture, to_pixels = picture_for(shape.mesh)\n"
+    "editor = BrowserEditor(shape, basis='tps', kinds=('tps',), m=20, image=picture, image_frame=to_pixels)\n"
+    "editor.observe(lambda c: open('q.json', 'w').write(json.dumps(c['new'])), names='q')\neditor",
+]
+
+
+@pytest.mark.browser
+@pytest.mark.parametrize("widget_lab", [_PICTURE_NOTEBOOK], indirect=True, ids=["picture"])
+def test_picture_widget_drag_in_jupyterlab(widget_lab):
+    """The picture editor as a widget in JupyterLab: textured, dragged with the mouse, Q back in the kernel."""
+    from test_browser import _CELL_ERRORS, _KERNEL_IDLE, _NOTEBOOK_DONE, TOKEN
+
+    shape = dop.shapes.load(SHAPE)
+    image, to_pixels = picture_for(shape.mesh)
+    editor = "document.querySelector('.defop-editor').parentNode.defopEditor"
+    with chromium_page(viewport=(1400, 1000)) as page:
+        page.set_default_timeout(60_000)
+        page.goto(f"{widget_lab['url']}/lab/tree/editor.ipynb?token={TOKEN}")
+        page.wait_for_selector(".jp-Notebook .jp-Cell")
+        page.wait_for_function(_KERNEL_IDLE, timeout=90_000)
+        page.evaluate("() => window.jupyterapp.commands.execute('notebook:run-all-cells')")
+        page.wait_for_function(_NOTEBOOK_DONE, timeout=240_000, polling=500)
+        assert not page.evaluate(_CELL_ERRORS)
+        canvas = page.locator(".defop-editor canvas.defop-canvas").first
+        canvas.wait_for(state="visible")
+        canvas.scroll_into_view_if_needed()
+        page.wait_for_function(f"() => {editor}.imageReady !== undefined")
+        Q = _drag_picture(page, editor, shape, image, to_pixels)
+        page.screenshot(path="/tmp/defop_picture_jupyterlab.png")
+        page.wait_for_function(_KERNEL_IDLE, timeout=30_000)
+        q_file = widget_lab["root"] / "q.json"
+        for _ in range(100):
+            if q_file.exists():
+                break
+            page.wait_for_timeout(100)
+    np.testing.assert_allclose(np.reshape(json.loads(q_file.read_text()), (-1, 2)), Q, atol=1e-12)
+
+
+@pytest.mark.browser
+def test_picture_without_webgl_says_so(operators, shape, tmp_path):
+    """Without WebGL the 2D fallback draws the plain mesh, the readout says the picture is not drawn, and dragging
+    still works."""
+    op = operators["tps"]
+    image, to_pixels = picture_for(shape.mesh)
+    path = browser.to_html(op, tmp_path / "picture.html", shape=shape, image=image, image_frame=to_pixels)
+    with chromium_page(["--disable-3d-apis"]) as page:
+        page.goto(path.as_uri())
+        page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
+        assert page.evaluate("() => window.defopEditor.imageReady") is False
+        text = page.evaluate("() => window.defopEditor.ui.readout.textContent")
+        end = mouse_drag(page, "window.defopEditor", 40, -30)
+        Q = np.array(page.evaluate("() => Array.from(window.defopEditor.st.Q)")).reshape(-1, 2)
+        errors = page.errors
+    assert not errors, errors
+    assert f"picture {image.shape[1]} × {image.shape[0]} px: not drawn (needs WebGL)" in text, text
+    np.testing.assert_allclose(Q[0], end, atol=1e-9)

@@ -10,6 +10,10 @@
 // handles, the normalising scale, the TPS centres z_k = (Q_k − P)/scale or the monomial plan, and the
 // float32 factors A ((|Ψ|−1) × r) and B (r × 2·n_vertices) of W_F ≈ A B, or B absent and A = W_F
 // ((|Ψ|−1) × 2·n_vertices), evaluated as (★) of defop.operator. Products accumulate in float64 (JavaScript numbers).
+//
+// A picture (defop.browser.image_payload, optional): its PNG bytes and one texture coordinate per vertex (the rest
+// vertex in the picture, v down). WebGL draws every deformed triangle with the picture's rest triangle mapped
+// affinely onto it, the piecewise-affine warp of defop.warp.warp_image, at every pointer move.
 
 const DTYPES = { f8: Float64Array, f4: Float32Array, i4: Int32Array, u1: Uint8Array };
 
@@ -259,22 +263,37 @@ function drawHandles(ctx, X, handles, moving, view, active, outside) {
   if (active !== null) ring(active, 8, "#000");
 }
 
-const VS = `attribute vec2 pos; attribute vec3 bc; attribute float fl; uniform vec4 xf;
-varying vec3 bary; varying float flip;
-void main() { bary = bc; flip = fl; gl_Position = vec4((pos.x - xf.x) * xf.z, (pos.y - xf.y) * xf.w, 0.0, 1.0); }`;
-// one pass draws fill and wireframe: a fragment is on an edge where a barycentric coordinate is ~0
+const VS = `attribute vec2 pos; attribute vec3 bc; attribute float fl; attribute vec2 uv; uniform vec4 xf;
+varying vec3 bary; varying float flip; varying vec2 st;
+void main() { bary = bc; flip = fl; st = uv; gl_Position = vec4((pos.x - xf.x) * xf.z, (pos.y - xf.y) * xf.w, 0.0, 1.0); }`;
+// one pass draws fill (or the picture) and wireframe: a fragment is on an edge where a barycentric coordinate is ~0.
+// The picture is sampled at the interpolated rest texture coordinate: affine on each triangle, as defop.warp does.
 const FS = `#extension GL_OES_standard_derivatives : enable
+#ifdef GL_FRAGMENT_PRECISION_HIGH
+precision highp float; // texture coordinates of large pictures need more than mediump's 11 bits
+#else
 precision mediump float;
-varying vec3 bary; varying float flip;
-uniform vec4 fill; uniform vec4 flipped; uniform vec4 edge; uniform float edgesOnly;
+#endif
+varying vec3 bary; varying float flip; varying vec2 st;
+uniform vec4 fill; uniform vec4 flipped; uniform vec4 edge; uniform float edgesOnly; uniform float textured;
+uniform sampler2D picture;
 void main() {
   vec3 a = smoothstep(vec3(0.0), fwidth(bary), bary);
   float e = (1.0 - min(min(a.x, a.y), a.z)) * edge.a;
   if (edgesOnly > 0.5) { if (e < 0.02) discard; gl_FragColor = vec4(edge.rgb, e); return; }
+  if (textured > 0.5) {
+    vec4 t = texture2D(picture, st);
+    vec3 c = flip > 0.5 ? mix(t.rgb, flipped.rgb, 0.6) : t.rgb;
+    gl_FragColor = vec4(mix(c, edge.rgb, e), max(t.a, e));
+    return;
+  }
   gl_FragColor = vec4(mix(flip > 0.5 ? flipped.rgb : fill.rgb, edge.rgb, e), 1.0);
 }`;
 
-/** WebGL renderer of the mesh (faces, flipped faces red, edges) and the ground truth's edges; null without WebGL. */
+/**
+ * WebGL renderer of the mesh (faces, flipped faces red, edges) and the ground truth's edges; null without WebGL.
+ * setPicture(bitmap, uv) textures the faces with a picture (uv: one rest texture coordinate per vertex).
+ */
 function makeGL(canvas, p, view, width, height) {
   const gl = canvas.getContext("webgl", { antialias: false, premultipliedAlpha: false });
   if (!gl || !gl.getExtension("OES_standard_derivatives")) return null;
@@ -290,7 +309,9 @@ function makeGL(canvas, p, view, width, height) {
   const u = (name, ...v) => gl.uniform4f(gl.getUniformLocation(prog, name), ...v);
   u("fill", 0.949, 0.843, 0.651, 1);
   u("flipped", 0.878, 0.25, 0.25, 1);
-  const edgesOnly = gl.getUniformLocation(prog, "edgesOnly");
+  const edgesOnly = gl.getUniformLocation(prog, "edgesOnly"), textured = gl.getUniformLocation(prog, "textured");
+  gl.uniform1f(textured, 0);
+  gl.uniform1i(gl.getUniformLocation(prog, "picture"), 0);
   const F = p.F, nf = F.length / 3;
   const attribute = (name, size, data) => {
     const b = gl.createBuffer(), loc = gl.getAttribLocation(prog, name);
@@ -305,6 +326,8 @@ function makeGL(canvas, p, view, width, height) {
   attribute("bc", 3, bc);
   const corners = new Float32Array(6 * nf), flips = new Float32Array(3 * nf);
   const posBuf = attribute("pos", 2, corners), flipBuf = attribute("fl", 1, flips);
+  const uvBuf = attribute("uv", 2, new Float32Array(6 * nf)); // zeros until a picture is set
+  let hasPicture = false;
   gl.enable(gl.BLEND);
   gl.blendFunc(gl.SRC_ALPHA, gl.ONE_MINUS_SRC_ALPHA);
   gl.viewport(0, 0, canvas.width, canvas.height);
@@ -321,12 +344,32 @@ function makeGL(canvas, p, view, width, height) {
     gl.bindBuffer(gl.ARRAY_BUFFER, flipBuf);
     gl.bufferSubData(gl.ARRAY_BUFFER, 0, flips);
   };
+  /** Upload the picture once (an ImageBitmap) and its texture coordinates per triangle corner; false if too large. */
+  function setPicture(bitmap, uv) {
+    if (Math.max(bitmap.width, bitmap.height) > gl.getParameter(gl.MAX_TEXTURE_SIZE)) return false;
+    const tex = gl.createTexture();
+    gl.activeTexture(gl.TEXTURE0);
+    gl.bindTexture(gl.TEXTURE_2D, tex);
+    gl.pixelStorei(gl.UNPACK_FLIP_Y_WEBGL, false); // row 0 of the picture at v = 0, as uv expects
+    gl.pixelStorei(gl.UNPACK_PREMULTIPLY_ALPHA_WEBGL, false);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA, gl.RGBA, gl.UNSIGNED_BYTE, bitmap);
+    // any picture size (WebGL 1 without mipmaps): clamp and bilinear, like warp_image's map_coordinates(order=1)
+    for (const [k, v] of [[gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE],
+      [gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_MAG_FILTER, gl.LINEAR]]) gl.texParameteri(gl.TEXTURE_2D, k, v);
+    const uvc = new Float32Array(6 * nf);
+    for (let t = 0, k = 0; t < 3 * nf; t++) { uvc[k++] = uv[2 * F[t]]; uvc[k++] = uv[2 * F[t] + 1]; }
+    gl.bindBuffer(gl.ARRAY_BUFFER, uvBuf);
+    gl.bufferSubData(gl.ARRAY_BUFFER, 0, uvc);
+    hasPicture = true;
+    return true;
+  }
   function draw(X, gt) {
     gl.clearColor(1, 1, 1, 1);
     gl.clear(gl.COLOR_BUFFER_BIT);
     upload(X);
-    u("edge", 0, 0, 0, 0.22);
+    u("edge", 0, 0, 0, hasPicture ? 0.08 : 0.22); // faint mesh lines over the picture
     gl.uniform1f(edgesOnly, 0);
+    gl.uniform1f(textured, hasPicture ? 1 : 0);
     gl.drawArrays(gl.TRIANGLES, 0, 3 * nf);
     if (gt) {
       upload(gt);
@@ -335,7 +378,13 @@ function makeGL(canvas, p, view, width, height) {
       gl.drawArrays(gl.TRIANGLES, 0, 3 * nf);
     }
   }
-  return { draw, renderer: "webgl" };
+  return { draw, setPicture, renderer: "webgl" };
+}
+
+/** Decode PNG bytes into an ImageBitmap (no network and no <img>, so the standalone page's CSP holds). */
+export function decodePicture(png) {
+  const blob = new Blob([png], { type: "image/png" });
+  return createImageBitmap(blob, { premultiplyAlpha: "none", colorSpaceConversion: "none" });
 }
 
 /** Draw one frame: regions, the deformed mesh (flipped triangles red), the ground truth, the handles. */
@@ -387,7 +436,9 @@ function readout(ui, st) {
   ui.readout.textContent =
     `${fmt(fps, 0)} fps (browser frames while dragging)\n` +
     `evaluation ${fmt(median(st.evalMs), 2)} ms/frame in the page, drawing ${fmt(median(st.drawMs), 1)} ms\n` +
-    `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices)\n` + q.join("\n");
+    `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices)\n` +
+    (st.picture ? `picture ${st.picture.size[0]} × ${st.picture.size[1]} px: ${st.textured ? "textured (WebGL)" :
+      st.picture.failed || "not drawn (needs WebGL)"}\n` : "") + q.join("\n");
   ui.warn.textContent = st.outside.length
     ? `handle ${st.outside.join(", ")} outside its sampling region: the operator extrapolates`
     : "";
@@ -421,7 +472,8 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
   const width = options.width || 720;
   const dpr = (typeof window !== "undefined" && window.devicePixelRatio) || 1;
   const ctx = ui.canvas.getContext("2d");
-  const st = { width, height: 0, active: null, outside: [], gt: null, gtVisible: false, frames: [], evalMs: [], drawMs: [] };
+  const st = { width, height: 0, active: null, outside: [], gt: null, gtVisible: false, frames: [], evalMs: [], drawMs: [],
+    picture: null, textured: false };
   const editor = { ui, st, hooks };
   const resize = (height) => { // the canvas follows the shape's aspect, so controls and readout stay in view
     for (const c of [ui.canvas, ui.glCanvas, ui.canvas.parentNode]) {
@@ -440,6 +492,9 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
     resize(options.height || fitHeight(p.V, width, 0.25));
     st.view = makeView(p.V, width, st.height, 0.25);
     st.gl = options.webgl === false ? null : makeGL(ui.glCanvas, p, st.view, width, st.height);
+    st.textured = false;
+    if (p.image_png) editor.setImage(p); // the standalone page carries its picture in the payload
+    else applyPicture();
     st.Q = Float64Array.from(Q || p.P);
     st.gt = null;
     ui.title.textContent = p.title;
@@ -461,6 +516,32 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
   };
 
   editor.readout = () => readout(ui, st);
+
+  // the picture: decoded once, textured onto every mesh load (a basis switch rebuilds the WebGL renderer)
+  const applyPicture = () => {
+    const pic = st.picture;
+    st.textured = false;
+    if (!pic || !pic.bitmap || !st.gl) return;
+    if (pic.uv.length !== 2 * st.p.n_vertices) { pic.failed = "not drawn (made for another mesh)"; return; }
+    st.textured = st.gl.setPicture(pic.bitmap, pic.uv);
+    if (!st.textured) pic.failed = "not drawn (larger than this GPU's textures)";
+  };
+  /** Show a picture on the mesh: img = {image_png, uv, image_size} (defop.browser.image_payload), or null. */
+  editor.setImage = (img) => {
+    if (!img || !img.image_png) { st.picture = null; editor.imageReady = Promise.resolve(false); return editor.imageReady; }
+    const pic = { uv: img.uv, size: img.image_size, bitmap: null, failed: null };
+    st.picture = pic;
+    editor.imageReady = decodePicture(img.image_png).then(
+      (bitmap) => { pic.bitmap = bitmap; },
+      (err) => { pic.failed = `not drawn (${err})`; },
+    ).then(() => {
+      if (st.picture !== pic) return false;
+      applyPicture();
+      if (st.p) editor.evaluate();
+      return st.textured;
+    });
+    return editor.imageReady;
+  };
 
   wirePointer(editor, ui.canvas);
   wireControls(editor, ctx);
@@ -544,6 +625,12 @@ function render({ model, el: root }) {
     const X = data && data.byteLength ? new Float32Array(new Uint8Array(data.buffer, data.byteOffset, data.byteLength).slice().buffer) : null;
     editor.setGroundTruth(X, meta.text || "");
   };
+  const image = () => {
+    const data = model.get("image_data");
+    editor.setImage(data && data.byteLength ? decodePayload(model.get("image_meta"), data) : null);
+  };
+  image();
+  model.on("change:image_data", image);
   model.on("change:payload_data", () => editor.load(payload(), model.get("q")));
   model.on("change:gt_data", gt);
   model.on("change:gt_meta", gt);
