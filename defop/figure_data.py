@@ -9,6 +9,9 @@
 * :func:`grid_error`: Figs. 3, 5 (a DefOp's error over the whole grid of a ground-truth trajectory, which
   ranks the handle bases at a given sample count) and :func:`grid_errors_over_draws` (that ranking over several
   sample draws and counts).
+* :func:`subset_fits` and :func:`subset_errors`: Figs. 8 and 9 (one solved ground truth, fitted by each Ψ from
+  its first m samples, and the per-sample held-out error of each fit);
+* :func:`local_rotation`: Fig. 9 (how far a part of the shape turns, e.g. an arm that folds).
 
 No plotting here (:mod:`defop.plot`), no notebook state.
 """
@@ -33,6 +36,9 @@ __all__ = [
     "subspace_floor",
     "grid_error",
     "grid_errors_over_draws",
+    "subset_fits",
+    "subset_errors",
+    "local_rotation",
 ]
 
 
@@ -282,3 +288,112 @@ def grid_errors_over_draws(shape, truth, regions, ms, seeds, bases, energy="sara
                 op = train(shape, energy, basis, samples=samples, progress=False)[0]
                 errors[a, b, c] = grid_error(op, truth)
     return errors
+
+
+def subset_fits(shape, samples, X, bases, counts, **kw):
+    """Operators fitted to the first m of one set of solved samples, for each handle basis and each m (Figs. 8, 9).
+
+    The ground truth is solved once (e.g. by :func:`defop.train.train` with the largest m) and every smaller
+    m reuses its first m samples, so two fits differ only in m and Ψ, never in the sampled configurations'
+    solutions. A basis that m samples do not determine (m below :func:`defop.train.min_samples`) gets None.
+
+    Parameters
+    ----------
+    shape : defop.shapes.Shape
+    samples : (M,n,2) numpy array
+        The solved configurations Q_k, in the order they were drawn.
+    X : (M,n_vertices,2) numpy array
+        Their ground-truth deformations.
+    bases : sequence of str
+        Handle bases Ψ (``"linear"``, ``"quadratic"``, ``"cubic"``, ``"tps"``).
+    counts : sequence of int
+        Sample counts m, each at most M.
+    **kw
+        Passed to :func:`defop.fit.fit_shape` (``spatial``, ``k``).
+
+    Returns
+    -------
+    dict
+        ``(basis, m) -> DefOp`` (or None where the basis needs more samples), in the order bases × counts.
+
+    Raises
+    ------
+    ValueError
+        A count that is not a positive integer at most M, or an unknown basis.
+    """
+    from .fit import fit_shape
+    from .train import min_samples
+
+    samples, X = np.asarray(samples, float), np.asarray(X, float)
+    bad = [m for m in counts if int(m) != m or not 1 <= m <= len(samples)]
+    if bad:
+        raise ValueError(f"sample counts must be integers from 1 to {len(samples)} (the solved samples), got {bad}")
+    need = {b: min_samples(b, shape.n_moving) for b in bases}  # an unknown basis raises here
+    return {
+        (b, int(m)): fit_shape(shape, samples[:m], X[:m], b, **kw) if m >= need[b] else None
+        for b in bases
+        for m in counts
+    }
+
+
+def subset_errors(operators, Q, X):
+    """Per-sample error (8a)/n of each operator on held-out configurations (NaN rows for a missing operator).
+
+    Parameters
+    ----------
+    operators : dict
+        ``key -> DefOp or None`` (e.g. from :func:`subset_fits`).
+    Q : (k,n,2) numpy array
+    X : (k,n_vertices,2) numpy array
+        Ground truth at Q.
+
+    Returns
+    -------
+    dict
+        ``key -> (k,) numpy array``; each sums to :func:`defop.analysis.approximation_error`.
+    """
+    Q, X = np.asarray(Q, float), np.asarray(X, float)
+    return {
+        key: np.full(len(Q), np.nan) if op is None else approximation_error(op, Q, X, per_sample=True)[1]
+        for key, op in operators.items()
+    }
+
+
+def local_rotation(rest, X, center, radius):
+    """Angle of the best rotation taking the rest-pose points within ``radius`` of ``center`` to X (2-D Procrustes).
+
+    How far a part of the shape turns, e.g. the tip of an arm that folds over: the angle θ maximising
+    Σ_v ⟨R_θ (v − v̄), x_v − x̄⟩ over those points (atan2 of the cross and dot sums).
+
+    Parameters
+    ----------
+    rest : (n_vertices,2) numpy array
+        Rest-pose vertices V.
+    X : (n_vertices,2) or (k,n_vertices,2) numpy array
+        Deformed positions.
+    center : (2,) array_like
+    radius : float
+
+    Returns
+    -------
+    float or (k,) numpy array
+        Counter-clockwise angle in degrees, in (−180, 180].
+
+    Raises
+    ------
+    ValueError
+        Fewer than 2 rest-pose points within ``radius`` of ``center``, or X of the wrong shape.
+    """
+    rest = np.asarray(rest, float)
+    X = np.asarray(X, float)
+    if X.shape[-2:] != rest.shape:
+        raise ValueError(f"X must have shape (..., {len(rest)}, 2) like the rest pose, got {X.shape}")
+    near = np.flatnonzero(np.linalg.norm(rest - np.asarray(center, float), axis=1) <= radius)
+    if len(near) < 2:
+        raise ValueError(f"only {len(near)} rest-pose point(s) within {radius} of {tuple(center)}: need at least 2")
+    A = rest[near] - rest[near].mean(axis=0)
+    B = X[..., near, :] - X[..., near, :].mean(axis=-2, keepdims=True)
+    dot = np.einsum("vc,...vc->...", A, B)
+    cross = np.einsum("v,...v->...", A[:, 0], B[..., 1]) - np.einsum("v,...v->...", A[:, 1], B[..., 0])
+    angle = np.degrees(np.arctan2(cross, dot))
+    return float(angle) if np.ndim(angle) == 0 else angle

@@ -268,7 +268,7 @@ def plot_outline(ax, mesh, X, color="k", lw=1.0, ls="-", **kw):
         ax.plot(P[:, 0], P[:, 1], color=color, lw=lw, ls=ls, **kw)
 
 
-def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2):
+def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2, notes=None):
     """Rows = operators, columns = handle configurations; each panel: D(·, Q) filled, ground truth outlined.
 
     Parameters
@@ -276,9 +276,13 @@ def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2):
     shape : defop.shapes.Shape
     Q : (k,n,2) numpy array
     X_true : (k,n_vertices,2) numpy array
-    operators : dict of str -> DefOp
+    operators : dict of str -> DefOp or None
+        Row label -> operator; a None row shows the ground truth alone, marked as not fitted (e.g. a basis
+        that needs more samples).
     titles : list of str, optional
         Column titles.
+    notes : dict of str -> list of str, optional
+        Row label -> one short text per column, printed in the panel's corner (e.g. its error).
 
     Returns
     -------
@@ -287,16 +291,23 @@ def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2):
     k = len(Q)
     rows = len(operators)
     fig, axes = plt.subplots(rows, k, figsize=(size * k, 0.9 * size * rows), squeeze=False)
-    allX = np.concatenate([X_true.reshape(-1, 2)] + [op(Q).reshape(-1, 2) for op in operators.values()])
+    D = {name: None if op is None else op(Q) for name, op in operators.items()}
+    allX = np.concatenate([X_true.reshape(-1, 2)] + [d.reshape(-1, 2) for d in D.values() if d is not None])
     lo, hi = allX.min(axis=0), allX.max(axis=0)
     pad = 0.05 * (hi - lo).max()
-    for r, (name, op) in enumerate(operators.items()):
-        D = op(Q)
+    for r, name in enumerate(operators):
         for c in range(k):
             ax = axes[r, c]
-            plot_mesh(ax, shape.mesh.V, shape.mesh.F, D[c], edges=False)
+            if D[name] is None:
+                ax.text(0.5, 0.5, "not fitted", transform=ax.transAxes, ha="center", va="center", fontsize=8)
+                ax.set_aspect("equal")
+                ax.set_axis_off()
+            else:
+                plot_mesh(ax, shape.mesh.V, shape.mesh.F, D[name][c], edges=False)
+                plot_handles(ax, D[name][c], shape.handles, shape.moving, size=12)
             plot_outline(ax, shape.mesh, X_true[c], lw=0.8)
-            plot_handles(ax, D[c], shape.handles, shape.moving, size=12)
+            if notes is not None and name in notes:
+                ax.text(0.98, 0.02, notes[name][c], transform=ax.transAxes, ha="right", va="bottom", fontsize=7)
             ax.set_xlim(lo[0] - pad, hi[0] + pad)
             ax.set_ylim(lo[1] - pad, hi[1] + pad)
             if c == 0:

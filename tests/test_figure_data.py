@@ -128,3 +128,75 @@ def test_grid_errors_over_draws_matches_one_training_per_draw(bar):
     Q = dop.sampling.sample_handles(bar.P_moving, disc, 7, rng=1)
     op = dop.train.train(bar, "sarap", "quadratic", samples=Q, progress=False)[0]
     assert E[1, 1, 1] == pytest.approx(fd.grid_error(op, truth), rel=1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-179.0, 179.0), st.floats(0.3, 3.0), st.integers(0, 2**31))
+def test_local_rotation_recovers_a_similarity(angle, scale, seed):
+    rng = np.random.default_rng(seed)
+    V = rng.uniform(0, 1, (60, 2))
+    t = np.radians(angle)
+    R = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+    X = scale * V @ R.T + rng.uniform(-2, 2, 2)  # rotated, scaled and moved: the angle is the rotation's
+    center = V[rng.integers(len(V))]
+    assert abs(fd.local_rotation(V, X, center, 0.4) - angle) < 1e-8
+    # a batch: one angle per deformation; the rest pose itself turns by 0
+    both = fd.local_rotation(V, np.stack([X, V]), center, 0.4)
+    assert both.shape == (2,) and abs(both[0] - angle) < 1e-8 and abs(both[1]) < 1e-12
+
+
+def test_local_rotation_only_sees_points_near_the_center():
+    V = np.array([[0.0, 0.0], [0.1, 0.0], [0.0, 0.1], [5.0, 5.0], [5.1, 5.0]])
+    X = V.copy()
+    X[3:] = [[5.0, 5.0], [5.0, 5.1]]  # the far pair turns by 90 degrees, the near triple stays
+    assert abs(fd.local_rotation(V, X, (0, 0), 0.5)) < 1e-12
+    assert abs(fd.local_rotation(V, X, (5, 5), 0.5) - 90) < 1e-9
+    with pytest.raises(ValueError, match="within"):
+        fd.local_rotation(V, X, (2, 2), 0.5)
+    with pytest.raises(ValueError, match="shape"):
+        fd.local_rotation(V, X[:3], (0, 0), 0.5)
+
+
+def test_subset_fits_uses_the_first_m_samples_and_skips_undetermined_bases(bar):
+    rng = np.random.default_rng(1)
+    M = 12
+    Q = bar.P_moving[None] + rng.uniform(-0.1, 0.1, (M, 1, 2))
+    d = (Q - bar.P_moving)[:, 0]  # a smooth synthetic operator: X depends on Q through sin and cos
+    X = bar.mesh.V[None] + 0.3 * np.sin(3 * d)[:, None, :] * np.cos(bar.mesh.V)[None]
+    X[:, bar.handles] = [bar.targets(q) for q in Q]  # the handles where Q puts them, as (8c) asks
+    bases, counts = ["linear", "quadratic", "cubic", "tps"], [2, 4, 9, 12]
+    fits = fd.subset_fits(bar, Q, X, bases, counts)
+    assert list(fits) == [(b, m) for b in bases for m in counts]
+    for (b, m), op in fits.items():
+        need = dop.train.min_samples(b, bar.n_moving)
+        assert (op is None) == (m < need)
+        if op is not None:
+            ref = dop.fit.fit_shape(bar, Q[:m], X[:m], b)
+            assert op.n_samples == m and np.abs(op(Q[-3:]) - ref(Q[-3:])).max() < 1e-12
+    errs = fd.subset_errors(fits, Q[-3:], X[-3:])
+    for k, op in fits.items():
+        if op is None:
+            assert np.isnan(errs[k]).all() and errs[k].shape == (3,)
+        else:
+            assert abs(errs[k].sum() - dop.analysis.approximation_error(op, Q[-3:], X[-3:])) < 1e-15
+    assert errs["tps", 12].max() < 1e-20  # TPS reproduces its own samples (Prop. 1)
+    with pytest.raises(ValueError, match="from 1 to 12"):
+        fd.subset_fits(bar, Q, X, ["tps"], [13])
+    with pytest.raises(ValueError, match="basis"):
+        fd.subset_fits(bar, Q, X, ["quartic"], [4])
+
+
+def test_fig9_grid_marks_missing_operators_and_prints_notes(bar):
+    rng = np.random.default_rng(2)
+    Q = bar.P_moving[None] + rng.uniform(-0.1, 0.1, (5, 1, 2))
+    X = np.stack([bar.mesh.V + 0.1 * (q - bar.P_moving)[0] for q in Q])
+    X[:, bar.handles] = [bar.targets(q) for q in Q]
+    fits = fd.subset_fits(bar, Q[:3], X[:3], ["cubic", "tps"], [3])  # cubic needs 9 samples: None
+    rows = {f"{b}, m = {m}": op for (b, m), op in fits.items()}
+    notes = {"tps, m = 3": ["a", "b"], "cubic, m = 3": ["m < |Ψ|", "m < |Ψ|"]}
+    fig = dop.plot.plot_bases_grid(bar, Q[3:], X[3:], rows, ["one", "two"], notes=notes)
+    texts = [[t.get_text() for t in ax.texts] for ax in fig.axes]
+    assert len(fig.axes) == 4
+    assert "not fitted" in texts[0] and "m < |Ψ|" in texts[0] and "cubic, m = 3" in texts[0]
+    assert "not fitted" not in texts[2] and "a" in texts[2] and "b" in texts[3]
+    assert [fig.axes[c].get_title() for c in range(2)] == ["one", "two"]
