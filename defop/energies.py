@@ -7,18 +7,18 @@ det J < 0, so that a fold is seen rather than hidden):
 * ``"arap"``: ARAP, Eq. (10): ψ = (Σ−1)² + (σ−1)².
 * ``"sarap"``: Symmetric ARAP (S-ARAP), Eq. (11): ψ = (Σ−1)² + (1/σ−1)², +inf when det J ≤ 0;
   shrinking and stretching are penalised alike, and the 1/σ term is a barrier against flips.
-* ``"isometric"``: isometric distortion, the symmetric Dirichlet energy
-  ψ = ‖J‖²_F + ‖J⁻¹‖²_F = Σ² + σ² + Σ⁻² + σ⁻², +inf when det J ≤ 0. This is the isometric
-  energy of the paper's group (Fig. 6); its minimum 4 is at rotations, and it tolerates area
-  change more than S-ARAP does.
+* ``"isometric"``: the symmetric Dirichlet energy
+  ψ = ‖J‖²_F + ‖J⁻¹‖²_F = Σ² + σ² + Σ⁻² + σ⁻², +inf when det J ≤ 0; its minimum 4 is at rotations.
+  The isometric energy of later papers by the same group; it treats each singular value on its own
+  and does not scale the shape (notebook 01: under Fig. 6's stretch it changes the area like ARAP).
 * ``"isometric_max"``: the squared isometric distortion max(Σ, 1/σ)² of Poranne & Lipman (2014,
   "Provably good planar mappings"), smoothed by the p-norm of (Σ, σ, 1/Σ, 1/σ):
   ψ = (Σᵖ + σᵖ + Σ⁻ᵖ + σ⁻ᵖ)^(2/p) − 4^(2/p), p = ``MAX_POWER`` (64); +inf when det J ≤ 0. p = 2 is the
   symmetric Dirichlet energy minus 4; p → ∞ gives max(Σ, 1/σ)² − 1, which does not see σ at all while
   Σ dominates (a stretched triangle may grow in both directions at no cost).
 * ``"isometric_exp"``: the exponential symmetric Dirichlet energy ψ = exp(s (‖J‖²_F + ‖J⁻¹‖²_F − 4)) − 1,
-  s = ``EXP_SCALE`` (1/4), +inf when det J ≤ 0 (Fu, Liu & Guo 2015; Rabinovich et al. 2017): a
-  high-growth isometric energy that penalises the worst triangle most.
+  s = ``EXP_SCALE`` (1/4), +inf when det J ≤ 0 (``EXP_SYMMETRIC_DIRICHLET`` of libigl's SLIM,
+  Rabinovich et al. 2017): a high-growth isometric energy that penalises the worst triangle most.
 
 For each energy: the value, the gradient ∂ψ/∂J = U diag(ψ_Σ, ψ_σ) Vᵀ, and a positive
 semi-definite projected Hessian from the analytic eigensystem of isotropic 2D energies
