@@ -7,10 +7,18 @@ det J < 0, so that a fold is seen rather than hidden):
 * ``"arap"``: ARAP, Eq. (10): ψ = (Σ−1)² + (σ−1)².
 * ``"sarap"``: Symmetric ARAP (S-ARAP), Eq. (11): ψ = (Σ−1)² + (1/σ−1)², +inf when det J ≤ 0;
   shrinking and stretching are penalised alike, and the 1/σ term is a barrier against flips.
-* ``"isometric"``: isometric distortion, the symmetric Dirichlet energy
-  ψ = ‖J‖²_F + ‖J⁻¹‖²_F = Σ² + σ² + Σ⁻² + σ⁻², +inf when det J ≤ 0. This is the isometric
-  energy of the paper's group (Fig. 6); its minimum 4 is at rotations, and it tolerates area
-  change more than S-ARAP does.
+* ``"isometric"``: the symmetric Dirichlet energy
+  ψ = ‖J‖²_F + ‖J⁻¹‖²_F = Σ² + σ² + Σ⁻² + σ⁻², +inf when det J ≤ 0; its minimum 4 is at rotations.
+  The isometric energy of later papers by the same group; it treats each singular value on its own
+  and does not scale the shape (notebook 01: under Fig. 6's stretch it changes the area like ARAP).
+* ``"isometric_max"``: the squared isometric distortion max(Σ, 1/σ)² of Poranne & Lipman (2014,
+  "Provably good planar mappings"), smoothed by the p-norm of (Σ, σ, 1/Σ, 1/σ):
+  ψ = (Σᵖ + σᵖ + Σ⁻ᵖ + σ⁻ᵖ)^(2/p) − 4^(2/p), p = ``MAX_POWER`` (64); +inf when det J ≤ 0. p = 2 is the
+  symmetric Dirichlet energy minus 4; p → ∞ gives max(Σ, 1/σ)² − 1, which does not see σ at all while
+  Σ dominates (a stretched triangle may grow in both directions at no cost).
+* ``"isometric_exp"``: the exponential symmetric Dirichlet energy ψ = exp(s (‖J‖²_F + ‖J⁻¹‖²_F − 4)) − 1,
+  s = ``EXP_SCALE`` (1/4), +inf when det J ≤ 0 (``EXP_SYMMETRIC_DIRICHLET`` of libigl's SLIM,
+  Rabinovich et al. 2017): a high-growth isometric energy that penalises the worst triangle most.
 
 For each energy: the value, the gradient ∂ψ/∂J = U diag(ψ_Σ, ψ_σ) Vᵀ, and a positive
 semi-definite projected Hessian from the analytic eigensystem of isotropic 2D energies
@@ -25,10 +33,14 @@ from __future__ import annotations
 
 import numpy as np
 
-ENERGIES = ("arap", "sarap", "isometric")
-BARRIER = {"arap": False, "sarap": True, "isometric": True}
+ENERGIES = ("arap", "sarap", "isometric", "isometric_max", "isometric_exp")
+BARRIER = {"arap": False, "sarap": True, "isometric": True, "isometric_max": True, "isometric_exp": True}
 #: value of ψ at rotations (the rest pose), per energy
-REST_VALUE = {"arap": 0.0, "sarap": 0.0, "isometric": 4.0}
+REST_VALUE = {"arap": 0.0, "sarap": 0.0, "isometric": 4.0, "isometric_max": 0.0, "isometric_exp": 0.0}
+#: the p of ``"isometric_max"``'s p-norm: ψ is within a factor 4^(2/p) = 1.04 of max(Σ, 1/σ)²
+MAX_POWER = 64.0
+#: the s of ``"isometric_exp"``
+EXP_SCALE = 0.25
 
 
 def check_energy(energy):
@@ -39,7 +51,7 @@ def check_energy(energy):
 
 
 def is_barrier(energy) -> bool:
-    """Whether the energy is +inf on flipped triangles (S-ARAP, isometric)."""
+    """Whether the energy is +inf on flipped triangles (S-ARAP and the isometric energies)."""
     return BARRIER[check_energy(energy)]
 
 
@@ -115,6 +127,50 @@ def psi_sarap_smooth(t1, t2, ok, mu):
     return psi, p1, p2, p11, p22, p12, twist, flip
 
 
+def _twist_flip(t1, t2, p1, p2, p11, p12):
+    """Twist and flip eigenvalues (p1+p2)/(t1+t2), (p1−p2)/(t1−t2) of an energy symmetric in (t1, t2) and smooth
+    across t1 = t2, where the flip eigenvalue's limit is p11 − p12."""
+    gap = t1 - t2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        flip = np.where(gap > 1e-6 * t1, (p1 - p2) / gap, p11 - p12)
+    return (p1 + p2) / (t1 + t2), flip
+
+
+def _psi_isometric_max(t1, t2, p=None):
+    """ψ = (t1ᵖ + t2ᵖ + t1⁻ᵖ + t2⁻ᵖ)^(2/p) − 4^(2/p) and its derivatives (ψ, ψ1, ψ2, ψ11, ψ22, ψ12), t1, t2 > 0.
+
+    With D = (Σ xᵢᵖ)^(1/p) (x = t1, t2, 1/t1, 1/t2), aᵢ = (tᵢ/D)ᵖ and bᵢ = (1/(tᵢD))ᵖ (both ≤ 1, so no
+    overflow before D itself does): ψᵢ = 2D²(aᵢ − bᵢ)/tᵢ, ψᵢᵢ = 2D²[(2−p)(aᵢ − bᵢ)² + (p−1)aᵢ + (p+1)bᵢ]/tᵢ²,
+    ψ12 = 2(2−p)D²(a1 − b1)(a2 − b2)/(t1 t2).
+    """
+    p = MAX_POWER if p is None else p
+    x = np.stack([t1, t2, 1 / t1, 1 / t2])
+    top = x.max(axis=0)
+    D = top * (((x / top) ** p).sum(axis=0)) ** (1 / p)
+    a1, a2, b1, b2 = (t1 / D) ** p, (t2 / D) ** p, (1 / (t1 * D)) ** p, (1 / (t2 * D)) ** p
+    D2 = D * D
+    psi = D2 - 4 ** (2 / p)
+    p1, p2 = 2 * D2 * (a1 - b1) / t1, 2 * D2 * (a2 - b2) / t2
+    p11 = 2 * D2 * ((2 - p) * (a1 - b1) ** 2 + (p - 1) * a1 + (p + 1) * b1) / t1**2
+    p22 = 2 * D2 * ((2 - p) * (a2 - b2) ** 2 + (p - 1) * a2 + (p + 1) * b2) / t2**2
+    p12 = 2 * (2 - p) * D2 * (a1 - b1) * (a2 - b2) / (t1 * t2)
+    return psi, p1, p2, p11, p22, p12
+
+
+def _psi_isometric_exp(t1, t2, s=None):
+    """ψ = exp(s (t1² + t2² + t1⁻² + t2⁻² − 4)) − 1 and its derivatives (ψ, ψ1, ψ2, ψ11, ψ22, ψ12), t1, t2 > 0."""
+    s = EXP_SCALE if s is None else s
+    with np.errstate(over="ignore"):
+        e = np.exp(s * (t1**2 + t2**2 + t1**-2 + t2**-2 - 4))
+    d1, d2 = 2 * t1 - 2 / t1**3, 2 * t2 - 2 / t2**3
+    p11 = s * e * (2 + 6 / t1**4 + s * d1 * d1)
+    p22 = s * e * (2 + 6 / t2**4 + s * d2 * d2)
+    return e - 1, s * e * d1, s * e * d2, p11, p22, s * s * e * d1 * d2
+
+
+_SMOOTH_ISOTROPIC = {"isometric_max": _psi_isometric_max, "isometric_exp": _psi_isometric_exp}
+
+
 def psi_derivatives(energy, s1, s2, mu=0.0):
     """ψ and its derivatives in the signed singular values: (ψ, ψ1, ψ2, ψ11, ψ22, ψ12, twist, flip).
 
@@ -161,6 +217,9 @@ def psi_derivatives(energy, s1, s2, mu=0.0):
         twist = 2 - 2 * (t1**2 - t1 * t2 + t2**2) / den
         flip = 2 + 2 * (t1**2 + t1 * t2 + t2**2) / den
         return psi, p1, p2, p11, p22, p12, twist, flip
+    if energy in _SMOOTH_ISOTROPIC:
+        psi, p1, p2, p11, p22, p12 = _SMOOTH_ISOTROPIC[energy](t1, t2)
+        return (np.where(ok, psi, inf), p1, p2, p11, p22, p12, *_twist_flip(t1, t2, p1, p2, p11, p12))
     check_energy(energy)
     raise AssertionError  # pragma: no cover
 
@@ -180,6 +239,9 @@ def psi_value(energy, s1, s2, mu=0.0, both=False):
         exact = np.where(ok, a + np.abs(b), np.inf)  # = Eq. (11): with Σ ≥ σ > 0, f ≥ g
         smooth = np.where(ok, a + np.sqrt(b * b + mu * mu) - mu, np.inf) if mu > 0 else exact
         return (smooth, exact) if both else smooth
+    if energy in _SMOOTH_ISOTROPIC:
+        psi = np.where(ok, _SMOOTH_ISOTROPIC[energy](t1, t2)[0], np.inf)
+        return (psi, psi) if both else psi
     psi = np.where(ok, t1**2 + t2**2 + t1**-2 + t2**-2, np.inf)
     return (psi, psi) if both else psi
 
@@ -191,7 +253,7 @@ def density(J, energy, mu=0.0):
     ----------
     J : (m,2,2) numpy array
     energy : str
-        ``"arap"``, ``"sarap"`` or ``"isometric"``.
+        One of :data:`ENERGIES`.
 
     Returns
     -------

@@ -229,6 +229,76 @@ def plot_deformation(ax, shape, X, highlight_flips=True, title=None, edges=True,
     ax.autoscale_view()
 
 
+def plot_handle_zoom(ax, shape, X, vertex, radius=0.12, vmax=90.0, flip_color="#e31a1c"):
+    """The neighbourhood of one handle, triangles coloured by their largest corner-angle change (Fig. 6's cusps).
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    shape : defop.shapes.Shape
+    X : (n,2) numpy array
+        Deformed positions.
+    vertex : int
+        The handle vertex to centre on.
+    radius : float
+        Half-width of the window, in the shape's units.
+    vmax : float
+        Angle change (degrees) at the top of the colour map; flipped triangles are drawn in ``flip_color``.
+
+    Returns
+    -------
+    artist : the PolyCollection coloured by angle change (for a colour bar)
+    """
+    from .analysis import corner_angles
+
+    mesh = shape.mesh
+    change = np.degrees(np.abs(corner_angles(X, mesh.F) - corner_angles(mesh.V, mesh.F))).max(axis=1)
+    art = plot_mesh(ax, mesh.V, mesh.F, X, scalars=change, cmap="magma_r", vmin=0, vmax=vmax, lw=0.5)
+    flipped = mesh.flipped(X)
+    if flipped.any():
+        ax.tripcolor(
+            X[:, 0], X[:, 1], mesh.F[flipped], facecolors=np.zeros(flipped.sum()), cmap=_single(flip_color), zorder=3
+        )
+    plot_outline(ax, mesh, X, lw=0.8)
+    plot_handles(ax, X, shape.handles, shape.moving, size=25)
+    c = X[vertex]
+    ax.set_xlim(c[0] - radius, c[0] + radius)
+    ax.set_ylim(c[1] - radius, c[1] + radius)
+    return art
+
+
+def plot_energy_comparison(axes, zooms, shape, results, titles, vertex, radius=0.12):
+    """Fig. 6: one column per energy, the deformation over the rest outline (dashed) and a zoom on one handle.
+
+    Parameters
+    ----------
+    axes, zooms : sequences of matplotlib Axes
+        One each per entry of ``results``.
+    shape : defop.shapes.Shape
+    results : dict of str -> defop.solve.SolveResult
+    titles : dict of str -> str
+        Panel title per energy.
+    vertex : int
+        The handle vertex the zooms centre on.
+
+    Returns
+    -------
+    artist : the last zoom's colour-mapped PolyCollection (for a colour bar)
+    """
+    from .analysis import deformation_summary
+
+    art = None
+    for ax, zoom, (energy, r) in zip(axes, zooms, results.items()):
+        s = deformation_summary(shape.mesh, r.X, shape.moving_handles)
+        plot_outline(ax, shape.mesh, shape.mesh.V, color="0.45", lw=0.7, ls="--")
+        area, scaled = 100 * s["area_change"], 100 * s["scaled"]
+        title = f"{titles[energy]}\n{s['flips']} flipped, area {area:+.0f}%, {scaled:.0f}% scaled"
+        plot_deformation(ax, shape, r.X, title=title, zoom_flips=False)
+        art = plot_handle_zoom(zoom, shape, r.X, vertex, radius)
+        zoom.set_title(f"max over the handles: {s['handle_angle']:.0f}°", fontsize=8)
+    return art
+
+
 def plot_convergence(axes, results, E_star=None, labels=None):
     """Energy gap (E − E*)/E* against iteration and against time, one line per solver.
 

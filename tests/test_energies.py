@@ -33,9 +33,19 @@ def test_single_triangle_closed_forms():
     assert en.density(J, "isometric") == pytest.approx([2 * s**2 + 2 / s**2])
     stretch = np.array([[[2.0, 0.0], [0.0, 0.5]]])  # Σ = 2, σ = 1/2: S-ARAP is symmetric in shrink/stretch
     assert en.density(stretch, "sarap") == pytest.approx([1.0 + 1.0])
+    # the isometric family: p = 2 is the symmetric Dirichlet energy minus 4; large p tends to max(Σ, 1/σ)² − 1
+    assert en._psi_isometric_max(np.array([s]), np.array([s]), p=2)[0] == pytest.approx([2 * s**2 + 2 / s**2 - 4])
+    assert en._psi_isometric_max(np.array([2.0]), np.array([0.8]), p=400)[0] == pytest.approx([3.0], rel=1e-2)
+    assert en.density(J, "isometric_exp") == pytest.approx([np.exp(en.EXP_SCALE * (2 * s**2 + 2 / s**2 - 4)) - 1])
+    # max(Σ, 1/σ) does not see σ while Σ dominates: Σ = 2 costs the same with σ = 1 and σ = 1.9
+    # (+7% here; the symmetric Dirichlet energy, which sees each singular value separately, rises +32%)
+    grow = np.array([np.diag([2.0, 1.0]), np.diag([2.0, 1.9])])
+    iso_max, sym_dir = en.density(grow, "isometric_max"), en.density(grow, "isometric") - 4
+    assert iso_max[1] < 1.1 * iso_max[0] and sym_dir[1] > 1.3 * sym_dir[0]
     reflect = np.array([[[1.0, 0.0], [0.0, -1.0]]])
     assert en.density(reflect, "arap") == pytest.approx([4.0])  # signed σ = -1 is penalised: (−1−1)²
-    assert en.density(reflect, "sarap") == [np.inf] and en.density(reflect, "isometric") == [np.inf]
+    for energy in ("sarap", "isometric", "isometric_max", "isometric_exp"):
+        assert en.density(reflect, energy) == [np.inf]  # barriers: a flipped triangle is reported as +inf
 
 
 @pytest.mark.parametrize("energy", en.ENERGIES)
@@ -47,7 +57,10 @@ def test_rigid_motions_are_at_the_minimum(energy):
     assert np.allclose(grad, 0, atol=1e-12)
 
 
-@pytest.mark.parametrize("energy,mu", [("arap", 0), ("sarap", 0), ("sarap", 1e-3), ("isometric", 0)])
+@pytest.mark.parametrize(
+    "energy,mu",
+    [("arap", 0), ("sarap", 0), ("sarap", 1e-3), ("isometric", 0), ("isometric_max", 0), ("isometric_exp", 0)],
+)
 def test_gradient_and_hessian_match_finite_differences(energy, mu):
     rng = np.random.default_rng(1)
     J = _jacobians(rng)
@@ -108,5 +121,5 @@ def test_max_flip_free_step():
 
 
 def test_unknown_energy():
-    with pytest.raises(ValueError, match="unknown energy 'arapp'; known energies: arap, sarap, isometric"):
+    with pytest.raises(ValueError, match="unknown energy 'arapp'; known energies: arap, sarap, isometric, "):
         en.density(np.array([np.eye(2)]), "arapp")

@@ -31,7 +31,7 @@ def test_arap_agrees_with_libigl(ginger):
     assert np.abs(ours.X - igl_.X).max() <= 1e-5 * s.mesh.bbox_diagonal
 
 
-@pytest.mark.parametrize("energy", ["sarap", "isometric"])
+@pytest.mark.parametrize("energy", ["sarap", "isometric", "isometric_max", "isometric_exp"])
 def test_barrier_energies_far_move_is_flip_free(energy):
     s = dop.shapes.load("bar", n_vertices=300)
     T = s.targets(s.P_moving + [[-0.7, 0.0]])  # push the end into the bar: the biharmonic start flips triangles
