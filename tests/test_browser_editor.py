@@ -435,56 +435,56 @@ def widget_lab(tmp_path, request):
         log.close()
 
 
+def open_lab_notebook(page, widget_lab):
+    """Open the widget_lab notebook in JupyterLab, run all its cells, and return the editor's canvas locator."""
+    from test_browser import _CELL_ERRORS, _KERNEL_IDLE, _NOTEBOOK_DONE, TOKEN
+
+    page.set_default_timeout(60_000)
+    page.goto(f"{widget_lab['url']}/lab/tree/editor.ipynb?token={TOKEN}")
+    page.wait_for_selector(".jp-Notebook .jp-Cell")
+    page.wait_for_function(_KERNEL_IDLE, timeout=90_000)
+    page.evaluate("() => window.jupyterapp.commands.execute('notebook:run-all-cells')")
+    page.wait_for_function(_NOTEBOOK_DONE, timeout=240_000, polling=500)
+    assert not page.evaluate(_CELL_ERRORS)
+    canvas = page.locator(".defop-editor canvas.defop-canvas").first
+    canvas.wait_for(state="visible")
+    canvas.scroll_into_view_if_needed()
+    return canvas
+
+
 @pytest.mark.browser
 def test_anywidget_drag_in_jupyterlab(widget_lab):
-    sync_api = pytest.importorskip("playwright.sync_api", reason="the Python package playwright is not installed")
-    if not (os.path.isfile(CHROMIUM) and os.access(CHROMIUM, os.X_OK)):
-        pytest.skip(f"no Chromium at {CHROMIUM}")
-    from test_browser import _CELL_ERRORS, _KERNEL_IDLE, _NOTEBOOK_DONE, CHROMIUM_ARGS, TOKEN
+    from test_browser import _KERNEL_IDLE
 
-    with sync_api.sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
-        page = chromium.new_page(viewport={"width": 1400, "height": 1000})
-        try:
-            page.set_default_timeout(60_000)
-            page.goto(f"{widget_lab['url']}/lab/tree/editor.ipynb?token={TOKEN}")
-            page.wait_for_selector(".jp-Notebook .jp-Cell")
-            page.wait_for_function(_KERNEL_IDLE, timeout=90_000)
-            page.evaluate("() => window.jupyterapp.commands.execute('notebook:run-all-cells')")
-            page.wait_for_function(_NOTEBOOK_DONE, timeout=240_000, polling=500)
-            assert not page.evaluate(_CELL_ERRORS)
-            canvas = page.locator(".defop-editor canvas.defop-canvas").first
-            canvas.wait_for(state="visible")
-            canvas.scroll_into_view_if_needed()
-            page.wait_for_timeout(500)
-            editor = "document.querySelector('.defop-editor').parentNode.defopEditor"
-            X0 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
-            box = canvas.bounding_box()
-            u, v = page.evaluate(f"() => {editor}.handleScreen(0)")
-            x0, y0 = box["x"] + u, box["y"] + v
-            page.mouse.move(x0, y0)
-            page.mouse.down()
-            for t in np.linspace(0.1, 1.0, 10):
-                page.mouse.move(x0 + 40 * t, y0 - 30 * t)
-                page.wait_for_timeout(30)
-            page.mouse.up()
-            end = page.evaluate(f"([u, v]) => {editor}.st.view.toData(u, v)", [u + 40, v - 30])
-            X1 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
-            q_file = widget_lab["root"] / "q.json"
-            page.wait_for_function(_KERNEL_IDLE, timeout=30_000)
-            for _ in range(100):
-                if q_file.exists():
-                    break
-                page.wait_for_timeout(100)
-            # the ground-truth overlay: solved in the kernel, drawn when it arrives, with its error
-            page.locator(".defop-editor input.defop-gt").first.check()
-            page.wait_for_function(
-                "() => document.querySelector('.defop-gt-readout').textContent.includes('error rms')", timeout=60_000
-            )
-            gt_text = page.locator(".defop-gt-readout").first.text_content()
-            page.screenshot(path="/tmp/defop_anywidget_drag.png")
-        finally:
-            chromium.close()
+    with chromium_page(viewport=(1400, 1000)) as page:
+        canvas = open_lab_notebook(page, widget_lab)
+        page.wait_for_timeout(500)
+        editor = "document.querySelector('.defop-editor').parentNode.defopEditor"
+        X0 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
+        box = canvas.bounding_box()
+        u, v = page.evaluate(f"() => {editor}.handleScreen(0)")
+        x0, y0 = box["x"] + u, box["y"] + v
+        page.mouse.move(x0, y0)
+        page.mouse.down()
+        for t in np.linspace(0.1, 1.0, 10):
+            page.mouse.move(x0 + 40 * t, y0 - 30 * t)
+            page.wait_for_timeout(30)
+        page.mouse.up()
+        end = page.evaluate(f"([u, v]) => {editor}.st.view.toData(u, v)", [u + 40, v - 30])
+        X1 = np.array(page.evaluate(f"() => Array.from({editor}.st.X)")).reshape(-1, 2)
+        q_file = widget_lab["root"] / "q.json"
+        page.wait_for_function(_KERNEL_IDLE, timeout=30_000)
+        for _ in range(100):
+            if q_file.exists():
+                break
+            page.wait_for_timeout(100)
+        # the ground-truth overlay: solved in the kernel, drawn when it arrives, with its error
+        page.locator(".defop-editor input.defop-gt").first.check()
+        page.wait_for_function(
+            "() => document.querySelector('.defop-gt-readout').textContent.includes('error rms')", timeout=60_000
+        )
+        gt_text = page.locator(".defop-gt-readout").first.text_content()
+        page.screenshot(path="/tmp/defop_anywidget_drag.png")
     diag = np.linalg.norm(np.ptp(X0, axis=0))
     assert np.max(np.linalg.norm(X1 - X0, axis=1)) > 0.01 * diag  # the mesh moved in the page
     Q_py = np.reshape(json.loads(q_file.read_text()), (-1, 2))  # Q came back to the kernel on release
@@ -718,22 +718,13 @@ _PICTURE_NOTEBOOK = [
 @pytest.mark.parametrize("widget_lab", [_PICTURE_NOTEBOOK], indirect=True, ids=["picture"])
 def test_picture_widget_drag_in_jupyterlab(widget_lab):
     """The picture editor as a widget in JupyterLab: textured, dragged with the mouse, Q back in the kernel."""
-    from test_browser import _CELL_ERRORS, _KERNEL_IDLE, _NOTEBOOK_DONE, TOKEN
+    from test_browser import _KERNEL_IDLE
 
     shape = dop.shapes.load(SHAPE)
     image, to_pixels = picture_for(shape.mesh)
     editor = "document.querySelector('.defop-editor').parentNode.defopEditor"
     with chromium_page(viewport=(1400, 1000)) as page:
-        page.set_default_timeout(60_000)
-        page.goto(f"{widget_lab['url']}/lab/tree/editor.ipynb?token={TOKEN}")
-        page.wait_for_selector(".jp-Notebook .jp-Cell")
-        page.wait_for_function(_KERNEL_IDLE, timeout=90_000)
-        page.evaluate("() => window.jupyterapp.commands.execute('notebook:run-all-cells')")
-        page.wait_for_function(_NOTEBOOK_DONE, timeout=240_000, polling=500)
-        assert not page.evaluate(_CELL_ERRORS)
-        canvas = page.locator(".defop-editor canvas.defop-canvas").first
-        canvas.wait_for(state="visible")
-        canvas.scroll_into_view_if_needed()
+        open_lab_notebook(page, widget_lab)
         page.wait_for_function(f"() => {editor}.imageReady !== undefined")
         Q = _drag_picture(page, editor, shape, image, to_pixels)
         page.screenshot(path="/tmp/defop_picture_jupyterlab.png")
