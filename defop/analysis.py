@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import time
 
 import numpy as np
@@ -165,14 +166,9 @@ def frame_rate(defop, samples, repeats=15, min_time=0.02):
         ``median`` and ``best`` frames per second (from :func:`repeat_timing`), ``rank`` (None for the
         exact W_F) and ``dtype`` of the matrices a frame streams.
     """
-    samples = np.asarray(samples, float)
-    state = {"i": 0}
-
-    def frame():
-        defop.evaluate_fast(samples[state["i"] % len(samples)])
-        state["i"] += 1
-
-    t = repeat_timing(frame, repeats, min_time)
+    nxt = itertools.cycle(list(np.asarray(samples, float))).__next__  # one frame per configuration, in turn
+    evaluate = defop.evaluate_fast
+    t = repeat_timing(lambda: evaluate(nxt()), repeats, min_time)
     dtype = str(defop.factors[1].dtype) if defop.factors is not None else "float32"
     return {"median": 1.0 / t["median"], "best": 1.0 / t["best"], "rank": defop.rank, "dtype": dtype}
 

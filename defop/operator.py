@@ -91,9 +91,9 @@ class DefOp:
         self._all_hcols = (2 * self.handles[:, None] + np.arange(2)).ravel()
         self._WF = self.W[1:].copy()
         self._WF[:, self._all_hcols] = 0.0
-        self._WF32 = None  # float32 copy of W_F for evaluate_fast / evaluate_batch, made on first use
+        self._fast = None  # matrices of evaluate_fast / evaluate_batch (see _fast_state), made on first use
         self._work = None  # workspace of the batch product
-        self._inv_scale = 1.0 / handle_basis.scale
+        self._q = handle_basis.size - 1  # length of δψ
 
     # ------------------------------------------------------------------ properties
     @property
@@ -167,13 +167,46 @@ class DefOp:
         """Ψ(Q): (|Ψ|,) or (k,|Ψ|)."""
         return self.handle_basis(Q)
 
+    def _fast_state(self):
+        """The matrices of the fast paths and their overflow guard, rebuilt when the factors change.
+
+        ``mats``: (A',) or (A', B) with A' = diag(raw_scale) W_F in float32 (or diag(raw_scale) A in the
+        factors' dtype), so a frame multiplies the basis' raw values (:meth:`HandleBasis.delta_raw`)
+        directly. ``R2``: for |Q − P|² < R2 every float32 product is finite, since
+        |entries| ≤ raw_bound(R) · Π_M (largest column abs-sum of M) ≤ 1e30; beyond it (or at NaN) a
+        frame takes the checked path.
+        """
+        if self._fast is not None and self._fast["key"] is self.factors:
+            return self._fast
+        hb = self.handle_basis
+        scale = hb.raw_scale[:, None]
+        if self.factors is None:
+            mats = ((self._WF * scale).astype(np.float32),)
+        else:
+            A, B = self.factors
+            mats = ((A.astype(float) * scale).astype(A.dtype), B)
+        gain = float(np.prod([max(np.abs(M).sum(axis=0, dtype=float).max(), 1.0) for M in mats]))
+        lo, hi = -30.0, 30.0  # bisection on log10 R; raw_bound grows with R
+        if hb.raw_bound(10.0**lo) * gain > 1e30:
+            hi = lo = -np.inf
+        for _ in range(60 if np.isfinite(lo) else 0):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if hb.raw_bound(10.0**mid) * gain <= 1e30 else (lo, mid)
+        self._fast = {
+            "key": self.factors,
+            "mats": mats,
+            "R2": 10.0 ** (2 * lo),
+            "dtype": mats[0].dtype,
+            "xh": self._x[self._hcols].copy(),
+        }
+        return self._fast
+
     def _free(self, d, fast, out=None):
-        """x + δψ W_F for δψ (k,|Ψ|−1), in float64: float64 W_F, its float32 copy (``fast``) or the factors."""
+        """x + δψ W_F for δψ (k,|Ψ|−1), in float64: float64 W_F, or the fast paths' matrices (``fast``)."""
         if self.factors is None and not fast:
             return np.add(self._x, d @ self._WF, out=out)
-        if self.factors is None and self._WF32 is None:
-            self._WF32 = self._WF.astype(np.float32)
-        mats = self.factors if self.factors is not None else (self._WF32,)
+        mats = self._fast_state()["mats"]
+        d = d / self.handle_basis.raw_scale  # the fast matrices multiply the raw values
         # float32: rows of δψ beyond float32's range (only far-away Q) are scaled into it and back
         s = np.abs(d).max(axis=1)
         far = s > _F32_SAFE
@@ -254,12 +287,41 @@ class DefOp:
             raise ValueError(f"Qs must have shape (k, {self.n_moving}, 2), got {Qs.shape}")
         if len(Qs) == 0:  # no frame: an empty batch, like numpy
             return np.empty((0, self.n_vertices, 2)) if out is None else out
-        if out is not None:
-            if out.shape != (len(Qs), self.n_vertices, 2) or out.dtype != np.float64 or not out.flags.c_contiguous:
-                raise ValueError(f"out must be a C-contiguous float64 array of shape {(len(Qs), self.n_vertices, 2)}")
-            self._evaluate(Qs, fast=True, out=out.reshape(len(Qs), -1))
-            return out
-        return self._evaluate(Qs, fast=True)
+        if Qs.shape[1:] != self.P.shape:
+            self.handle_basis.z(Qs)  # raises the shape error
+        if out is not None and (
+            out.shape != (len(Qs), self.n_vertices, 2) or out.dtype != np.float64 or not out.flags.c_contiguous
+        ):
+            raise ValueError(f"out must be a C-contiguous float64 array of shape {(len(Qs), self.n_vertices, 2)}")
+        flat = np.empty((len(Qs), 2 * self.n_vertices)) if out is None else out.reshape(len(Qs), -1)
+        if not self._batch_fast(Qs, flat):  # NaN, or a row far enough to overflow float32: the checked path
+            self._evaluate(Qs, fast=True, out=flat)
+        return flat.reshape(len(Qs), self.n_vertices, 2) if out is None else out
+
+    def _batch_fast(self, Qs, out):
+        """(★) for k rows of Qs (k,n,2) into out (k, 2 n_vertices), when every |Q − P|² < R2 (else False).
+
+        ψ of the k rows vectorised (:meth:`HandleBasis.delta_raw`), then one product per factor (the
+        last into the kept workspace), x added in float64 and the handles' exact part written.
+        """
+        f = self._fast_state()
+        dz = (Qs - self.P).reshape(len(Qs), -1)
+        zz = np.einsum("ij,ij->i", dz, dz)
+        if not np.all(zz < f["R2"]):
+            return False
+        self._check_extrapolation(Qs)
+        d = np.empty((len(Qs), self.handle_basis.size - 1), f["dtype"])
+        y = self.handle_basis.delta_raw(dz, zz, d)
+        mats = f["mats"]
+        for M in mats[:-1]:
+            y = y @ M
+        M = mats[-1]
+        if self._work is None or self._work.shape[0] < len(y) or self._work.dtype != M.dtype:
+            self._work = np.empty((len(y), M.shape[1]), M.dtype)
+        y = np.matmul(y, M, out=self._work[: len(y)])
+        np.add(self._x, y, out=out)
+        out[:, self._hcols] = f["xh"] + dz  # δψ W_H = Q − P, exactly (Prop. 2); B and W_F are 0 there
+        return True
 
     def evaluate_fast(self, Q):
         """D(·, Q) for one configuration, the interactive path: (★) with float32 W_F or the factors.
@@ -278,19 +340,16 @@ class DefOp:
         """
         if np.shape(Q) != self.handle_basis.P.shape:  # broadcasting would move every handle to one point
             raise ValueError(f"Q must have shape {self.handle_basis.P.shape} (the moving handles), got {np.shape(Q)}")
+        f = self._fast if self._fast is not None and self._fast["key"] is self.factors else self._fast_state()
         dz = (Q - self.handle_basis.P).ravel()
-        d = self.handle_basis.delta_one(dz / self.handle_basis.scale)
-        if self.factors is None:
-            if self._WF32 is None:
-                self._WF32 = self._WF.astype(np.float32)
-            mats = (self._WF32,)
-        else:
-            mats = self.factors
-        t = d.astype(mats[0].dtype) @ mats[0]
-        if not t @ t < _F32_SAFE:  # large, inf or NaN (t·t overflows to inf first): the checked path
+        zz = np.dot(dz, dz)
+        if type(zz) is not np.float64 or not zz < f["R2"]:  # NaN, inf, complex, or far enough to overflow
             return self._evaluate(Q, fast=True)
-        out = self._x + (t @ mats[1] if len(mats) == 2 else t)
-        out[self._hcols] += dz  # δψ W_H = Q − P (Prop. 2)
+        y = self.handle_basis.delta_raw(dz, zz, np.empty(self._q, f["dtype"]))
+        for M in f["mats"]:
+            y = np.dot(y, M)  # np.dot: less call overhead than @ for a vector times a matrix
+        out = self._x + y
+        out[self._hcols] = f["xh"] + dz  # δψ W_H = Q − P (Prop. 2); the matrices are 0 on these columns
         return out.reshape(-1, 2)
 
     # ------------------------------------------------------------------ compression

@@ -355,3 +355,30 @@ def test_format_1_files_still_load(op_and_data, tmp_path):
     assert back.rank == 4 and back.factors[0].shape == (q - 1, 4)
     D = back(Q)
     assert np.abs(D[:, back.handles[back.moving]] - Q).max() <= 1e-12
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_fast_paths_switch_to_the_checked_path_beyond_the_overflow_guard(op_and_data, compressed):
+    # evaluate_fast / evaluate_batch take their fast products only where |Q − P|² < R2 (every float32 product
+    # provably finite); just inside and just outside the guard (|Q − P| ~ 1e7 here, where float32 cancellation in
+    # the TPS sum leaves no accurate digits on the free vertices) the result is finite and the guarantees hold
+    op = op_and_data[1]
+    if compressed:
+        op.compress(tol=1e-3)
+    try:
+        R = np.sqrt(op._fast_state()["R2"])
+        assert 0 < R < np.inf
+        rng = np.random.default_rng(5)
+        u = rng.standard_normal(op.P.shape)
+        u /= np.linalg.norm(u)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ExtrapolationWarning)
+            for Q in (op.P + 0.999 * R * u, op.P + 1.001 * R * u):
+                ref = op(Q)
+                batch = op.evaluate_batch(np.stack([op.P, Q]))
+                assert np.array_equal(batch[0], op.mesh.V)  # (8b) on the row at rest
+                for D in (op.evaluate_fast(Q), batch[1]):
+                    assert np.all(np.isfinite(D))
+                    assert np.array_equal(D[op.handles[op.moving]], ref[op.handles[op.moving]])  # Prop. 2
+    finally:
+        op.decompress()
