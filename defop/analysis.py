@@ -211,3 +211,53 @@ def frame_floor(defop, bandwidth, psi_seconds):
     seconds : float
     """
     return defop.factor_bytes(fast=True) / bandwidth + psi_seconds
+
+
+def sgemm_peak(n=1536, repeats=5):
+    """Single-thread float32 matrix-product rate of this machine: 2n³ flops of a large numpy matmul (best run).
+
+    Returns
+    -------
+    flops : float
+        Floating-point operations per second.
+    """
+    rng = np.random.default_rng(0)
+    a, b = rng.standard_normal((2, n, n), dtype=np.float32)
+    c = np.empty_like(a)
+    t = repeat_timing(lambda: np.matmul(a, b, out=c), repeats, min_time=0.0)
+    return 2.0 * n**3 / t["best"]
+
+
+def batch_floor(defop, k, peak, bandwidth, psi_seconds):
+    """Lower bound on one frame's time in a batch of k: max(flops / peak, bytes written / bandwidth) + ψ.
+
+    A batch frame multiplies δψ (|Ψ|−1) through the fast matrices (2·rows·cols flops each) and writes the
+    float64 frame (16 bytes per vertex); the matrices are read once per batch, so their bytes per frame
+    vanish as k grows.
+
+    Parameters
+    ----------
+    defop : defop.operator.DefOp
+    k : int
+    peak : float
+        Flops per second (:func:`sgemm_peak`).
+    bandwidth : float
+        Bytes per second (:func:`copy_bandwidth`).
+    psi_seconds : float
+        ψ of one frame, vectorised over the batch.
+
+    Returns
+    -------
+    floor : dict
+        ``seconds`` per frame, ``flops`` and ``bytes`` per frame, and which bound dominates (``bound``).
+    """
+    mats = defop.factors if defop.factors is not None else (defop._WF,)
+    flops = float(sum(2 * M.shape[0] * M.shape[1] for M in mats))
+    nbytes = 16.0 * defop.n_vertices + defop.factor_bytes(fast=True) / k
+    compute, memory = flops / peak, nbytes / bandwidth
+    return {
+        "seconds": max(compute, memory) + psi_seconds,
+        "flops": flops,
+        "bytes": nbytes,
+        "bound": "compute" if compute >= memory else "memory",
+    }

@@ -69,6 +69,12 @@ class DefOp:
         A and B of the compressed W_F ≈ A B (after :meth:`compress`).
     """
 
+    # evaluate_batch works in chunks of this many rows when the fast matrices are small (compressed: B stays in
+    # cache and the chunk's ψ temporaries and float32 product too; measured 1.1-1.9x faster than one product at
+    # k = 256 on the aleph); a large float32 W_F is streamed once per batch instead (one product)
+    BATCH_CHUNK = 64
+    BATCH_CHUNK_BYTES = 4 * 2**20
+
     def __init__(self, mesh, handles, moving, handle_basis, W, meta=None, train_samples=None):
         self.mesh = mesh
         self.handles = np.asarray(handles, dtype=np.int64)
@@ -310,16 +316,17 @@ class DefOp:
         if not np.all(zz < f["R2"]):
             return False
         self._check_extrapolation(Qs)
-        d = np.empty((len(Qs), self.handle_basis.size - 1), f["dtype"])
-        y = self.handle_basis.delta_raw(dz, zz, d)
         mats = f["mats"]
-        for M in mats[:-1]:
-            y = y @ M
-        M = mats[-1]
-        if self._work is None or self._work.shape[0] < len(y) or self._work.dtype != M.dtype:
-            self._work = np.empty((len(y), M.shape[1]), M.dtype)
-        y = np.matmul(y, M, out=self._work[: len(y)])
-        np.add(self._x, y, out=out)
+        c = self.BATCH_CHUNK if sum(M.nbytes for M in mats) <= self.BATCH_CHUNK_BYTES else len(Qs)
+        if self._work is None or self._work.shape[0] < min(c, len(Qs)) or self._work.dtype != mats[-1].dtype:
+            self._work = np.empty((min(c, len(Qs)), mats[-1].shape[1]), mats[-1].dtype)
+        for i in range(0, len(Qs), c):  # chunks of rows: ψ's temporaries and the product's output stay in cache
+            rows = slice(i, i + c)
+            y = self.handle_basis.delta_raw(dz[rows], zz[rows], np.empty((len(dz[rows]), self._q), f["dtype"]))
+            for M in mats[:-1]:
+                y = y @ M
+            y = np.matmul(y, mats[-1], out=self._work[: len(y)])
+            np.add(self._x, y, out=out[rows])
         out[:, self._hcols] = f["xh"] + dz  # δψ W_H = Q − P, exactly (Prop. 2); B and W_F are 0 there
         return True
 

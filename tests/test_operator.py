@@ -382,3 +382,30 @@ def test_fast_paths_switch_to_the_checked_path_beyond_the_overflow_guard(op_and_
                     assert np.array_equal(D[op.handles[op.moving]], ref[op.handles[op.moving]])  # Prop. 2
     finally:
         op.decompress()
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 64])
+def test_batch_chunks_give_the_single_frames(op_and_data, monkeypatch, chunk):
+    # evaluate_batch works in chunks of rows when the fast matrices are small: any chunk size, with a short last
+    # chunk and the rest pose among the rows, gives the single frames (same float32 matrices) and the guarantees
+    s, op, Q, _ = op_and_data
+    monkeypatch.setattr(DefOp, "BATCH_CHUNK", chunk)
+    rng = np.random.default_rng(chunk)
+    Qs = np.concatenate([Q, [op.P], op.P + 0.1 * rng.standard_normal((9, *op.P.shape))])[rng.permutation(len(Q) + 10)]
+    for compressed in (False, True):
+        if compressed:
+            op.compress(tol=1e-3)
+        try:
+            out = np.full((len(Qs), op.n_vertices, 2), np.nan)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ExtrapolationWarning)
+                batch = op.evaluate_batch(Qs, out=out)
+                single = np.array([op.evaluate_fast(q) for q in Qs])
+            assert batch is out and np.all(np.isfinite(out))
+            assert np.abs(batch - single).max() <= 1e-6 * s.mesh.bbox_diagonal
+            hv = op.handles[op.moving]
+            assert np.abs(batch[:, hv] - Qs).max() <= 1e-12 * s.mesh.bbox_diagonal  # Prop. 2
+            rest = np.flatnonzero(np.all(Qs == op.P, axis=(1, 2)))
+            assert len(rest) and np.array_equal(batch[rest[0]], op.mesh.V)  # (8b)
+        finally:
+            op.decompress()
