@@ -261,3 +261,80 @@ def batch_floor(defop, k, peak, bandwidth, psi_seconds):
         "bytes": nbytes,
         "bound": "compute" if compute >= memory else "memory",
     }
+
+
+def guarantee_errors(defop, samples):
+    """Worst Prop. 2 and (8b) errors of ``defop.evaluate_fast`` over ``samples``, relative to the bbox diagonal.
+
+    Returns
+    -------
+    errors : dict
+        ``handles``: max |D(p_ℓ, Q) − q_ℓ| over the moving handles and the samples; ``rest``: max |D(·, P) − x|.
+    """
+    samples = np.asarray(samples, float)
+    hv, diag = defop.handles[defop.moving], defop.mesh.bbox_diagonal
+    handles = max(float(np.abs(defop.evaluate_fast(q)[hv] - q).max()) for q in samples)
+    rest = float(np.abs(defop.evaluate_fast(defop.P) - defop.mesh.V).max())
+    return {"handles": handles / diag, "rest": rest / diag}
+
+
+def timing_row(shape, op, rec, samples, spatial="hat", k=100, tol=5e-3):
+    """One row of Table 1 measured on this machine, BLAS on one thread: LS, FPS exact and compressed.
+
+    The frame rates are :func:`frame_rate` of ``op.evaluate_fast`` with the guarantees on: first the exact
+    operator (float32 W_F), then after ``op.compress(tol=tol)`` (rank r factors); ``op`` is left compressed.
+    Preprocess is the training's own stage times (sampling, ground-truth solves, fit, fold).
+
+    Parameters
+    ----------
+    shape : defop.shapes.Shape
+    op : defop.operator.DefOp
+        Trained on ``shape`` (:func:`defop.train.train`), uncompressed.
+    rec : training record
+        With ``samples`` and ground truths ``X`` (for the LS refits).
+    samples : (k,n,2) numpy array
+        Configurations the frames cycle through.
+    spatial : str
+        Φ's kind, ``"hat"`` or ``"reduced"``.
+    k : int
+        Size of a reduced Φ.
+    tol : float
+        :meth:`DefOp.compress` tolerance.
+
+    Returns
+    -------
+    row : dict
+        Sizes (``tris``, ``verts``, ``moving``, ``fixed``, ``samples``, ``psi``, ``phi``; ``phi_paper``: |Φ| as
+        the paper's Table 1 counts it, the number of triangles for the hat basis), ``preprocess_s``, ``ls_ms``
+        best and median, ``fps_exact`` and ``fps`` (compressed) best and median with ``rank`` and ``dtype``, and
+        the worst guarantee errors of both paths (``handles_err``, ``rest_err``, relative to the diagonal).
+    """
+    t = op.meta.get("stage_times", {})
+    ls = fit_timing(shape, rec.samples, rec.X, op.handle_basis.kind, spatial, k)
+    exact = frame_rate(op, samples)
+    g_exact = guarantee_errors(op, samples)
+    comp = frame_rate(op.compress(tol=tol), samples)
+    g_comp = guarantee_errors(op, samples)
+    mesh = shape.mesh
+    return dict(
+        tris=mesh.n_faces,
+        verts=mesh.n_vertices,
+        moving=op.n_moving,
+        fixed=len(op.handles) - op.n_moving,
+        samples=op.n_samples,
+        psi=op.handle_basis.size,
+        phi=op.meta["spatial_size"],
+        phi_paper=mesh.n_faces if spatial == "hat" else op.meta["spatial_size"],
+        preprocess_s=sum(t.get(s, 0.0) for s in ("bootstrap", "solve", "fit", "fold")),
+        ls_ms=1e3 * ls["best"],
+        ls_ms_median=1e3 * ls["median"],
+        fps_exact=exact["best"],
+        fps_exact_median=exact["median"],
+        dtype_exact=exact["dtype"],
+        fps=comp["best"],
+        fps_median=comp["median"],
+        rank=comp["rank"],
+        dtype=comp["dtype"],
+        handles_err=max(g_exact["handles"], g_comp["handles"]),
+        rest_err=max(g_exact["rest"], g_comp["rest"]),
+    )

@@ -409,3 +409,21 @@ def test_batch_chunks_give_the_single_frames(op_and_data, monkeypatch, chunk):
             assert len(rest) and np.array_equal(batch[rest[0]], op.mesh.V)  # (8b)
         finally:
             op.decompress()
+
+
+def test_timing_row_reports_sizes_rank_dtype_and_the_guarantees(op_and_data):
+    # Table 1's row (defop.analysis.timing_row): the paper's conventions (|Φ| of the hat basis = #tris, moving beside
+    # fixed handles), FPS of both paths with the rank and dtype, and Prop. 2 / (8b) measured on the timed paths
+    from types import SimpleNamespace
+
+    s, op, Q, X = op_and_data
+    try:
+        row = dop.analysis.timing_row(s, op, SimpleNamespace(samples=Q, X=X), Q[:5], "hat", tol=1e-3)
+        assert op.rank == row["rank"] >= 1 and row["dtype"] == row["dtype_exact"] == "float32"
+        assert row["phi_paper"] == s.mesh.n_faces and row["phi"] == s.mesh.n_vertices
+        assert (row["moving"], row["fixed"]) == (s.n_moving, len(s.handles) - s.n_moving)
+        assert row["psi"] == hb.basis_size("tps", s.n_moving, len(Q) + 1)
+        assert row["handles_err"] <= 1e-12 and row["rest_err"] == 0.0
+        assert min(row["fps"], row["fps_median"], row["fps_exact"], row["ls_ms"]) > 0
+    finally:
+        op.decompress()
