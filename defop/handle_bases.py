@@ -269,9 +269,6 @@ class LinearBasis(PolynomialBasis):
         return np.column_stack([np.ones(len(z)), z])
 
 
-_TINY = 1e-300  # squared distances are clamped to this (φ(0) = 0 to 1e-297)
-
-
 def _tps_phi(r2, out):
     """φ = r² log r = ½ r² log r² from squared distances ``r2`` (overwritten), written into ``out``."""
     r2[r2 <= 0] = 1.0  # at a centre (or rounded below 0): ½·1·log 1 = 0 = φ(0), exactly
@@ -321,7 +318,11 @@ class TPSBasis(HandleBasis):
             )
         self._cz_sq = np.sum(self._cz**2, axis=1)
         self._cz_m2 = -2.0 * self._cz
-        # delta_raw: −2c/scale as (2n, m), 1/scale², and ℓ(0) by the same code as every frame
+        # delta_raw: −2c/scale as (2n, m), 1/scale², |c|² + ε, and ℓ(0) by the same code as every frame. ε keeps
+        # r² = |c|² − 2c·z + |z|² + ε positive: its rounding error is about 1e-15 (|z| + |c|)², which can reach
+        # |z − c|² only for z within 1e-7 |c| of a centre, where ε = 1e-12 max(1, max|c|²) exceeds it 100-fold;
+        # φ moves by ½ ε |log r²| ≲ 1e-10 (far below the float32 rounding of the fast paths)
+        self._cz_sq_eps = self._cz_sq + 1e-12 * max(1.0, float(self._cz_sq.max()))
         self._cm = np.ascontiguousarray(self._cz_m2.T / self.scale)
         self._inv_s2 = 1.0 / (self.scale * self.scale)
         self._ell0 = 0.0
@@ -370,12 +371,12 @@ class TPSBasis(HandleBasis):
 
         r² = |c|² − 2c·z + |z|² from one gemv (gemm for k rows) on dz with −2c/scale kept; at dz = 0
         every term but |c|² is an exact zero, so ℓ(0) (computed here at init) comes out of the same bits
-        as a frame at rest and δψ(0) = 0 exactly. Five ufuncs after the product; ×½ is exact.
+        as a frame at rest and δψ(0) = 0 exactly. Four ufuncs after the product; ×½ is exact. r² carries
+        the ε of ``_cz_sq_eps`` (see ``__init__``), so it is positive without a clamp.
         """
         r2 = np.dot(dz, self._cm)  # np.dot: less call overhead than @ for a vector
-        r2 += self._cz_sq
+        r2 += self._cz_sq_eps
         r2 += (zz[:, None] if type(zz) is np.ndarray else zz) * self._inv_s2
-        np.maximum(r2, _TINY, out=r2)  # at a centre (or rounded below 0): tiny·log(tiny) ≈ −7e−298, φ(0) = 0
         ell = np.log(r2)
         ell *= r2
         d = self.dim
@@ -389,7 +390,7 @@ class TPSBasis(HandleBasis):
 
     def raw_bound(self, R):
         """|dz| ≤ R: |dz_i| ≤ R, r² ≤ (R/scale + max|c|)², |ℓ| ≤ max(r² |log r²|, 1/e), plus |ℓ(0)|."""
-        r2 = (R / self.scale + np.sqrt(self._cz_sq.max())) ** 2
+        r2 = (R / self.scale + np.sqrt(self._cz_sq.max())) ** 2 + float(self._cz_sq_eps.max())
         ell = max(r2 * abs(np.log(max(r2, 1e-300))), 1 / np.e)
         return max(R, ell + float(np.abs(self._ell0).max()))
 
