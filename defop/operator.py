@@ -180,37 +180,10 @@ class DefOp:
         return self.handle_basis(Q)
 
     def _fast_state(self):
-        """The matrices of the fast paths and their overflow guard, rebuilt when the factors change.
-
-        ``mats``: (A',) or (A', B) with A' = diag(raw_scale) W_F in float32 (or diag(raw_scale) A in the
-        factors' dtype), so a frame multiplies the basis' raw values (:meth:`HandleBasis.delta_raw`)
-        directly. ``R2``: for |Q − P|² < R2 every float32 product is finite, since
-        |entries| ≤ raw_bound(R) · Π_M (largest column abs-sum of M) ≤ 1e30; beyond it (or at NaN) a
-        frame takes the checked path.
-        """
-        if self._fast is not None and self._fast["key"] is self.factors:
-            return self._fast
-        hb = self.handle_basis
-        scale = hb.raw_scale[:, None]
-        if self.factors is None:
-            mats = ((self._WF * scale).astype(np.float32),)
-        else:
-            A, B = self.factors
-            mats = (np.asfortranarray((A.astype(float) * scale).astype(A.dtype)), B)  # gemv on columns: faster
-        gain = float(np.prod([max(np.abs(M).sum(axis=0, dtype=float).max(), 1.0) for M in mats]))
-        lo, hi = -30.0, 30.0  # bisection on log10 R; raw_bound grows with R
-        if hb.raw_bound(10.0**lo) * gain > 1e30:
-            hi = lo = -np.inf
-        for _ in range(60 if np.isfinite(lo) else 0):
-            mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if hb.raw_bound(10.0**mid) * gain <= 1e30 else (lo, mid)
-        self._fast = {
-            "key": self.factors,
-            "mats": mats,
-            "R2": 10.0 ** (2 * lo),
-            "dtype": mats[0].dtype,
-            "xh": self._x[self._hcols].copy(),
-        }
+        """The fast paths' matrices and overflow guard (:func:`fast_matrices`), rebuilt when the factors change."""
+        if self._fast is None or self._fast["key"] is not self.factors:
+            self._fast = fast_matrices(self.handle_basis, self._WF, self.factors)
+            self._fast["xh"] = self._x[self._hcols].copy()
         return self._fast
 
     def _free(self, d, fast, out=None):
@@ -279,7 +252,8 @@ class DefOp:
     def evaluate_batch(self, Qs, out=None):
         """D(·, Q_k) for k configurations as one matrix product (trajectories, animation).
 
-        As :meth:`evaluate_fast`: float32 W_F (or the factors) and the float64 exact part of (★). The
+        As :meth:`evaluate_fast`: float32 W_F (or the factors) and the float64 exact part of (★), ψ
+        vectorised over the rows; with small matrices (compressed) in chunks of ``BATCH_CHUNK`` rows. The
         product goes through a workspace kept on the operator: use one operator per thread.
 
         Parameters
@@ -339,9 +313,12 @@ class DefOp:
     def evaluate_fast(self, Q):
         """D(·, Q) for one configuration, the interactive path: (★) with float32 W_F or the factors.
 
-        Q must have the shape of P (a cheap check; no copy); a non-finite Ψ(Q) raises, as in
-        :meth:`__call__`. The float32 W_F rounds the free vertices by about 1e-6 of the bounding-box
-        diagonal (aleph TPS-500); the handles and the rest pose stay exact.
+        Q must have the shape of P (a cheap check; no copy). A frame is the basis' raw values
+        (:meth:`HandleBasis.delta_raw`) times the matrices of :func:`fast_matrices`, x added in float64 and
+        Q − P written at the handles. Q with NaN/inf, complex, or |Q − P|² beyond the overflow guard takes the
+        checked path (:meth:`__call__`'s validation: a clear ValueError where Ψ(Q) is not finite). The
+        float32 W_F rounds the free vertices by about 1e-6 of the bounding-box diagonal (aleph TPS-500);
+        the handles and the rest pose stay exact.
 
         Parameters
         ----------
@@ -510,6 +487,44 @@ class DefOp:
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc)
             raise ValueError(f"{path} is not a valid defop operator file: {what}") from exc
+
+
+def fast_matrices(basis, WF, factors=None):
+    """The matrices of DefOp's fast paths and their overflow guard.
+
+    ``mats``: (A',) or (A', B) with A' = diag(raw_scale) W_F in float32 (or diag(raw_scale) A in the
+    factors' dtype, in column order for the gemv), so a frame multiplies the basis' raw values
+    (:meth:`HandleBasis.delta_raw`) directly. ``R2``: for |Q − P|² < R2 every float32 product is finite,
+    since |entries| ≤ raw_bound(R) · Π_M (largest column abs-sum of M) ≤ 1e30; beyond it (or at NaN) a
+    frame takes the checked path.
+
+    Parameters
+    ----------
+    basis : defop.handle_bases.HandleBasis
+    WF : (|Ψ|−1, 2 n_vertices) numpy array
+        W_F, zero on the handle columns.
+    factors : tuple of (|Ψ|−1,r) and (r,2 n_vertices) numpy arrays, optional
+        A and B of the compressed W_F ≈ A B.
+
+    Returns
+    -------
+    state : dict
+        ``key`` (``factors``), ``mats``, ``R2`` and ``dtype`` of the frame's δψ buffer.
+    """
+    scale = basis.raw_scale[:, None]
+    if factors is None:
+        mats = ((WF * scale).astype(np.float32),)
+    else:
+        A, B = factors
+        mats = (np.asfortranarray((A.astype(float) * scale).astype(A.dtype)), B)  # gemv on columns: faster
+    gain = float(np.prod([max(np.abs(M).sum(axis=0, dtype=float).max(), 1.0) for M in mats]))
+    lo, hi = -30.0, 30.0  # bisection on log10 R; raw_bound grows with R
+    if basis.raw_bound(10.0**lo) * gain > 1e30:
+        hi = lo = -np.inf
+    for _ in range(60 if np.isfinite(lo) else 0):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if basis.raw_bound(10.0**mid) * gain <= 1e30 else (lo, mid)
+    return {"key": factors, "mats": mats, "R2": 10.0 ** (2 * lo), "dtype": mats[0].dtype}
 
 
 def principal_factors(WF, mass, S=None, rank=None, tol=1e-3):
