@@ -7,7 +7,9 @@ Prints, from one run, with the guarantees on (Prop. 2 and (8b) hold on every pat
 * single-thread frame rates (BLAS pinned to one thread with threadpoolctl; median and best of 15 short runs) of
   the exact operator in float64 and float32 W_F, and of the compressed one (rank r, float32), each beside
   its floor on this machine: the bytes of the matrices a frame streams over the bandwidth of a large numpy
-  copy (read + write), plus the ψ time; and the batch API (k = 256 frames as one product);
+  copy (read + write), plus the ψ time; and the batch API (k = 256 frames), beside its floor
+  max(flops / sgemm peak, bytes written / bandwidth) + ψ, with the most that floor allows against the 10x
+  target; FPS also by the thread's CPU time (the machine is shared), and the load average;
 * on ≥ 50 held-out configurations (``train.held_out``): the (8a) error the compression adds (target
   ≤ 1%), flipped triangles per frame (target: no more than the exact operator), and the worst handle and
   rest-pose errors of every path (target ≤ 1e-9 of the bounding-box diagonal);
