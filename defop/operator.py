@@ -306,7 +306,8 @@ class DefOp:
             for M in mats[:-1]:
                 y = y @ M
             y = np.matmul(y, mats[-1], out=self._work[: len(y)])
-            np.add(self._x, y, out=out[rows])
+            np.copyto(out[rows], y)  # cast, then x added in place: faster than a mixed float64 + float32 sum
+            out[rows] += self._x
         out[:, self._hcols] = f["xh"] + dz  # δψ W_H = Q − P, exactly (Prop. 2); B and W_F are 0 there
         return True
 
