@@ -3,6 +3,7 @@ distortion of a deformation at its handles (the cusps of Fig. 6)."""
 
 from __future__ import annotations
 
+import itertools
 import time
 
 import numpy as np
@@ -128,7 +129,9 @@ def repeat_timing(f, repeats=7, min_time=0.05):
     Returns
     -------
     timing : dict
-        ``median`` and ``best`` seconds per call, ``repeats``, ``calls`` per run.
+        ``median`` and ``best`` seconds per call (wall clock), ``cpu_median`` and ``cpu_best`` (this thread's
+        CPU time: without the time other jobs hold the core, though not without their cache traffic),
+        ``repeats``, ``calls`` per run.
     """
     from threadpoolctl import threadpool_limits
 
@@ -138,13 +141,21 @@ def repeat_timing(f, repeats=7, min_time=0.05):
         f()
         once = max(time.perf_counter() - t0, 1e-7)
         calls = max(1, int(min_time / once))
-        runs = []
+        runs, cpu = [], []
         for _ in range(max(1, int(repeats))):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             for _ in range(calls):
                 f()
+            cpu.append((time.thread_time() - c0) / calls)
             runs.append((time.perf_counter() - t0) / calls)
-    return {"median": float(np.median(runs)), "best": float(np.min(runs)), "repeats": len(runs), "calls": calls}
+    return {
+        "median": float(np.median(runs)),
+        "best": float(np.min(runs)),
+        "cpu_median": float(np.median(cpu)),
+        "cpu_best": float(np.min(cpu)),
+        "repeats": len(runs),
+        "calls": calls,
+    }
 
 
 def frame_rate(defop, samples, repeats=15, min_time=0.02):
@@ -163,19 +174,20 @@ def frame_rate(defop, samples, repeats=15, min_time=0.02):
     Returns
     -------
     fps : dict
-        ``median`` and ``best`` frames per second (from :func:`repeat_timing`), ``rank`` (None for the
-        exact W_F) and ``dtype`` of the matrices a frame streams.
+        ``median`` and ``best`` frames per second (from :func:`repeat_timing`), ``cpu_best`` (by CPU time),
+        ``rank`` (None for the exact W_F) and ``dtype`` of the matrices a frame streams.
     """
-    samples = np.asarray(samples, float)
-    state = {"i": 0}
-
-    def frame():
-        defop.evaluate_fast(samples[state["i"] % len(samples)])
-        state["i"] += 1
-
-    t = repeat_timing(frame, repeats, min_time)
+    nxt = itertools.cycle(list(np.asarray(samples, float))).__next__  # one frame per configuration, in turn
+    evaluate = defop.evaluate_fast
+    t = repeat_timing(lambda: evaluate(nxt()), repeats, min_time)
     dtype = str(defop.factors[1].dtype) if defop.factors is not None else "float32"
-    return {"median": 1.0 / t["median"], "best": 1.0 / t["best"], "rank": defop.rank, "dtype": dtype}
+    return {
+        "median": 1.0 / t["median"],
+        "best": 1.0 / t["best"],
+        "cpu_best": 1.0 / t["cpu_best"],
+        "rank": defop.rank,
+        "dtype": dtype,
+    }
 
 
 def batch_frame_rate(defop, samples, k=256, repeats=5, min_time=0.2):
@@ -185,13 +197,13 @@ def batch_frame_rate(defop, samples, k=256, repeats=5, min_time=0.2):
     Returns
     -------
     fps : dict
-        ``median`` and ``best`` frames per second, and ``k``.
+        ``median`` and ``best`` frames per second, ``cpu_best`` (by CPU time), and ``k``.
     """
     samples = np.asarray(samples, float)
     Qs = samples[np.arange(k) % len(samples)]
     out = np.empty((k, defop.n_vertices, 2))  # reused, as an animation loop would
     t = repeat_timing(lambda: defop.evaluate_batch(Qs, out=out), repeats, min_time)
-    return {"median": k / t["median"], "best": k / t["best"], "k": k}
+    return {"median": k / t["median"], "best": k / t["best"], "cpu_best": k / t["cpu_best"], "k": k}
 
 
 def copy_bandwidth(nbytes=256 * 2**20, repeats=5):
@@ -331,3 +343,130 @@ def deformation_summary(mesh, X, vertices, expand=1.1):
         "scaled": float(w @ (S[:, 1] > expand)),
         "median_conformal": median,
     }
+
+
+def sgemm_peak(n=1536, repeats=5):
+    """Single-thread float32 matrix-product rate of this machine: 2n³ flops of a large numpy matmul (best run).
+
+    Returns
+    -------
+    flops : float
+        Floating-point operations per second.
+    """
+    rng = np.random.default_rng(0)
+    a, b = rng.standard_normal((2, n, n), dtype=np.float32)
+    c = np.empty_like(a)
+    t = repeat_timing(lambda: np.matmul(a, b, out=c), repeats, min_time=0.0)
+    return 2.0 * n**3 / t["best"]
+
+
+def batch_floor(defop, k, peak, bandwidth, psi_seconds):
+    """Lower bound on one frame's time in a batch of k: max(flops / peak, bytes written / bandwidth) + ψ.
+
+    A batch frame multiplies δψ (|Ψ|−1) through the fast matrices (2·rows·cols flops each) and writes the
+    float64 frame (16 bytes per vertex); the matrices are read once per batch, so their bytes per frame
+    vanish as k grows.
+
+    Parameters
+    ----------
+    defop : defop.operator.DefOp
+    k : int
+    peak : float
+        Flops per second (:func:`sgemm_peak`).
+    bandwidth : float
+        Bytes per second (:func:`copy_bandwidth`).
+    psi_seconds : float
+        ψ of one frame, vectorised over the batch.
+
+    Returns
+    -------
+    floor : dict
+        ``seconds`` per frame, ``flops`` and ``bytes`` per frame, and which bound dominates (``bound``).
+    """
+    mats = defop.factors if defop.factors is not None else (defop._WF,)
+    flops = float(sum(2 * M.shape[0] * M.shape[1] for M in mats))
+    nbytes = 16.0 * defop.n_vertices + defop.factor_bytes(fast=True) / k
+    compute, memory = flops / peak, nbytes / bandwidth
+    return {
+        "seconds": max(compute, memory) + psi_seconds,
+        "flops": flops,
+        "bytes": nbytes,
+        "bound": "compute" if compute >= memory else "memory",
+    }
+
+
+def guarantee_errors(defop, samples):
+    """Worst Prop. 2 and (8b) errors of ``defop.evaluate_fast`` over ``samples``, relative to the bbox diagonal.
+
+    Returns
+    -------
+    errors : dict
+        ``handles``: max |D(p_ℓ, Q) − q_ℓ| over the moving handles and the samples; ``rest``: max |D(·, P) − x|.
+    """
+    samples = np.asarray(samples, float)
+    hv, diag = defop.handles[defop.moving], defop.mesh.bbox_diagonal
+    handles = max(float(np.abs(defop.evaluate_fast(q)[hv] - q).max()) for q in samples)
+    rest = float(np.abs(defop.evaluate_fast(defop.P) - defop.mesh.V).max())
+    return {"handles": handles / diag, "rest": rest / diag}
+
+
+def timing_row(shape, op, rec, samples, spatial="hat", k=100, tol=5e-3):
+    """One row of Table 1 measured on this machine, BLAS on one thread: LS, FPS exact and compressed.
+
+    The frame rates are :func:`frame_rate` of ``op.evaluate_fast`` with the guarantees on: first the exact
+    operator (float32 W_F), then after ``op.compress(tol=tol)`` (rank r factors); ``op`` is left compressed.
+    Preprocess is the training's own stage times (sampling, ground-truth solves, fit, fold).
+
+    Parameters
+    ----------
+    shape : defop.shapes.Shape
+    op : defop.operator.DefOp
+        Trained on ``shape`` (:func:`defop.train.train`), uncompressed.
+    rec : training record
+        With ``samples`` and ground truths ``X`` (for the LS refits).
+    samples : (k,n,2) numpy array
+        Configurations the frames cycle through.
+    spatial : str
+        Φ's kind, ``"hat"`` or ``"reduced"``.
+    k : int
+        Size of a reduced Φ.
+    tol : float
+        :meth:`DefOp.compress` tolerance.
+
+    Returns
+    -------
+    row : dict
+        Sizes (``tris``, ``verts``, ``moving``, ``fixed``, ``samples``, ``psi``, ``phi``; ``phi_paper``: |Φ| as
+        the paper's Table 1 counts it, the number of triangles for the hat basis), ``preprocess_s``, ``ls_ms``
+        best and median, ``fps_exact`` and ``fps`` (compressed) best and median with ``rank`` and ``dtype``, and
+        the worst guarantee errors of both paths (``handles_err``, ``rest_err``, relative to the diagonal).
+    """
+    t = op.meta.get("stage_times", {})
+    ls = fit_timing(shape, rec.samples, rec.X, op.handle_basis.kind, spatial, k)
+    exact = frame_rate(op, samples)
+    g_exact = guarantee_errors(op, samples)
+    comp = frame_rate(op.compress(tol=tol), samples)
+    g_comp = guarantee_errors(op, samples)
+    mesh = shape.mesh
+    return dict(
+        tris=mesh.n_faces,
+        verts=mesh.n_vertices,
+        moving=op.n_moving,
+        fixed=len(op.handles) - op.n_moving,
+        samples=op.n_samples,
+        psi=op.handle_basis.size,
+        phi=op.meta["spatial_size"],
+        phi_paper=mesh.n_faces if spatial == "hat" else op.meta["spatial_size"],
+        preprocess_s=sum(t.get(s, 0.0) for s in ("bootstrap", "solve", "fit", "fold")),
+        ls_ms=1e3 * ls["best"],
+        ls_ms_median=1e3 * ls["median"],
+        fps_exact=exact["best"],
+        fps_exact_median=exact["median"],
+        dtype_exact=exact["dtype"],
+        fps=comp["best"],
+        fps_median=comp["median"],
+        rank=comp["rank"],
+        dtype=comp["dtype"],
+        handles_err=max(g_exact["handles"], g_comp["handles"]),
+        rest_err=max(g_exact["rest"], g_comp["rest"]),
+    )

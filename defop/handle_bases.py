@@ -126,6 +126,44 @@ class HandleBasis:
         out -= self._rest()
         return out
 
+    def delta_raw(self, dz, zz, out):
+        """δψ up to a fixed column scaling, from the raw displacement dz = (Q − P).ravel(): the fast paths.
+
+        δψ(z) = :meth:`delta_raw` · :attr:`raw_scale` (column-wise), with z = dz / scale. A fast path
+        folds ``raw_scale`` into its coefficient matrix once, so no frame pays for the scaling. Exactly
+        zero at dz = 0 (bit for bit), as :meth:`delta_z`. No validation: the caller checks dz and zz.
+
+        Parameters
+        ----------
+        dz : (2n,) or (k,2n) numpy array
+        zz : float or (k,) numpy array
+            |dz|² (row-wise).
+        out : (|Ψ|−1,) or (k,|Ψ|−1) numpy array
+            Written (float32 or float64; the values are cast on the last operation).
+
+        Returns
+        -------
+        out : numpy array
+        """
+        if np.ndim(dz) == 1:
+            out[...] = self.delta_one(dz / self.scale)
+        else:
+            out[...] = self.delta_z(dz / self.scale)
+        return out
+
+    @property
+    def raw_scale(self):
+        """(|Ψ|−1,) column scaling of :meth:`delta_raw` (ones for the polynomial bases)."""
+        return np.ones(self.size - 1)
+
+    def raw_bound(self, R):
+        """An upper bound on max |delta_raw(dz)| over |dz| ≤ R (the fast paths' overflow guard).
+
+        Polynomials: a monomial of degree g is at most max(1, R/scale)^g in magnitude.
+        """
+        degree = getattr(self, "degree", 1)
+        return max(1.0, R / self.scale) ** degree
+
     def _rest(self):
         """Ψ(0)[1:], computed once by the same code path as every evaluation."""
         if getattr(self, "_psi0", None) is None:
@@ -280,6 +318,15 @@ class TPSBasis(HandleBasis):
             )
         self._cz_sq = np.sum(self._cz**2, axis=1)
         self._cz_m2 = -2.0 * self._cz
+        # delta_raw: −2c/scale as (2n, m), 1/scale², |c|² + ε, and ℓ(0) by the same code as every frame. ε keeps
+        # r² = |c|² − 2c·z + |z|² + ε positive: its rounding error is about 1e-15 (|z| + |c|)², which can reach
+        # |z − c|² only for z within 1e-7 |c| of a centre, where ε = 1e-12 max(1, max|c|²) exceeds it 100-fold;
+        # φ moves by ½ ε |log r²| ≲ 1e-10 (far below the float32 rounding of the fast paths)
+        self._cz_sq_eps = self._cz_sq + 1e-12 * max(1.0, float(self._cz_sq.max()))
+        self._cm = np.ascontiguousarray(self._cz_m2.T / self.scale)
+        self._inv_s2 = 1.0 / (self.scale * self.scale)
+        self._ell0 = 0.0
+        self._ell0 = self.delta_raw(np.zeros(self.dim), 0.0, np.empty(self.size - 1))[self.dim :].copy()
 
     @property
     def size(self) -> int:
@@ -318,6 +365,34 @@ class TPSBasis(HandleBasis):
         _tps_phi(r2, phi)
         phi -= self._rest()[self.dim :]
         return out
+
+    def delta_raw(self, dz, zz, out):
+        """[dz, ℓ − ℓ(0)] with ℓ = r² log r² = 2φ(r), r² = |z − c_k|²: δψ = [dz/scale, ½(ℓ − ℓ(0))] (raw_scale).
+
+        r² = |c|² − 2c·z + |z|² from one gemv (gemm for k rows) on dz with −2c/scale kept; at dz = 0
+        every term but |c|² is an exact zero, so ℓ(0) (computed here at init) comes out of the same bits
+        as a frame at rest and δψ(0) = 0 exactly. Four ufuncs after the product; ×½ is exact. r² carries
+        the ε of ``_cz_sq_eps`` (see ``__init__``), so it is positive without a clamp.
+        """
+        r2 = np.dot(dz, self._cm)  # np.dot: less call overhead than @ for a vector
+        r2 += self._cz_sq_eps
+        r2 += (zz[:, None] if type(zz) is np.ndarray else zz) * self._inv_s2
+        ell = np.log(r2)
+        ell *= r2
+        d = self.dim
+        np.subtract(ell, self._ell0, out=out[..., d:])
+        out[..., :d] = dz
+        return out
+
+    @property
+    def raw_scale(self):
+        return np.concatenate([np.full(self.dim, 1.0 / self.scale), np.full(len(self._cz), 0.5)])
+
+    def raw_bound(self, R):
+        """|dz| ≤ R: |dz_i| ≤ R, r² ≤ (R/scale + max|c|)², |ℓ| ≤ max(r² |log r²|, 1/e), plus |ℓ(0)|."""
+        r2 = (R / self.scale + np.sqrt(self._cz_sq.max())) ** 2 + float(self._cz_sq_eps.max())
+        ell = max(r2 * abs(np.log(max(r2, 1e-300))), 1 / np.e)
+        return max(R, ell + float(np.abs(self._ell0).max()))
 
     def side_conditions(self):
         """Σ_k w_k = 0 and Σ_k w_k c_k = 0 for the RBF weights w (the linear part is unconstrained).

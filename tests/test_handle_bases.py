@@ -120,3 +120,33 @@ def test_non_finite_Q_is_named():
     psi = hb.make_basis("linear", np.zeros((2, 2)))
     with pytest.raises(ValueError, match=r"Q has NaN or infinite entries \(first at \[1, 0\]\)"):
         psi(np.array([[0.0, 0.0], [np.inf, 0.0]]))
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    kind=st.sampled_from(["linear", "quadratic", "cubic", "tps"]),
+    n=st.integers(1, 3),
+    seed=st.integers(0, 2**31 - 1),
+    far=st.sampled_from([1e-3, 1.0, 1e3]),
+)
+def test_delta_raw_times_raw_scale_is_delta_and_bounded(kind, n, seed, far):
+    # the fast paths of DefOp multiply delta_raw by matrices with raw_scale folded in: the product must be δψ,
+    # exactly 0 at rest (single row and batch), and raw_bound(R) must bound it for |Q − P| ≤ R (overflow guard)
+    rng = np.random.default_rng(seed)
+    P = rng.standard_normal((n, 2))
+    centers = P + rng.standard_normal((2 * n + 4, n, 2)) if kind == "tps" else None
+    psi = hb.make_basis(kind, P, centers=centers, scale=0.7)
+    q = psi.size - 1
+    zero = np.zeros(2 * n)
+    assert np.all(psi.delta_raw(zero, 0.0, np.empty(q, np.float32)) == 0)
+    assert np.all(psi.delta_raw(zero[None].repeat(3, 0), np.zeros(3), np.empty((3, q))) == 0)
+    dz = far * rng.standard_normal((4, 2 * n))
+    zz = np.sum(dz**2, axis=1)
+    batch = psi.delta_raw(dz, zz, np.empty((4, q)))
+    single = np.array([psi.delta_raw(r, float(r @ r), np.empty(q)) for r in dz])
+    ref = psi.delta_z(dz / psi.scale)
+    scale = np.abs(psi(P + dz.reshape(4, n, 2))).max()
+    assert np.allclose(batch * psi.raw_scale, ref, rtol=0, atol=1e-10 * scale)
+    assert np.allclose(single * psi.raw_scale, ref, rtol=0, atol=1e-10 * scale)
+    R = float(np.sqrt(zz.max()))
+    assert np.abs(batch).max() <= psi.raw_bound(R)

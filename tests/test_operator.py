@@ -355,3 +355,75 @@ def test_format_1_files_still_load(op_and_data, tmp_path):
     assert back.rank == 4 and back.factors[0].shape == (q - 1, 4)
     D = back(Q)
     assert np.abs(D[:, back.handles[back.moving]] - Q).max() <= 1e-12
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_fast_paths_switch_to_the_checked_path_beyond_the_overflow_guard(op_and_data, compressed):
+    # evaluate_fast / evaluate_batch take their fast products only where |Q − P|² < R2 (every float32 product
+    # provably finite); just inside and just outside the guard (|Q − P| ~ 1e7 here, where float32 cancellation in
+    # the TPS sum leaves no accurate digits on the free vertices) the result is finite and the guarantees hold
+    op = op_and_data[1]
+    if compressed:
+        op.compress(tol=1e-3)
+    try:
+        R = np.sqrt(op._fast_state()["R2"])
+        assert 0 < R < np.inf
+        rng = np.random.default_rng(5)
+        u = rng.standard_normal(op.P.shape)
+        u /= np.linalg.norm(u)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ExtrapolationWarning)
+            for Q in (op.P + 0.999 * R * u, op.P + 1.001 * R * u):
+                ref = op(Q)
+                batch = op.evaluate_batch(np.stack([op.P, Q]))
+                assert np.array_equal(batch[0], op.mesh.V)  # (8b) on the row at rest
+                for D in (op.evaluate_fast(Q), batch[1]):
+                    assert np.all(np.isfinite(D))
+                    assert np.array_equal(D[op.handles[op.moving]], ref[op.handles[op.moving]])  # Prop. 2
+    finally:
+        op.decompress()
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 64])
+def test_batch_chunks_give_the_single_frames(op_and_data, monkeypatch, chunk):
+    # evaluate_batch works in chunks of rows when the fast matrices are small: any chunk size, with a short last
+    # chunk and the rest pose among the rows, gives the single frames (same float32 matrices) and the guarantees
+    s, op, Q, _ = op_and_data
+    monkeypatch.setattr(DefOp, "BATCH_CHUNK", chunk)
+    rng = np.random.default_rng(chunk)
+    Qs = np.concatenate([Q, [op.P], op.P + 0.1 * rng.standard_normal((9, *op.P.shape))])[rng.permutation(len(Q) + 10)]
+    for compressed in (False, True):
+        if compressed:
+            op.compress(tol=1e-3)
+        try:
+            out = np.full((len(Qs), op.n_vertices, 2), np.nan)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ExtrapolationWarning)
+                batch = op.evaluate_batch(Qs, out=out)
+                single = np.array([op.evaluate_fast(q) for q in Qs])
+            assert batch is out and np.all(np.isfinite(out))
+            assert np.abs(batch - single).max() <= 1e-6 * s.mesh.bbox_diagonal
+            hv = op.handles[op.moving]
+            assert np.abs(batch[:, hv] - Qs).max() <= 1e-12 * s.mesh.bbox_diagonal  # Prop. 2
+            rest = np.flatnonzero(np.all(Qs == op.P, axis=(1, 2)))
+            assert len(rest) and np.array_equal(batch[rest[0]], op.mesh.V)  # (8b)
+        finally:
+            op.decompress()
+
+
+def test_timing_row_reports_sizes_rank_dtype_and_the_guarantees(op_and_data):
+    # Table 1's row (defop.analysis.timing_row): the paper's conventions (|Φ| of the hat basis = #tris, moving beside
+    # fixed handles), FPS of both paths with the rank and dtype, and Prop. 2 / (8b) measured on the timed paths
+    from types import SimpleNamespace
+
+    s, op, Q, X = op_and_data
+    try:
+        row = dop.analysis.timing_row(s, op, SimpleNamespace(samples=Q, X=X), Q[:5], "hat", tol=1e-3)
+        assert op.rank == row["rank"] >= 1 and row["dtype"] == row["dtype_exact"] == "float32"
+        assert row["phi_paper"] == s.mesh.n_faces and row["phi"] == s.mesh.n_vertices
+        assert (row["moving"], row["fixed"]) == (s.n_moving, len(s.handles) - s.n_moving)
+        assert row["psi"] == hb.basis_size("tps", s.n_moving, len(Q) + 1)
+        assert row["handles_err"] <= 1e-12 and row["rest_err"] == 0.0
+        assert min(row["fps"], row["fps_median"], row["fps_exact"], row["ls_ms"]) > 0
+    finally:
+        op.decompress()
