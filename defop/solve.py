@@ -71,6 +71,10 @@ MAX_TARGET_DISTANCE = 1e6
 INERTIA_SHIFT = 1e-8
 #: S-ARAP triangles with Σ − σ ≤ KINK · Σ sit on Eq. (11)'s kink for check 4 (:func:`defop.energies.eigensystem`)
 KINK = 1e-4
+#: ``"isometric_exp"`` only: a continuation stage whose start has a triangle with ψ above this is halved like one that
+#: flips. Newton on ψ = exp(s·x) − 1 lowers the exponent by about one per iteration, so a start at ψ ~ 1e259 (a full
+#: stage after a converged half stage, bar of 43 vertices) spent the whole 300-iteration budget; e^20: ≲ 20 iterations
+MAX_STAGE_DENSITY = {"isometric_exp": float(np.exp(20.0))}
 
 
 class NotConvergedWarning(RuntimeWarning):
@@ -672,7 +676,7 @@ class Solver:
                 return X, False, f"continuation needed more than {max_stages} stages", False
             s_next = min(1.0, s + frac)
             Xt = X + self.extend((s_next - s) * (T - start_h))
-            if self.barrier and np.any(mesh.flipped(Xt)):
+            if (self.barrier and np.any(mesh.flipped(Xt))) or self._too_steep(Xt):
                 frac /= 2
                 if frac < 1e-6:
                     return X, False, "could not move the handles without flipping a triangle", False
@@ -689,6 +693,11 @@ class Solver:
         if stages > 1:
             reason += f" (after {stages} continuation stages)"
         return X, True, reason, converged
+
+    def _too_steep(self, X):
+        """Whether a stage start has a triangle above :data:`MAX_STAGE_DENSITY` (``"isometric_exp"`` only)."""
+        cap = MAX_STAGE_DENSITY.get(self.energy)
+        return cap is not None and not en.density(self.mesh.jacobians(X), self.energy).max() <= cap
 
     def _newton(self, log, X, tol):
         """Newton at fixed handles; S-ARAP runs through its smoothing schedule, ending on Eq. (11) itself."""
