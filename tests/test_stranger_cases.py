@@ -87,3 +87,23 @@ def test_isometric_exp_solve_does_not_crawl_from_a_huge_stage_start():
     r = dop.solve.Solver(shape.mesh, handles, "isometric_exp").solve(targets)
     assert r.converged, r.reason
     assert r.energy < 0.2  # the symmetric Dirichlet minimiser has exp-energy 0.117: a feasible upper bound
+
+
+def test_handle_distortion_rejects_bad_vertices_and_non_finite_x():
+    """An out-of-range vertex gave numpy's 'zero-size array to reduction operation'; 2.5 was truncated to 2; a
+    boolean mask was read as the vertex indices 0 and 1; a NaN vertex was ignored (deformation_summary then gave
+    area_change = nan next to finite flip counts)."""
+    shape = dop.shapes.load("bar", 40)
+    mesh, h = shape.mesh, shape.moving_handles
+    X = mesh.V.copy()
+    X[h] += 0.05
+    for bad in ([mesh.n_vertices], [-1], [2.5], []):
+        with pytest.raises(ValueError, match="handle|vertex"):
+            dop.analysis.handle_distortion(mesh, X, bad)
+    mask = np.zeros(mesh.n_vertices, bool)
+    mask[h] = True
+    by_mask, by_index = (dop.analysis.handle_distortion(mesh, X, v) for v in (mask, h))
+    assert all(np.array_equal(by_mask[k], by_index[k]) for k in by_index)
+    X[5] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        dop.analysis.deformation_summary(mesh, X, h)
