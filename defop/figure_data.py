@@ -400,15 +400,21 @@ def local_rotation(rest, X, center, radius):
     Raises
     ------
     ValueError
-        Fewer than 2 rest-pose points within ``radius`` of ``center``, or X of the wrong shape.
+        Fewer than 2 rest-pose points within ``radius`` of ``center``, X of the wrong shape or not finite there,
+        or a center that is not a (2,) point.
     """
     rest = np.asarray(rest, float)
     X = np.asarray(X, float)
     if X.shape[-2:] != rest.shape:
         raise ValueError(f"X must have shape (..., {len(rest)}, 2) like the rest pose, got {X.shape}")
-    near = np.flatnonzero(np.linalg.norm(rest - np.asarray(center, float), axis=1) <= radius)
+    center = np.asarray(center, float)
+    if center.shape != (2,):
+        raise ValueError(f"center must be a point (2,), got shape {center.shape}")
+    near = np.flatnonzero(np.linalg.norm(rest - center, axis=1) <= radius)
     if len(near) < 2:
         raise ValueError(f"only {len(near)} rest-pose point(s) within {radius} of {tuple(center)}: need at least 2")
+    if not np.isfinite(X[..., near, :]).all():
+        raise ValueError("X has NaN or infinite entries among the points within radius of center")
     A = rest[near] - rest[near].mean(axis=0)
     B = X[..., near, :] - X[..., near, :].mean(axis=-2, keepdims=True)
     dot = np.einsum("vc,...vc->...", A, B)

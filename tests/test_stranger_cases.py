@@ -129,3 +129,19 @@ def test_grid_error_rejects_a_ground_truth_of_another_moving_handle():
         dop.figure_data.grid_error(op, truth)
     with pytest.raises(ValueError, match="integer index"):
         dop.figure_data.grid_error(op, truth, moving=1.5)
+
+
+def test_local_rotation_rejects_nan_and_a_center_of_the_wrong_shape():
+    """A NaN vertex near the center gave a NaN angle; a (3,) center raised numpy's broadcasting error."""
+    V = np.random.default_rng(0).normal(size=(30, 2))
+    X = V.copy()
+    X[3] = np.nan
+    near = np.linalg.norm(V - V[3], axis=1) <= 1.0
+    assert near.sum() >= 2
+    with pytest.raises(ValueError, match="NaN"):
+        dop.figure_data.local_rotation(V, X, V[3], 1.0)
+    with pytest.raises(ValueError, match="center"):
+        dop.figure_data.local_rotation(V, V, [0.0, 0.0, 0.0], 10.0)
+    c, s = np.cos(0.5), np.sin(0.5)
+    turned = V @ np.array([[c, s], [-s, c]])  # rows rotated counter-clockwise by 0.5 rad
+    assert dop.figure_data.local_rotation(V, turned, V[3], 1.0) == pytest.approx(np.degrees(0.5))
