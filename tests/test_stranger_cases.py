@@ -145,3 +145,16 @@ def test_local_rotation_rejects_nan_and_a_center_of_the_wrong_shape():
     c, s = np.cos(0.5), np.sin(0.5)
     turned = V @ np.array([[c, s], [-s, c]])  # rows rotated counter-clockwise by 0.5 rad
     assert dop.figure_data.local_rotation(V, turned, V[3], 1.0) == pytest.approx(np.degrees(0.5))
+
+
+def test_range_and_error_rejects_nan_at_measured_points():
+    """A NaN in one trajectory gave NaN low, high, extent and max_error, and an argmax pointing at the NaN."""
+    ref = np.zeros((3, 3, 2))
+    bad = np.ones((3, 3, 2))
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="'approx'.*NaN"):
+        dop.trajectories.range_and_error({"ground truth": ref, "approx": bad})
+    mask = np.ones((3, 3), bool)
+    mask[0, 0] = False  # a NaN where nothing is measured is fine
+    out = dop.trajectories.range_and_error({"ground truth": ref, "approx": bad}, mask=mask)
+    assert out["approx"]["max_error"] == pytest.approx(np.sqrt(2))
