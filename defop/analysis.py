@@ -290,7 +290,7 @@ def handle_distortion(mesh, X, vertices):
     from .energies import svd_frame  # a layer below analysis
 
     S = svd_frame(mesh.jacobians(X))[0]
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
         K = np.where(S[:, 1] > 0, S[:, 0] / S[:, 1], np.inf)
     folded = S[:, 1] <= 0
     rings = one_rings(mesh.F, vertices)
@@ -329,8 +329,8 @@ def deformation_summary(mesh, X, vertices, expand=1.1):
     S = svd_frame(mesh.jacobians(X))[0]
     A = mesh.areas
     w = A / A.sum()
-    with np.errstate(divide="ignore"):
-        K = S[:, 0] / np.abs(S[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        K = np.where(S[:, 1] != 0, S[:, 0] / np.abs(S[:, 1]), np.inf)  # a triangle collapsed to a point: inf, not 0/0
     order = np.argsort(K)
     median = float(K[order][np.searchsorted(np.cumsum(w[order]), 0.5)])
     return {

@@ -167,3 +167,12 @@ def test_isometric_exp_still_converges_on_a_huge_stretch():
     r = dop.solve.Solver(shape.mesh, shape.handles, "isometric_exp").solve(shape.targets(shape.P_moving + [8.0, 0.0]))
     assert r.converged, r.reason
     assert dop.energies.density(shape.mesh.jacobians(r.X), "isometric_exp").max() > 1e9
+
+
+def test_deformation_summary_of_a_collapsed_map_is_not_nan():
+    """Every triangle collapsed to a point gave median_conformal = nan (0/0) and a RuntimeWarning."""
+    shape = dop.shapes.load("bar", 40)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = dop.analysis.deformation_summary(shape.mesh, np.zeros_like(shape.mesh.V), shape.moving_handles)
+    assert s["median_conformal"] == np.inf and s["flips"] == shape.mesh.n_faces and s["area_change"] == -1.0
