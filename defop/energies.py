@@ -62,6 +62,14 @@ def _rot(angle):
     return R
 
 
+def _jacobians(J):
+    """J as a float (m,2,2) array; a (2,2) matrix or (m,3,3) was indexed silently (its top-left 2×2 used)."""
+    J = np.asarray(J, dtype=float)
+    if J.ndim != 3 or J.shape[1:] != (2, 2):
+        raise ValueError(f"J must be an (m,2,2) array of 2×2 Jacobians, got shape {J.shape}")
+    return J
+
+
 def signed_svd(J):
     """Signed SVD of 2×2 matrices in closed form: J = U diag(Σ, σ) Vᵀ with U, V rotations.
 
@@ -85,7 +93,7 @@ def signed_svd(J):
     θ = (atan2(H,E)−atan2(G,F))/2. Working with rotations avoids the sign fix-ups of a general
     SVD (flipping the second column of both U and V when both have det −1).
     """
-    J = np.asarray(J, dtype=float)
+    J = _jacobians(J)
     a, b, c, d = J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1]
     E, F, G, H = (a + d) / 2, (a - d) / 2, (c + b) / 2, (c - b) / 2
     Qn, Rn = np.hypot(E, H), np.hypot(F, G)
@@ -299,7 +307,7 @@ def svd_frame(J):
     ca, sa, cb, sb : (m,) numpy arrays
         cos α, sin α, cos β, sin β (β = 0 for conformal J, where it is arbitrary).
     """
-    J = np.asarray(J, dtype=float)
+    J = _jacobians(J)
     a, b, c, d = J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1]
     E, F, G, H = (a + d) / 2, (a - d) / 2, (c + b) / 2, (c - b) / 2
     Qn, Rn = np.hypot(E, H), np.hypot(F, G)

@@ -176,3 +176,13 @@ def test_deformation_summary_of_a_collapsed_map_is_not_nan():
         warnings.simplefilter("error")
         s = dop.analysis.deformation_summary(shape.mesh, np.zeros_like(shape.mesh.V), shape.moving_handles)
     assert s["median_conformal"] == np.inf and s["flips"] == shape.mesh.n_faces and s["area_change"] == -1.0
+
+
+@pytest.mark.parametrize("energy", ["isometric_max", "isometric_exp", "sarap"])
+def test_energies_reject_jacobians_that_are_not_m_by_2_by_2(energy):
+    """A (1,3,3) array gave ψ = 0 from its top-left 2×2 without a word; a single (2,2) matrix an IndexError."""
+    for J in (np.eye(3)[None], np.eye(2), np.ones((1, 4))):
+        for f in (dop.energies.density, dop.energies.gradient, dop.energies.hessian):
+            with pytest.raises(ValueError, match=r"\(m,2,2\)"):
+                f(J, energy)
+    assert dop.energies.density(np.eye(2, dtype=int)[None], energy) == pytest.approx([0.0])
