@@ -37,7 +37,7 @@ ENERGIES = ("arap", "sarap", "isometric", "isometric_max", "isometric_exp")
 BARRIER = {"arap": False, "sarap": True, "isometric": True, "isometric_max": True, "isometric_exp": True}
 #: value of ψ at rotations (the rest pose), per energy
 REST_VALUE = {"arap": 0.0, "sarap": 0.0, "isometric": 4.0, "isometric_max": 0.0, "isometric_exp": 0.0}
-#: the p of ``"isometric_max"``'s p-norm: ψ is within a factor 4^(2/p) = 1.04 of max(Σ, 1/σ)²
+#: the p of ``"isometric_max"``'s p-norm: ψ + 4^(2/p) lies between max(Σ, 1/σ)² and 4^(2/p) = 1.044 times it
 MAX_POWER = 64.0
 #: the s of ``"isometric_exp"``
 EXP_SCALE = 0.25

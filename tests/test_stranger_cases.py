@@ -186,3 +186,16 @@ def test_energies_reject_jacobians_that_are_not_m_by_2_by_2(energy):
             with pytest.raises(ValueError, match=r"\(m,2,2\)"):
                 f(J, energy)
     assert dop.energies.density(np.eye(2, dtype=int)[None], energy) == pytest.approx([0.0])
+
+
+def test_isometric_max_brackets_the_squared_max_distortion():
+    """MAX_POWER's comment said ψ itself is within a factor 1.04 of max(Σ, 1/σ)²: at Σ = 2, σ = 1 it is 0.74 of it
+    (ψ subtracts its rest value 4^(2/p)); ψ + 4^(2/p) is what lies in [1, 4^(2/p)] times max(Σ, 1/σ)²."""
+    rng = np.random.default_rng(0)
+    J = np.eye(2) + 0.4 * rng.normal(size=(200, 2, 2))
+    J = J[np.linalg.det(J) > 0]
+    s = np.linalg.svd(J, compute_uv=False)
+    top = np.maximum(s[:, 0], 1 / s[:, 1]) ** 2
+    rest = 4 ** (2 / dop.energies.MAX_POWER)
+    shifted = dop.energies.density(J, "isometric_max") + rest
+    assert np.all(top * (1 - 1e-12) <= shifted) and np.all(shifted <= rest * top * (1 + 1e-12))
