@@ -276,7 +276,7 @@ def handle_distortion(mesh, X, vertices):
     X : (n,2) numpy array
         Deformed vertex positions.
     vertices : (h,) int numpy array
-        Handle vertices.
+        Handle vertices (or an (n,) boolean mask, as :func:`defop.solve.check_handles` accepts).
 
     Returns
     -------
@@ -284,15 +284,25 @@ def handle_distortion(mesh, X, vertices):
         ``angle``: the largest change of a corner angle (degrees) over the one-ring, signed angles (a flipped
         triangle changes each angle by more than its rest value); ``conformal``: the largest Σ/σ (+inf on a
         flipped or collapsed triangle); ``flipped``: flipped or collapsed triangles in the one-ring.
+
+    Raises
+    ------
+    ValueError
+        X of the wrong shape or not finite; handle vertices empty, non-integer or out of range.
     """
+    from .solve import check_handles  # a layer below analysis
+
     X = np.asarray(X, float)
     if X.shape != mesh.V.shape:
         raise ValueError(f"X must have shape {mesh.V.shape}, got {X.shape}")
+    if not np.isfinite(X).all():
+        raise ValueError(f"X has NaN or infinite entries (vertex {int(np.flatnonzero(~np.isfinite(X).all(1))[0])})")
+    vertices = check_handles(mesh, vertices)
     change = np.degrees(np.abs(corner_angles(X, mesh.F) - corner_angles(mesh.V, mesh.F))).max(axis=1)
     from .energies import svd_frame  # a layer below analysis
 
     S = svd_frame(mesh.jacobians(X))[0]
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
         K = np.where(S[:, 1] > 0, S[:, 0] / S[:, 1], np.inf)
     folded = S[:, 1] <= 0
     rings = one_rings(mesh.F, vertices)
@@ -331,8 +341,8 @@ def deformation_summary(mesh, X, vertices, expand=1.1):
     S = svd_frame(mesh.jacobians(X))[0]
     A = mesh.areas
     w = A / A.sum()
-    with np.errstate(divide="ignore"):
-        K = S[:, 0] / np.abs(S[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        K = np.where(S[:, 1] != 0, S[:, 0] / np.abs(S[:, 1]), np.inf)  # a triangle collapsed to a point: inf, not 0/0
     order = np.argsort(K)
     median = float(K[order][np.searchsorted(np.cumsum(w[order]), 0.5)])
     return {

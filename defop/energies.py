@@ -37,7 +37,7 @@ ENERGIES = ("arap", "sarap", "isometric", "isometric_max", "isometric_exp")
 BARRIER = {"arap": False, "sarap": True, "isometric": True, "isometric_max": True, "isometric_exp": True}
 #: value of ψ at rotations (the rest pose), per energy
 REST_VALUE = {"arap": 0.0, "sarap": 0.0, "isometric": 4.0, "isometric_max": 0.0, "isometric_exp": 0.0}
-#: the p of ``"isometric_max"``'s p-norm: ψ is within a factor 4^(2/p) = 1.04 of max(Σ, 1/σ)²
+#: the p of ``"isometric_max"``'s p-norm: ψ + 4^(2/p) lies between max(Σ, 1/σ)² and 4^(2/p) = 1.044 times it
 MAX_POWER = 64.0
 #: the s of ``"isometric_exp"``
 EXP_SCALE = 0.25
@@ -60,6 +60,14 @@ def _rot(angle):
     R = np.empty(angle.shape + (2, 2))
     R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1] = c, -s, s, c
     return R
+
+
+def _jacobians(J):
+    """J as a float (m,2,2) array; a (2,2) matrix or (m,3,3) was indexed silently (its top-left 2×2 used)."""
+    J = np.asarray(J, dtype=float)
+    if J.ndim != 3 or J.shape[1:] != (2, 2):
+        raise ValueError(f"J must be an (m,2,2) array of 2×2 Jacobians, got shape {J.shape}")
+    return J
 
 
 def signed_svd(J):
@@ -85,7 +93,7 @@ def signed_svd(J):
     θ = (atan2(H,E)−atan2(G,F))/2. Working with rotations avoids the sign fix-ups of a general
     SVD (flipping the second column of both U and V when both have det −1).
     """
-    J = np.asarray(J, dtype=float)
+    J = _jacobians(J)
     a, b, c, d = J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1]
     E, F, G, H = (a + d) / 2, (a - d) / 2, (c + b) / 2, (c - b) / 2
     Qn, Rn = np.hypot(E, H), np.hypot(F, G)
@@ -299,7 +307,7 @@ def svd_frame(J):
     ca, sa, cb, sb : (m,) numpy arrays
         cos α, sin α, cos β, sin β (β = 0 for conformal J, where it is arbitrary).
     """
-    J = np.asarray(J, dtype=float)
+    J = _jacobians(J)
     a, b, c, d = J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1]
     E, F, G, H = (a + d) / 2, (a - d) / 2, (c + b) / 2, (c - b) / 2
     Qn, Rn = np.hypot(E, H), np.hypot(F, G)

@@ -242,11 +242,29 @@ def grid_error(defop, truth, moving=0):
     float
         (8a)/n per configuration: :func:`defop.analysis.approximation_error` over the ny·nx grid
         configurations, divided by their number (so grids of different sizes compare).
+
+    Raises
+    ------
+    ValueError
+        A trajectory of another mesh, ``moving`` not an index of a moving handle, or a ground truth whose handle
+        ``moving`` does not follow the grid (it was solved for another moving handle).
     """
     X = np.asarray(truth.X, float)
     if X.shape[2:] != (defop.n_vertices, 2):
         raise ValueError(f"the trajectory has {X.shape[2]} vertices, the DefOp {defop.n_vertices}")
-    Q = _moving_batch(truth.grid, len(_defop_P_moving(defop)), moving, _defop_P_moving(defop))
+    if isinstance(moving, bool) or int(moving) != moving:
+        raise ValueError(f"moving must be the integer index of a moving handle, got {moving!r}")
+    Q = _moving_batch(truth.grid, len(_defop_P_moving(defop)), int(moving), _defop_P_moving(defop))
+    handles, mask = getattr(defop, "handles", None), getattr(defop, "moving", None)
+    if handles is not None and mask is not None:  # the truth's handle sits on the grid where its solve converged
+        v = int(np.asarray(handles)[np.asarray(mask, bool)][int(moving)])
+        ok = np.ones(X.shape[:2], bool) if truth.converged is None else np.asarray(truth.converged, bool)
+        off = float(np.abs(X[:, :, v] - truth.grid.positions)[ok].max(initial=0.0))
+        if not off <= 1e-9 * defop.mesh.bbox_diagonal:
+            raise ValueError(
+                f"moving handle {int(moving)} (vertex {v}) is {off:.3g} off the trajectory's grid: "
+                "was the ground truth solved for another moving handle?"
+            )
     return approximation_error(defop, Q, X.reshape(len(Q), -1, 2)) / len(Q)
 
 
@@ -382,15 +400,21 @@ def local_rotation(rest, X, center, radius):
     Raises
     ------
     ValueError
-        Fewer than 2 rest-pose points within ``radius`` of ``center``, or X of the wrong shape.
+        Fewer than 2 rest-pose points within ``radius`` of ``center``, X of the wrong shape or not finite there,
+        or a center that is not a (2,) point.
     """
     rest = np.asarray(rest, float)
     X = np.asarray(X, float)
     if X.shape[-2:] != rest.shape:
         raise ValueError(f"X must have shape (..., {len(rest)}, 2) like the rest pose, got {X.shape}")
-    near = np.flatnonzero(np.linalg.norm(rest - np.asarray(center, float), axis=1) <= radius)
+    center = np.asarray(center, float)
+    if center.shape != (2,):
+        raise ValueError(f"center must be a point (2,), got shape {center.shape}")
+    near = np.flatnonzero(np.linalg.norm(rest - center, axis=1) <= radius)
     if len(near) < 2:
         raise ValueError(f"only {len(near)} rest-pose point(s) within {radius} of {tuple(center)}: need at least 2")
+    if not np.isfinite(X[..., near, :]).all():
+        raise ValueError("X has NaN or infinite entries among the points within radius of center")
     A = rest[near] - rest[near].mean(axis=0)
     B = X[..., near, :] - X[..., near, :].mean(axis=-2, keepdims=True)
     dot = np.einsum("vc,...vc->...", A, B)

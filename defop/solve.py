@@ -71,6 +71,12 @@ MAX_TARGET_DISTANCE = 1e6
 INERTIA_SHIFT = 1e-8
 #: S-ARAP triangles with Σ − σ ≤ KINK · Σ sit on Eq. (11)'s kink for check 4 (:func:`defop.energies.eigensystem`)
 KINK = 1e-4
+#: ``"isometric_exp"`` only: a continuation stage whose start raises the largest log(1 + ψ) over the triangles by
+#: more than this is halved like one that flips. Newton on ψ = exp(s·x) − 1 lowers the exponent by about one per
+#: iteration, so a start at ψ ~ 1e259 (a full stage after a converged half stage, bar of 43 vertices) spent the whole
+#: 300-iteration budget; a bound on the growth, not on ψ itself, still lets a huge stretch (ψ ~ 1e10 at the minimum)
+#: converge
+MAX_STAGE_GROWTH = {"isometric_exp": 20.0}
 
 
 class NotConvergedWarning(RuntimeWarning):
@@ -672,7 +678,7 @@ class Solver:
                 return X, False, f"continuation needed more than {max_stages} stages", False
             s_next = min(1.0, s + frac)
             Xt = X + self.extend((s_next - s) * (T - start_h))
-            if self.barrier and np.any(mesh.flipped(Xt)):
+            if (self.barrier and np.any(mesh.flipped(Xt))) or self._too_steep(X, Xt):
                 frac /= 2
                 if frac < 1e-6:
                     return X, False, "could not move the handles without flipping a triangle", False
@@ -689,6 +695,14 @@ class Solver:
         if stages > 1:
             reason += f" (after {stages} continuation stages)"
         return X, True, reason, converged
+
+    def _too_steep(self, X, Xt):
+        """Whether a stage from X to Xt raises the largest log(1 + ψ) by more than :data:`MAX_STAGE_GROWTH`."""
+        grow = MAX_STAGE_GROWTH.get(self.energy)
+        if grow is None:
+            return False
+        top = [np.log1p(en.density(self.mesh.jacobians(Y), self.energy).max()) for Y in (X, Xt)]
+        return not top[1] - top[0] <= grow
 
     def _newton(self, log, X, tol):
         """Newton at fixed handles; S-ARAP runs through its smoothing schedule, ending on Eq. (11) itself."""

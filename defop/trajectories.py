@@ -637,6 +637,11 @@ def range_and_error(T, reference="ground truth", mask=None):
         (the "±" range); ``overshoot`` (2,) numpy array, how far each component leaves the reference's
         [low, high] (0 when it stays inside); ``max_error`` float, the largest Euclidean error
         |T_x − T_ref|; ``argmax`` (i, j), the grid index where that error is largest.
+
+    Raises
+    ------
+    ValueError
+        A missing reference, a bad mask, trajectories of different shapes, or NaN/inf at a measured grid point.
     """
     if reference not in T:
         raise ValueError(f"reference {reference!r} is not among the trajectories {sorted(T)}")
@@ -652,6 +657,8 @@ def range_and_error(T, reference="ground truth", mask=None):
         t = np.asarray(t, dtype=float)
         if t.shape != ref.shape:
             raise ValueError(f"trajectory {name!r} has shape {t.shape}, the reference {ref.shape}")
+        if not np.isfinite(t[mask]).all():
+            raise ValueError(f"trajectory {name!r} has NaN or infinite values at measured grid points")
         err = np.where(mask, np.linalg.norm(t - ref, axis=-1), -np.inf)
         lo, hi = t[mask].min(axis=0), t[mask].max(axis=0)
         out[name] = {

@@ -76,3 +76,126 @@ def test_duplicate_samples_are_named_with_their_own_index():
     samples[2] = samples[0]
     with pytest.raises(ValueError, match=r"centres 1 and 3 .*Q_k with k = c - 1"):
         dop.train.train(shape, "arap", "tps", samples=samples, progress=False, cache=False)
+
+
+def test_isometric_exp_solve_does_not_crawl_from_a_huge_stage_start():
+    """A full continuation stage started at ψ ~ 1e259 (finite, no flip): Newton on exp lowers the exponent by about
+    one per step and ran out of its 300 iterations at E = 1.9e134, where the other energies converge in 2 stages."""
+    shape = dop.shapes.load("bar", 40)
+    handles = [24, 23, 22, 25]
+    targets = np.array([[-0.024, 0.101], [0.077, 0.13], [0.907, 0.103], [0.118, 0.263]])
+    r = dop.solve.Solver(shape.mesh, handles, "isometric_exp").solve(targets)
+    assert r.converged, r.reason
+    assert r.energy < 0.2  # the symmetric Dirichlet minimiser has exp-energy 0.117: a feasible upper bound
+
+
+def test_handle_distortion_rejects_bad_vertices_and_non_finite_x():
+    """An out-of-range vertex gave numpy's 'zero-size array to reduction operation'; 2.5 was truncated to 2; a
+    boolean mask was read as the vertex indices 0 and 1; a NaN vertex was ignored (deformation_summary then gave
+    area_change = nan next to finite flip counts)."""
+    shape = dop.shapes.load("bar", 40)
+    mesh, h = shape.mesh, shape.moving_handles
+    X = mesh.V.copy()
+    X[h] += 0.05
+    for bad in ([mesh.n_vertices], [-1], [2.5], []):
+        with pytest.raises(ValueError, match="handle|vertex"):
+            dop.analysis.handle_distortion(mesh, X, bad)
+    mask = np.zeros(mesh.n_vertices, bool)
+    mask[h] = True
+    by_mask, by_index = (dop.analysis.handle_distortion(mesh, X, v) for v in (mask, h))
+    assert all(np.array_equal(by_mask[k], by_index[k]) for k in by_index)
+    X[5] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        dop.analysis.deformation_summary(mesh, X, h)
+
+
+def test_grid_error_rejects_a_ground_truth_of_another_moving_handle():
+    """grid_error(op, truth) with the default moving=0 on a ground truth solved for moving handle 1 returned an
+    error 500x too large without a word (gingerbread, 5 moving handles); moving=1.5 raised numpy's IndexError."""
+    shape = dop.shapes.load("gingerbread", 60)
+    grid = dop.trajectories.handle_grid(shape.P_moving[1], 0.1, 3)
+    Q = np.repeat(shape.P_moving[None], grid.size, axis=0)
+    Q[:, 1] = grid.positions.reshape(-1, 2)
+    # a synthetic ground truth: every vertex translated with handle 1 except the other handles, exactly on Q
+    X = shape.mesh.V[None] + (Q[:, 1] - shape.P_moving[1])[:, None, :]
+    X[:, shape.moving_handles] = Q
+    truth = dop.trajectories.Trajectory(grid=grid, X=X.reshape(3, 3, -1, 2), rest=shape.mesh.V, kind="global")
+    Qk = shape.P_moving + np.random.default_rng(0).normal(scale=0.05, size=(16, 5, 2))
+    Xk = shape.mesh.V[None] + Qk.mean(axis=1, keepdims=True) - shape.P_moving.mean(axis=0)
+    Xk[:, shape.moving_handles] = Qk
+    op = dop.fit.fit_shape(shape, Qk, Xk, "linear")
+    assert dop.figure_data.grid_error(op, truth, moving=1) >= 0.0
+    with pytest.raises(ValueError, match="another moving handle"):
+        dop.figure_data.grid_error(op, truth)
+    with pytest.raises(ValueError, match="integer index"):
+        dop.figure_data.grid_error(op, truth, moving=1.5)
+
+
+def test_local_rotation_rejects_nan_and_a_center_of_the_wrong_shape():
+    """A NaN vertex near the center gave a NaN angle; a (3,) center raised numpy's broadcasting error."""
+    V = np.random.default_rng(0).normal(size=(30, 2))
+    X = V.copy()
+    X[3] = np.nan
+    near = np.linalg.norm(V - V[3], axis=1) <= 1.0
+    assert near.sum() >= 2
+    with pytest.raises(ValueError, match="NaN"):
+        dop.figure_data.local_rotation(V, X, V[3], 1.0)
+    with pytest.raises(ValueError, match="center"):
+        dop.figure_data.local_rotation(V, V, [0.0, 0.0, 0.0], 10.0)
+    c, s = np.cos(0.5), np.sin(0.5)
+    turned = V @ np.array([[c, s], [-s, c]])  # rows rotated counter-clockwise by 0.5 rad
+    assert dop.figure_data.local_rotation(V, turned, V[3], 1.0) == pytest.approx(np.degrees(0.5))
+
+
+def test_range_and_error_rejects_nan_at_measured_points():
+    """A NaN in one trajectory gave NaN low, high, extent and max_error, and an argmax pointing at the NaN."""
+    ref = np.zeros((3, 3, 2))
+    bad = np.ones((3, 3, 2))
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="'approx'.*NaN"):
+        dop.trajectories.range_and_error({"ground truth": ref, "approx": bad})
+    mask = np.ones((3, 3), bool)
+    mask[0, 0] = False  # a NaN where nothing is measured is fine
+    out = dop.trajectories.range_and_error({"ground truth": ref, "approx": bad}, mask=mask)
+    assert out["approx"]["max_error"] == pytest.approx(np.sqrt(2))
+
+
+def test_isometric_exp_still_converges_on_a_huge_stretch():
+    """The stage rule above bounds the growth of max log(1 + ψ), not ψ: an absolute cap (e^20) failed this stretch,
+    whose minimum has ψ ~ 1e10."""
+    shape = dop.shapes.load("bar", 40)
+    r = dop.solve.Solver(shape.mesh, shape.handles, "isometric_exp").solve(shape.targets(shape.P_moving + [8.0, 0.0]))
+    assert r.converged, r.reason
+    assert dop.energies.density(shape.mesh.jacobians(r.X), "isometric_exp").max() > 1e9
+
+
+def test_deformation_summary_of_a_collapsed_map_is_not_nan():
+    """Every triangle collapsed to a point gave median_conformal = nan (0/0) and a RuntimeWarning."""
+    shape = dop.shapes.load("bar", 40)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = dop.analysis.deformation_summary(shape.mesh, np.zeros_like(shape.mesh.V), shape.moving_handles)
+    assert s["median_conformal"] == np.inf and s["flips"] == shape.mesh.n_faces and s["area_change"] == -1.0
+
+
+@pytest.mark.parametrize("energy", ["isometric_max", "isometric_exp", "sarap"])
+def test_energies_reject_jacobians_that_are_not_m_by_2_by_2(energy):
+    """A (1,3,3) array gave ψ = 0 from its top-left 2×2 without a word; a single (2,2) matrix an IndexError."""
+    for J in (np.eye(3)[None], np.eye(2), np.ones((1, 4))):
+        for f in (dop.energies.density, dop.energies.gradient, dop.energies.hessian):
+            with pytest.raises(ValueError, match=r"\(m,2,2\)"):
+                f(J, energy)
+    assert dop.energies.density(np.eye(2, dtype=int)[None], energy) == pytest.approx([0.0])
+
+
+def test_isometric_max_brackets_the_squared_max_distortion():
+    """MAX_POWER's comment said ψ itself is within a factor 1.04 of max(Σ, 1/σ)²: at Σ = 2, σ = 1 it is 0.74 of it
+    (ψ subtracts its rest value 4^(2/p)); ψ + 4^(2/p) is what lies in [1, 4^(2/p)] times max(Σ, 1/σ)²."""
+    rng = np.random.default_rng(0)
+    J = np.eye(2) + 0.4 * rng.normal(size=(200, 2, 2))
+    J = J[np.linalg.det(J) > 0]
+    s = np.linalg.svd(J, compute_uv=False)
+    top = np.maximum(s[:, 0], 1 / s[:, 1]) ** 2
+    rest = 4 ** (2 / dop.energies.MAX_POWER)
+    shifted = dop.energies.density(J, "isometric_max") + rest
+    assert np.all(top * (1 - 1e-12) <= shifted) and np.all(shifted <= rest * top * (1 + 1e-12))
