@@ -375,7 +375,8 @@ def train(
     ----------
     shape : defop.shapes.Shape
     energy : str
-        ``"arap"``, ``"sarap"`` or ``"isometric"``.
+        ``"arap"``, ``"sarap"``, ``"isometric"`` (symmetric Dirichlet), ``"isometric_max"`` or ``"isometric_exp"``
+        (see :data:`defop.energies.ENERGIES`).
     basis : str
         Handle basis Ψ: ``"linear"``, ``"quadratic"``, ``"cubic"`` or ``"tps"``.
     m : int, optional
