@@ -27,6 +27,7 @@ _SUBMODULES = (
     "models",
     "regions",
     "energies",
+    "distortion",
     "solve",
     "spatial",
     "handle_bases",

@@ -249,7 +249,7 @@ def plot_handle_zoom(ax, shape, X, vertex, radius=0.12, vmax=90.0, flip_color="#
     -------
     artist : the PolyCollection coloured by angle change (for a colour bar)
     """
-    from .analysis import corner_angles
+    from .distortion import corner_angles
 
     mesh = shape.mesh
     change = np.degrees(np.abs(corner_angles(X, mesh.F) - corner_angles(mesh.V, mesh.F))).max(axis=1)
@@ -285,7 +285,7 @@ def plot_energy_comparison(axes, zooms, shape, results, titles, vertex, radius=0
     -------
     artist : the last zoom's colour-mapped PolyCollection (for a colour bar)
     """
-    from .analysis import deformation_summary
+    from .distortion import deformation_summary
 
     art = None
     for ax, zoom, (energy, r) in zip(axes, zooms, results.items()):

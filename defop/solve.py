@@ -389,8 +389,8 @@ class Solver:
         Constrained vertices (moving and fixed handles), in any order (see :func:`check_handles`).
         Targets are always given in this order. A vertex listed twice must get the same target each time.
     energy : str
-        ``"arap"`` (Eq. 10), ``"sarap"`` (Eq. 11), ``"isometric"`` (symmetric Dirichlet), ``"isometric_max"`` or ``"isometric_exp"``
-        (see :data:`defop.energies.ENERGIES`).
+        ``"arap"`` (Eq. 10), ``"sarap"`` (Eq. 11), ``"isometric"`` (symmetric Dirichlet), ``"isometric_max"``
+        or ``"isometric_exp"`` (see :data:`defop.energies.ENERGIES`).
     tol : float
         Default tolerance: Newton stops at a decrement λ²/2 ≤ tol · E (check 4 uses ``verify_tol``).
     max_iter : int

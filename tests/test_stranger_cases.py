@@ -99,14 +99,14 @@ def test_handle_distortion_rejects_bad_vertices_and_non_finite_x():
     X[h] += 0.05
     for bad in ([mesh.n_vertices], [-1], [2.5], []):
         with pytest.raises(ValueError, match="handle|vertex"):
-            dop.analysis.handle_distortion(mesh, X, bad)
+            dop.distortion.handle_distortion(mesh, X, bad)
     mask = np.zeros(mesh.n_vertices, bool)
     mask[h] = True
-    by_mask, by_index = (dop.analysis.handle_distortion(mesh, X, v) for v in (mask, h))
+    by_mask, by_index = (dop.distortion.handle_distortion(mesh, X, v) for v in (mask, h))
     assert all(np.array_equal(by_mask[k], by_index[k]) for k in by_index)
     X[5] = np.nan
     with pytest.raises(ValueError, match="NaN"):
-        dop.analysis.deformation_summary(mesh, X, h)
+        dop.distortion.deformation_summary(mesh, X, h)
 
 
 def test_grid_error_rejects_a_ground_truth_of_another_moving_handle():
@@ -174,7 +174,7 @@ def test_deformation_summary_of_a_collapsed_map_is_not_nan():
     shape = dop.shapes.load("bar", 40)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        s = dop.analysis.deformation_summary(shape.mesh, np.zeros_like(shape.mesh.V), shape.moving_handles)
+        s = dop.distortion.deformation_summary(shape.mesh, np.zeros_like(shape.mesh.V), shape.moving_handles)
     assert s["median_conformal"] == np.inf and s["flips"] == shape.mesh.n_faces and s["area_change"] == -1.0
 
 

@@ -1,4 +1,4 @@
-"""Distortion at the handles (Fig. 6's cusps): corner angles, one-rings, conformal distortion, the summary."""
+"""defop.distortion: the cusp, fold and scaling measures of Fig. 6 (analytic cases)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from defop import analysis
+from defop import distortion
 from defop.mesh import Mesh
 
 RIGHT = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
@@ -23,25 +23,25 @@ def _fan(n=6):
 
 def test_corner_angles_of_a_stretched_right_triangle():
     F = np.array([[0, 1, 2]])
-    assert np.degrees(analysis.corner_angles(RIGHT, F))[0] == pytest.approx([90, 45, 45])
+    assert np.degrees(distortion.corner_angles(RIGHT, F))[0] == pytest.approx([90, 45, 45])
     X = RIGHT * [2.0, 1.0]  # J = diag(2, 1): angles 90, atan(1/2), atan(2)
-    assert np.degrees(analysis.corner_angles(X, F))[0] == pytest.approx(
+    assert np.degrees(distortion.corner_angles(X, F))[0] == pytest.approx(
         [90, np.degrees(np.arctan(0.5)), np.degrees(np.arctan(2))]
     )
     folded = RIGHT * [1.0, -1.0]  # a reflection: every angle changes sign
-    assert np.degrees(analysis.corner_angles(folded, F))[0] == pytest.approx([-90, -45, -45])
+    assert np.degrees(distortion.corner_angles(folded, F))[0] == pytest.approx([-90, -45, -45])
 
 
 def test_handle_distortion_of_an_affine_stretch_and_a_fold():
     mesh = _fan()
-    d = analysis.handle_distortion(mesh, mesh.V * [2.0, 1.0], [0])
+    d = distortion.handle_distortion(mesh, mesh.V * [2.0, 1.0], [0])
     assert d["conformal"] == pytest.approx([2.0]) and d["flipped"].tolist() == [0]
     # the largest corner-angle change of diag(2, 1) over the fan's 60° corners, from the closed form
-    ref = np.degrees(np.abs(analysis.corner_angles(mesh.V * [2.0, 1.0], mesh.F) - np.pi / 3)).max()
+    ref = np.degrees(np.abs(distortion.corner_angles(mesh.V * [2.0, 1.0], mesh.F) - np.pi / 3)).max()
     assert d["angle"] == pytest.approx([ref]) and 10 < ref < 40
     X = mesh.V.copy()
     X[0] = [1.5, 0.0]  # the centre pulled out past the ring: a cusp that folds three triangles over
-    d = analysis.handle_distortion(mesh, X, [0, 1])
+    d = distortion.handle_distortion(mesh, X, [0, 1])
     assert d["flipped"][0] >= 1 and d["conformal"][0] == np.inf and d["angle"][0] > 90
 
 
@@ -51,9 +51,9 @@ def test_similarities_have_no_distortion(angle, scale, tx, ty):
     mesh = _fan(7)
     c, s = np.cos(angle), np.sin(angle)
     X = scale * mesh.V @ np.array([[c, s], [-s, c]]) + [tx, ty]
-    d = analysis.handle_distortion(mesh, X, [0, 3])
+    d = distortion.handle_distortion(mesh, X, [0, 3])
     assert np.allclose(d["angle"], 0, atol=1e-6) and np.allclose(d["conformal"], 1)
-    summary = analysis.deformation_summary(mesh, X, [0], expand=1.1)
+    summary = distortion.deformation_summary(mesh, X, [0], expand=1.1)
     assert summary["area_change"] == pytest.approx(scale**2 - 1)
     if abs(scale - 1.1) > 1e-6:
         assert summary["scaled"] == pytest.approx(1.0 if scale > 1.1 else 0.0)
@@ -62,4 +62,4 @@ def test_similarities_have_no_distortion(angle, scale, tx, ty):
 
 def test_wrong_shape_is_rejected():
     with pytest.raises(ValueError, match="X must have shape"):
-        analysis.handle_distortion(_fan(), np.zeros((3, 2)), [0])
+        distortion.handle_distortion(_fan(), np.zeros((3, 2)), [0])
