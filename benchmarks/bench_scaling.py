@@ -48,13 +48,15 @@ def _median_time(f, repeats=3):
 
 
 class _TreeMonitor:
-    """Peak RSS of this process and its children (joblib's workers), and the load average, every second."""
+    """Peak RSS of this process and its children (joblib's workers), their CPU seconds (user + system, the last
+    value seen per process) and the load average, every second."""
 
     def __init__(self):
         import psutil
 
         self._me = psutil.Process()
-        self.peak, self.loads = 0, []
+        self.peak, self.loads, self._cpu = 0, [], {}
+        self._cpu0 = sum(self._me.cpu_times()[:2])
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -66,11 +68,17 @@ class _TreeMonitor:
             for p in [self._me, *self._me.children(recursive=True)]:
                 try:
                     rss += p.memory_info().rss
+                    self._cpu[p.pid] = sum(p.cpu_times()[:2])
                 except psutil.Error:
                     pass
             self.peak = max(self.peak, rss)
             self.loads.append(os.getloadavg()[0])
             self._stop.wait(1.0)
+
+    @property
+    def cpu_seconds(self):
+        """CPU seconds of the process tree since the monitor started."""
+        return sum(self._cpu.values()) - self._cpu0
 
     def __enter__(self):
         self._thread.start()
@@ -109,6 +117,7 @@ def _solve_and_fit(shape, Q, rng):
 
 def one(n_vertices, real_training=False):
     """Measurements for one mesh size (run in a fresh process)."""
+    import joblib
     from threadpoolctl import threadpool_limits
 
     import defop as dop
@@ -122,13 +131,16 @@ def one(n_vertices, real_training=False):
     if real_training:
         with _TreeMonitor() as mon:
             t0 = time.perf_counter()
-            _, rec = dop.train.train(shape, "sarap", "tps", m=M, seed=0, cache=False, progress=False)
+            # DEFOP_PROGRESS=text: progress bars on stderr (a long run can be followed)
+            progress = bool(os.environ.get("DEFOP_PROGRESS"))
+            _, rec = dop.train.train(shape, "sarap", "tps", m=M, seed=0, cache=False, progress=progress)
             out["preprocess_real"] = time.perf_counter() - t0
         out["converged"] = int(rec.converged.sum())
         out["stage_times"] = {k: round(v, 1) for k, v in rec.stage_times.items()}
-        out["n_jobs"] = dop.config.n_jobs()
+        out["n_jobs"] = joblib.effective_n_jobs(dop.config.n_jobs())
         out["load_mean"], out["load_max"] = float(np.mean(mon.loads)), float(np.max(mon.loads))
         out["peak_rss_tree_MB"] = mon.peak / 1e6
+        out["cpu_s"] = mon.cpu_seconds
     out["peak_rss_MB"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return out
 
@@ -155,7 +167,10 @@ def table(rows):
     print(head + "\n|" + "---|" * 8)
     for r in rows:
         if "preprocess_real" in r:
-            real = f"**real {r['preprocess_real']:.0f}** ({r['n_jobs']} jobs, load {r['load_mean']:.1f})"
+            real = (
+                f"**real {r['preprocess_real']:.0f}** ({r['cpu_s']:.0f} CPU s, {r['n_jobs']} jobs, "
+                f"load {r['load_mean']:.1f})"
+            )
         else:
             real = f"*estimate {r['preprocess_est']:.0f}*"
         print(
