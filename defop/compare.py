@@ -39,7 +39,7 @@ class Score:
     precompute : float
         Seconds (NaN when not given).
     frame_median, frame_best : float
-        Seconds per frame, single-threaded BLAS.
+        Seconds per frame: CPU time of the calling thread, single-threaded BLAS (see :func:`run_frames`).
     n_frames : int
     """
 
@@ -80,6 +80,11 @@ def _seconds(s):
 def run_frames(method, Q):
     """Evaluate a method frame by frame, in order, timing each frame with single-threaded BLAS.
 
+    A frame's time is the CPU time of the calling thread (:func:`time.thread_time`): other jobs on a shared
+    machine preempt the process but do not add to it, so ratios between methods hold under load. With BLAS
+    pinned to one thread this is the frame's single-thread cost; a method that ran work on other threads
+    would be under-counted (none of :mod:`defop.peers` does with one BLAS thread).
+
     One untimed warm-up frame runs first (at ``Q[0]``); a method with ``reset`` is reset after it, so the
     frames see the same history with or without the warm-up.
 
@@ -105,9 +110,9 @@ def run_frames(method, Q):
         if hasattr(method, "reset"):
             method.reset()
         for i, q in enumerate(Q):
-            t0 = time.perf_counter()
+            t0 = time.thread_time()
             X = method(q)
-            seconds[i] = time.perf_counter() - t0
+            seconds[i] = time.thread_time() - t0
             out.append(X)
     return np.asarray(out, dtype=float), seconds
 

@@ -229,3 +229,22 @@ def test_peers_do_not_depend_on_handle_order_or_subset(aleph, seed):
     for name in X:
         np.testing.assert_allclose(Xp[name], X[name], atol=1e-7, err_msg=name)
         np.testing.assert_allclose(X[name][b], Q, atol=1e-8, err_msg=name)
+
+
+def test_frame_times_are_the_threads_cpu_time_so_load_does_not_inflate_them():
+    """A frame that waits (as a preempted one does) costs no CPU time; one that computes does."""
+    import time
+
+    def waits(q):
+        time.sleep(0.05)
+        return np.zeros((3, 2))
+
+    def computes(q):
+        t0 = time.thread_time()
+        while time.thread_time() - t0 < 0.02:
+            pass
+        return np.zeros((3, 2))
+
+    _, waited = compare.run_frames(waits, np.zeros((2, 1, 2)))
+    _, computed = compare.run_frames(computes, np.zeros((2, 1, 2)))
+    assert waited.max() < 0.01 and computed.min() >= 0.02
