@@ -213,16 +213,21 @@ def test_drag_handle_in_jupyterlab(lab):
             browser.close()
 
 
-def _drive(page, lab):
+def run_all_cells(page, url, timeout_ms):
+    """Open the notebook at ``url`` in JupyterLab, run every cell (the Run menu's "Run All Cells" command) and
+    return the errors of failed cells (a list of str, empty when all ran)."""
     page.set_default_timeout(60_000)
-    page.goto(f"{lab['url']}/lab/tree/{lab['notebook']}?token={TOKEN}")
+    page.goto(url)
     page.wait_for_selector(".jp-Notebook .jp-Cell")
     page.wait_for_function(_KERNEL_IDLE, timeout=90_000)
-
-    # 1-2. open the notebook and run every cell (the Run menu's "Run All Cells" command)
     page.evaluate("() => window.jupyterapp.commands.execute('notebook:run-all-cells')")
-    page.wait_for_function(_NOTEBOOK_DONE, timeout=RUN_TIMEOUT_MS, polling=500)
-    errors = page.evaluate(_CELL_ERRORS)
+    page.wait_for_function(_NOTEBOOK_DONE, timeout=timeout_ms, polling=500)
+    return page.evaluate(_CELL_ERRORS)
+
+
+def _drive(page, lab):
+    # 1-2. open the notebook and run every cell
+    errors = run_all_cells(page, f"{lab['url']}/lab/tree/{lab['notebook']}?token={TOKEN}", RUN_TIMEOUT_MS)
     assert not errors, "a cell failed: " + "; ".join(errors)
 
     # the in-page editor (an anywidget): canvas, controls and readout fit in one screen

@@ -437,15 +437,9 @@ def widget_lab(tmp_path, request):
 
 def open_lab_notebook(page, widget_lab):
     """Open the widget_lab notebook in JupyterLab, run all its cells, and return the editor's canvas locator."""
-    from test_browser import _CELL_ERRORS, _KERNEL_IDLE, _NOTEBOOK_DONE, TOKEN
+    from test_browser import TOKEN, run_all_cells
 
-    page.set_default_timeout(60_000)
-    page.goto(f"{widget_lab['url']}/lab/tree/editor.ipynb?token={TOKEN}")
-    page.wait_for_selector(".jp-Notebook .jp-Cell")
-    page.wait_for_function(_KERNEL_IDLE, timeout=90_000)
-    page.evaluate("() => window.jupyterapp.commands.execute('notebook:run-all-cells')")
-    page.wait_for_function(_NOTEBOOK_DONE, timeout=240_000, polling=500)
-    assert not page.evaluate(_CELL_ERRORS)
+    assert not run_all_cells(page, f"{widget_lab['url']}/lab/tree/editor.ipynb?token={TOKEN}", 240_000)
     canvas = page.locator(".defop-editor canvas.defop-canvas").first
     canvas.wait_for(state="visible")
     canvas.scroll_into_view_if_needed()

@@ -93,6 +93,14 @@ def test_evaluate_one_fast_path_matches_call(kind):
         assert np.allclose(b.evaluate_one(b.z(Q)), b(Q), rtol=0, atol=1e-12)
 
 
+def _random_basis(kind, n, seed):
+    """(rng, P (n,2), Ψ) with random rest handles, and 2n + 4 random TPS centres around them for TPS."""
+    rng = np.random.default_rng(seed)
+    P = rng.standard_normal((n, 2))
+    centers = P + rng.standard_normal((2 * n + 4, n, 2)) if kind == "tps" else None
+    return rng, P, hb.make_basis(kind, P, centers=centers, scale=0.7)
+
+
 @settings(max_examples=25, deadline=None)
 @given(
     kind=st.sampled_from(["linear", "quadratic", "cubic", "tps"]),
@@ -102,10 +110,7 @@ def test_evaluate_one_fast_path_matches_call(kind):
 )
 def test_delta_is_psi_relative_to_rest_and_exactly_zero_there(kind, n, seed, far):
     # DefOp's (★) needs δψ(P) = 0 bit for bit on the batch and the single-frame paths
-    rng = np.random.default_rng(seed)
-    P = rng.standard_normal((n, 2))
-    centers = P + rng.standard_normal((2 * n + 4, n, 2)) if kind == "tps" else None
-    psi = hb.make_basis(kind, P, centers=centers, scale=0.7)
+    rng, P, psi = _random_basis(kind, n, seed)
     zero = psi.z(P)
     assert np.all(psi.delta_z(zero[None]) == 0) and np.all(psi.delta_one(zero) == 0)
     Q = P + far * rng.standard_normal((3, n, 2))
@@ -132,10 +137,7 @@ def test_non_finite_Q_is_named():
 def test_delta_raw_times_raw_scale_is_delta_and_bounded(kind, n, seed, far):
     # the fast paths of DefOp multiply delta_raw by matrices with raw_scale folded in: the product must be δψ,
     # exactly 0 at rest (single row and batch), and raw_bound(R) must bound it for |Q − P| ≤ R (overflow guard)
-    rng = np.random.default_rng(seed)
-    P = rng.standard_normal((n, 2))
-    centers = P + rng.standard_normal((2 * n + 4, n, 2)) if kind == "tps" else None
-    psi = hb.make_basis(kind, P, centers=centers, scale=0.7)
+    rng, P, psi = _random_basis(kind, n, seed)
     q = psi.size - 1
     zero = np.zeros(2 * n)
     assert np.all(psi.delta_raw(zero, 0.0, np.empty(q, np.float32)) == 0)
