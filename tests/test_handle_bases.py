@@ -93,6 +93,15 @@ def test_evaluate_one_fast_path_matches_call(kind):
         assert np.allclose(b.evaluate_one(b.z(Q)), b(Q), rtol=0, atol=1e-12)
 
 
+#: a basis kind, 1-3 moving handles, a seed and how far Q goes from P (the δψ properties below)
+_RANDOM_DELTA_CASES = given(
+    kind=st.sampled_from(["linear", "quadratic", "cubic", "tps"]),
+    n=st.integers(1, 3),
+    seed=st.integers(0, 2**31 - 1),
+    far=st.sampled_from([1e-3, 1.0, 1e3]),
+)
+
+
 def _random_basis(kind, n, seed):
     """(rng, P (n,2), Ψ) with random rest handles, and 2n + 4 random TPS centres around them for TPS."""
     rng = np.random.default_rng(seed)
@@ -102,12 +111,7 @@ def _random_basis(kind, n, seed):
 
 
 @settings(max_examples=25, deadline=None)
-@given(
-    kind=st.sampled_from(["linear", "quadratic", "cubic", "tps"]),
-    n=st.integers(1, 3),
-    seed=st.integers(0, 2**31 - 1),
-    far=st.sampled_from([1e-3, 1.0, 1e3]),
-)
+@_RANDOM_DELTA_CASES
 def test_delta_is_psi_relative_to_rest_and_exactly_zero_there(kind, n, seed, far):
     # DefOp's (★) needs δψ(P) = 0 bit for bit on the batch and the single-frame paths
     rng, P, psi = _random_basis(kind, n, seed)
@@ -128,12 +132,7 @@ def test_non_finite_Q_is_named():
 
 
 @settings(max_examples=25, deadline=None)
-@given(
-    kind=st.sampled_from(["linear", "quadratic", "cubic", "tps"]),
-    n=st.integers(1, 3),
-    seed=st.integers(0, 2**31 - 1),
-    far=st.sampled_from([1e-3, 1.0, 1e3]),
-)
+@_RANDOM_DELTA_CASES
 def test_delta_raw_times_raw_scale_is_delta_and_bounded(kind, n, seed, far):
     # the fast paths of DefOp multiply delta_raw by matrices with raw_scale folded in: the product must be δψ,
     # exactly 0 at rest (single row and batch), and raw_bound(R) must bound it for |Q − P| ≤ R (overflow guard)
