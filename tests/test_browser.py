@@ -133,14 +133,7 @@ def lab(tmp_path):
             "tmp": tmp_path,
         }
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGTERM)  # the server and the kernels it started
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-        log.close()
+        stop_server(proc, log)
 
 
 def _png_to_array(data):
@@ -211,6 +204,19 @@ def test_drag_handle_in_jupyterlab(lab):
             raise
         finally:
             browser.close()
+
+
+def stop_server(proc, log):
+    """Stop a server started with ``start_new_session=True`` (SIGTERM to its group: the kernels it started too,
+    SIGKILL after 20 s) and close its log."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    log.close()
 
 
 def run_all_cells(page, url, timeout_ms):

@@ -392,7 +392,6 @@ def widget_lab(tmp_path, request):
     """JupyterLab serving a notebook that shows a BrowserEditor (the pattern of tests/test_browser.py).
 
     The notebook's cells are ``_WIDGET_NOTEBOOK`` unless the test passes others (indirect parametrisation)."""
-    import signal
     import sys
 
     import nbformat
@@ -425,14 +424,9 @@ def widget_lab(tmp_path, request):
         _wait_for_server(url, proc)
         yield {"url": url, "root": root, "tmp": tmp_path}
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGTERM)
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-        log.close()
+        from test_browser import stop_server
+
+        stop_server(proc, log)
 
 
 def open_lab_notebook(page, widget_lab):
