@@ -50,3 +50,38 @@ def n_jobs(value):
 def seed(value):
     """A sampling seed: a non-negative integer (``numpy.random.default_rng(seed)``)."""
     return integer("seed", value, minimum=0)
+
+
+def real_array(name, value):
+    """``value`` as a float numpy array, refusing what a float cast would silently mangle.
+
+    Raises
+    ------
+    ValueError
+        ``"{name} must be an array of real numbers, got ..."`` for complex (the imaginary part would be dropped),
+        boolean, string or object input, and for ragged nested lists.
+    """
+    try:
+        arr = np.asarray(value)
+    except ValueError as exc:  # ragged nested sequences
+        raise ValueError(f"{name} must be an array of real numbers, got a ragged sequence ({exc})") from None
+    if arr.dtype.kind not in "iuf":
+        what = {"c": "complex numbers", "b": "booleans", "U": "strings", "S": "bytes", "O": "Python objects"}
+        raise ValueError(
+            f"{name} must be an array of real numbers, got {what.get(arr.dtype.kind, f'dtype {arr.dtype}')}"
+        )
+    return arr.astype(float, copy=False)
+
+
+def positive(name, value):
+    """``value`` as a float, checked to be a finite real number > 0.
+
+    Raises
+    ------
+    ValueError
+        ``"{name} must be a positive number, got {value!r}"`` (bools, strings, NaN, inf, 0 and below).
+    """
+    ok = isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+    if not ok or not np.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be a positive number, got {value!r}")
+    return float(value)

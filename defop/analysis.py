@@ -9,6 +9,30 @@ import time
 
 import numpy as np
 
+from . import _options as opt
+
+
+def _samples(defop, samples):
+    """(k,n,2) float array of configurations of the operator's n moving handles, k >= 1, finite."""
+    samples = opt.real_array("samples", samples)
+    basis = getattr(defop, "handle_basis", None)  # None: frames computed elsewhere (defop.compare)
+    n = len(basis.P) if basis is not None else samples.shape[1] if samples.ndim == 3 else "n"
+    if samples.ndim != 3 or samples.shape[1:] != (n, 2) or len(samples) == 0:
+        raise ValueError(f"samples must have shape (k, {n}, 2), k >= 1, for {n} moving handles, got {samples.shape}")
+    if not np.isfinite(samples).all():
+        raise ValueError("samples have NaN or infinite entries")
+    return samples
+
+
+def _ground_truth(defop, samples, X_true):
+    X_true = opt.real_array("X_true", X_true)
+    if X_true.shape != (len(samples), defop.n_vertices, 2):
+        raise ValueError(f"X_true must have shape ({len(samples)}, {defop.n_vertices}, 2), got {X_true.shape}")
+    if not np.isfinite(X_true).all():  # the error was NaN, silently
+        first = int(np.argwhere(~np.isfinite(X_true))[0, 0])
+        raise ValueError(f"X_true has NaN or infinite entries (first in sample {first})")
+    return X_true
+
 
 def approximation_error(defop, samples, X_true, per_sample=False):
     """The paper's Fig. 8 metric: (8a) on test samples divided by the number of vertices.
@@ -31,10 +55,8 @@ def approximation_error(defop, samples, X_true, per_sample=False):
     error : float
     terms : (k,) numpy array, only with ``per_sample``
     """
-    samples = np.asarray(samples, float)
-    X_true = np.asarray(X_true, float)
-    if X_true.shape != (len(samples), defop.n_vertices, 2):
-        raise ValueError(f"X_true must have shape ({len(samples)}, {defop.n_vertices}, 2), got {X_true.shape}")
+    samples = _samples(defop, samples)
+    X_true = _ground_truth(defop, samples, X_true)
     D = defop(samples)
     m = defop.mesh.mass_matrix.diagonal()
     terms = np.einsum("v,kvc->k", m, (D - X_true) ** 2)
@@ -49,7 +71,9 @@ def relative_rms_error(defop, samples, X_true):
     -------
     rms : float
     """
-    D = defop(np.asarray(samples, float))
+    samples = _samples(defop, samples)
+    D = defop(samples)
+    X_true = _ground_truth(defop, samples, X_true)
     return float(np.sqrt(np.mean(np.sum((D - X_true) ** 2, axis=-1))) / defop.mesh.bbox_diagonal)
 
 
@@ -60,7 +84,7 @@ def flips(defop, samples):
     -------
     counts : (k,) int numpy array
     """
-    D = defop(np.asarray(samples, float))
+    D = defop(_samples(defop, samples))
     return np.array([int(np.count_nonzero(defop.mesh.flipped(X))) for X in D])
 
 
@@ -136,6 +160,9 @@ def repeat_timing(f, repeats=7, min_time=0.05):
     """
     from threadpoolctl import threadpool_limits
 
+    repeats = opt.integer("repeats", repeats, minimum=1)
+    if not (isinstance(min_time, (int, float)) and 0 <= min_time < np.inf):
+        raise ValueError(f"min_time must be a number of seconds >= 0, got {min_time!r}")
     with threadpool_limits(limits=1):
         f()  # warm-up: lazy copies, caches
         t0 = time.perf_counter()
@@ -143,7 +170,7 @@ def repeat_timing(f, repeats=7, min_time=0.05):
         once = max(time.perf_counter() - t0, 1e-7)
         calls = max(1, int(min_time / once))
         runs, cpu = [], []
-        for _ in range(max(1, int(repeats))):
+        for _ in range(repeats):
             t0, c0 = time.perf_counter(), time.thread_time()
             for _ in range(calls):
                 f()
@@ -178,7 +205,7 @@ def frame_rate(defop, samples, repeats=15, min_time=0.02):
         ``median`` and ``best`` frames per second (from :func:`repeat_timing`), ``cpu_best`` (by CPU time),
         ``rank`` (None for the exact W_F) and ``dtype`` of the matrices a frame streams.
     """
-    nxt = itertools.cycle(list(np.asarray(samples, float))).__next__  # one frame per configuration, in turn
+    nxt = itertools.cycle(list(_samples(defop, samples))).__next__  # one frame per configuration, in turn
     evaluate = defop.evaluate_fast
     t = repeat_timing(lambda: evaluate(nxt()), repeats, min_time)
     dtype = str(defop.factors[1].dtype) if defop.factors is not None else "float32"
@@ -200,7 +227,8 @@ def batch_frame_rate(defop, samples, k=256, repeats=5, min_time=0.2):
     fps : dict
         ``median`` and ``best`` frames per second, ``cpu_best`` (by CPU time), and ``k``.
     """
-    samples = np.asarray(samples, float)
+    samples = _samples(defop, samples)
+    k = opt.integer("k", k, minimum=1)
     Qs = samples[np.arange(k) % len(samples)]
     out = np.empty((k, defop.n_vertices, 2))  # reused, as an animation loop would
     t = repeat_timing(lambda: defop.evaluate_batch(Qs, out=out), repeats, min_time)

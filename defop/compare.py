@@ -189,6 +189,10 @@ def pareto_front(cost, error):
     front : list of int
     """
     cost, error = np.asarray(cost, float), np.asarray(error, float)
+    if cost.ndim != 1 or cost.shape != error.shape:
+        raise ValueError(f"cost and error must be two (m,) arrays of one length, got {cost.shape} and {error.shape}")
+    if not (np.isfinite(cost).all() and np.isfinite(error).all()):  # a NaN method was silently left off the front
+        raise ValueError("cost and error must be finite: a method without a measured cost or error has no place")
     front, best = [], np.inf
     for i in np.lexsort((error, cost)):
         if error[i] < best:

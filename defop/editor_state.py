@@ -22,6 +22,7 @@ import numpy as np
 
 import defop as dop
 
+from . import _options as opt
 from .handle_bases import KINDS
 from .operator import ExtrapolationWarning
 
@@ -243,7 +244,7 @@ class EditorState:
             self.update_ground_truth()
 
     def _move(self, Q):
-        Q = np.array(Q, dtype=float)
+        Q = opt.real_array("Q", Q).copy()
         if Q.shape != self.P.shape:
             raise ValueError(f"Q must have shape {self.P.shape} (the moving handles), got {Q.shape}")
         bad = ~np.isfinite(Q).all(axis=1)
@@ -254,10 +255,11 @@ class EditorState:
 
     def set_handle(self, i, q):
         """Move moving handle ``i`` to ``q (2,)`` and re-evaluate."""
-        if not 0 <= int(i) < len(self.P):
+        i = opt.integer("handle index", i)  # 1.5 was truncated to 1
+        if not 0 <= i < len(self.P):
             raise ValueError(f"handle index {i} is out of range 0..{len(self.P) - 1}")
         Q = self.Q.copy()
-        Q[int(i)] = q
+        Q[i] = opt.real_array("q", q)
         self.set_Q(Q)
 
     def reset(self):

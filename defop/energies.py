@@ -319,6 +319,55 @@ def svd_frame(J):
     return np.stack([Qn + Rn, Qn - Rn], axis=-1), ca, sa, cb, sb
 
 
+def kink_radius(S):
+    """Slope r and branch curvature κ of S-ARAP (Eq. 11) across its kink, for triangles near Σ = σ.
+
+    On a conformal J = s·R, Eq. (11) is a cone in the anti-conformal part a of J (its coordinates on the two
+    unit modes U Z Vᵀ/√2 and the flip of :func:`eigensystem`): moving by a opens the gap Σ − σ = √2‖a‖, and
+    ψ = max(f, g) (:func:`psi_sarap_smooth`) grows like ψ(sR) + r‖a‖ + κ‖a‖²/2 along a ray, with
+
+        r = √2 (s − 1)(1 − s⁻³) ≥ 0,    κ = 1 + 3 s⁻⁴ − 2 s⁻³ ≥ 15/16,
+
+    the slope |∂(f − g)/∂a|/2 and the curvature (f_ΣΣ + f_σσ)/2 of the branch f. The subdifferential of the cone
+    is the disk ‖F‖ ≤ r: a held triangle is in equilibrium only if the force on a stays inside it.
+
+    Parameters
+    ----------
+    S : (m,2) numpy array
+        Singular values Σ ≥ σ > 0; s = (Σ + σ)/2.
+
+    Returns
+    -------
+    r : (m,) numpy array
+    kappa : (m,) numpy array
+    """
+    s = np.asarray(S, dtype=float).mean(axis=-1)
+    return np.sqrt(2.0) * (s - 1) * (1 - s**-3), 1 + 3 * s**-4 - 2 * s**-3
+
+
+def on_kink(S, kink):
+    """Which triangles count as sitting on S-ARAP's kink (the one rule of :func:`eigensystem` and the solver).
+
+    A triangle is on the kink when its gap is within ``kink`` of it, Σ − σ ≤ kink · Σ, and the cone dominates
+    there: its slope r exceeds the branch's κ times the offset a = (Σ − σ)/√2 (:func:`kink_radius`).
+    Near s = 1 the cone vanishes (r ≈ 3√2 (s − 1)²) and ψ is smooth: such triangles are not held.
+
+    Parameters
+    ----------
+    S : (m,2) numpy array
+        Σ ≥ |σ|.
+    kink : float or (m,) numpy array
+
+    Returns
+    -------
+    on : (m,) bool numpy array
+    """
+    gap = S[:, 0] - S[:, 1]
+    ok = S[:, 1] > 0
+    r, kappa = kink_radius(np.where(ok[:, None], S, 1.0))
+    return ok & (gap <= kink * S[:, 0]) & (kappa * gap / np.sqrt(2.0) < r)
+
+
 def eigensystem(J, energy, project=True, mu=0.0, kink=0.0):
     """ψ, ∂ψ/∂J and the analytic eigensystem of the Hessian ∂²ψ/∂vec(J)² per triangle.
 
@@ -335,10 +384,12 @@ def eigensystem(J, energy, project=True, mu=0.0, kink=0.0):
     mu : float
         S-ARAP smoothing (see :func:`psi_sarap_smooth`).
     kink : float
-        S-ARAP with ``mu = 0`` only: triangles with Σ − σ ≤ ``kink`` · Σ are taken to sit on Eq. (11)'s kink,
+        S-ARAP with ``mu = 0`` only: triangles within ``kink`` of Eq. (11)'s kink (:func:`on_kink`) sit on it,
         where ψ is not differentiable: their gradient is the conformal part alone (the subgradient of the
         cone |Σ − σ| that is symmetric in Σ, σ) and the two anti-conformal modes get a curvature 1e8 times
-        their scale (motion off the kink is not modelled). Used by the verification of a minimum.
+        their scale: their offsets from the kink are frozen. Motion off the kink is not modelled: the solver
+        checks that the force on them stays inside the cone (:func:`kink_radius`). A scalar or one threshold
+        per triangle.
 
     Returns
     -------
@@ -368,8 +419,8 @@ def eigensystem(J, energy, project=True, mu=0.0, kink=0.0):
     s1 = ((c + s_) * r)[:, None] * e_rot + ((c - s_) * r)[:, None] * e_ref  # U diag(c, s) Vᵀ
     s2 = ((c - s_) * r)[:, None] * e_rot - ((c + s_) * r)[:, None] * e_ref  # U diag(−s, c) Vᵀ
     lam = np.stack([mean + rad, mean - rad, np.where(np.isfinite(twist), twist, -np.inf), flip], axis=-1)
-    if energy == "sarap" and mu == 0 and kink > 0:
-        on = (S[:, 0] - S[:, 1] <= kink * S[:, 0]) & (S[:, 1] > 0)
+    if energy == "sarap" and mu == 0 and np.any(np.asarray(kink) > 0):
+        on = on_kink(S, kink)
         if on.any():
             big = 1e8 * (1 + np.abs(p11) + np.abs(p22))
             grad = np.where(on[:, None], ((p1 + p2) * r)[:, None] * e_rot, grad)

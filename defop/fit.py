@@ -162,6 +162,24 @@ def solve_structure_tps(S, d):
     return M, beta, m - 1
 
 
+def check_distinct(samples):
+    """Raise ValueError naming the first two equal samples Q_k (the tps basis centres a function on each).
+
+    Parameters
+    ----------
+    samples : (m,n,2) numpy array
+    """
+    rows = np.asarray(samples).reshape(len(samples), -1)
+    _, first, inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+    dup = np.flatnonzero(first[inverse.ravel()] != np.arange(len(rows)))
+    if len(dup):
+        k = int(dup[0])
+        raise ValueError(
+            f"samples {int(first[inverse.ravel()[k]])} and {k} are the same handle configuration: the tps basis "
+            "needs distinct samples (its centres)"
+        )
+
+
 def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, scale=None, meta=None):
     """Fit a :class:`defop.operator.DefOp` to sampled deformations: problem (8).
 
@@ -214,6 +232,8 @@ def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, sc
         )
     if not (np.isfinite(samples).all() and np.isfinite(X).all()):
         raise ValueError("samples or X contain NaN or infinite values")
+    if isinstance(basis, str) and basis == "tps":
+        check_distinct(samples)
     # the rest pose is always a training sample: D^E(·, P) = identity
     at_rest = np.abs(samples - P).reshape(len(samples), -1).max(axis=1) <= 1e-14
     Qs = np.concatenate([P[None], samples[~at_rest]])

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from . import _options as opt
 from .mesh import Mesh
 from .polygon import (
     diagonal,
@@ -86,9 +87,7 @@ def check_n_vertices(n_vertices):
 
 def check_max_area(max_area, area):
     """``max_area`` as a positive float that asks for at most about MAX_VERTICES vertices."""
-    ok = isinstance(max_area, (int, float, np.integer, np.floating)) and not isinstance(max_area, bool)
-    if not ok or not np.isfinite(max_area) or max_area <= 0:
-        raise ValueError(f"max_area must be a positive number, got {max_area!r}")
+    max_area = opt.positive("max_area", max_area)
     if area / max_area > 2 * MAX_VERTICES:
         raise ValueError(
             f"max_area={max_area:.3g} would give about {area / max_area / 2:.3g} vertices for a shape of area "
@@ -176,8 +175,8 @@ def triangulate(outer, holes=(), points=None, max_area=None, n_vertices=None, h=
         max_area = check_max_area(max_area, area)
     if h is None and max_area is not None:
         h = float(np.sqrt(4 / np.sqrt(3) * max_area))
-    if h is not None and (not np.isfinite(h) or h <= 0):
-        raise ValueError(f"h must be a positive number, got {h!r}")
+    if h is not None:
+        h = opt.positive("h", h)
     # Triangle's area flag is a plain decimal: mesh tiny or huge outlines at about unit size
     s = _unit_scale(outer)
     loops, points, area = [L * s for L in loops], points * s, area * s * s

@@ -333,7 +333,7 @@ class DefOp:
             raise ValueError(f"Q must have shape {self.handle_basis.P.shape} (the moving handles), got {np.shape(Q)}")
         f = self._fast if self._fast is not None and self._fast["key"] is self.factors else self._fast_state()
         dz = (Q - self.handle_basis.P).ravel()
-        zz = np.dot(dz, dz)
+        zz = np.vdot(dz, dz)  # vdot: inf for a far Q without np.dot's overflow RuntimeWarning
         if type(zz) is not np.float64 or not zz < f["R2"]:  # NaN, inf, complex, or far enough to overflow
             return self._evaluate(Q, fast=True)
         y = self.handle_basis.delta_raw(dz, zz, np.empty(self._q, f["dtype"]))

@@ -24,14 +24,16 @@ import dataclasses
 
 import numpy as np
 
+from . import _options as opt
+
 REGION_KINDS = ("disc", "ellipse", "circle", "gaussian", "voronoi", "mixture")
 
 
 def _positive(value, what):
-    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    if not ok or not np.isfinite(value) or value <= 0:
-        raise ValueError(what.format(value=value))
-    return float(value)
+    try:
+        return opt.positive("", value)
+    except ValueError:
+        raise ValueError(what.format(value=value)) from None
 
 
 def _unit_circle(n):

@@ -24,6 +24,7 @@ import functools
 
 import numpy as np
 
+from . import _options as opt
 from .mesh import Mesh
 from .meshing import MAX_VERTICES, check_n_vertices, triangulate
 from .models import check_name as _check_name
@@ -157,7 +158,7 @@ class Shape:
         -------
         T : (h,2) numpy array
         """
-        Q = np.asarray(Q, dtype=float)
+        Q = opt.real_array("Q", Q)
         if Q.shape != (self.n_moving, 2):
             n = self.n_moving
             raise ValueError(f"Q must have shape ({n}, 2) for the {n} moving handles, got {Q.shape}")
@@ -313,6 +314,7 @@ def from_image(
     -------
     shape : Shape
     """
+    size = opt.positive("size", size)  # a negative size mirrored the silhouette
     outer, holes = image_outline(image, threshold, foreground_mode=foreground)
     lo = outer.min(axis=0)
     ext = outer.max(axis=0) - lo

@@ -23,13 +23,15 @@ mesh, the handle set and the energy, then solves by projected Newton:
 after the handles are written onto their targets: (1) the energy is finite; (2) every handle sits on
 its target to 1e-12 of the bounding-box diagonal; (3) for barrier energies, no triangle is flipped or
 collapsed; (4) the Newton decrement of the true energy (Eq. 10 / 11, μ = 0; at S-ARAP's kink, its conformal part) is
-small; (5) the exact
+small, and no S-ARAP triangle held on the kink is pulled off it harder than its cone bears
+(:meth:`Solver._kink_pull`, :func:`defop.energies.kink_radius`); (5) the exact
 reduced Hessian has no negative eigenvalue (beyond a 1e-8 relative shift), read from the inertia of its
 LDLᵀ factorisation (Sylvester's law: the signs of D). ``reason`` names the check that failed.
 
 A saddle is not an end state: when check (5) fails, the solve steps off along the most negative
 curvature direction (Lanczos on the reduced Hessian, run only then), in both directions, continues
-Newton from each and keeps the lower verified minimum.
+Newton from each and keeps the lower verified minimum. A point held on S-ARAP's kink that the mesh pulls
+off it is left the same way, along the pull.
 
 Starts: any flip-free map can warm-start a local solve (``X0``); its handles need not be at the
 targets. From the start, the handles are moved to their targets through a biharmonic
@@ -54,6 +56,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from . import _options as opt
 from . import energies as en
 
 try:  # QDLDL reuses the symbolic factorisation (AMD ordering, elimination tree) across updates
@@ -62,7 +65,7 @@ except ImportError:  # pragma: no cover - exercised only without the dependency
     qdldl = None
 
 #: bumped whenever a change to the solver moves its solutions (cache keys of ground truth should include it)
-VERSION = 2
+VERSION = 3
 #: handles must sit on their targets to this fraction of the bounding-box diagonal (check 2)
 HANDLE_TOL = 1e-12
 #: targets farther than this many bounding-box diagonals from the mesh are rejected (the energy overflows)
@@ -71,6 +74,8 @@ MAX_TARGET_DISTANCE = 1e6
 INERTIA_SHIFT = 1e-8
 #: S-ARAP triangles with Σ − σ ≤ KINK · Σ sit on Eq. (11)'s kink for check 4 (:func:`defop.energies.eigensystem`)
 KINK = 1e-4
+#: at most this many triangles are released from the kink in one Newton solve (:meth:`Solver._kink_active_set`)
+MAX_RELEASES = 64
 #: ``"isometric_exp"`` only: a continuation stage whose start raises the largest log(1 + ψ) over the triangles by
 #: more than this is halved like one that flips. Newton on ψ = exp(s·x) − 1 lowers the exponent by about one per
 #: iteration, so a start at ψ ~ 1e259 (a full stage after a converged half stage, bar of 43 vertices) spent the whole
@@ -109,7 +114,8 @@ class SolveResult:
         Flipped or collapsed triangles in ``X``.
     start : str
         Which start the result came from: ``"X0"``, ``"rest"``, ``"start k"`` (k-th start given to
-        :meth:`Solver.solve_best`), followed by ``" > escape +"`` / ``" > escape -"`` for each saddle escape.
+        :meth:`Solver.solve_best`), followed by ``" > escape +"`` / ``" > escape -"`` for each saddle escape
+        and ``" > off kink"`` for each escape from S-ARAP's kink.
     candidates : list of tuple
         (start, energy, converged) of every local minimum or end point the solve reached, escapes and
         other starts included (the result itself is one of them).
@@ -138,6 +144,8 @@ class Verification:
     energy: float
     decrement: float = np.nan
     negative: int = 0
+    #: check "kink" only: the (n,2) direction that pulls the overloaded triangles off Eq. (11)'s kink
+    kink: np.ndarray | None = dataclasses.field(default=None, repr=False)
 
 
 def count_flips(mesh, X):
@@ -233,7 +241,7 @@ def check_targets(targets, handles, mesh=None):
     -------
     T : (h,2) float numpy array
     """
-    T = np.asarray(targets, dtype=float)
+    T = opt.real_array("targets", targets)
     if T.shape != (len(handles), 2):
         raise ValueError(f"targets must have shape ({len(handles)}, 2), one row per handle, got {T.shape}")
     if not np.isfinite(T).all():
@@ -309,6 +317,7 @@ class _ReducedHessian:
         r, c = gmap[rows], gmap[cols]
         keep = (r >= 0) & (c >= 0) & (r <= c)  # upper triangle of the free-free block
         self._keep = np.flatnonzero(keep)
+        self.dofs = dofs
         nf = self.nf = len(free)
         uniq, self._inv = np.unique(c[keep] * nf + r[keep], return_inverse=True)  # column-major = CSC
         self._rows = (uniq % nf).astype(np.int32)
@@ -414,7 +423,10 @@ class Solver:
         relative) of Σ = σ count as sitting on it, with the conformal part of their gradient and stiff
         anti-conformal modes (:func:`defop.energies.eigensystem`, ``kink``); the μ = 0 Newton stage uses the
         same rule, so it stops on this decrement, normally at ``tol``. Without the rule the decrement of
-        Eq. (11) stayed up to 1.4e-6 · E (3.4e-5 · E on the bar) at energies converged to 1e-9.
+        Eq. (11) stayed up to 1.4e-6 · E (3.4e-5 · E on the bar) at energies converged to 1e-9. A held triangle
+        must also be in equilibrium on the cone: check 4 fails ("kink") when the force pulling it off exceeds
+        what the cone bears by a bound on the gain above ``verify_tol`` · E; it passed a point 1.6e-5 · E above
+        a nearby minimum before (star seed 3273, one triangle pulled at 1.083 times its cone's force).
 
     Notes
     -----
@@ -573,7 +585,7 @@ class Solver:
     def _check_start(self, X0):
         if X0 is None:
             return self.mesh.V.copy()
-        X = np.array(X0, dtype=float)
+        X = opt.real_array("X0", X0).copy()
         if X.shape != self.mesh.V.shape:
             raise ValueError(f"X0 must have shape {self.mesh.V.shape}, got {X.shape}")
         if not np.isfinite(X).all():
@@ -709,13 +721,42 @@ class Solver:
         """Newton at fixed handles; S-ARAP runs through its smoothing schedule, ending on Eq. (11) itself."""
         for i, mu in enumerate(self.mu_schedule):
             last = i == len(self.mu_schedule) - 1
+            if last and self.energy == "sarap":
+                return self._kink_active_set(log, X, tol)
             X, converged, reason = self._newton_stage(log, X, tol if last else max(tol, self.stage_tol), mu)
             if log.exhausted:
                 break
         return X, converged, reason
 
-    def _newton_stage(self, log, X, tol, mu):
-        """Projected (then exact) Newton on E_μ from a flip-free X. Returns (X, converged, reason)."""
+    def _kink_active_set(self, log, X, tol):
+        """Newton on Eq. (11) (μ = 0) with an active set of triangles held on its kink.
+
+        Triangles on the kink (:func:`defop.energies.on_kink`) are held there; once Newton has converged, a
+        held triangle that the mesh pulls off harder than its cone bears (:meth:`_kink_pull`) is released: the
+        solve steps along the pull (a line search on the true energy) and Newton continues without holding it.
+        Returns (X, converged, reason) like :meth:`_newton_stage`.
+        """
+        hold = np.full(len(self.mesh.F), self._kink)
+        released = 0
+        while True:
+            X, converged, reason = self._newton_stage(log, X, tol, 0.0, hold)
+            if not converged or log.exhausted or released >= MAX_RELEASES:
+                return X, converged, reason
+            E, g, data, local = self._grad_hess(X, 0.0, project=False, kink=hold)
+            p = self._newton_direction(g[self.free], data, rel_shift=INERTIA_SHIFT)
+            gain, _, D, pulled = self._kink_pull(X, local, p, hold)
+            Xs = None if gain <= tol * max(E, self._energy_floor) else self._step_off(X, D)
+            if Xs is None:
+                return X, converged, reason + (f" ({released} triangle(s) released from the kink)" if released else "")
+            hold[pulled] = -1.0  # never on the kink again in this solve
+            released += len(pulled)
+            X = Xs
+
+    def _newton_stage(self, log, X, tol, mu, hold=None):
+        """Projected (then exact) Newton on E_μ from a flip-free X. Returns (X, converged, reason).
+
+        ``hold``: S-ARAP at μ = 0, the per-triangle kink thresholds (default ``KINK``; see :func:`on_kink`)."""
+        hold = self._kink if hold is None else hold
         E, E_true = self._energies(X, mu)
         log.record(E_true)
         stalls, rel_dec, exact_ok = 0, np.inf, True
@@ -726,7 +767,7 @@ class Solver:
             exact = exact_ok and rel_dec <= self.exact_switch
             # near the optimum the exact Hessian converges quadratically where the projected one (clamped
             # element eigenvalues) converges only linearly; use it while it descends
-            E, g, data, local = self._grad_hess(X, mu, project=not exact, kink=0.0 if mu else self._kink)
+            E, g, data, local = self._grad_hess(X, mu, project=not exact, kink=0.0 if mu else hold)
             gf = g[self.free]
             p = self._newton_direction(gf, data)
             dec = -float(gf @ p)  # Newton decrement λ²
@@ -777,7 +818,7 @@ class Solver:
         Returns
         -------
         check : Verification
-            ``failed`` is one of "energy", "handles", "flips", "decrement", "saddle" (or "").
+            ``failed`` is one of "energy", "handles", "flips", "saddle", "decrement", "kink" (or "").
         """
         tol = self.verify_tol if tol is None else tol
         mesh = self.mesh
@@ -792,7 +833,7 @@ class Solver:
             return Verification(False, "handles", f"a handle is {err:.2e} of the diagonal off its target", E)
         if self.barrier and flips:
             return Verification(False, "flips", f"{flips} flipped or collapsed triangle(s)", E)
-        E, g, data, _ = self._grad_hess(X, 0.0, project=False, kink=self._kink)  # the true energy, its exact Hessian
+        E, g, data, local = self._grad_hess(X, 0.0, project=False, kink=self._kink)  # true energy, exact Hessian
         gf = g[self.free]
         p = self._newton_direction(gf, data, rel_shift=INERTIA_SHIFT)
         negative = self._hess.inertia()
@@ -803,7 +844,58 @@ class Solver:
         if not (np.isfinite(dec) and dec <= tol * max(E, self._energy_floor)):
             why = f"the true energy's Newton decrement λ²/2 = {dec:.2e} > {tol:g}·E"
             return Verification(False, "decrement", why, E, dec)
+        if self.energy == "sarap":
+            gain, worst, D, _ = self._kink_pull(X, local, p, self._kink)
+            if gain > tol * max(E, self._energy_floor):
+                why = (
+                    f"not a minimum at Eq. (11)'s kink: triangle {worst[0]} is pulled off it by {worst[1]:.4g} times "
+                    f"the force its cone bears; moving off lowers E by up to {gain:.2e} > {tol:g}·E"
+                )
+                return Verification(False, "kink", why, E, dec, 0, D)
         return Verification(True, "", "", E, dec, 0)
+
+    def _kink_pull(self, X, local, p, hold):
+        """S-ARAP triangles held on Eq. (11)'s kink (check 4) that the rest of the mesh pulls off it.
+
+        Check 4 holds a triangle on the kink (:func:`defop.energies.on_kink`): its anti-conformal modes are stiff, so in
+        the Newton system K p = −g their amplitudes times their stiffness are the force F_t the rest of the mesh
+        puts on them. There ψ is a cone (:func:`defop.energies.kink_radius`): the triangle is in equilibrium
+        only if ‖F_t‖ ≤ A_t r_t. A triangle pulled harder moves off the kink, and the quadratic model with its
+        own branch curvature κ_t bounds the gain by (‖F_t‖ − A_t r_t)² / (2 A_t κ_t) when the rest is convex.
+
+        Returns
+        -------
+        gain : float
+            Σ_t of that bound over the overloaded triangles (0 if none).
+        worst : tuple
+            (triangle, ‖F_t‖ / (A_t r_t)) of the largest bound.
+        D : (n,2) numpy array or None
+            Descent direction: each overloaded triangle's anti-conformal modes moved along its force, by the
+            model's amplitude (‖F_t‖ − A_t r_t)/(A_t κ_t); zero at the handles.
+        pulled : (k,) int numpy array
+            The overloaded triangles.
+        """
+        S = en.svd_frame(self.mesh.jacobians(X))[0]
+        on = np.flatnonzero(en.on_kink(S, hold))
+        none = 0.0, None, None, on[:0]
+        if not len(on):
+            return none
+        W, lamA = local[0][on][:, :, [1, 3]], local[1][on][:, [1, 3]]
+        dofs = self._hess.dofs[on]
+        amp = np.einsum("tdk,td->tk", W, self._full(p).ravel()[dofs])  # stiff-mode amplitudes of the step
+        force = np.hypot(*(lamA * amp).T)
+        A = self.mesh.areas[on]
+        r, kappa = en.kink_radius(S[on])
+        excess = np.maximum(force - A * r, 0.0)
+        gains = excess**2 / (2 * A * kappa)
+        if not gains.any():
+            return none
+        k = int(np.argmax(gains))
+        u = amp * (excess / (A * kappa) / np.maximum(np.hypot(*amp.T), 1e-300))[:, None]
+        D = np.bincount(dofs.ravel(), np.einsum("tdk,tk->td", W, u).ravel(), minlength=2 * self.mesh.n_vertices)
+        D = D.reshape(-1, 2)
+        D[self.handles] = 0.0
+        return float(gains.sum()), (int(on[k]), float(force[k] / (A[k] * r[k]))), D, on[gains > 0]
 
     def negative_curvature(self, X):
         """The most negative eigenpair of the exact reduced Hessian of the true energy at X.
@@ -840,25 +932,32 @@ class Solver:
         return None
 
     def _escape(self, log, X, T, tol, label, reason, ok, escapes):
-        """At a saddle, step off along negative curvature both ways, Newton on, keep the lower verified minimum.
+        """Leave a point that is not a minimum and Newton on; keep the lower verified minimum.
 
+        At a saddle, step off along the most negative curvature, both ways; at S-ARAP's kink (check "kink"),
+        along the direction that pulls the overloaded triangles off it (:meth:`_kink_pull`).
         Returns (X, label, reason, ok, check) of the best end point (``check`` its :meth:`verify`).
         """
         check = self.verify(X, T)
-        if check.failed != "saddle" or escapes == 0 or log.exhausted:
+        if check.failed not in ("saddle", "kink") or escapes == 0 or log.exhausted:
             log.candidates.append((label, check.energy, bool(ok and check.ok)))
             return X, label, reason, ok, check
         log.candidates.append((label, check.energy, False))
-        _, D = self.negative_curvature(X)
+        if check.failed == "saddle":
+            D = self.negative_curvature(X)[1]
+            ways = ((D, "escape +"), (-D, "escape -"))
+            left = f"a saddle with {check.negative} negative eigenvalue(s)"
+        else:
+            ways, left = ((check.kink, "off kink"),), "Eq. (11)'s kink, pulled off it"
         best = (X, label, reason, ok, check)
         best_key = (True, check.energy)
-        for sign in (1.0, -1.0):
-            Xs = self._step_off(X, sign * D)
+        for D, tag in ways:
+            Xs = self._step_off(X, D)
             if Xs is None or log.exhausted:
                 continue
             Xs, ok_s, why = self._newton(log, Xs, tol)
-            why = f"{why} (escaped a saddle with {check.negative} negative eigenvalue(s))"
-            lab = f"{label} > escape {'+' if sign > 0 else '-'}"
+            why = f"{why} (escaped {left})"
+            lab = f"{label} > {tag}"
             out = self._escape(log, Xs, T, tol, lab, why, ok_s, escapes - 1)
             key = (not (out[3] and out[4].ok), out[4].energy)
             if key < best_key:

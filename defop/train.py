@@ -31,7 +31,7 @@ from . import cache as cache_mod
 from . import config
 from . import energies as en
 from . import handle_bases as hb
-from .fit import fit
+from .fit import check_distinct, fit
 from .mesh import Mesh
 from .operator import DefOp
 from .sampling import sample_shape
@@ -121,6 +121,8 @@ def _check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rou
             f"the {basis} handle basis needs at least {need} samples Q_k besides the rest pose for "
             f"{shape.n_moving} moving handles, got {given}"
         )
+    if samples is not None and basis == "tps":  # before any solve, not after
+        check_distinct(samples)
     return m, samples
 
 

@@ -145,12 +145,8 @@ def handle_grid(center, radius, n, ny=None, radius_y=None):
         raise ValueError(f"center must be a finite (2,) point, got {center!r}")
     ny = n if ny is None else ny
     radius_y = radius if radius_y is None else radius_y
-    for name, v in (("n", n), ("ny", ny)):
-        if int(v) != v or v < 2:
-            raise ValueError(f"{name} must be an integer >= 2, got {v}")
-    for name, v in (("radius", radius), ("radius_y", radius_y)):
-        if not np.isfinite(v) or v <= 0:
-            raise ValueError(f"{name} must be a positive number, got {v}")
+    n, ny = opt.integer("n", n, minimum=2), opt.integer("ny", ny, minimum=2)
+    radius, radius_y = opt.positive("radius", radius), opt.positive("radius_y", radius_y)
     xs = np.linspace(-radius, radius, int(n))
     ys = np.linspace(-radius_y, radius_y, int(ny))
     return HandleGrid(center=center, xs=xs, ys=ys)
@@ -264,6 +260,8 @@ def defop_trajectories(defop, grid, moving=0, kind=None, batch=4096):
     -------
     Trajectory
     """
+    _check_grid(grid)
+    batch = opt.integer("batch", batch, minimum=1)
     P_moving = _defop_P_moving(defop)
     Q = _moving_batch(grid, len(P_moving), moving, P_moving)
     parts = [np.asarray(defop(Q[s : s + batch])) for s in range(0, len(Q), batch)]
@@ -273,6 +271,11 @@ def defop_trajectories(defop, grid, moving=0, kind=None, batch=4096):
         meta = getattr(defop, "meta", None) or {}
         kind = meta.get("basis") or type(getattr(defop, "handle_basis", defop)).__name__
     return Trajectory(grid=grid, X=X.reshape(grid.shape + X.shape[1:]), rest=rest, kind=str(kind))
+
+
+def _check_grid(grid):
+    if not isinstance(grid, HandleGrid):
+        raise ValueError(f"grid must be a HandleGrid (see handle_grid), got {type(grid).__name__}")
 
 
 def _defop_P_moving(defop):
@@ -370,8 +373,7 @@ def ground_truth_trajectories(
     """
     if mode not in ("global", "local"):
         raise ValueError(f"mode must be 'global' or 'local', got {mode!r}")
-    if not isinstance(grid, HandleGrid):
-        raise ValueError(f"grid must be a HandleGrid (see handle_grid), got {type(grid).__name__}")
+    _check_grid(grid)
     check_energy(energy)
     moving = opt.integer("moving", moving, minimum=0)
     opt.n_jobs(n_jobs)

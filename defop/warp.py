@@ -11,6 +11,41 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _options as opt
+
+#: outputs larger than this many pixels are refused (the rasteriser holds a few arrays of this size)
+MAX_PIXELS = 10**8
+
+
+def _check_points(name, X, n=None):
+    """(n,2) finite float array, named in the message."""
+    X = opt.real_array(name, X)
+    if X.ndim != 2 or X.shape[1] != 2 or (n is not None and len(X) != n):
+        want = f"({n}, 2)" if n is not None else "(n, 2)"
+        raise ValueError(f"{name} must have shape {want}, got {X.shape}")
+    if not np.isfinite(X).all():
+        first = int(np.argwhere(~np.isfinite(X))[0, 0])
+        raise ValueError(f"{name} has NaN or infinite entries (first at vertex {first})")
+    return X
+
+
+def _check_faces(F, n):
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[1] != 3 or F.dtype.kind not in "iu":
+        raise ValueError(f"F must be an (m, 3) integer array, got shape {F.shape} of dtype {F.dtype}")
+    if len(F) and (F.min() < 0 or F.max() >= n):
+        raise ValueError(f"F refers to vertex {int(F.max() if F.max() >= n else F.min())}; there are {n} vertices")
+    return F.astype(np.int64, copy=False)
+
+
+def _check_shape(shape):
+    if np.ndim(shape) != 1 or len(shape) != 2:
+        raise ValueError(f"shape must be (height, width), got {shape!r}")
+    h, w = (opt.integer(name, v, minimum=1) for name, v in zip(("height", "width"), shape))
+    if h * w > MAX_PIXELS:
+        raise ValueError(f"shape {(h, w)} has {h * w:,} pixels, more than MAX_PIXELS = {MAX_PIXELS:,}")
+    return h, w
+
 
 def _candidates(T, shape):
     """All (triangle, pixel) pairs with the pixel centre in the triangle's bounding box, clipped to the image."""
@@ -46,10 +81,9 @@ def rasterize(X, F, shape):
     bary : (height,width,3) numpy array
         Barycentric coordinates in that triangle (0 outside).
     """
-    X = np.asarray(X, dtype=float)
-    F = np.asarray(F, dtype=np.int64)
-    if X.ndim != 2 or X.shape[1] != 2 or not np.isfinite(X).all():
-        raise ValueError(f"X must be a finite (n, 2) array, got shape {X.shape}")
+    X = _check_points("X", X)
+    F = _check_faces(F, len(X))
+    shape = _check_shape(shape)
     T = X[F]  # (m,3,2)
     e1, e2 = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
     det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
@@ -96,11 +130,12 @@ def warp_image(image, V, X, F, shape=None, background=1.0):
     """
     from scipy.ndimage import map_coordinates
 
-    image = np.asarray(image, dtype=float)
-    V = np.asarray(V, dtype=float)
-    if V.shape != np.shape(X):
-        raise ValueError(f"V and X must have the same shape, got {V.shape} and {np.shape(X)}")
-    shape = tuple(image.shape[:2]) if shape is None else tuple(shape)
+    image = opt.real_array("image", image)
+    if image.ndim not in (2, 3) or 0 in image.shape:
+        raise ValueError(f"image must be a non-empty (H, W) or (H, W, c) array, got shape {image.shape}")
+    V = _check_points("V", V)
+    X = _check_points("X", X, len(V))
+    shape = _check_shape(image.shape[:2] if shape is None else shape)
     face, bary = rasterize(X, F, shape)
     inside = face >= 0
     b, corners = bary[inside], V[np.asarray(F)[face[inside]]]  # (k,3), (k,3,2)

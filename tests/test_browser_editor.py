@@ -191,6 +191,14 @@ def test_state_rejects_bad_input(operators, shape):
         state.set_handle(5, [0, 0])
     with pytest.raises(ValueError, match="NaN or infinite"):
         state.set_handle(0, [np.nan, 0])
+    with pytest.raises(ValueError, match=r"handle index must be an integer, got 0\.5"):  # was truncated to 0
+        state.set_handle(0.5, [0, 0])
+    with pytest.raises(ValueError, match="Q must be an array of real numbers, got complex numbers"):
+        state.set_Q(state.P + 1e-3j)  # the imaginary part was dropped with a ComplexWarning
+    with pytest.raises(ValueError, match="q must be an array of real numbers, got complex numbers"):
+        state.set_handle(0, [1j, 0])
+    with pytest.raises(ValueError, match="Q must be an array of real numbers, got complex numbers"):
+        shape.targets(state.P + 1e-3j)
     with pytest.raises(ValueError, match="shape"):
         state.set_Q(np.zeros((3, 2)))
     with pytest.raises(ValueError, match="not offered"):

@@ -125,3 +125,20 @@ def test_max_flip_free_step():
 def test_unknown_energy():
     with pytest.raises(ValueError, match="unknown energy 'arapp'; known energies: arap, sarap, isometric, "):
         en.density(np.array([np.eye(2)]), "arapp")
+
+
+@pytest.mark.parametrize("s", [0.4, 0.71, 0.95, 1.3, 2.5])
+def test_kink_radius_is_the_slope_and_curvature_of_eq_11_off_a_conformal_jacobian(s):
+    """On J = s·R, Eq. (11) along a unit anti-conformal direction a (any mix of the reflection and flip modes)
+    grows like r·a + κ·a²/2: one-sided finite differences of ψ against kink_radius."""
+    rng = np.random.default_rng(int(10 * s))
+    R = en._rot(np.array(rng.uniform(0, 2 * np.pi)))
+    Z = en._rot(np.array(rng.uniform(0, 2 * np.pi))) @ np.diag([1.0, -1.0]) / np.sqrt(2)  # unit, anti-conformal
+    r, kappa = en.kink_radius(np.array([[s, s]]))
+    h = 1e-5
+    psi = en.density(np.stack([s * R + t * Z for t in (0.0, h, 2 * h)]), "sarap")
+    slope = (-3 * psi[0] + 4 * psi[1] - psi[2]) / (2 * h)  # one-sided, second order
+    curv = (psi[0] - 2 * psi[1] + psi[2]) / h**2  # first order
+    assert slope == pytest.approx(r[0], rel=1e-7, abs=1e-9)
+    assert curv == pytest.approx(kappa[0], rel=1e-4)
+    assert r[0] >= 0 and kappa[0] >= 15 / 16

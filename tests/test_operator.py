@@ -213,6 +213,7 @@ def test_non_finite_psi_raises_naming_Q(op_and_data, path):
     far = s.P_moving + 1e200
     f = {"call": op, "batch": lambda q: op.evaluate_batch(q[None]), "fast": op.evaluate_fast}[path]
     with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # the error alone: no overflow warning before it
         warnings.simplefilter("ignore", ExtrapolationWarning)
         with pytest.raises(ValueError, match=r"Ψ\(Q\) is not finite at Q = \[\[1\.e\+200"):
             f(far)

@@ -74,3 +74,46 @@ def test_ground_truth_trajectories_reject_bad_options_by_name(bar, options, mess
 def test_ground_truth_trajectories_need_a_handle_grid(bar, no_solves):
     with pytest.raises(ValueError, match="grid must be a HandleGrid .* got ndarray"):
         tr.ground_truth_trajectories(bar, np.zeros((3, 3, 2)), cache=False)
+
+
+@pytest.mark.parametrize(
+    "value, what",
+    [([[1 + 2j, 0.0]], "complex numbers"), ([[True, False]], "booleans"), ("ab", "strings"),
+     ([[0.0, 1.0], [2.0]], "a ragged sequence"), ([object()], "Python objects")],
+)
+def test_real_array_rejects_what_a_float_cast_would_mangle(value, what):
+    with pytest.raises(ValueError, match=f"Q must be an array of real numbers, got {what}"):
+        opt.real_array("Q", value)
+
+
+def test_real_array_passes_ints_and_floats():
+    a = opt.real_array("Q", [[1, 2], [3, 4]])
+    assert a.dtype == float and a.tolist() == [[1.0, 2.0], [3.0, 4.0]]
+
+
+def test_complex_targets_and_start_are_rejected_not_truncated():
+    """np.asarray(..., dtype=float) dropped the imaginary part with only a ComplexWarning."""
+    bar = dop.shapes.load("bar")
+    T = bar.mesh.V[[0, 5]] + 0.1
+    with pytest.raises(ValueError, match="targets must be an array of real numbers, got complex numbers"):
+        dop.solve.solve(bar.mesh, [0, 5], T + 1e-3j)
+    with pytest.raises(ValueError, match="X0 must be an array of real numbers, got complex numbers"):
+        dop.solve.solve(bar.mesh, [0, 5], T, X0=bar.mesh.V + 0j)
+
+
+@pytest.mark.parametrize("value", [0, -1.5, np.nan, np.inf, True, "1", None, 1j])
+def test_positive_rejects_everything_else_by_name(value):
+    with pytest.raises(ValueError, match=r"size must be a positive number, got"):
+        opt.positive("size", value)
+
+
+def test_positive_accepts_finite_positive_reals():
+    assert opt.positive("size", 2) == 2.0 and opt.positive("size", np.float32(0.5)) == 0.5
+
+
+def test_from_image_refuses_a_negative_size():
+    """size = -1 was accepted: the silhouette was scaled by a negative factor (mirrored through the origin)."""
+    img = np.zeros((40, 60))
+    img[10:30, 10:50] = 1
+    with pytest.raises(ValueError, match="size must be a positive number, got -1"):
+        dop.shapes.from_image(img, size=-1)

@@ -199,10 +199,31 @@ def test_piecewise_affine_warp_of_an_affine_map_is_exact_on_a_linear_image(seed)
 
 def test_warp_rejects_mismatched_meshes():
     V, F = _grid_mesh(0, 10, 0, 10)
-    with pytest.raises(ValueError, match="same shape"):
+    with pytest.raises(ValueError, match=rf"X must have shape \({len(V)}, 2\), got \({len(V) - 1}, 2\)"):
         warp.warp_image(np.zeros((12, 12)), V, V[:-1], F)
-    with pytest.raises(ValueError, match="finite"):
+    with pytest.raises(ValueError, match=r"X has NaN or infinite entries \(first at vertex 0\)"):
         warp.rasterize(np.full_like(V, np.nan), F, (12, 12))
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(F=lambda F: F + 10**6), r"F refers to vertex \d+; there are \d+ vertices"),  # was a raw IndexError
+        (dict(F=lambda F: F.astype(float)), r"F must be an \(m, 3\) integer array"),
+        (dict(image=np.ones(5)), r"image must be a non-empty \(H, W\) or \(H, W, c\) array, got shape \(5,\)"),
+        (dict(image=np.ones((0, 0))), r"image must be a non-empty"),  # returned an empty picture
+        (dict(image=np.ones((12, 12)) * 1j), r"image must be an array of real numbers, got complex numbers"),
+        (dict(shape=(-3, 4)), r"height must be an integer >= 1, got -3"),
+        (dict(shape=(10**6, 10**6)), r"more than MAX_PIXELS"),  # was a MemoryError for 7.3 TiB
+        (dict(shape=(5,)), r"shape must be \(height, width\)"),
+    ],
+)
+def test_warp_names_its_bad_argument(change, message):
+    V, F = _grid_mesh(0, 10, 0, 10)
+    kw = dict(image=np.zeros((12, 12)), V=V, X=V, F=F)
+    kw.update({k: v(kw[k]) if callable(v) else v for k, v in change.items()})
+    with pytest.raises(ValueError, match=message):
+        warp.warp_image(**kw)
 
 
 def _maps(mesh, b, Q):

@@ -88,6 +88,11 @@ def _assert_verified(solver, res, T_given, handles):
             D *= 1e-5 * d / np.abs(D).max()
             for sgn in (1, -1):
                 assert solver.energy_of(res.X + sgn * D) >= res.energy * (1 - 1e-9)
+        # nor does a re-solve from such a move (star 3273 ended 1.6e-5 lower; 550 random stars: at most 2.3e-8)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotConvergedWarning)
+            again = solver.solve(T_given, X0=res.X + D)
+        assert again.energy >= res.energy * (1 - 1e-7) - 1e-12 * mesh.areas.sum()  # E = 0 up to round-off
 
 
 # ---------------------------------------------------------------- property tests
@@ -289,6 +294,50 @@ def test_sarap_reports_eq11_optimum_not_the_smoothed_one():
     smoothed.mu_schedule = (1e-5,)  # the former default: the smoothed optimum, reported as the answer
     old = smoothed.solve(T)
     assert res.energy - ref.energy <= 0.1 * (old.energy - ref.energy)
+
+
+@pytest.mark.parametrize("s", [0.7, 1.4])
+def test_uniform_scaling_holds_every_triangle_on_the_kink(s):
+    """Boundary pinned on s·V: X = s·V is the minimum, every triangle conformal (on Eq. (11)'s kink, held) with no
+    force pulling it off (constant isotropic stress is in equilibrium), E = area·((s−1)² + (1/s−1)²) exactly."""
+    mesh = star_with_hole(5).mesh
+    b = np.concatenate(mesh.boundary_loops())
+    solver = Solver(mesh, b, "sarap")
+    T = s * mesh.V[b]
+    check = solver.verify(s * mesh.V, solver.targets_of(T))
+    assert check.ok
+    S = dop.energies.svd_frame(mesh.jacobians(s * mesh.V))[0]
+    assert dop.energies.on_kink(S, dop.solve.KINK).all()
+    res = solver.solve(T)
+    assert res.converged and res.start == "rest"
+    assert np.abs(res.X - s * mesh.V).max() <= 1e-6 * mesh.bbox_diagonal  # held triangles keep offsets (see Solver)
+    # held triangles keep the offset from the kink they had when first held (up to KINK): measured 5e-9 and 1.4e-7
+    assert res.energy == pytest.approx(mesh.areas.sum() * ((s - 1) ** 2 + (1 / s - 1) ** 2), rel=1e-6)
+    with pytest.raises(AssertionError):  # a perturbed point is not a minimum: the check can fail
+        assert solver.verify(s * mesh.V + _interior_bump(solver, 1e-3), solver.targets_of(T)).ok
+
+
+@pytest.mark.xfail(strict=True, reason="known, open: held triangles keep their offsets from Eq. (11)'s kink")
+def test_near_conformal_pinned_boundary_ends_within_verify_tol_of_the_minimum():
+    """Boundary pinned on 0.7·V plus noise of 1e-6 of the diagonal: nearly every triangle is within KINK of the
+    kink, held with its offset frozen. The solve reports converged 2.35e-6 (relative) above where a μ → 1e-13
+    smoothing schedule from its answer ends, beyond check 4's 1e-6 (measured on seeds 5-8, s = 0.7 / 1.4: 1.1e-6
+    to 2.4e-6; with noise 1e-4, 5 of 8 are not converged, 1.8e-6 to 3.1e-6 above). Strict: a fix turns this into
+    a plain test."""
+    mesh = star_with_hole(5).mesh
+    b = np.concatenate(mesh.boundary_loops())
+    T = 0.7 * mesh.V[b] + 1e-6 * mesh.bbox_diagonal * np.random.default_rng(5).normal(size=(len(b), 2))
+    a = Solver(mesh, b, "sarap").solve(T)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", dop.solve.NotConvergedWarning)
+        ref = Solver(mesh, b, "sarap", smoothing=(1e-7, 1e-9, 1e-11, 1e-13)).solve(T, X0=a.X, tol=1e-14)
+    assert not a.converged or ref.energy >= a.energy * (1 - 1e-6)
+
+
+def _interior_bump(solver, size):
+    D = np.random.default_rng(1).normal(size=solver.mesh.V.shape)
+    D[solver.handles] = 0
+    return D * size * solver.mesh.bbox_diagonal / np.abs(D).max()
 
 
 def test_global_start_records_the_winner():

@@ -74,7 +74,7 @@ def test_duplicate_samples_are_named_with_their_own_index():
     shape = dop.shapes.load("bar", n_vertices=200)
     samples = dop.sampling.sample_shape(shape, 6, np.random.default_rng(0))
     samples[2] = samples[0]
-    with pytest.raises(ValueError, match=r"centres 1 and 3 .*Q_k with k = c - 1"):
+    with pytest.raises(ValueError, match=r"samples 0 and 2 are the same handle configuration"):
         dop.train.train(shape, "arap", "tps", samples=samples, progress=False, cache=False)
 
 
@@ -201,12 +201,7 @@ def test_isometric_max_brackets_the_squared_max_distortion():
     assert np.all(top * (1 - 1e-12) <= shifted) and np.all(shifted <= rest * top * (1 + 1e-12))
 
 
-@pytest.mark.xfail(strict=True, reason="known, open: S-ARAP's kink allowance in check 4 passes a point that is not a "
-                   "local minimum (found by hypothesis on 2026-11-23; see the closing note)")
-def test_sarap_converged_is_a_local_minimum_on_star_3273():
-    """A random star with a hole (seed 3273), 3 handles, S-ARAP: the solver reports converged (decrement 1.6e-11),
-    but re-solving from a 1e-5-of-the-diagonal perturbation reaches an energy 1.6e-5 lower (relative), 5.7e-4 of the
-    diagonal away. Strict: when the check is fixed this test passes and must be turned into a plain test."""
+def _star_3273():
     from test_solve_verified import star_with_hole
 
     seed = 3273
@@ -214,12 +209,82 @@ def test_sarap_converged_is_a_local_minimum_on_star_3273():
     rng = np.random.default_rng(seed + 1)
     h = rng.choice(mesh.n_vertices, 3, replace=False)
     T = mesh.V[h] + 0.06699653241756179 * mesh.bbox_diagonal * rng.normal(size=(3, 2))
-    solver = dop.solve.Solver(mesh, h, "sarap")
+    return mesh, h, T
+
+
+def _perturbed_resolve(solver, T, X):
+    D = np.random.default_rng(0).normal(size=X.shape)
+    D[solver.handles] = 0
+    D *= 1e-5 * solver.mesh.bbox_diagonal / np.abs(D).max()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", dop.solve.NotConvergedWarning)
-        a = solver.solve(T)
-        D = np.random.default_rng(0).normal(size=a.X.shape)
-        D[solver.handles] = 0
-        D *= 1e-5 * mesh.bbox_diagonal / np.abs(D).max()
-        b = solver.solve(T, X0=a.X + D)
-    assert not a.converged or b.energy >= a.energy * (1 - 1e-9)
+        return solver.solve(T, X0=X + D)
+
+
+def test_sarap_converged_is_a_local_minimum_on_star_3273():
+    """A random star with a hole (seed 3273), 3 handles, S-ARAP (found by hypothesis on 2026-11-23): the solver
+    reported converged (decrement 1.6e-11) at a point where one triangle, held on Eq. (11)'s kink by check 4, is
+    pulled off it 1.083 times harder than its cone bears; a re-solve from a 1e-5 perturbation ended 1.6e-5 lower.
+    Now the μ = 0 Newton stage releases that triangle (active set) and ends at the lower minimum."""
+    mesh, h, T = _star_3273()
+    solver = dop.solve.Solver(mesh, h, "sarap")
+    a = solver.solve(T)
+    assert a.converged and a.start == "rest" and "1 triangle(s) released from the kink" in a.reason
+    assert a.energy < 0.53895159 * (1 - 1.5e-5)  # the old point: 0.5389515952
+    b = _perturbed_resolve(solver, T, a.X)
+    assert b.energy >= a.energy * (1 - 1e-9)
+
+
+def test_star_3273_without_releases_escapes_the_kink_from_check_4(monkeypatch):
+    """The second line of defence: with no releases in Newton, check 4 fails ("kink") at the old point and the
+    solve escapes along the pull, as it escapes a saddle, to the same minimum."""
+    mesh, h, T = _star_3273()
+    monkeypatch.setattr(dop.solve, "MAX_RELEASES", 0)
+    solver = dop.solve.Solver(mesh, h, "sarap")
+    a = solver.solve(T)
+    assert a.converged and a.start == "rest > off kink"
+    assert [c[2] for c in a.candidates] == [False, True]
+    assert a.energy < a.candidates[0][1] * (1 - 1.5e-5)
+
+
+def test_the_old_check_4_passed_star_3273_and_verify_now_rejects_that_point(monkeypatch):
+    """Without the equilibrium test on the cone (the old check 4), the solve stops on the kink and calls it
+    converged; :meth:`Solver.verify` rejects that point with "kink" and names the triangle and its pull."""
+    mesh, h, T = _star_3273()
+    solver = dop.solve.Solver(mesh, h, "sarap")
+    monkeypatch.setattr(dop.solve.Solver, "_kink_pull", lambda self, X, local, p, hold: (0.0, None, None, []))
+    old = solver.solve(T)
+    assert old.converged and old.start == "rest"
+    monkeypatch.undo()
+    check = solver.verify(old.X, solver.targets_of(T))
+    assert check.failed == "kink" and "triangle 6 is pulled off it by 1.08" in check.reason
+    b = _perturbed_resolve(solver, T, old.X)
+    assert b.converged and b.energy < old.energy * (1 - 1.5e-5)
+
+
+def test_analysis_and_trajectories_name_bad_input():
+    """Found by a stranger's probe on 2026-11-24: a NaN ground truth gave an error of nan, a single Q (n,2) an
+    IndexError in flips, repeats=0 or k=0 timed anyway (k=0: 0 FPS), batch=0 a range() error, a list for the grid
+    an AttributeError, and pareto_front left a NaN method off the front without a word."""
+    s = dop.shapes.load("bar")
+    op, _ = dop.train.train(s, "sarap", "tps", m=17, seed=0, progress=False)
+    Qs = s.P_moving + 0.05 * np.random.default_rng(0).normal(size=(3, s.n_moving, 2))
+    X = op(Qs)
+    with pytest.raises(ValueError, match=r"X_true has NaN or infinite entries \(first in sample 1\)"):
+        dop.analysis.approximation_error(op, Qs, np.where(np.arange(3)[:, None, None] == 1, np.nan, X))
+    with pytest.raises(ValueError, match=r"samples must have shape \(k, 1, 2\), k >= 1"):
+        dop.analysis.flips(op, Qs[0])
+    with pytest.raises(ValueError, match="repeats must be an integer >= 1, got 0"):
+        dop.analysis.frame_rate(op, Qs, repeats=0)
+    with pytest.raises(ValueError, match="k must be an integer >= 1, got 0"):
+        dop.analysis.batch_frame_rate(op, Qs, k=0)
+    grid = dop.trajectories.handle_grid(s.P_moving[0], 0.1, 3)
+    with pytest.raises(ValueError, match="batch must be an integer >= 1, got 0"):
+        dop.trajectories.defop_trajectories(op, grid, batch=0)
+    with pytest.raises(ValueError, match="grid must be a HandleGrid"):
+        dop.trajectories.defop_trajectories(op, [[0.0, 0.0]])
+    with pytest.raises(ValueError, match="cost and error must be finite"):
+        dop.compare.pareto_front([1.0, np.nan], [1.0, 2.0])
+    with pytest.raises(ValueError, match="one length"):
+        dop.compare.pareto_front([1.0, 2.0], [1.0])
+    assert dop.analysis.approximation_error(op, Qs, X) == 0.0

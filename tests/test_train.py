@@ -175,3 +175,17 @@ def test_the_largest_reduced_basis_allowed_trains(bar):
     k = bar.mesh.n_vertices - 4  # the bound train checks before any solve
     op, _ = dop.train.train(bar, "arap", "linear", m=2, spatial="reduced", k=k, n_jobs=1, progress=False, cache=False)
     assert op.meta["spatial"] == "reduced" and op.meta["spatial_size"] == k
+
+
+def test_equal_given_samples_are_refused_before_any_solve(monkeypatch):
+    """Two equal Q_k for the tps basis (equal centres) failed only in the fit, after every sample was solved."""
+    bar = dop.shapes.load("bar")
+    samples = bar.P_moving + 0.05 * np.random.default_rng(0).normal(size=(6, bar.n_moving, 2))
+    samples[4] = samples[1]
+
+    def no_solve(*args, **kw):
+        raise AssertionError("solved before checking the samples")
+
+    monkeypatch.setattr(dop.train, "solve_samples", no_solve)
+    with pytest.raises(ValueError, match="samples 1 and 4 are the same handle configuration"):
+        dop.train.train(bar, "sarap", "tps", samples=samples, progress=False)
