@@ -61,8 +61,8 @@ def one(n, kernel):
 
     shape = dop.shapes.load("aleph", n_vertices=n)
     mesh = shape.mesh
-    solver = dop.solve.Solver(mesh, shape.handles, "sarap")
-    Q = dop.sampling.sample_shape(shape, 1, np.random.default_rng(0))[0]
+    solver = dop.variational.Solver(mesh, shape.handles, "sarap")
+    Q = dop.training.sampling.sample_shape(shape, 1, np.random.default_rng(0))[0]
     X = solver.solve(shape.targets(Q)).X  # a solved configuration: realistic eigensystems
     with threadpool_limits(limits=1):
         local = solver._grad_hess(X, 1e-5)[3]

@@ -2,12 +2,12 @@
 
 The octopus (about 3.9k vertices, 9 moving handles) with an S-ARAP TPS operator trained on a modest
 m = 40 samples (the basis needs at least 2n + 2 = 20; ``python benchmarks/bench_browser.py [m]``), written
-as a standalone page by :func:`defop.browser.to_html`. In the page, a 200-step drag of one handle is
+as a standalone page by :func:`defop.editor.export.to_html`. In the page, a 200-step drag of one handle is
 scripted from ``requestAnimationFrame``: every animation frame dispatches one ``pointermove`` to the
 canvas, so the editor has one new Q per frame; the frame timestamps are the rAF timestamps. Prints the
 median and 5th-percentile frame rate and the editor's own median per-frame evaluation and drawing times.
 
-Side by side, in the same run, today's ipympl editor :class:`defop.widgets.HandleEditor` is dragged in
+Side by side, in the same run, today's ipympl editor :class:`defop.editor.widgets.HandleEditor` is dragged in
 JupyterLab with the same operator and the same in-page scripted drag (mouse events, which ipympl listens
 to); its frames are the images ipympl draws into its canvas (``drawImage`` wrapped), counted until the
 kernel has caught up.
@@ -18,7 +18,7 @@ Debian's chromium, playwright and jupyterlab; ``--no-ipympl`` skips the JupyterL
 
 ``--image``: the picture editor of notebook 13 instead (the horse, about 2k vertices, 6 moving handles, its
 480 × 408 picture as a WebGL texture; ``python benchmarks/bench_browser.py --image [m] [n_vertices]``). The
-same operator is written twice by :func:`defop.browser.to_html`, with and without the picture, and both pages
+same operator is written twice by :func:`defop.editor.export.to_html`, with and without the picture, and both pages
 are dragged in one run: the rAF frame rate as above, and the frame time with the GPU's work forced to finish
 (``evaluate()`` then a one-pixel ``readPixels``, so no vsync cap: evaluation, upload, rasterisation and texture
 sampling, which SwiftShader does on the CPU), alternating the two pages three times.
@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 import defop as dop
-from defop import browser
+from defop.editor import export
 
 CHROMIUM = os.environ.get("DEFOP_CHROMIUM") or "/usr/bin/chromium"
 ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-dev-shm-usage"]
@@ -122,11 +122,11 @@ def in_page(page_path, steps, sync_frames=0):
 def main(m=40, steps=200, ipympl=True):
     shape = dop.shapes.load("octopus")
     t0 = time.perf_counter()
-    op, _ = dop.train.train(shape, basis="tps", m=m, progress=False)
+    op, _ = dop.train(shape, basis="tps", m=m, progress=False)
     print(f"octopus: {shape.mesh.n_vertices} vertices, {shape.n_moving} moving handles; {op} "
           f"({time.perf_counter() - t0:.0f} s to train or load from the cache)")
     with tempfile.TemporaryDirectory() as tmp:
-        page_path = browser.to_html(op, Path(tmp) / "octopus.html", shape=shape)
+        page_path = export.to_html(op, Path(tmp) / "octopus.html", shape=shape)
         print(f"standalone page: {page_path.stat().st_size / 1e6:.1f} MB")
         res = in_page(page_path, steps)
     print(f"{steps}-step drag of one handle, one pointer event per animation frame, frames shown per second:")
@@ -146,7 +146,7 @@ def horse(n_vertices=2000):
     """Notebook 13's horse: its picture, the shape (its handles and sampling discs) and the mesh → pixel map."""
     import skimage.data
 
-    from defop import plot_peers, warp
+    from defop.view import plot_peers, warp
 
     pad = 40
     mask = np.pad(~skimage.data.horse(), pad)
@@ -163,13 +163,13 @@ def horse(n_vertices=2000):
 def main_image(m=40, n_vertices=2000, steps=200, rounds=3, sync_frames=60):
     """The picture editor beside the same page without the picture (see the module docstring)."""
     picture, shape, to_pixels = horse(n_vertices)
-    op, _ = dop.train.train(shape, basis="tps", m=m, progress=False)
+    op, _ = dop.train(shape, basis="tps", m=m, progress=False)
     print(f"horse: {shape.mesh.n_vertices} vertices, {len(shape.mesh.F)} triangles, {shape.n_moving} moving handles; "
           f"{op}; picture {picture.shape[1]} x {picture.shape[0]} px")
     runs = {"plain mesh": [], "picture (texture)": []}
     with tempfile.TemporaryDirectory() as tmp:
-        pages = {"plain mesh": browser.to_html(op, Path(tmp) / "horse_plain.html", shape=shape),
-                 "picture (texture)": browser.to_html(op, Path(tmp) / "horse_picture.html", shape=shape,
+        pages = {"plain mesh": export.to_html(op, Path(tmp) / "horse_plain.html", shape=shape),
+                 "picture (texture)": export.to_html(op, Path(tmp) / "horse_picture.html", shape=shape,
                                                       image=picture, image_frame=to_pixels)}
         for name, path in pages.items():
             print(f"  {name}: page {path.stat().st_size / 1e6:.2f} MB")

@@ -1,7 +1,7 @@
 """Today's ipympl editor dragged in JupyterLab, for the side-by-side of ``bench_browser.py`` (not run alone).
 
 A throw-away JupyterLab (the set-up of ``tests/test_browser.py``) runs a notebook that loads the same
-cached octopus operator into :class:`defop.widgets.HandleEditor`; every image ipympl draws into its canvas
+cached octopus operator into :class:`defop.editor.widgets.HandleEditor`; every image ipympl draws into its canvas
 is timestamped (``drawImage`` wrapped) while the pointer drags the first moving handle.
 """
 
@@ -31,8 +31,8 @@ from test_browser import (  # noqa: E402
 CELL = """%matplotlib widget
 import defop as dop
 shape = dop.shapes.load("octopus")
-op, _ = dop.train.train(shape, basis="tps", m={m}, progress=False)
-editor = dop.widgets.HandleEditor(shape, operators={{"tps": op}}, basis="tps")
+op, _ = dop.train(shape, basis="tps", m={m}, progress=False)
+editor = dop.editor.widgets.HandleEditor(shape, operators={{"tps": op}}, basis="tps")
 editor"""
 
 WRAP_DRAW = """() => { window.__draws = []; const proto = CanvasRenderingContext2D.prototype, orig = proto.drawImage;

@@ -1,6 +1,6 @@
 """Sparse factorisation libraries side by side on the solver's reduced Hessian (issue 15).
 
-The Newton step of ``defop.solve`` factorises the reduced (free-vertex) Hessian of the S-ARAP energy, an
+The Newton step of ``defop.variational.solver`` factorises the reduced (free-vertex) Hessian of the S-ARAP energy, an
 SPD matrix with one dense 2×2 block per mesh edge and vertex. Its numeric factorisation is about 45% of
 a cold solve on large meshes (issue 15), so this compares, on aleph-like meshes of 1k to 30k vertices:
 

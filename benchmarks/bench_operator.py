@@ -1,7 +1,7 @@
 """DefOp benchmark (issues 4, 13, 15): the aleph, 5 handles, S-ARAP, 500 samples, TPS, next to Table 1.
 
 Prints, from one run, with the guarantees on (Prop. 2 and (8b) hold on every path by construction, see
-``defop.operator``; the run checks them on the held-out configurations):
+``defop.operator.defop``; the run checks them on the held-out configurations):
 
 * preprocess time (sampling + ground-truth solves + fit), the fit (structured least squares) and fold;
 * single-thread frame rates (BLAS pinned to one thread with threadpoolctl; median and best of 15 short runs) of
@@ -33,7 +33,7 @@ import warnings
 import numpy as np
 
 import defop as dop
-from defop.analysis import (
+from defop.analysis.metrics import (
     approximation_error,
     batch_floor,
     batch_frame_rate,
@@ -43,7 +43,7 @@ from defop.analysis import (
     repeat_timing,
     sgemm_peak,
 )
-from defop.operator import ExtrapolationWarning
+from defop.operator.defop import ExtrapolationWarning
 
 N_TEST = 60  # held-out configurations (issue 15: at least 50)
 TOL = 5e-3  # compress(): discarded part of the training displacements (aleph: rank 30, +0.03% (8a))
@@ -166,10 +166,10 @@ def main(m=500, cache=False, octopus=False):
         os.environ["DEFOP_CACHE"] = "off"
     shape = dop.shapes.load("aleph")
     t0 = time.perf_counter()
-    op, rec = dop.train.train(shape, "sarap", "tps", m=m, seed=0, rounds=1, progress=True)
+    op, rec = dop.train(shape, "sarap", "tps", m=m, seed=0, rounds=1, progress=True)
     preprocess = time.perf_counter() - t0
-    Q, X, conv = dop.train.held_out(shape, "sarap", N_TEST, seed=12345, progress=True)
-    fit_ms = 1e3 * dop.analysis.fit_time(shape, rec.samples, rec.X, "tps", "hat", repeats=5)
+    Q, X, conv = dop.training.held_out(shape, "sarap", N_TEST, seed=12345, progress=True)
+    fit_ms = 1e3 * dop.analysis.metrics.fit_time(shape, rec.samples, rec.X, "tps", "hat", repeats=5)
     print(
         f"\naleph: {shape.mesh.n_vertices} vertices, {shape.mesh.n_faces} triangles, {shape.n_moving} handles, "
         f"S-ARAP, {m} samples, TPS |Psi| = {op.handle_basis.size}, hat Phi; training solves converged "
@@ -184,15 +184,16 @@ def main(m=500, cache=False, octopus=False):
     quality_rows("aleph", op, Q, X)
     f_comp = speed_rows(op, Q)
     T = shape.targets(Q[0])
-    igl = repeat_timing(lambda: dop.solve.solve_libigl_arap(shape.mesh, shape.handles, T, iterations=10), 3, 0.0)
+    arap10 = dop.variational.solver.solve_libigl_arap
+    igl = repeat_timing(lambda: arap10(shape.mesh, shape.handles, T, iterations=10), 3, 0.0)
     print(
         f"\nlibigl ARAP, 10 iterations: {1e3 * igl['best']:.1f} ms per frame (best of 3) = "
         f"{igl['best'] * f_comp['best']:.0f}x one compressed DefOp frame"
     )
     if octopus:
         shape = dop.shapes.load("octopus")
-        op, _ = dop.train.train(shape, "sarap", "tps", m=1000, spatial="reduced", k=100, seed=0, rounds=1)
-        Q, X, _ = dop.train.held_out(shape, "sarap", N_TEST, seed=12345)
+        op, _ = dop.train(shape, "sarap", "tps", m=1000, spatial="reduced", k=100, seed=0, rounds=1)
+        Q, X, _ = dop.training.held_out(shape, "sarap", N_TEST, seed=12345)
         quality_rows("octopus (TPS-1000, reduced Φ k=100)", op, Q, X)
 
 

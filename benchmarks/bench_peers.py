@@ -17,15 +17,15 @@ import warnings
 import numpy as np
 
 import defop as dop
-from defop import compare, peers
+from defop.analysis.metrics import compare, peers
 
 
 def main(m=100):
     os.environ["DEFOP_CACHE"] = "off"
     shape = dop.shapes.load("aleph")
-    op, rec = dop.train.train(shape, "sarap", "tps", m=m, seed=0, cache=False, progress=False, rounds=1)
+    op, rec = dop.train(shape, "sarap", "tps", m=m, seed=0, cache=False, progress=False, rounds=1)
     op.compress()
-    Q = dop.sampling.sample_shape(shape, 50, np.random.default_rng(1))
+    Q = dop.training.sampling.sample_shape(shape, 50, np.random.default_rng(1))
     methods = peers.make_peers(shape) + [op]
     rows = []
     with warnings.catch_warnings():

@@ -95,7 +95,7 @@ def _solve_and_fit(shape, Q, rng):
 
     mesh = shape.mesh
     out = {}
-    solver = dop.solve.Solver(mesh, shape.handles, "sarap")
+    solver = dop.variational.Solver(mesh, shape.handles, "sarap")
     first = solver.solve(shape.targets(Q[0]))
     out["t_cold"] = _median_time(lambda: solver.solve(shape.targets(Q[1])))
     near = shape.P_moving + 0.9 * (Q[0] - shape.P_moving)  # a nearby configuration, warm-started from Q[0]'s
@@ -104,13 +104,13 @@ def _solve_and_fit(shape, Q, rng):
     a = 0.1 * rng.standard_normal((M, 2, 2))
     X = mesh.V + np.einsum("mij,vj->mvi", a, mesh.V - mesh.V.mean(0))
     t0 = time.perf_counter()
-    op = dop.fit.fit(mesh, shape.handles, shape.moving, Q, X, "tps", "hat")
+    op = dop.operator.fit.fit(mesh, shape.handles, shape.moving, Q, X, "tps", "hat")
     out["fit_fold"] = time.perf_counter() - t0
     nb = 2 * shape.n_moving + 1
     out["preprocess_model"] = nb * out["t_cold"] + 2 * (M - nb) * out["t_warm"] + out["fit_fold"]
     out["W_MB"] = op.W.nbytes / 1e6
     op.compress(rank=RANK)
-    fps = dop.analysis.frame_rate(op, Q[:50])
+    fps = dop.analysis.metrics.frame_rate(op, Q[:50])
     out["fps_best"], out["fps_median"], out["rank"] = fps["best"], fps["median"], op.rank
     return out
 
@@ -124,7 +124,7 @@ def one(n_vertices, real_training=False):
 
     shape = dop.shapes.load("aleph", n_vertices=n_vertices)
     rng = np.random.default_rng(0)
-    Q = dop.sampling.sample_shape(shape, M, rng)
+    Q = dop.training.sampling.sample_shape(shape, M, rng)
     out = {"n": shape.mesh.n_vertices, "faces": shape.mesh.n_faces}
     with threadpool_limits(limits=1):
         out.update(_solve_and_fit(shape, Q, rng))
@@ -133,7 +133,7 @@ def one(n_vertices, real_training=False):
             t0 = time.perf_counter()
             # DEFOP_PROGRESS=text: progress bars on stderr (a long run can be followed)
             progress = bool(os.environ.get("DEFOP_PROGRESS"))
-            _, rec = dop.train.train(shape, "sarap", "tps", m=M, seed=0, cache=False, progress=progress)
+            _, rec = dop.train(shape, "sarap", "tps", m=M, seed=0, cache=False, progress=progress)
             out["preprocess_real"] = time.perf_counter() - t0
         out["converged"] = int(rec.converged.sum())
         out["stage_times"] = {k: round(v, 1) for k, v in rec.stage_times.items()}

@@ -7,7 +7,7 @@ handle move of 10% of the bounding box) and we report the time to reach a relati
 over the problems (one problem alone is a noisy measure). Then the time of warm-started solves after
 every moving handle moves by 5% of the bounding-box diagonal from a converged state (5 per problem).
 
-Every solve ends with the verification of ``converged`` (:meth:`defop.solve.Solver.verify`: one LDLᵀ of the
+Every solve ends with the verification of ``converged`` (:meth:`defop.variational.solver.Solver.verify`: one LDLᵀ of the
 exact Hessian of Eq. 10/11, whose inertia rules out a saddle); its cost per warm solve is reported
 separately. BLAS is pinned to one thread (threadpoolctl): the timings are single-thread.
 
@@ -45,7 +45,7 @@ def flip_free_problem(shape, solver, rng, scale=0.1):
     for _ in range(50):
         T = shape.targets(move(shape, rng, scale))
         X0 = shape.mesh.V + solver.extend(T - shape.P)
-        if dop.solve.count_flips(shape.mesh, X0) == 0:
+        if dop.variational.solver.count_flips(shape.mesh, X0) == 0:
             return T, X0
     raise RuntimeError("no flip-free start found")
 
@@ -56,10 +56,10 @@ def run_problem(shape, energy, solver, tight, seed):
     base = solver.solve(T, X0=X0)  # also the warm-up: imports, symbolic factorisation
     tight.solve(T, X0=X0)
     newton = tight.solve(T, X0=X0, tol=1e-14, max_iter=400)
-    lbfgs = dop.solve.solve_lbfgs(shape.mesh, shape.handles, T, energy, X0=X0, tol=1e-15, max_iter=30000)
+    lbfgs = dop.variational.solver.solve_lbfgs(shape.mesh, shape.handles, T, energy, X0=X0, tol=1e-15, max_iter=30000)
     runs = {"Newton": newton, "L-BFGS": lbfgs}
     if energy == "arap":
-        runs["libigl ARAP"] = dop.solve.solve_libigl_arap(
+        runs["libigl ARAP"] = dop.variational.solver.solve_libigl_arap(
             shape.mesh, shape.handles, T, X0=X0, iterations=2000, history=True
         )
     E_star = min(r.energy_history.min() for r in runs.values())
@@ -91,14 +91,14 @@ def ratio_cell(times, key):
 
 
 def main():
-    warnings.simplefilter("ignore", dop.solve.NotConvergedWarning)
+    warnings.simplefilter("ignore", dop.variational.NotConvergedWarning)
     rows = []
     for name in ("aleph", "gingerbread"):
         shape = dop.shapes.load(name)
         for energy in ("arap", "sarap"):
-            solver = dop.solve.Solver(shape.mesh, shape.handles, energy)
+            solver = dop.variational.Solver(shape.mesh, shape.handles, energy)
             # time to a gap of Eq. (11) itself: S-ARAP's smoothing taken down to μ = 1e-9
-            tight = dop.solve.Solver(shape.mesh, shape.handles, energy, smoothing=(1e-5, 1e-7, 1e-9))
+            tight = dop.variational.Solver(shape.mesh, shape.handles, energy, smoothing=(1e-5, 1e-7, 1e-9))
             per = [run_problem(shape, energy, solver, tight, seed) for seed in range(N_PROBLEMS)]
             times = [p[0] for p in per]
             warm = [w for p in per for w in p[1]]

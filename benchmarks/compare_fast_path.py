@@ -1,6 +1,7 @@
 """Old vs new evaluation paths side by side in one process (issue 15): ``evaluate_fast`` and ``evaluate_batch``.
 
-The old ``defop.operator`` and ``defop.handle_bases`` are taken from a git revision (``git archive``) into a
+The old ``defop.operator.defop`` and ``defop.operator.handle_bases`` are taken from a git revision (``git
+archive``) into a
 temporary package ``defop_old``; both operators are built from the same trained aleph TPS-500 (S-ARAP, through
 ``DEFOP_CACHE``) and timed in alternation, BLAS on one thread: 15 rounds (batch: 11) of a short run each, per
 frame, by wall clock and by this thread's CPU time (the machine is shared: CPU time leaves out the time other
@@ -60,8 +61,8 @@ def side(label, f_old, f_new, n, rounds, frames=1):
 
 def main(rev="42d0365", k=256):
     shape = dop.shapes.load("aleph")
-    op, _ = dop.train.train(shape, "sarap", "tps", m=500, seed=0, rounds=1)
-    Q = dop.sampling.sample_shape(shape, 20, np.random.default_rng(7))
+    op, _ = dop.train(shape, "sarap", "tps", m=500, seed=0, rounds=1)
+    Q = dop.training.sampling.sample_shape(shape, 20, np.random.default_rng(7))
     Qs = Q[np.arange(k) % len(Q)]
     qs = list(Q)
     out = np.empty((k, op.n_vertices, 2))

@@ -51,11 +51,11 @@ def main(argv=None):
         for path in update_stated_times():
             print("updated", path)
     elif args.command == "doctor":
-        from .render import configure_headless, ensure_system_packages
+        from .view.render import configure_headless, ensure_system_packages
 
         print("defop doctor:", ensure_system_packages(install=not args.no_install))
         if args.browser:
-            from .render import ensure_chromium
+            from .view.render import ensure_chromium
 
             print("defop doctor:", ensure_chromium(install=not args.no_install))
         try:

@@ -4,7 +4,7 @@
     Fast mode for CI: notebooks shrink sample counts but keep their claims.
 ``DEFOP_CACHE``
     Directory of the on-disk cache of trained operators, sampled ground truths and trajectories
-    (default: ``~/.cache/defop``; see :mod:`defop.cache`). ``DEFOP_CACHE=off`` disables it. A value
+    (default: ``~/.cache/defop``; see :mod:`defop.training.cache`). ``DEFOP_CACHE=off`` disables it. A value
     naming a file or a directory that cannot be created or written raises ``ValueError`` when a
     computation starts, before any work is done.
 ``DEFOP_N_JOBS``

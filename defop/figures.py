@@ -308,7 +308,7 @@ def regenerate(
     report : list of dict
         ``name``, ``seconds``, ``ok``, ``error`` (None or the message) and ``figures`` written.
     """
-    from . import render
+    from .view import render
 
     render.configure_headless()  # exported to the kernels through the environment
     FIGURES.mkdir(exist_ok=True)

@@ -36,7 +36,7 @@ def _reset_global_state():
 @pytest.fixture
 def triangle():
     """One right triangle with legs 2 and 1 (area 1), counter-clockwise."""
-    return dop.mesh.Mesh(np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 1.0]]), np.array([[0, 1, 2]]))
+    return dop.geometry.mesh.Mesh(np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 1.0]]), np.array([[0, 1, 2]]))
 
 
 @pytest.fixture
@@ -49,4 +49,4 @@ def grid():
         for i in range(8):
             a = j * 9 + i
             F += [[a, a + 1, a + 10], [a, a + 10, a + 9]]
-    return dop.mesh.Mesh(V, np.array(F))
+    return dop.geometry.mesh.Mesh(V, np.array(F))

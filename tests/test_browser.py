@@ -3,7 +3,7 @@
 A JupyterLab server is started on localhost (random free port, known token, throw-away
 config/runtime/settings directories), headless Chromium is driven with Playwright, the
 playground notebook (a temporary copy) is run with "Run All Cells", and a handle of the in-page
-editor (:class:`defop.browser.BrowserEditor`) is dragged with the mouse. The test asserts that the
+editor (:class:`defop.editor.browser.BrowserEditor`) is dragged with the mouse. The test asserts that the
 editor fits in one screen, the handle followed the pointer, the mesh moved (the page's X and the
 canvas pixels) and Q came back to Python (``editor.Q`` read through the kernel). With
 ``DEFOP_SCREENSHOT=path`` the page after the drag is saved there.

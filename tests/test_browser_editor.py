@@ -3,9 +3,9 @@
 - The page's own module ``defop/static/defop_editor.js`` is run in Node and compared with ``DefOp.__call__``
   at random Q (hypothesis) for every handle basis; handles and rest pose are exact up to the float32
   storage of the factors, with the bound stated in :func:`_float32_bound`.
-- :class:`defop.editor_state.EditorState` is driven through its public API only.
-- The standalone page of :func:`defop.browser.to_html` is dragged in headless Chromium (Playwright).
-- A picture on the mesh (:func:`defop.browser.image_payload`): validated in Python, textured in WebGL in
+- :class:`defop.editor.state.EditorState` is driven through its public API only.
+- The standalone page of :func:`defop.editor.export.to_html` is dragged in headless Chromium (Playwright).
+- A picture on the mesh (:func:`defop.editor.payload.image_payload`): validated in Python, textured in WebGL in
   Chromium, where the rendered colours are compared with the picture before and after a mouse drag.
 """
 
@@ -27,8 +27,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import defop as dop
-from defop import browser
-from defop.editor_state import EditorState, ground_truth_text, inside_polygon
+from defop.editor import browser, export
+from defop.editor.state import EditorState, ground_truth_text, inside_polygon
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVER = ROOT / "tests" / "js" / "eval_operator.mjs"
@@ -51,8 +51,8 @@ def operators(shape):
     """Small operators (fast settings, cached under DEFOP_CACHE): m just above each basis' minimum."""
     ops = {}
     for kind in KINDS:
-        m = 20 if kind == "tps" else dop.handle_bases.basis_size(kind, shape.n_moving) + 5
-        ops[kind], _ = dop.train.train(shape, basis=kind, m=m, progress=False, n_jobs=1, rounds=1)
+        m = 20 if kind == "tps" else dop.operator.handle_bases.basis_size(kind, shape.n_moving) + 5
+        ops[kind], _ = dop.train(shape, basis=kind, m=m, progress=False, n_jobs=1, rounds=1)
     return ops
 
 
@@ -74,7 +74,7 @@ def node_eval(op, Qs, tmp_path, regions=None):
 
 
 def _float32_bound(op, Q):
-    """|D_js − D| ≤ u·Σ_j |δψ_j(Q)| |W_F,jc| per coordinate ((★) of defop.operator): W_F stored in float32
+    """|D_js − D| ≤ u·Σ_j |δψ_j(Q)| |W_F,jc| per coordinate ((★) of defop.operator.defop): W_F stored in float32
     (relative error ≤ u = 2^-24), products accumulated in float64 (their error is ~1e-16 relative, far below)."""
     basis = op.handle_basis
     dpsi = np.abs(basis.delta_z(np.atleast_2d(basis.z(Q))))[0]
@@ -351,7 +351,7 @@ def mouse_drag(page, editor, dx, dy, steps=10):
 def test_standalone_page_drag_in_chromium(operators, shape, tmp_path, webgl):
     """The page drags offline; without WebGL (``--disable-3d-apis``) it falls back to the 2D canvas."""
     op = operators["tps"]
-    page_path = browser.to_html(op, tmp_path / "u_shape.html", shape=shape)
+    page_path = export.to_html(op, tmp_path / "u_shape.html", shape=shape)
     text = page_path.read_text()
     assert "http://" not in text and "https://" not in text  # nothing to fetch: works offline
     with chromium_page([] if webgl else ["--disable-3d-apis"]) as page:
@@ -389,7 +389,7 @@ def test_standalone_page_drag_in_chromium(operators, shape, tmp_path, webgl):
 
 # ---------------------------------------------------------------------------------------------- (e)
 _WIDGET_NOTEBOOK = [
-    "import json\nimport defop as dop\nfrom defop.browser import BrowserEditor",
+    "import json\nimport defop as dop\nfrom defop.editor.browser import BrowserEditor",
     "editor = BrowserEditor('u_shape', basis='tps', kinds=('tps', 'linear'), m=20)\n"
     "editor.observe(lambda c: open('q.json', 'w').write(json.dumps(c['new'])), names='q')\neditor",
 ]
@@ -533,7 +533,7 @@ def test_image_payload_png_round_trip(layout, dtype, h, w, seed):
                                                img.astype(dtype))
     V_px = rng.uniform(-0.5, [w - 0.5, h - 0.5], size=(7, 2))
     p = browser.image_payload(img, V_px)
-    expected = dop.outlines.load_image(img)
+    expected = dop.geometry.planar.outlines.load_image(img)
     back = _png_array(p["image_png"])
     assert back.shape == expected.shape and back.dtype == np.uint8
     np.testing.assert_array_equal(back, np.round(expected * 255).astype(np.uint8))
@@ -565,11 +565,11 @@ def test_image_frame_is_checked(operators, shape, monkeypatch):
     bad = to_pixels(shape.mesh.V)
     bad[7] = np.nan
     with pytest.raises(ValueError, match=r"NaN or infinite pixel position \(vertex 7\)"):
-        browser.to_html(op, "unused.html", image=image, image_frame=bad)
+        export.to_html(op, "unused.html", image=image, image_frame=bad)
     with pytest.raises(ValueError, match="go together"):
         browser.BrowserEditor(shape, {"tps": op}, image=image)
     with pytest.raises(ValueError, match="go together"):
-        browser.to_html(op, "unused.html", image_frame=to_pixels)
+        export.to_html(op, "unused.html", image_frame=to_pixels)
     with pytest.raises(ValueError, match="either image or shapes"):
         browser.BrowserEditor(shape, {"tps": op}, image=image, image_frame=to_pixels, shapes=["u_shape", "bar"])
     monkeypatch.setattr(browser, "MAX_IMAGE_BYTES", 1000)
@@ -636,7 +636,7 @@ _MOUNT_WIDGET = """(traits) => {
 def _open_picture_editor(page, how, op, shape, image, to_pixels, tmp_path):
     """The picture editor in the page: the standalone HTML of to_html, or the anywidget's module with its traits."""
     if how == "standalone":
-        path = browser.to_html(op, tmp_path / "picture.html", shape=shape, image=image, image_frame=to_pixels)
+        path = export.to_html(op, tmp_path / "picture.html", shape=shape, image=image, image_frame=to_pixels)
         page.goto(path.as_uri())
         page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
         return
@@ -702,7 +702,7 @@ def test_picture_editor_drag_in_chromium(operators, shape, tmp_path, how):
 
 
 _PICTURE_NOTEBOOK = [
-    "import json, sys\nimport defop as dop\nfrom defop.browser import BrowserEditor\n"
+    "import json, sys\nimport defop as dop\nfrom defop.editor.browser import BrowserEditor\n"
     f"sys.path.insert(0, {str(ROOT / 'tests')!r})\nfrom test_browser_editor import picture_for",
     f"shape = dop.shapes.load({SHAPE!r})\npicture, to_pixels = picture_for(shape.mesh)\n"
     "editor = BrowserEditor(shape, basis='tps', kinds=('tps',), m=20, image=picture, image_frame=to_pixels)\n"
@@ -739,7 +739,7 @@ def test_picture_without_webgl_says_so(operators, shape, tmp_path):
     still works."""
     op = operators["tps"]
     image, to_pixels = picture_for(shape.mesh)
-    path = browser.to_html(op, tmp_path / "picture.html", shape=shape, image=image, image_frame=to_pixels)
+    path = export.to_html(op, tmp_path / "picture.html", shape=shape, image=image, image_frame=to_pixels)
     with chromium_page(["--disable-3d-apis"]) as page:
         page.goto(path.as_uri())
         page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")

@@ -1,4 +1,5 @@
-"""The on-disk cache (defop.cache): keys, atomic writes, corrupt entries, a bad DEFOP_CACHE, concurrent writers."""
+"""The on-disk cache (defop.training.cache): keys, atomic writes, corrupt entries, a bad DEFOP_CACHE, concurrent
+writers."""
 
 from __future__ import annotations
 
@@ -17,8 +18,8 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop import cache as cm
-from defop import trajectories as tr
+from defop.analysis.metrics import trajectories as tr
+from defop.training import cache as cm
 
 TRAIN = dict(energy="sarap", basis="tps", m=8, seed=4, n_jobs=1, progress=False)
 
@@ -69,18 +70,18 @@ def test_key_rejects_parts_it_cannot_hash_stably():
 
 
 def test_solver_settings_hold_everything_that_changes_a_solution(bar):
-    s = cm.solver_settings(dop.solve.Solver(bar.mesh, bar.handles, "sarap"))
+    s = cm.solver_settings(dop.variational.Solver(bar.mesh, bar.handles, "sarap"))
     assert {"energy", "tol", "max_iter", "mu_schedule", "stage_tol", "exact_switch"} <= set(s)
     assert s["tol"] == 1e-9 and s["mu_schedule"] == (1e-5, 0.0)  # S-ARAP ends on Eq. (11) itself
     for kw in ({"tol": 1e-6}, {"max_iter": 10}, {"smoothing": (1e-5, 1e-9)}):
-        assert cm.solver_settings(dop.solve.Solver(bar.mesh, bar.handles, "sarap", **kw)) != s, kw
+        assert cm.solver_settings(dop.variational.Solver(bar.mesh, bar.handles, "sarap", **kw)) != s, kw
 
 
 @pytest.mark.parametrize("energy", ["arap", "sarap", "isometric"])
 def test_train_keys_read_the_settings_of_the_solver_train_uses(bar, energy):
     """train reads the settings from a one-triangle Solver: they must equal the real one's."""
-    real = cm.solver_settings(dop.solve.Solver(bar.mesh, bar.handles, energy))
-    assert dop.train._solver_key(bar, energy) == real and real["energy"] == energy
+    real = cm.solver_settings(dop.variational.Solver(bar.mesh, bar.handles, energy))
+    assert dop.training.bootstrap._solver_key(bar, energy) == real and real["energy"] == energy
 
 
 # ------------------------------------------------------------------------------ store and load
@@ -116,7 +117,7 @@ def test_a_cache_that_becomes_unwritable_warns_and_keeps_the_result(bar, folder,
 
     monkeypatch.setattr(cm.os, "replace", no_space)
     with pytest.warns(cm.CacheWarning, match=r"could not write the cache entry .*No space left") as rec:
-        op, r = dop.train.train(bar, **TRAIN)
+        op, r = dop.train(bar, **TRAIN)
     assert r.cache == "none" and np.abs(op(r.samples) - r.X).max() < 1e-8
     written = sorted(str(w.message).split("cache/")[1][:3] for w in rec)
     assert written == ["gt-", "op-"] and list(folder.iterdir()) == []  # no entry, no temp file
@@ -232,64 +233,64 @@ def test_a_corrupt_entry_replaced_meanwhile_by_another_process_is_kept(tmp_path)
 # -------------------------------------------------------------------- corrupt entries in train
 @pytest.mark.parametrize("kind", ["gt", "op"])
 def test_train_recomputes_a_truncated_entry(bar, folder, kind):
-    a, ra = dop.train.train(bar, **TRAIN)
+    a, ra = dop.train(bar, **TRAIN)
     (entry,) = _entries(folder, kind)
     _truncate(entry)
     if kind == "gt":  # else the cached operator is served (without X when its ground truth is corrupt)
         _entries(folder, "op")[0].unlink()
     with pytest.warns(cm.CacheWarning, match="corrupt cache entry") as rec:
-        b, rb = dop.train.train(bar, **TRAIN)
+        b, rb = dop.train(bar, **TRAIN)
     assert str(entry) in str(rec[0].message)
     assert rb.cache == ("ground truth" if kind == "op" else "none")
     assert np.allclose(a(ra.samples), b(rb.samples), atol=1e-12) and np.allclose(ra.X, rb.X, atol=1e-12)
     with warnings.catch_warnings():  # the entry was rewritten whole
         warnings.simplefilter("error", cm.CacheWarning)
-        c, rc = dop.train.train(bar, **TRAIN)
+        c, rc = dop.train(bar, **TRAIN)
     assert rc.cache == "operator" and np.array_equal(rc.X, rb.X)
 
 
 def test_train_recomputes_an_operator_with_nan_coefficients(bar, folder):
-    a, ra = dop.train.train(bar, **TRAIN)
+    a, ra = dop.train(bar, **TRAIN)
     (entry,) = _entries(folder, "op")
-    op = dop.operator.DefOp.load(entry)
+    op = dop.DefOp.load(entry)
     op.W[0, 0] = np.nan
     op.save(entry)
     with pytest.warns(cm.CacheWarning, match="NaN") as rec:
-        b, rb = dop.train.train(bar, **TRAIN)
+        b, rb = dop.train(bar, **TRAIN)
     assert str(entry) in str(rec[0].message) and rb.cache == "ground truth"
     assert np.isfinite(b.W).all() and np.allclose(a(ra.samples), b(rb.samples), atol=1e-12)
 
 
 def test_train_cache_misses_when_a_solver_setting_the_version_or_the_salt_changes(bar, folder, monkeypatch):
-    dop.train.train(bar, **TRAIN)
-    assert dop.train.train(bar, **TRAIN)[1].cache == "operator"
+    dop.train(bar, **TRAIN)
+    assert dop.train(bar, **TRAIN)[1].cache == "operator"
 
-    class LooserSolver(dop.solve.Solver):
+    class LooserSolver(dop.variational.Solver):
         def __init__(self, *args, **kw):
             super().__init__(*args, **kw)
             self.stage_tol = 1e-6
 
     with monkeypatch.context() as mp:
-        mp.setattr(dop.train, "Solver", LooserSolver)
-        assert dop.train.train(bar, **TRAIN)[1].cache == "none"
+        mp.setattr(dop.training.bootstrap, "Solver", LooserSolver)
+        assert dop.train(bar, **TRAIN)[1].cache == "none"
     with monkeypatch.context() as mp:
         mp.setattr(cm, "SOLVER_SALT", cm.SOLVER_SALT + 1)
-        assert dop.train.train(bar, **TRAIN)[1].cache == "none"
+        assert dop.train(bar, **TRAIN)[1].cache == "none"
     with monkeypatch.context() as mp:
         mp.setattr(cm, "__version__", "0.0.0+other")
-        assert dop.train.train(bar, **TRAIN)[1].cache == "none"
-    assert dop.train.train(bar, **TRAIN)[1].cache == "operator"  # the original entries are still there
+        assert dop.train(bar, **TRAIN)[1].cache == "none"
+    assert dop.train(bar, **TRAIN)[1].cache == "operator"  # the original entries are still there
 
 
 def test_sample_ground_truth_round_trip_and_recompute(bar, folder):
-    Q = dop.sampling.sample_shape(bar, 3, 7)
-    X, c = dop.train.sample_ground_truth(bar, Q, "arap", n_jobs=1, progress=False)
+    Q = dop.training.sampling.sample_shape(bar, 3, 7)
+    X, c = dop.training.bootstrap.sample_ground_truth(bar, Q, "arap", n_jobs=1, progress=False)
     (entry,) = _entries(folder, "gt")
-    X2, c2 = dop.train.sample_ground_truth(bar, Q, "arap", n_jobs=1, progress=False)
+    X2, c2 = dop.training.bootstrap.sample_ground_truth(bar, Q, "arap", n_jobs=1, progress=False)
     assert np.array_equal(X, X2) and np.array_equal(c, c2)
     _savez(entry, X=X[:2], converged=c[:2])  # an entry for other samples under this key
     with pytest.warns(cm.CacheWarning, match="shape"):
-        X3, _ = dop.train.sample_ground_truth(bar, Q, "arap", n_jobs=1, progress=False)
+        X3, _ = dop.training.bootstrap.sample_ground_truth(bar, Q, "arap", n_jobs=1, progress=False)
     assert np.allclose(X, X3, atol=1e-12)
 
 
@@ -306,9 +307,9 @@ def test_trajectories_recompute_a_truncated_entry(bar, folder):
 
 def test_trajectory_keys_see_the_solver_settings_and_the_salt(bar, monkeypatch):
     g = tr.handle_grid(bar.P_moving[0], 0.05, 2)
-    solver = dop.solve.Solver(bar.mesh, bar.handles, "sarap")
+    solver = dop.variational.Solver(bar.mesh, bar.handles, "sarap")
     k = tr._cache_key(bar, g, "sarap", "global", 0, None, solver, {})
-    tighter = dop.solve.Solver(bar.mesh, bar.handles, "sarap", smoothing=(1e-5, 1e-9))
+    tighter = dop.variational.Solver(bar.mesh, bar.handles, "sarap", smoothing=(1e-5, 1e-9))
     assert tr._cache_key(bar, g, "sarap", "global", 0, None, tighter, {}) != k
     assert tr._cache_key(bar, g, "sarap", "global", 0, None, solver, {"tol": 1e-6}) != k
     monkeypatch.setattr(cm, "SOLVER_SALT", cm.SOLVER_SALT + 1)
@@ -320,7 +321,7 @@ def _no_solves(monkeypatch):
     def fail(*a, **k):
         raise AssertionError("a solve ran before DEFOP_CACHE was checked")
 
-    monkeypatch.setattr(dop.solve.Solver, "solve", fail)  # the primitive every driver calls
+    monkeypatch.setattr(dop.variational.Solver, "solve", fail)  # the primitive every driver calls
 
 
 def _bad_cache_values(tmp_path):
@@ -339,9 +340,9 @@ def test_a_bad_defop_cache_fails_before_any_work(bar, tmp_path, monkeypatch, cas
     monkeypatch.setenv("DEFOP_CACHE", str(path))
     _no_solves(monkeypatch)
     calls = [
-        lambda: dop.train.train(bar, **TRAIN),
-        lambda: dop.train.held_out(bar, "sarap", 4, 9, n_jobs=1, progress=False),
-        lambda: dop.train.sample_ground_truth(bar, bar.P_moving[None], "sarap", n_jobs=1, progress=False),
+        lambda: dop.train(bar, **TRAIN),
+        lambda: dop.training.held_out(bar, "sarap", 4, 9, n_jobs=1, progress=False),
+        lambda: dop.training.bootstrap.sample_ground_truth(bar, bar.P_moving[None], "sarap", n_jobs=1, progress=False),
         lambda: tr.ground_truth_trajectories(bar, tr.handle_grid(bar.P_moving[0], 0.05, 2), n_jobs=1),
     ]
     for call in calls:
@@ -376,8 +377,8 @@ def test_defop_cache_off_disables_the_cache(bar, tmp_path, monkeypatch):
     monkeypatch.setenv("DEFOP_CACHE", "off")
     monkeypatch.setenv("HOME", str(tmp_path))  # the default location must stay untouched too
     assert cm.open_cache() is None
-    a = dop.train.train(bar, **TRAIN)[1]
-    b = dop.train.train(bar, **TRAIN)[1]
+    a = dop.train(bar, **TRAIN)[1]
+    b = dop.train(bar, **TRAIN)[1]
     assert a.cache == b.cache == "none" and list(tmp_path.iterdir()) == []
 
 
@@ -410,9 +411,9 @@ def _train_child(cache, out, started=None, may_finish=None):
         np.savez = _slow_savez(started, may_finish)
     import defop
 
-    warnings.simplefilter("error", defop.cache.CacheWarning)  # seeing a half-written entry is a failure
-    shape = defop.shapes.load("bar", n_vertices=200)
-    op, rec = defop.train.train(shape, **TRAIN)
+    warnings.simplefilter("error", defop.training.cache.CacheWarning)  # seeing a half-written entry is a failure
+    shape = defop.scene.shapes.load("bar", n_vertices=200)
+    op, rec = defop.training.bootstrap.train(shape, **TRAIN)
     np.save(out, np.stack([op(rec.samples), rec.X]))
 
 
@@ -445,7 +446,7 @@ def test_two_processes_training_the_same_operator_both_get_it(bar, tmp_path, mon
     monkeypatch.setenv("DEFOP_CACHE", cache)
     with warnings.catch_warnings():  # the entries are whole: loaded without a CacheWarning
         warnings.simplefilter("error", cm.CacheWarning)
-        op, rec = dop.train.train(bar, **TRAIN)
+        op, rec = dop.train(bar, **TRAIN)
     assert rec.cache == "operator" and np.allclose(op(rec.samples), ra[0], atol=1e-12)
     assert np.array_equal(rec.X, ra[1])
 
@@ -472,5 +473,5 @@ def test_a_writer_killed_midway_leaves_no_entry(bar, tmp_path, monkeypatch):
     assert not litter.exists()  # an hour old: a killed writer's, removed
     with warnings.catch_warnings():
         warnings.simplefilter("error", cm.CacheWarning)
-        op, rec = dop.train.train(bar, **TRAIN)
+        op, rec = dop.train(bar, **TRAIN)
     assert rec.cache == "none" and len(_entries(cache, "op")) == 1

@@ -1,4 +1,4 @@
-"""defop.distortion: the cusp, fold and scaling measures of Fig. 6 (analytic cases)."""
+"""defop.analysis.distortion: the cusp, fold and scaling measures of Fig. 6 (analytic cases)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from defop import distortion
-from defop.mesh import Mesh
+from defop.analysis.metrics import distortion
+from defop.geometry.mesh import Mesh
 
 RIGHT = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
 

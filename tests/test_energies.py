@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from defop import energies as en
+from defop.variational import energies as en
 
 
 def _jacobians(rng, n=300, spread=0.3, min_det=0.3):

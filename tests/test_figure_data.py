@@ -1,4 +1,4 @@
-"""defop.figure_data: the helpers behind Figs. 2, 7, 8 and 10."""
+"""defop.analysis.figure_data: the helpers behind Figs. 2, 7, 8 and 10."""
 
 import numpy as np
 import pytest
@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import defop as dop
-from defop import figure_data as fd
-from defop.trajectories import _check_path
+from defop.analysis.metrics import figure_data as fd
+from defop.analysis.trajectories import _check_path
 
 
 @given(st.integers(1, 12), st.integers(1, 12), st.sampled_from(["bottom", "top"]))
@@ -71,18 +71,18 @@ def test_subspace_floor_zero_for_affine_maps_and_hat(bar):
 def test_fit_diagnostics_interpolating_fit_has_zero_training_error(bar):
     rng = np.random.default_rng(0)
     Q = bar.P_moving[None] + rng.uniform(-0.05, 0.05, (6, 1, 2))
-    X, ok = dop.train.solve_samples(bar, Q, "sarap", n_jobs=1, progress=False)
+    X, ok = dop.training.solve_samples(bar, Q, "sarap", n_jobs=1, progress=False)
     assert ok.all()
-    op = dop.fit.fit_shape(bar, Q[:4], X[:4], "tps")  # TPS reproduces its samples (Prop. 1)
+    op = dop.operator.fit.fit_shape(bar, Q[:4], X[:4], "tps")  # TPS reproduces its samples (Prop. 1)
     d = fd.fit_diagnostics(op, Q[:4], X[:4], Q[4:], X[4:])
     assert d["train"] < 1e-20 < d["test"]
     assert d["m"] == 4 and d["size"] == op.handle_basis.size and d["cond"] >= 1
 
 
 def test_lowest_of_is_at_most_every_run(bar):
-    grid = dop.trajectories.handle_grid(bar.P_moving[0], 0.25, 3)
+    grid = dop.analysis.trajectories.handle_grid(bar.P_moving[0], 0.25, 3)
     runs = [
-        dop.trajectories.ground_truth_trajectories(
+        dop.analysis.trajectories.ground_truth_trajectories(
             bar, grid, "sarap", mode="local", path=fd.column_path(3, 3, s), cache=False
         )
         for s in ("bottom", "top")
@@ -96,7 +96,7 @@ def test_lowest_of_is_at_most_every_run(bar):
 
 
 def test_column_jumps_finds_a_step():
-    grid = dop.trajectories.handle_grid(np.zeros(2), 1.0, 5)
+    grid = dop.analysis.trajectories.handle_grid(np.zeros(2), 1.0, 5)
     D = np.where(grid.displacements[..., 1] > 0.1, 1.0, 0.0) + 0.01 * grid.displacements[..., 0]
     y = fd.column_jumps(grid, D)
     np.testing.assert_allclose(y, 0.25)  # between the rows y = 0 and y = 0.5
@@ -104,29 +104,29 @@ def test_column_jumps_finds_a_step():
 
 
 def test_grid_error_is_zero_for_tps_through_the_grid_and_matches_the_fig8_metric(bar):
-    grid = dop.trajectories.handle_grid(bar.P_moving[0], 0.1, 3)
-    truth = dop.trajectories.ground_truth_trajectories(bar, grid, "sarap", cache=False, n_jobs=1)
+    grid = dop.analysis.trajectories.handle_grid(bar.P_moving[0], 0.1, 3)
+    truth = dop.analysis.trajectories.ground_truth_trajectories(bar, grid, "sarap", cache=False, n_jobs=1)
     Q = grid.positions.reshape(-1, 1, 2)
     X = truth.X.reshape(len(Q), -1, 2)
-    tps = dop.fit.fit_shape(bar, Q, X, "tps")  # TPS reproduces every training deformation (Prop. 1)
+    tps = dop.operator.fit.fit_shape(bar, Q, X, "tps")  # TPS reproduces every training deformation (Prop. 1)
     assert fd.grid_error(tps, truth) < 1e-20
-    linear = dop.fit.fit_shape(bar, Q, X, "linear")
+    linear = dop.operator.fit.fit_shape(bar, Q, X, "linear")
     e = fd.grid_error(linear, truth)
     assert e > 1e-12
     assert e == pytest.approx(dop.analysis.approximation_error(linear, Q, X) / 9, rel=1e-12)
     other = dop.shapes.load("bar", n_vertices=120)
     with pytest.raises(ValueError, match="vertices"):
-        fd.grid_error(dop.fit.fit_shape(other, Q, np.repeat(other.mesh.V[None], 9, axis=0), "linear"), truth)
+        fd.grid_error(dop.operator.fit.fit_shape(other, Q, np.repeat(other.mesh.V[None], 9, axis=0), "linear"), truth)
 
 
 def test_grid_errors_over_draws_matches_one_training_per_draw(bar):
-    grid = dop.trajectories.handle_grid(bar.P_moving[0], 0.1, 3)
-    truth = dop.trajectories.ground_truth_trajectories(bar, grid, "sarap", cache=False, n_jobs=1)
+    grid = dop.analysis.trajectories.handle_grid(bar.P_moving[0], 0.1, 3)
+    truth = dop.analysis.trajectories.ground_truth_trajectories(bar, grid, "sarap", cache=False, n_jobs=1)
     disc = [{"kind": "disc", "radius": 0.12}]
     E = fd.grid_errors_over_draws(bar, truth, disc, (5, 7), (0, 1), ("linear", "quadratic"))
     assert E.shape == (2, 2, 2) and (E > 0).all()
-    Q = dop.sampling.sample_handles(bar.P_moving, disc, 7, rng=1)
-    op = dop.train.train(bar, "sarap", "quadratic", samples=Q, progress=False)[0]
+    Q = dop.training.sampling.sample_handles(bar.P_moving, disc, 7, rng=1)
+    op = dop.train(bar, "sarap", "quadratic", samples=Q, progress=False)[0]
     assert E[1, 1, 1] == pytest.approx(fd.grid_error(op, truth), rel=1e-9)
 
 
@@ -168,10 +168,10 @@ def test_subset_fits_uses_the_first_m_samples_and_skips_undetermined_bases(bar):
     fits = fd.subset_fits(bar, Q, X, bases, counts)
     assert list(fits) == [(b, m) for b in bases for m in counts]
     for (b, m), op in fits.items():
-        need = dop.train.min_samples(b, bar.n_moving)
+        need = dop.training.min_samples(b, bar.n_moving)
         assert (op is None) == (m < need)
         if op is not None:
-            ref = dop.fit.fit_shape(bar, Q[:m], X[:m], b)
+            ref = dop.operator.fit.fit_shape(bar, Q[:m], X[:m], b)
             assert op.n_samples == m and np.abs(op(Q[-3:]) - ref(Q[-3:])).max() < 1e-12
     errs = fd.subset_errors(fits, Q[-3:], X[-3:])
     for k, op in fits.items():
@@ -194,7 +194,7 @@ def test_fig9_grid_marks_missing_operators_and_prints_notes(bar):
     fits = fd.subset_fits(bar, Q[:3], X[:3], ["cubic", "tps"], [3])  # cubic needs 9 samples: None
     rows = {f"{b}, m = {m}": op for (b, m), op in fits.items()}
     notes = {"tps, m = 3": ["a", "b"], "cubic, m = 3": ["m < |Ψ|", "m < |Ψ|"]}
-    fig = dop.plot.plot_bases_grid(bar, Q[3:], X[3:], rows, ["one", "two"], notes=notes)
+    fig = dop.view.plot.plot_bases_grid(bar, Q[3:], X[3:], rows, ["one", "two"], notes=notes)
     texts = [[t.get_text() for t in ax.texts] for ax in fig.axes]
     assert len(fig.axes) == 4
     assert "not fitted" in texts[0] and "m < |Ψ|" in texts[0] and "cubic, m = 3" in texts[0]

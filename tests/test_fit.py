@@ -14,7 +14,7 @@ import defop as dop
 def data():
     """A U shape with synthetic, smooth, non-linear "ground truth" that interpolates the handles."""
     s = dop.shapes.load("u_shape", n_vertices=300)
-    solver = dop.solve.Solver(s.mesh, s.handles, "arap")
+    solver = dop.variational.Solver(s.mesh, s.handles, "arap")
     bump = np.sin(3 * s.mesh.V[:, 0]) * np.cos(2 * s.mesh.V[:, 1])
     bump = bump - solver.extend(bump[solver.handles, None] * [1.0, 0.0])[:, 0]  # zero at the handles
 
@@ -28,7 +28,7 @@ def data():
         return np.array(X)
 
     rng = np.random.default_rng(0)
-    Qtr, Qte = dop.sampling.sample_shape(s, 40, rng), dop.sampling.sample_shape(s, 30, rng)
+    Qtr, Qte = dop.training.sampling.sample_shape(s, 40, rng), dop.training.sampling.sample_shape(s, 30, rng)
     return s, Qtr, truth(Qtr), Qte, truth(Qte)
 
 
@@ -36,7 +36,7 @@ def data():
 @pytest.mark.parametrize("basis", ["linear", "quadratic", "cubic", "tps"])
 def test_rest_pose_and_handles_at_untrained_Q(data, basis, spatial):
     s, Qtr, Xtr, Qte, _ = data
-    op = dop.fit.fit_shape(s, Qtr, Xtr, basis, spatial, k=30)
+    op = dop.operator.fit.fit_shape(s, Qtr, Xtr, basis, spatial, k=30)
     assert np.abs(op(s.P_moving) - s.mesh.V).max() < 1e-10  # (8b): D(x, P) = x
     D = op(Qte)  # Proposition 2: handles interpolated at random untrained Q
     T = np.array([s.targets(q) for q in Qte])
@@ -45,7 +45,7 @@ def test_rest_pose_and_handles_at_untrained_Q(data, basis, spatial):
 
 def test_proposition_1_tps_interpolates_the_training_deformations(data):
     s, Qtr, Xtr, _, _ = data
-    op = dop.fit.fit_shape(s, Qtr, Xtr, "tps", "hat")
+    op = dop.operator.fit.fit_shape(s, Qtr, Xtr, "tps", "hat")
     assert np.abs(op(Qtr) - Xtr).max() < 1e-8
     assert op.handle_basis.size == 1 + 2 * s.n_moving + len(Qtr) + 1  # the rest pose is a centre too
 
@@ -53,7 +53,7 @@ def test_proposition_1_tps_interpolates_the_training_deformations(data):
 def test_richer_bases_fit_better(data):
     s, Qtr, Xtr, Qte, Xte = data
     err = {
-        b: dop.analysis.approximation_error(dop.fit.fit_shape(s, Qtr, Xtr, b), Qte, Xte)
+        b: dop.analysis.approximation_error(dop.operator.fit.fit_shape(s, Qtr, Xtr, b), Qte, Xte)
         for b in ("linear", "quadratic", "cubic", "tps")
     }
     assert err["quadratic"] < 0.5 * err["linear"]
@@ -63,8 +63,8 @@ def test_richer_bases_fit_better(data):
 def test_the_reduced_fit_is_the_projection_of_the_hat_fit(data):
     """With Φ reduced, the fit equals the hat fit projected on span Φ, up to the handle constraint."""
     s, Qtr, Xtr, Qte, _ = data
-    hat = dop.fit.fit_shape(s, Qtr, Xtr, "quadratic", "hat")
-    red = dop.fit.fit_shape(s, Qtr, Xtr, "quadratic", "reduced", k=60)
+    hat = dop.operator.fit.fit_shape(s, Qtr, Xtr, "quadratic", "hat")
+    red = dop.operator.fit.fit_shape(s, Qtr, Xtr, "quadratic", "reduced", k=60)
     rel = np.abs(red(Qte) - hat(Qte)).max() / s.mesh.bbox_diagonal
     assert rel < 0.02
 
@@ -73,39 +73,39 @@ def test_too_few_samples_says_the_minimum(data):
     s, Qtr, Xtr, _, _ = data
     msg = r"cubic basis \(\|Ψ\| = 35\) needs at least 35 samples with the rest pose \(34 besides it\)"
     with pytest.raises(ValueError, match=msg):
-        dop.fit.fit_shape(s, Qtr[:20], Xtr[:20], "cubic")
+        dop.operator.fit.fit_shape(s, Qtr[:20], Xtr[:20], "cubic")
     with pytest.raises(ValueError, match="tps basis needs at least 6 samples"):
-        dop.fit.fit_shape(s, Qtr[:3], Xtr[:3], "tps")
+        dop.operator.fit.fit_shape(s, Qtr[:3], Xtr[:3], "tps")
 
 
 def test_bad_shapes_and_nan(data):
     s, Qtr, Xtr, _, _ = data
     with pytest.raises(ValueError, match=r"samples must have shape \(m, 2, 2\)"):
-        dop.fit.fit_shape(s, Qtr[:, :1], Xtr, "linear")
+        dop.operator.fit.fit_shape(s, Qtr[:, :1], Xtr, "linear")
     with pytest.raises(ValueError, match="one deformation per sample"):
-        dop.fit.fit_shape(s, Qtr, Xtr[:-1], "linear")
+        dop.operator.fit.fit_shape(s, Qtr, Xtr[:-1], "linear")
     bad = Xtr.copy()
     bad[3, 7, 0] = np.nan
     with pytest.raises(ValueError, match="NaN"):
-        dop.fit.fit_shape(s, Qtr, bad, "linear")
+        dop.operator.fit.fit_shape(s, Qtr, bad, "linear")
     with pytest.raises(ValueError, match=rf"samples 0 and {len(Qtr)} are the same handle configuration"):
-        dop.fit.fit_shape(s, np.concatenate([Qtr, Qtr[:1]]), np.concatenate([Xtr, Xtr[:1]]), "tps")
+        dop.operator.fit.fit_shape(s, np.concatenate([Qtr, Qtr[:1]]), np.concatenate([Xtr, Xtr[:1]]), "tps")
 
 
 def test_fit_time_is_the_fastest_refit_and_needs_ground_truth():
     s = dop.shapes.load("bar")
-    Q = dop.sampling.sample_shape(s, 6, np.random.default_rng(1))
+    Q = dop.training.sampling.sample_shape(s, 6, np.random.default_rng(1))
     X = np.array([s.mesh.V + 0.01 * k for k in range(6)])  # any data: only the timing is under test
-    t = dop.analysis.fit_time(s, Q, X, "linear", repeats=3)
+    t = dop.analysis.metrics.fit_time(s, Q, X, "linear", repeats=3)
     assert 0 < t < 10
     with pytest.raises(ValueError, match="needs the ground truths"):
-        dop.analysis.fit_time(s, Q, None, "linear")
+        dop.analysis.metrics.fit_time(s, Q, None, "linear")
 
 
 def test_symmetric_tps_path_equals_the_general_null_space_method():
     """TPS interpolation through the positive definite H = Qnᵀ K Qn gives the same G, β as the LU path."""
-    from defop import fit as F
-    from defop import handle_bases as hb
+    from defop.operator.defop import fit as F
+    from defop.operator.defop import handle_bases as hb
 
     rng = np.random.default_rng(4)
     P = rng.standard_normal((3, 2))
@@ -125,7 +125,7 @@ def test_fitted_W_satisfies_the_constraints_the_operator_builds_on(data, basis, 
     # DefOp's (★) evaluates x + δψ W_F + (Q − P) on the handles: that equals Ψ(Q) W exactly when the fit
     # met (8b) Ψ(P) W = x and (8c) W's handle columns are the handles' linear coefficients
     s, Qtr, Xtr, Qte, _ = data
-    op = dop.fit.fit_shape(s, Qtr, Xtr, basis, spatial, k=30)
+    op = dop.operator.fit.fit_shape(s, Qtr, Xtr, basis, spatial, k=30)
     diag = s.mesh.bbox_diagonal
     assert np.abs(op.psi(s.P_moving) @ op.W - s.mesh.V.ravel()).max() <= 1e-10 * diag  # (8b)
     Wh = op.W.reshape(op.W.shape[0], -1, 2)[:, op.handles]

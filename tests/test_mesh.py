@@ -6,19 +6,19 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop.mesh import Mesh
+from defop.geometry.mesh import Mesh
 
 
 def test_single_triangle_area_and_orientation(triangle):
     assert triangle.areas == pytest.approx([1.0])
     # a clockwise input is re-oriented counter-clockwise
     cw = Mesh(triangle.V, triangle.F[:, ::-1])
-    assert dop.mesh.signed_areas(cw.V, cw.F) == pytest.approx([1.0])
+    assert dop.geometry.mesh.signed_areas(cw.V, cw.F) == pytest.approx([1.0])
 
 
 def test_grid_areas_add_up(grid):
     assert grid.areas.sum() == pytest.approx(2.0)
-    assert np.all(dop.mesh.signed_areas(grid.V, grid.F) > 0)
+    assert np.all(dop.geometry.mesh.signed_areas(grid.V, grid.F) > 0)
 
 
 def test_boundary_loop_follows_rectangle(grid):
@@ -116,7 +116,7 @@ def test_folded_triangle_is_rejected_not_reoriented():
 
 def test_all_clockwise_mesh_is_reoriented_consistently(grid):
     cw = Mesh(grid.V, grid.F[:, ::-1])
-    assert np.all(dop.mesh.signed_areas(cw.V, cw.F) > 0) and cw.areas.sum() == pytest.approx(2.0)
+    assert np.all(dop.geometry.mesh.signed_areas(cw.V, cw.F) > 0) and cw.areas.sum() == pytest.approx(2.0)
 
 
 def test_non_manifold_edge_is_named():
@@ -146,7 +146,7 @@ def test_extension_is_case_insensitive(grid, tmp_path, name):
     """Before: save('m.NPZ') wrote m.NPZ.npz, which read_mesh('m.NPZ') could not find."""
     grid.save(tmp_path / name)
     assert sorted(p.name for p in tmp_path.iterdir()) == [name]
-    assert dop.mesh.read_mesh(tmp_path / name) == grid
+    assert dop.geometry.mesh.read_mesh(tmp_path / name) == grid
 
 
 def test_bowtie_vertex_is_named():

@@ -11,17 +11,17 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import defop as dop
-from defop import handle_bases as hb
-from defop.operator import DefOp, ExtrapolationWarning
+from defop.operator.defop import DefOp, ExtrapolationWarning
+from defop.operator.defop import handle_bases as hb
 
 
 @pytest.fixture(scope="module")
 def op_and_data():
     s = dop.shapes.load("bar", n_vertices=250)
-    solver = dop.solve.Solver(s.mesh, s.handles, "arap")
-    Q = dop.sampling.sample_shape(s, 25, np.random.default_rng(0))
+    solver = dop.variational.Solver(s.mesh, s.handles, "arap")
+    Q = dop.training.sampling.sample_shape(s, 25, np.random.default_rng(0))
     X = np.array([solver.solve(s.targets(q)).X for q in Q])
-    return s, dop.fit.fit_shape(s, Q, X, "tps", meta={"energy": "arap"}), Q, X
+    return s, dop.operator.fit.fit_shape(s, Q, X, "tps", meta={"energy": "arap"}), Q, X
 
 
 def test_single_and_batch_agree(op_and_data):
@@ -126,7 +126,7 @@ def _random_operator(seed, basis, spatial, n_handles, n_moving):
     # a smooth synthetic "ground truth": any data must give the guarantees
     a = rng.standard_normal((m, 2, 2)) * 0.3
     X = mesh.V + np.einsum("mij,vj->mvi", a, mesh.V) + 0.05 * np.sin(3 * mesh.V[None, :, :1] + Q[:, :1, :1])
-    return dop.fit.fit(mesh, handles, moving, Q, X, basis, spatial, k=12), Q
+    return dop.operator.fit.fit(mesh, handles, moving, Q, X, basis, spatial, k=12), Q
 
 
 def _paths(op, Qs):
@@ -413,7 +413,8 @@ def test_batch_chunks_give_the_single_frames(op_and_data, monkeypatch, chunk):
 
 
 def test_timing_row_reports_sizes_rank_dtype_and_the_guarantees(op_and_data):
-    # Table 1's row (defop.analysis.timing_row): the paper's conventions (|Φ| of the hat basis = #tris, moving beside
+    # Table 1's row (defop.analysis.metrics.timing_row): the paper's conventions (|Φ| of the hat basis = #tris,
+    # moving beside
     # fixed handles), FPS of both paths with the rank and dtype, and Prop. 2 / (8b) measured on the timed paths
     from types import SimpleNamespace
 

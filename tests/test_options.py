@@ -1,4 +1,4 @@
-"""Option validation (defop._options) and the options of the trajectory ground truth."""
+"""Option validation (defop.options) and the options of the trajectory ground truth."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop import _options as opt
-from defop import trajectories as tr
+from defop import options as opt
+from defop.analysis.metrics import trajectories as tr
 
 
 @pytest.mark.parametrize("value", [3, np.int64(3), 3.0, np.float32(3.0)])
@@ -50,7 +50,7 @@ def no_solves(monkeypatch):
     def fail(*a, **k):
         raise AssertionError("a solve ran before the options were checked")
 
-    monkeypatch.setattr(dop.solve.Solver, "solve", fail)  # the primitive every driver calls
+    monkeypatch.setattr(dop.variational.Solver, "solve", fail)  # the primitive every driver calls
 
 
 BAD_TRAJ_OPTIONS = [
@@ -96,9 +96,9 @@ def test_complex_targets_and_start_are_rejected_not_truncated():
     bar = dop.shapes.load("bar")
     T = bar.mesh.V[[0, 5]] + 0.1
     with pytest.raises(ValueError, match="targets must be an array of real numbers, got complex numbers"):
-        dop.solve.solve(bar.mesh, [0, 5], T + 1e-3j)
+        dop.solve(bar.mesh, [0, 5], T + 1e-3j)
     with pytest.raises(ValueError, match="X0 must be an array of real numbers, got complex numbers"):
-        dop.solve.solve(bar.mesh, [0, 5], T, X0=bar.mesh.V + 0j)
+        dop.solve(bar.mesh, [0, 5], T, X0=bar.mesh.V + 0j)
 
 
 @pytest.mark.parametrize("value", [0, -1.5, np.nan, np.inf, True, "1", None, 1j])

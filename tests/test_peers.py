@@ -1,4 +1,4 @@
-"""The peers of notebook 12 (defop.peers) and the harness that scores them (defop.compare)."""
+"""The peers of notebook 12 (defop.analysis.peers) and the harness that scores them (defop.analysis.compare)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop import compare, peers, warp
+from defop.analysis.metrics import compare, peers
+from defop.view import warp
 
 
 def _perp(x):

@@ -7,8 +7,8 @@ import pytest
 
 import defop as dop
 from defop import figures
-from defop.browser import BrowserEditor
-from defop.editor_state import EditorState
+from defop.editor.browser import BrowserEditor
+from defop.editor.state import EditorState
 
 
 def test_every_shape_in_the_menu_trains_with_enough_samples(tmp_path, monkeypatch):
@@ -23,32 +23,32 @@ def test_every_shape_in_the_menu_trains_with_enough_samples(tmp_path, monkeypatc
         editor.shape_name = name  # the page's shape menu
         s = editor.state
         assert s.shape.name == name and editor.payload_meta["scalars"]["n_vertices"] == s.mesh.n_vertices
-        need = dop.train.min_samples("tps", s.shape.n_moving)
+        need = dop.training.min_samples("tps", s.shape.n_moving)
         assert len(s.operator.handle_basis.centers) >= need + 1  # the samples and the rest pose
         q = s.Q[0] + 0.05 * s.diag
         editor.q = np.vstack([q, s.Q[1:]]).ravel().tolist()  # a release in the page
         np.testing.assert_allclose(s.X[s.shape.moving_handles[0]], q, atol=1e-9 * s.diag)
 
 
-@pytest.mark.parametrize("kind", dop.handle_bases.KINDS)
+@pytest.mark.parametrize("kind", dop.operator.handle_bases.KINDS)
 def test_min_samples_is_the_fewest_the_fit_accepts(kind):
     """Checked against problem (8) itself: the fit takes min_samples samples and rejects one fewer."""
     shape = dop.shapes.load("u_shape")
-    need = dop.train.min_samples(kind, shape.n_moving)
+    need = dop.training.min_samples(kind, shape.n_moving)
     rng = np.random.default_rng(1)
-    samples = dop.sampling.sample_shape(shape, need, rng)
+    samples = dop.training.sampling.sample_shape(shape, need, rng)
     X = shape.mesh.V + 0.01 * rng.standard_normal((need, *shape.mesh.V.shape))
     args = (shape.mesh, shape.handles, shape.moving)
-    dop.fit.fit(*args, samples, X, kind, "hat")
+    dop.operator.fit.fit(*args, samples, X, kind, "hat")
     with pytest.raises(ValueError, match="needs at least"):
-        dop.fit.fit(*args, samples[1:], X[1:], kind, "hat")
+        dop.operator.fit.fit(*args, samples[1:], X[1:], kind, "hat")
 
 
 def test_a_basis_switch_trains_with_its_own_minimum(tmp_path, monkeypatch):
     monkeypatch.setenv("DEFOP_CACHE", str(tmp_path))
     state = EditorState("u_shape", m=1)
     state.set_basis("quadratic")
-    assert state.operator.handle_basis.size == dop.handle_bases.basis_size("quadratic", 2)
+    assert state.operator.handle_basis.size == dop.operator.handle_bases.basis_size("quadratic", 2)
 
 
 def test_the_stored_output_is_a_picture_and_a_line(tmp_path, monkeypatch):

@@ -1,4 +1,4 @@
-"""defop.plot: the Fig. 3 layout (deformations with their approximations, trajectories of the starred point)."""
+"""defop.view.plot: the Fig. 3 layout (deformations with their approximations, trajectories of the starred point)."""
 
 import numpy as np
 
@@ -7,17 +7,17 @@ import defop as dop
 
 def test_plot_trajectories_marks_the_starred_point_and_every_pick():
     shape = dop.shapes.load("bar", n_vertices=250)
-    grid = dop.trajectories.handle_grid(shape.P_moving[0], 0.2, 5)
+    grid = dop.analysis.trajectories.handle_grid(shape.P_moving[0], 0.2, 5)
     V = shape.mesh.V
     d = grid.displacements  # (5,5,2)
     w = V[:, :1] / V[:, 0].max()  # each vertex follows the handle in proportion to x
     X = V[None, None] + w[None, None] * d[:, :, None, :]
-    truth = dop.trajectories.Trajectory(grid=grid, X=X, rest=V, kind="global")
-    approx = dop.trajectories.Trajectory(grid=grid, X=X + 0.01, rest=V, kind="tps")
+    truth = dop.analysis.trajectories.Trajectory(grid=grid, X=X, rest=V, kind="global")
+    approx = dop.analysis.trajectories.Trajectory(grid=grid, X=X + 0.01, rest=V, kind="tps")
     x = int(np.argmin(np.linalg.norm(V - [0.5, 0.1], axis=1)))
     T = {"ground truth": truth.of(x), "tps": approx.of(x)}
     picks = np.array([[-0.2, 0.0], [0.1, 0.1], [0.2, -0.2]])
-    fig = dop.plot.plot_trajectories(shape, truth, approx, T, x, picks, jumps=np.array([[-0.1, 0.0]]))
+    fig = dop.view.plot.plot_trajectories(shape, truth, approx, T, x, picks, jumps=np.array([[-0.1, 0.0]]))
     top = fig.axes[: 1 + len(picks)]
     # rest pose + one panel per pick, then 2 x len(T) trajectory images and 2 colour bars
     assert len(fig.axes) == 1 + len(picks) + 2 * len(T) + 2

@@ -16,7 +16,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from defop import meshing, polygon, shapes
+from defop.geometry.planar import meshing, polygon
+from defop.scene import shapes
 
 SQ = np.array([[0, 0], [4, 0], [4, 4], [0, 4]], float)
 PINCHED = np.array([[0, 0], [1, 0], [1, 1], [2, 1], [2, 2], [1, 2], [1, 1], [0, 1]], float)
@@ -58,7 +59,7 @@ def test_triangle_crash_candidates_raise_in_a_subprocess():
     code = textwrap.dedent(
         """
         import numpy as np
-        from defop import shapes
+        from defop.scene import shapes
         SQ = np.array([[0, 0], [4, 0], [4, 4], [0, 4]], float)
         cases = [
             ([[0, 0], [1, 0], [1, 1], [2, 1], [2, 2], [1, 2], [1, 1], [0, 1]], []),

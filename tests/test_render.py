@@ -13,7 +13,7 @@ import defop as dop
 
 
 def test_render_mesh_offscreen_is_not_blank(grid, tmp_path):
-    img = dop.render.render_mesh(
+    img = dop.view.render.render_mesh(
         grid,
         X=grid.V * [1.0, 1.5],
         handles=np.array([0, 44]),
@@ -34,8 +34,8 @@ def test_configure_headless_in_a_clean_process():
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "VTK_DEFAULT_OPENGL_WINDOW")}
     code = (
         "import numpy as np, defop as dop, os\n"
-        "m = dop.mesh.Mesh(np.array([[0,0],[1,0],[0,1.]]), np.array([[0,1,2]]))\n"
-        "img = dop.render.render_mesh(m, window_size=(64,64))\n"
+        "m = dop.geometry.mesh.Mesh(np.array([[0,0],[1,0],[0,1.]]), np.array([[0,1,2]]))\n"
+        "img = dop.view.render.render_mesh(m, window_size=(64,64))\n"
         "print(os.environ['VTK_DEFAULT_OPENGL_WINDOW'], int(img.std() > 0))\n"
     )
     res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
@@ -47,9 +47,9 @@ def test_configure_headless_in_a_clean_process():
 def test_no_window_gives_the_apt_line(monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("VTK_DEFAULT_OPENGL_WINDOW", raising=False)
-    monkeypatch.setattr(dop.render, "_chosen", None)
-    monkeypatch.setattr(dop.render, "candidates", lambda: [])
+    monkeypatch.setattr(dop.view.render, "_chosen", None)
+    monkeypatch.setattr(dop.view.render, "candidates", lambda: [])
     if sys.platform in ("win32", "darwin"):
         pytest.skip("headless selection only applies to Linux")
     with pytest.raises(RuntimeError, match="apt-get install -y --no-install-recommends libosmesa6"):
-        dop.render.configure_headless()
+        dop.view.render.configure_headless()

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import defop as dop
-from defop.sampling import sample_handles
+from defop.training.sampling import sample_handles
 
 P = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
 
@@ -48,10 +48,10 @@ def test_voronoi_stays_in_the_cell_and_mixture_mixes():
 
 def test_seeded_and_reproducible():
     s = dop.shapes.load("octopus", n_vertices=600)
-    a = dop.sampling.sample_shape(s, 50, 7)
-    b = dop.sampling.sample_shape(s, 50, np.random.default_rng(7))
+    a = dop.training.sampling.sample_shape(s, 50, 7)
+    b = dop.training.sampling.sample_shape(s, 50, np.random.default_rng(7))
     assert np.array_equal(a, b) and a.shape == (50, s.n_moving, 2)
-    assert not np.array_equal(a, dop.sampling.sample_shape(s, 50, 8))
+    assert not np.array_equal(a, dop.training.sampling.sample_shape(s, 50, 8))
 
 
 def test_bad_input():
@@ -129,9 +129,9 @@ def test_classes_draw_the_same_samples_as_the_dicts_did(seed, kinds, m):
 
 @pytest.mark.parametrize("spec", REGIONS)
 def test_every_region_validates_samples_and_outlines_itself(spec):
-    region = dop.regions.as_region(spec)
+    region = dop.scene.regions.as_region(spec)
     assert region.kind == spec["kind"] and region.to_dict()["kind"] == spec["kind"]
-    assert dop.regions.as_region(region.to_dict()) == region
+    assert dop.scene.regions.as_region(region.to_dict()) == region
     pts = region.sample(np.random.default_rng(0), P[0], 500, P, 0)
     outlines = region.outlines(P[0], P, 0)
     assert pts.shape == (500, 2) and outlines and all(len(o) >= 3 for o, _ in outlines)
@@ -156,4 +156,4 @@ def test_every_region_validates_samples_and_outlines_itself(spec):
 )
 def test_bad_regions_are_named(spec, match):
     with pytest.raises(ValueError, match=match):
-        dop.regions.as_region(spec)
+        dop.scene.regions.as_region(spec)

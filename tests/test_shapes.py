@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop import shapes
+from defop.scene import shapes
 
 SQUARE = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
 HOLE = np.array([[0.4, 0.4], [0.6, 0.4], [0.6, 0.6], [0.4, 0.6]], float)
@@ -25,7 +25,7 @@ EXPECTED = {  # name: (default vertices, moving, fixed)
 def test_polygon_with_hole_areas_orientation_and_loops():
     s = shapes.from_polygon(SQUARE, [HOLE], handles=[[0.1, 0.1], [0.9, 0.9]], n_vertices=400)
     m = s.mesh
-    assert np.all(dop.mesh.signed_areas(m.V, m.F) > 0)  # counter-clockwise
+    assert np.all(dop.geometry.mesh.signed_areas(m.V, m.F) > 0)  # counter-clockwise
     assert m.areas.sum() == pytest.approx(1.0 - 0.04, rel=1e-12)  # polygon minus hole, exactly
     loops = m.boundary_loops()
     assert len(loops) == 2
@@ -44,7 +44,7 @@ def test_named_shape(name):
     assert abs(s.mesh.n_vertices - n) <= 0.15 * n
     assert (s.n_moving, len(s.handles) - s.n_moving) == (n_moving, n_fixed)
     assert len(s.regions) == s.n_moving
-    assert np.all(dop.mesh.signed_areas(s.mesh.V, s.mesh.F) > 0)
+    assert np.all(dop.geometry.mesh.signed_areas(s.mesh.V, s.mesh.F) > 0)
     # every handle is exactly a mesh vertex, inside the outline, and the outline is one simple polygon
     assert np.array_equal(s.P, s.mesh.V[s.handles])
     assert shapes.points_in_polygon(s.P, s.outline).all()
@@ -257,14 +257,14 @@ def test_facade_keeps_the_public_names():
         "check_region",
     ):
         assert callable(getattr(shapes, name)), name
-    assert set(shapes.names()) == set(dop.models.CATALOGUE)
+    assert set(shapes.names()) == set(dop.scene.models.CATALOGUE)
 
 
 def test_regions_are_classes_that_still_read_like_dicts():
     s = shapes.load("octopus", n_vertices=600)
-    assert all(isinstance(r, dop.regions.Mixture) for r in s.regions[:8])
+    assert all(isinstance(r, dop.scene.regions.Mixture) for r in s.regions[:8])
     assert s.regions[0]["kind"] == "mixture" and s.regions[8]["radius"] == 0.12
-    assert dop.regions.as_region(s.regions[0].to_dict()) == s.regions[0]
+    assert dop.scene.regions.as_region(s.regions[0].to_dict()) == s.regions[0]
 
 
 def test_shape_handle_indices_are_integers_or_a_mask():

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop.solve import NotConvergedWarning, Solver, count_flips
+from defop.variational.solver import NotConvergedWarning, Solver, count_flips
 
 
 @pytest.fixture(scope="module")
@@ -23,9 +23,9 @@ def ginger():
 def test_arap_agrees_with_libigl(ginger):
     s, T = ginger
     solver = Solver(s.mesh, s.handles, "arap")
-    X0 = dop.solve.start_for(solver, T)
+    X0 = dop.variational.solver.start_for(solver, T)
     ours = solver.solve(T, X0=X0, tol=1e-12)
-    igl_ = dop.solve.solve_libigl_arap(s.mesh, s.handles, T, X0=X0, iterations=3000)
+    igl_ = dop.variational.solver.solve_libigl_arap(s.mesh, s.handles, T, X0=X0, iterations=3000)
     assert ours.converged
     assert abs(ours.energy - igl_.energy) <= 1e-6 * ours.energy
     assert np.abs(ours.X - igl_.X).max() <= 1e-5 * s.mesh.bbox_diagonal
@@ -54,8 +54,8 @@ def test_arap_folds_where_sarap_does_not():
     # (a single pulled hand folds only 0-1, depending on the mesh)
     move = np.array([[-0.4, 0.2], [0.4, 0.2], [-0.2, -0.3], [0.2, -0.3], [0.0, 0.3]])
     T = s.targets(s.P_moving + move)
-    arap = dop.solve.solve(s.mesh, s.handles, T, "arap")
-    sarap = dop.solve.solve(s.mesh, s.handles, T, "sarap")
+    arap = dop.solve(s.mesh, s.handles, T, "arap")
+    sarap = dop.solve(s.mesh, s.handles, T, "sarap")
     assert arap.converged and sarap.converged
     assert sarap.flips == 0 and arap.flips > 0
 
@@ -82,10 +82,10 @@ def test_iteration_limit_is_not_converged(ginger):
 
 def test_lbfgs_baseline_reaches_the_same_minimum(ginger):
     s, T = ginger
-    newton = dop.solve.solve(s.mesh, s.handles, T, "arap", tol=1e-12)
+    newton = dop.solve(s.mesh, s.handles, T, "arap", tol=1e-12)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        lbfgs = dop.solve.solve_lbfgs(s.mesh, s.handles, T, "arap", tol=1e-15)
+        lbfgs = dop.variational.solver.solve_lbfgs(s.mesh, s.handles, T, "arap", tol=1e-15)
     assert lbfgs.energy == pytest.approx(newton.energy, rel=1e-6)
 
 

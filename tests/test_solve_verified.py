@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import defop as dop
-from defop.solve import NotConvergedWarning, Solver
+from defop.variational.solver import NotConvergedWarning, Solver
 
 
 # ---------------------------------------------------------------- shapes
@@ -139,12 +139,12 @@ def test_agrees_with_finite_difference_newton():
             a, b, c, d = 5 * i + j, 5 * i + j + 1, 5 * (i + 1) + j, 5 * (i + 1) + j + 1
             F += [[a, b, d], [a, d, c]]
     F = np.array(F)
-    mesh = dop.mesh.Mesh(V, F)
+    mesh = dop.geometry.mesh.Mesh(V, F)
     assert len(F) == 32
     h = np.array([24, 0, 4])  # unsorted on purpose
     T = V[h] + [[0.15, 0.1], [0.0, 0.0], [0.05, -0.05]]
     for energy in ("arap", "isometric"):
-        ours = dop.solve.solve(mesh, h, T, energy)
+        ours = dop.solve(mesh, h, T, energy)
         assert ours.converged
         free = np.setdiff1d(np.arange(len(V)), h)
         X = V.copy()
@@ -183,7 +183,7 @@ def test_agrees_with_finite_difference_newton():
 def _mirrored(shape):
     V = shape.mesh.V.copy()
     V[:, 1] = V[:, 1].max() + V[:, 1].min() - V[:, 1]
-    return dop.mesh.Mesh(V, shape.mesh.F[:, ::-1])
+    return dop.geometry.mesh.Mesh(V, shape.mesh.F[:, ::-1])
 
 
 def test_bar_pushed_in_buckles_both_ways_not_the_saddle():
@@ -228,8 +228,8 @@ def test_handle_order_bar(energy):
     V = bar.mesh.V
     h = [39, 0]
     T = V[h] + [[0.1, 0.05], [0.0, 0.0]]
-    a = dop.solve.solve(bar.mesh, h, T, energy)
-    b = dop.solve.solve(bar.mesh, h[::-1], T[::-1], energy)
+    a = dop.solve(bar.mesh, h, T, energy)
+    b = dop.solve(bar.mesh, h[::-1], T[::-1], energy)
     assert a.converged and b.converged
     assert np.abs(a.X[h] - T).max() <= 1e-12 * bar.mesh.bbox_diagonal
     assert np.abs(a.X - b.X).max() <= 1e-10 * bar.mesh.bbox_diagonal
@@ -240,10 +240,10 @@ def test_handle_order_star_with_hole(energy):
     shape = star_with_hole(7)
     h = np.array([4, 0, 2])
     T = shape.mesh.V[h] + 0.05 * shape.mesh.bbox_diagonal * np.array([[1.0, 0.5], [-0.5, 0.2], [0.0, -1.0]])
-    res = dop.solve.solve(shape.mesh, h, T, energy)
+    res = dop.solve(shape.mesh, h, T, energy)
     assert res.converged
     assert np.abs(res.X[h] - T).max() <= 1e-12 * shape.mesh.bbox_diagonal
-    lb = dop.solve.solve_lbfgs(shape.mesh, h, T, energy, tol=1e-14)
+    lb = dop.variational.solver.solve_lbfgs(shape.mesh, h, T, energy, tol=1e-14)
     assert np.abs(lb.X[h] - T).max() <= 1e-12 * shape.mesh.bbox_diagonal
 
 
@@ -257,7 +257,7 @@ def test_star_trained_with_unsorted_handles_reproduces_its_samples():
     samples = shape.P_moving + 0.04 * base.mesh.bbox_diagonal * rng.normal(size=(10,) + shape.P_moving.shape)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        op, rec = dop.train.train(shape, "arap", "tps", samples=samples, n_jobs=1, cache=False, progress=False)
+        op, rec = dop.train(shape, "arap", "tps", samples=samples, n_jobs=1, cache=False, progress=False)
     assert rec.converged.all()
     for q, X in zip(samples, rec.X):
         assert np.abs(X[h] - shape.targets(q)).max() <= 1e-12 * base.mesh.bbox_diagonal
@@ -268,14 +268,14 @@ def test_adjacent_handles_sent_to_one_point_is_not_converged():
     bar = dop.shapes.load("bar")
     a, b = bar.mesh.F[0][:2]
     with pytest.warns(NotConvergedWarning):
-        res = dop.solve.solve(bar.mesh, [a, b], bar.mesh.V[[a, a]], "sarap")
+        res = dop.solve(bar.mesh, [a, b], bar.mesh.V[[a, a]], "sarap")
     assert not res.converged and "collapse" in res.reason
 
 
 def test_target_at_1e300_is_rejected():
     bar = dop.shapes.load("bar")
     with pytest.raises(ValueError, match="overflow"):
-        dop.solve.solve(bar.mesh, [0, 39], [[1e300, 0.0], bar.mesh.V[39]], "sarap")
+        dop.solve(bar.mesh, [0, 39], [[1e300, 0.0], bar.mesh.V[39]], "sarap")
 
 
 def test_sarap_reports_eq11_optimum_not_the_smoothed_one():
@@ -306,8 +306,8 @@ def test_uniform_scaling_holds_every_triangle_on_the_kink(s):
     T = s * mesh.V[b]
     check = solver.verify(s * mesh.V, solver.targets_of(T))
     assert check.ok
-    S = dop.energies.svd_frame(mesh.jacobians(s * mesh.V))[0]
-    assert dop.energies.on_kink(S, dop.solve.KINK).all()
+    S = dop.variational.energies.svd_frame(mesh.jacobians(s * mesh.V))[0]
+    assert dop.variational.energies.on_kink(S, dop.variational.solver.KINK).all()
     res = solver.solve(T)
     assert res.converged and res.start == "rest"
     assert np.abs(res.X - s * mesh.V).max() <= 1e-6 * mesh.bbox_diagonal  # held triangles keep offsets (see Solver)
@@ -329,7 +329,7 @@ def test_near_conformal_pinned_boundary_ends_within_verify_tol_of_the_minimum():
     T = 0.7 * mesh.V[b] + 1e-6 * mesh.bbox_diagonal * np.random.default_rng(5).normal(size=(len(b), 2))
     a = Solver(mesh, b, "sarap").solve(T)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", dop.solve.NotConvergedWarning)
+        warnings.simplefilter("ignore", dop.variational.NotConvergedWarning)
         ref = Solver(mesh, b, "sarap", smoothing=(1e-7, 1e-9, 1e-11, 1e-13)).solve(T, X0=a.X, tol=1e-14)
     assert not a.converged or ref.energy >= a.energy * (1 - 1e-6)
 

@@ -16,7 +16,7 @@ def bar_op(tmp_path_factory):
     shape = dop.shapes.load("bar", n_vertices=200)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        op, _ = dop.train.train(shape, "arap", "tps", m=8, seed=1, progress=False, cache=False)
+        op, _ = dop.train(shape, "arap", "tps", m=8, seed=1, progress=False, cache=False)
     return op
 
 
@@ -24,7 +24,7 @@ def bar_op(tmp_path_factory):
 def test_a_unit_square_far_from_the_origin_meshes(offset):
     """The shoelace area cancelled to 0 at an offset of 1e8 ('the outer polygon has zero area')."""
     sq = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float) + offset
-    assert dop.polygon.polygon_area(sq) == 1.0
+    assert dop.geometry.planar.polygon.polygon_area(sq) == 1.0
     shape = dop.shapes.from_polygon(sq, handles=[[offset + 0.5, offset + 0.5]], n_vertices=100)
     assert abs(shape.mesh.areas.sum() - 1.0) < 1e-6
 
@@ -57,25 +57,25 @@ def test_a_misplaced_operator_entry_is_not_used(tmp_path, monkeypatch):
     shape = dop.shapes.load("bar", n_vertices=200)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        dop.train.train(shape, "arap", "tps", m=8, seed=1, progress=False)
-        dop.train.train(shape, "arap", "linear", m=8, seed=1, progress=False)
+        dop.train(shape, "arap", "tps", m=8, seed=1, progress=False)
+        dop.train(shape, "arap", "linear", m=8, seed=1, progress=False)
     entries = sorted(tmp_path.glob("op-*.npz"))
     assert len(entries) == 2
-    kinds = {p: dop.operator.DefOp.load(p).handle_basis.kind for p in entries}
+    kinds = {p: dop.DefOp.load(p).handle_basis.kind for p in entries}
     tps = next(p for p, k in kinds.items() if k == "tps")
     lin = next(p for p, k in kinds.items() if k == "linear")
     shutil.copyfile(lin, tps)
-    with pytest.warns(dop.cache.CacheWarning, match="not the requested"):
-        op, record = dop.train.train(shape, "arap", "tps", m=8, seed=1, progress=False)
+    with pytest.warns(dop.training.cache.CacheWarning, match="not the requested"):
+        op, record = dop.train(shape, "arap", "tps", m=8, seed=1, progress=False)
     assert op.handle_basis.kind == "tps" and record.cache != "operator"
 
 
 def test_duplicate_samples_are_named_with_their_own_index():
     shape = dop.shapes.load("bar", n_vertices=200)
-    samples = dop.sampling.sample_shape(shape, 6, np.random.default_rng(0))
+    samples = dop.training.sampling.sample_shape(shape, 6, np.random.default_rng(0))
     samples[2] = samples[0]
     with pytest.raises(ValueError, match=r"samples 0 and 2 are the same handle configuration"):
-        dop.train.train(shape, "arap", "tps", samples=samples, progress=False, cache=False)
+        dop.train(shape, "arap", "tps", samples=samples, progress=False, cache=False)
 
 
 def test_isometric_exp_solve_does_not_crawl_from_a_huge_stage_start():
@@ -84,7 +84,7 @@ def test_isometric_exp_solve_does_not_crawl_from_a_huge_stage_start():
     shape = dop.shapes.load("bar", 40)
     handles = [24, 23, 22, 25]
     targets = np.array([[-0.024, 0.101], [0.077, 0.13], [0.907, 0.103], [0.118, 0.263]])
-    r = dop.solve.Solver(shape.mesh, handles, "isometric_exp").solve(targets)
+    r = dop.variational.Solver(shape.mesh, handles, "isometric_exp").solve(targets)
     assert r.converged, r.reason
     assert r.energy < 0.2  # the symmetric Dirichlet minimiser has exp-energy 0.117: a feasible upper bound
 
@@ -99,36 +99,36 @@ def test_handle_distortion_rejects_bad_vertices_and_non_finite_x():
     X[h] += 0.05
     for bad in ([mesh.n_vertices], [-1], [2.5], []):
         with pytest.raises(ValueError, match="handle|vertex"):
-            dop.distortion.handle_distortion(mesh, X, bad)
+            dop.analysis.distortion.handle_distortion(mesh, X, bad)
     mask = np.zeros(mesh.n_vertices, bool)
     mask[h] = True
-    by_mask, by_index = (dop.distortion.handle_distortion(mesh, X, v) for v in (mask, h))
+    by_mask, by_index = (dop.analysis.distortion.handle_distortion(mesh, X, v) for v in (mask, h))
     assert all(np.array_equal(by_mask[k], by_index[k]) for k in by_index)
     X[5] = np.nan
     with pytest.raises(ValueError, match="NaN"):
-        dop.distortion.deformation_summary(mesh, X, h)
+        dop.analysis.deformation_summary(mesh, X, h)
 
 
 def test_grid_error_rejects_a_ground_truth_of_another_moving_handle():
     """grid_error(op, truth) with the default moving=0 on a ground truth solved for moving handle 1 returned an
     error 500x too large without a word (gingerbread, 5 moving handles); moving=1.5 raised numpy's IndexError."""
     shape = dop.shapes.load("gingerbread", 60)
-    grid = dop.trajectories.handle_grid(shape.P_moving[1], 0.1, 3)
+    grid = dop.analysis.trajectories.handle_grid(shape.P_moving[1], 0.1, 3)
     Q = np.repeat(shape.P_moving[None], grid.size, axis=0)
     Q[:, 1] = grid.positions.reshape(-1, 2)
     # a synthetic ground truth: every vertex translated with handle 1 except the other handles, exactly on Q
     X = shape.mesh.V[None] + (Q[:, 1] - shape.P_moving[1])[:, None, :]
     X[:, shape.moving_handles] = Q
-    truth = dop.trajectories.Trajectory(grid=grid, X=X.reshape(3, 3, -1, 2), rest=shape.mesh.V, kind="global")
+    truth = dop.analysis.trajectories.Trajectory(grid=grid, X=X.reshape(3, 3, -1, 2), rest=shape.mesh.V, kind="global")
     Qk = shape.P_moving + np.random.default_rng(0).normal(scale=0.05, size=(16, 5, 2))
     Xk = shape.mesh.V[None] + Qk.mean(axis=1, keepdims=True) - shape.P_moving.mean(axis=0)
     Xk[:, shape.moving_handles] = Qk
-    op = dop.fit.fit_shape(shape, Qk, Xk, "linear")
-    assert dop.figure_data.grid_error(op, truth, moving=1) >= 0.0
+    op = dop.operator.fit.fit_shape(shape, Qk, Xk, "linear")
+    assert dop.analysis.figure_data.grid_error(op, truth, moving=1) >= 0.0
     with pytest.raises(ValueError, match="another moving handle"):
-        dop.figure_data.grid_error(op, truth)
+        dop.analysis.figure_data.grid_error(op, truth)
     with pytest.raises(ValueError, match="integer index"):
-        dop.figure_data.grid_error(op, truth, moving=1.5)
+        dop.analysis.figure_data.grid_error(op, truth, moving=1.5)
 
 
 def test_local_rotation_rejects_nan_and_a_center_of_the_wrong_shape():
@@ -139,12 +139,12 @@ def test_local_rotation_rejects_nan_and_a_center_of_the_wrong_shape():
     near = np.linalg.norm(V - V[3], axis=1) <= 1.0
     assert near.sum() >= 2
     with pytest.raises(ValueError, match="NaN"):
-        dop.figure_data.local_rotation(V, X, V[3], 1.0)
+        dop.analysis.figure_data.local_rotation(V, X, V[3], 1.0)
     with pytest.raises(ValueError, match="center"):
-        dop.figure_data.local_rotation(V, V, [0.0, 0.0, 0.0], 10.0)
+        dop.analysis.figure_data.local_rotation(V, V, [0.0, 0.0, 0.0], 10.0)
     c, s = np.cos(0.5), np.sin(0.5)
     turned = V @ np.array([[c, s], [-s, c]])  # rows rotated counter-clockwise by 0.5 rad
-    assert dop.figure_data.local_rotation(V, turned, V[3], 1.0) == pytest.approx(np.degrees(0.5))
+    assert dop.analysis.figure_data.local_rotation(V, turned, V[3], 1.0) == pytest.approx(np.degrees(0.5))
 
 
 def test_range_and_error_rejects_nan_at_measured_points():
@@ -153,10 +153,10 @@ def test_range_and_error_rejects_nan_at_measured_points():
     bad = np.ones((3, 3, 2))
     bad[0, 0, 0] = np.nan
     with pytest.raises(ValueError, match="'approx'.*NaN"):
-        dop.trajectories.range_and_error({"ground truth": ref, "approx": bad})
+        dop.analysis.trajectories.range_and_error({"ground truth": ref, "approx": bad})
     mask = np.ones((3, 3), bool)
     mask[0, 0] = False  # a NaN where nothing is measured is fine
-    out = dop.trajectories.range_and_error({"ground truth": ref, "approx": bad}, mask=mask)
+    out = dop.analysis.trajectories.range_and_error({"ground truth": ref, "approx": bad}, mask=mask)
     assert out["approx"]["max_error"] == pytest.approx(np.sqrt(2))
 
 
@@ -164,9 +164,10 @@ def test_isometric_exp_still_converges_on_a_huge_stretch():
     """The stage rule above bounds the growth of max log(1 + ψ), not ψ: an absolute cap (e^20) failed this stretch,
     whose minimum has ψ ~ 1e10."""
     shape = dop.shapes.load("bar", 40)
-    r = dop.solve.Solver(shape.mesh, shape.handles, "isometric_exp").solve(shape.targets(shape.P_moving + [8.0, 0.0]))
+    solver = dop.variational.Solver(shape.mesh, shape.handles, "isometric_exp")
+    r = solver.solve(shape.targets(shape.P_moving + [8.0, 0.0]))
     assert r.converged, r.reason
-    assert dop.energies.density(shape.mesh.jacobians(r.X), "isometric_exp").max() > 1e9
+    assert dop.variational.energies.density(shape.mesh.jacobians(r.X), "isometric_exp").max() > 1e9
 
 
 def test_deformation_summary_of_a_collapsed_map_is_not_nan():
@@ -174,7 +175,7 @@ def test_deformation_summary_of_a_collapsed_map_is_not_nan():
     shape = dop.shapes.load("bar", 40)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        s = dop.distortion.deformation_summary(shape.mesh, np.zeros_like(shape.mesh.V), shape.moving_handles)
+        s = dop.analysis.deformation_summary(shape.mesh, np.zeros_like(shape.mesh.V), shape.moving_handles)
     assert s["median_conformal"] == np.inf and s["flips"] == shape.mesh.n_faces and s["area_change"] == -1.0
 
 
@@ -182,10 +183,11 @@ def test_deformation_summary_of_a_collapsed_map_is_not_nan():
 def test_energies_reject_jacobians_that_are_not_m_by_2_by_2(energy):
     """A (1,3,3) array gave ψ = 0 from its top-left 2×2 without a word; a single (2,2) matrix an IndexError."""
     for J in (np.eye(3)[None], np.eye(2), np.ones((1, 4))):
-        for f in (dop.energies.density, dop.energies.gradient, dop.energies.hessian):
+        en = dop.variational.energies
+        for f in (en.density, en.gradient, en.hessian):
             with pytest.raises(ValueError, match=r"\(m,2,2\)"):
                 f(J, energy)
-    assert dop.energies.density(np.eye(2, dtype=int)[None], energy) == pytest.approx([0.0])
+    assert dop.variational.energies.density(np.eye(2, dtype=int)[None], energy) == pytest.approx([0.0])
 
 
 def test_isometric_max_brackets_the_squared_max_distortion():
@@ -196,8 +198,8 @@ def test_isometric_max_brackets_the_squared_max_distortion():
     J = J[np.linalg.det(J) > 0]
     s = np.linalg.svd(J, compute_uv=False)
     top = np.maximum(s[:, 0], 1 / s[:, 1]) ** 2
-    rest = 4 ** (2 / dop.energies.MAX_POWER)
-    shifted = dop.energies.density(J, "isometric_max") + rest
+    rest = 4 ** (2 / dop.variational.energies.MAX_POWER)
+    shifted = dop.variational.energies.density(J, "isometric_max") + rest
     assert np.all(top * (1 - 1e-12) <= shifted) and np.all(shifted <= rest * top * (1 + 1e-12))
 
 
@@ -217,7 +219,7 @@ def _perturbed_resolve(solver, T, X):
     D[solver.handles] = 0
     D *= 1e-5 * solver.mesh.bbox_diagonal / np.abs(D).max()
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", dop.solve.NotConvergedWarning)
+        warnings.simplefilter("ignore", dop.variational.NotConvergedWarning)
         return solver.solve(T, X0=X + D)
 
 
@@ -227,7 +229,7 @@ def test_sarap_converged_is_a_local_minimum_on_star_3273():
     pulled off it 1.083 times harder than its cone bears; a re-solve from a 1e-5 perturbation ended 1.6e-5 lower.
     Now the μ = 0 Newton stage releases that triangle (active set) and ends at the lower minimum."""
     mesh, h, T = _star_3273()
-    solver = dop.solve.Solver(mesh, h, "sarap")
+    solver = dop.variational.Solver(mesh, h, "sarap")
     a = solver.solve(T)
     assert a.converged and a.start == "rest" and "1 triangle(s) released from the kink" in a.reason
     assert a.energy < 0.53895159 * (1 - 1.5e-5)  # the old point: 0.5389515952
@@ -239,8 +241,8 @@ def test_star_3273_without_releases_escapes_the_kink_from_check_4(monkeypatch):
     """The second line of defence: with no releases in Newton, check 4 fails ("kink") at the old point and the
     solve escapes along the pull, as it escapes a saddle, to the same minimum."""
     mesh, h, T = _star_3273()
-    monkeypatch.setattr(dop.solve, "MAX_RELEASES", 0)
-    solver = dop.solve.Solver(mesh, h, "sarap")
+    monkeypatch.setattr(dop.variational.solver, "MAX_RELEASES", 0)
+    solver = dop.variational.Solver(mesh, h, "sarap")
     a = solver.solve(T)
     assert a.converged and a.start == "rest > off kink"
     assert [c[2] for c in a.candidates] == [False, True]
@@ -251,8 +253,8 @@ def test_the_old_check_4_passed_star_3273_and_verify_now_rejects_that_point(monk
     """Without the equilibrium test on the cone (the old check 4), the solve stops on the kink and calls it
     converged; :meth:`Solver.verify` rejects that point with "kink" and names the triangle and its pull."""
     mesh, h, T = _star_3273()
-    solver = dop.solve.Solver(mesh, h, "sarap")
-    monkeypatch.setattr(dop.solve.Solver, "_kink_pull", lambda self, X, local, p, hold: (0.0, None, None, []))
+    solver = dop.variational.Solver(mesh, h, "sarap")
+    monkeypatch.setattr(dop.variational.Solver, "_kink_pull", lambda self, X, local, p, hold: (0.0, None, None, []))
     old = solver.solve(T)
     assert old.converged and old.start == "rest"
     monkeypatch.undo()
@@ -267,7 +269,7 @@ def test_analysis_and_trajectories_name_bad_input():
     IndexError in flips, repeats=0 or k=0 timed anyway (k=0: 0 FPS), batch=0 a range() error, a list for the grid
     an AttributeError, and pareto_front left a NaN method off the front without a word."""
     s = dop.shapes.load("bar")
-    op, _ = dop.train.train(s, "sarap", "tps", m=17, seed=0, progress=False)
+    op, _ = dop.train(s, "sarap", "tps", m=17, seed=0, progress=False)
     Qs = s.P_moving + 0.05 * np.random.default_rng(0).normal(size=(3, s.n_moving, 2))
     X = op(Qs)
     with pytest.raises(ValueError, match=r"X_true has NaN or infinite entries \(first in sample 1\)"):
@@ -275,16 +277,16 @@ def test_analysis_and_trajectories_name_bad_input():
     with pytest.raises(ValueError, match=r"samples must have shape \(k, 1, 2\), k >= 1"):
         dop.analysis.flips(op, Qs[0])
     with pytest.raises(ValueError, match="repeats must be an integer >= 1, got 0"):
-        dop.analysis.frame_rate(op, Qs, repeats=0)
+        dop.analysis.metrics.frame_rate(op, Qs, repeats=0)
     with pytest.raises(ValueError, match="k must be an integer >= 1, got 0"):
-        dop.analysis.batch_frame_rate(op, Qs, k=0)
-    grid = dop.trajectories.handle_grid(s.P_moving[0], 0.1, 3)
+        dop.analysis.metrics.batch_frame_rate(op, Qs, k=0)
+    grid = dop.analysis.trajectories.handle_grid(s.P_moving[0], 0.1, 3)
     with pytest.raises(ValueError, match="batch must be an integer >= 1, got 0"):
-        dop.trajectories.defop_trajectories(op, grid, batch=0)
+        dop.analysis.trajectories.defop_trajectories(op, grid, batch=0)
     with pytest.raises(ValueError, match="grid must be a HandleGrid"):
-        dop.trajectories.defop_trajectories(op, [[0.0, 0.0]])
+        dop.analysis.trajectories.defop_trajectories(op, [[0.0, 0.0]])
     with pytest.raises(ValueError, match="cost and error must be finite"):
-        dop.compare.pareto_front([1.0, np.nan], [1.0, 2.0])
+        dop.analysis.compare.pareto_front([1.0, np.nan], [1.0, 2.0])
     with pytest.raises(ValueError, match="one length"):
-        dop.compare.pareto_front([1.0, 2.0], [1.0])
+        dop.analysis.compare.pareto_front([1.0, 2.0], [1.0])
     assert dop.analysis.approximation_error(op, Qs, X) == 0.0

@@ -19,7 +19,7 @@ def _cache(tmp_path, monkeypatch):
 
 
 def test_train_stages_and_claims(bar):
-    op, rec = dop.train.train(bar, "sarap", "tps", m=12, seed=1, n_jobs=1, progress=False)
+    op, rec = dop.train(bar, "sarap", "tps", m=12, seed=1, n_jobs=1, progress=False)
     assert set(rec.stage_times) == {"bootstrap", "solve", "fit", "fold"} and rec.cache == "none"
     assert rec.converged.all() and rec.X.shape == (12, bar.mesh.n_vertices, 2)
     assert np.abs(op(rec.samples) - rec.X).max() < 1e-8  # Prop. 1 on the training set
@@ -30,19 +30,19 @@ def test_train_stages_and_claims(bar):
 
 
 def test_cache_returns_the_same_operator_and_reuses_ground_truth(bar):
-    a, ra = dop.train.train(bar, "sarap", "tps", m=10, seed=2, n_jobs=1, progress=False)
-    b, rb = dop.train.train(bar, "sarap", "tps", m=10, seed=2, n_jobs=1, progress=False)
+    a, ra = dop.train(bar, "sarap", "tps", m=10, seed=2, n_jobs=1, progress=False)
+    b, rb = dop.train(bar, "sarap", "tps", m=10, seed=2, n_jobs=1, progress=False)
     assert rb.cache == "operator" and np.array_equal(a(ra.samples), b(rb.samples))
-    c, rc = dop.train.train(bar, "sarap", "linear", m=10, seed=2, n_jobs=1, progress=False)
+    c, rc = dop.train(bar, "sarap", "linear", m=10, seed=2, n_jobs=1, progress=False)
     assert rc.cache == "ground truth" and np.array_equal(rc.X, ra.X)
-    d, rd = dop.train.train(bar, "sarap", "tps", m=10, seed=3, n_jobs=1, progress=False)
+    d, rd = dop.train(bar, "sarap", "tps", m=10, seed=3, n_jobs=1, progress=False)
     assert rd.cache == "none"  # another seed, other samples
 
 
 def test_parallel_solves_match_serial(bar):
-    Q = dop.sampling.sample_shape(bar, 6, 5)
-    Xs, cs = dop.train.solve_samples(bar, Q, "arap", n_jobs=1, progress=False)
-    Xp, cp = dop.train.solve_samples(bar, Q, "arap", n_jobs=2, progress=False)
+    Q = dop.training.sampling.sample_shape(bar, 6, 5)
+    Xs, cs = dop.training.solve_samples(bar, Q, "arap", n_jobs=1, progress=False)
+    Xp, cp = dop.training.solve_samples(bar, Q, "arap", n_jobs=2, progress=False)
     assert cs.all() and cp.all() and np.allclose(Xs, Xp, atol=1e-12)
 
 
@@ -51,11 +51,11 @@ def test_dask_backend(bar):
     import joblib
     from dask.distributed import Client, LocalCluster
 
-    Q = dop.sampling.sample_shape(bar, 4, 6)
-    Xs, _ = dop.train.solve_samples(bar, Q, "arap", n_jobs=1, progress=False)
+    Q = dop.training.sampling.sample_shape(bar, 4, 6)
+    Xs, _ = dop.training.solve_samples(bar, Q, "arap", n_jobs=1, progress=False)
     with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
         with Client(cluster), joblib.parallel_backend("dask"):
-            Xd, cd = dop.train.solve_samples(bar, Q, "arap", n_jobs=-1, progress=False)
+            Xd, cd = dop.training.solve_samples(bar, Q, "arap", n_jobs=-1, progress=False)
     assert cd.all() and np.allclose(Xs, Xd, atol=1e-12)
 
 
@@ -67,32 +67,32 @@ def no_solves(monkeypatch):
     def fail(*a, **k):
         raise AssertionError("a solve ran before the options were checked")
 
-    monkeypatch.setattr(dop.solve.Solver, "solve", fail)  # the primitive every driver calls
+    monkeypatch.setattr(dop.variational.Solver, "solve", fail)  # the primitive every driver calls
 
 
 @pytest.mark.parametrize("basis", ["linear", "quadratic", "cubic", "tps"])
 def test_too_few_samples_names_the_basis_and_its_minimum(bar, basis, no_solves):
-    need = dop.train.min_samples(basis, bar.n_moving)
+    need = dop.training.min_samples(basis, bar.n_moving)
     with pytest.raises(ValueError) as exc:
-        dop.train.train(bar, "sarap", basis, m=need - 1, n_jobs=1, progress=False)
+        dop.train(bar, "sarap", basis, m=need - 1, n_jobs=1, progress=False)
     msg = str(exc.value)
     assert f"the {basis} handle basis needs at least {need} samples" in msg and f"m = {need - 1}" in msg
     assert basis == "linear" or "linear" not in msg
     with pytest.raises(ValueError, match=f"the {basis} handle basis needs at least {need} samples"):
-        dop.train.train(bar, "sarap", basis, samples=np.tile(bar.P_moving, (need - 1, 1, 1)) + 0.1, progress=False)
+        dop.train(bar, "sarap", basis, samples=np.tile(bar.P_moving, (need - 1, 1, 1)) + 0.1, progress=False)
 
 
 def test_tps_with_one_sample_complains_about_tps(bar, no_solves):
     with pytest.raises(ValueError, match=r"the tps handle basis needs at least 3 samples .* got m = 1") as exc:
-        dop.train.train(bar, basis="tps", m=1, n_jobs=1, progress=False)
+        dop.train(bar, basis="tps", m=1, n_jobs=1, progress=False)
     assert "linear" not in str(exc.value)
 
 
 @pytest.mark.parametrize("basis", ["linear", "quadratic", "cubic", "tps"])
 def test_the_minimum_number_of_samples_trains(bar, basis):
     """The minimum is exact: that many samples train, and the operator reproduces them (Prop. 1/2)."""
-    need = dop.train.min_samples(basis, bar.n_moving)
-    op, rec = dop.train.train(bar, "arap", basis, m=need, seed=3, n_jobs=1, progress=False, cache=False)
+    need = dop.training.min_samples(basis, bar.n_moving)
+    op, rec = dop.train(bar, "arap", basis, m=need, seed=3, n_jobs=1, progress=False, cache=False)
     assert op.meta["basis"] == basis and rec.X.shape[0] == need
     assert np.abs(op(bar.P_moving) - bar.mesh.V).max() < 1e-10  # rest pose exact, (8b)
 
@@ -128,14 +128,14 @@ BAD_TRAIN_OPTIONS = [
 def test_train_rejects_bad_options_by_name(bar, options, message, no_solves):
     kw = dict(energy="sarap", basis="tps", m=12, n_jobs=1, progress=False) | options
     with pytest.raises(ValueError, match=message):
-        dop.train.train(bar, **kw)
+        dop.train(bar, **kw)
 
 
 def test_a_bad_defop_n_jobs_is_named_before_any_work(bar, monkeypatch, no_solves):
     for value in ("many", "0", "1.5"):
         monkeypatch.setenv("DEFOP_N_JOBS", value)
         with pytest.raises(ValueError, match=f"DEFOP_N_JOBS='{value}' must be a non-zero integer"):
-            dop.train.train(bar, m=12, progress=False)
+            dop.train(bar, m=12, progress=False)
 
 
 BAD_HELD_OUT = [
@@ -152,12 +152,12 @@ BAD_HELD_OUT = [
 def test_held_out_rejects_bad_options_by_name(bar, options, message, no_solves):
     kw = dict(energy="sarap", m=4, seed=9, n_jobs=1, progress=False) | options
     with pytest.raises(ValueError, match=message):
-        dop.train.held_out(bar, **kw)
+        dop.training.held_out(bar, **kw)
 
 
 @pytest.mark.parametrize("function", ["solve_samples", "sample_ground_truth"])
 def test_sample_solvers_reject_bad_options_by_name(bar, function, no_solves):
-    solve = getattr(dop.train, function)
+    solve = getattr(dop.training.bootstrap, function)
     Q = np.tile(bar.P_moving, (3, 1, 1)) + 0.05
     with pytest.raises(ValueError, match="unknown energy 'ARAP'"):
         solve(bar, Q, "ARAP", progress=False)
@@ -173,7 +173,7 @@ def test_sample_solvers_reject_bad_options_by_name(bar, function, no_solves):
 
 def test_the_largest_reduced_basis_allowed_trains(bar):
     k = bar.mesh.n_vertices - 4  # the bound train checks before any solve
-    op, _ = dop.train.train(bar, "arap", "linear", m=2, spatial="reduced", k=k, n_jobs=1, progress=False, cache=False)
+    op, _ = dop.train(bar, "arap", "linear", m=2, spatial="reduced", k=k, n_jobs=1, progress=False, cache=False)
     assert op.meta["spatial"] == "reduced" and op.meta["spatial_size"] == k
 
 
@@ -186,6 +186,6 @@ def test_equal_given_samples_are_refused_before_any_solve(monkeypatch):
     def no_solve(*args, **kw):
         raise AssertionError("solved before checking the samples")
 
-    monkeypatch.setattr(dop.train, "solve_samples", no_solve)
+    monkeypatch.setattr(dop.training.bootstrap, "solve_samples", no_solve)
     with pytest.raises(ValueError, match="samples 1 and 4 are the same handle configuration"):
-        dop.train.train(bar, "sarap", "tps", samples=samples, progress=False)
+        dop.train(bar, "sarap", "tps", samples=samples, progress=False)

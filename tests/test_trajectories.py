@@ -1,12 +1,12 @@
-"""Tests for defop.trajectories: grids, paths, plane fit, jump detection, DefOp trajectories."""
+"""Tests for defop.analysis.trajectories: grids, paths, plane fit, jump detection, DefOp trajectories."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from defop import trajectories as tr
-from defop.mesh import Mesh
+from defop.analysis.metrics import trajectories as tr
+from defop.geometry.mesh import Mesh
 
 
 # ----------------------------------------------------------------- fixtures

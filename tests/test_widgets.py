@@ -22,7 +22,7 @@ from matplotlib.backend_bases import MouseEvent
 from PIL import Image
 
 import defop as dop
-from defop.editor_state import EditorState, readout_text
+from defop.editor.state import EditorState, readout_text
 
 M_TRAIN = 12  # samples per operator: enough for the linear basis (1 + 2n functions) on the bar
 
@@ -36,7 +36,7 @@ def setup(tmp_path_factory):
     shape = dop.shapes.load("bar", n_vertices=150)
     operators = {}
     for kind in ("linear", "tps"):
-        operators[kind], _record = dop.train.train(shape, basis=kind, m=M_TRAIN, seed=0, progress=False, n_jobs=1)
+        operators[kind], _record = dop.train(shape, basis=kind, m=M_TRAIN, seed=0, progress=False, n_jobs=1)
     yield shape, operators
     mp.undo()
 
@@ -49,7 +49,7 @@ def state(setup):
 
 @pytest.fixture
 def editor(state):
-    ed = dop.widgets.HandleEditor(state)
+    ed = dop.editor.widgets.HandleEditor(state)
     yield ed
     ed.close()
 
@@ -167,7 +167,7 @@ def test_ground_truth_is_solved_on_release_only(state):
 
 # ---------------------------------------------------------------------------------------------- views
 def test_canvas_picture_follows_the_state(state):
-    view = dop.widgets.CanvasView(state, interactive=False)
+    view = dop.editor.widgets.CanvasView(state, interactive=False)
     before = _png(view.png())
     state.set_handle(0, state.P[0] + _offset(state))
     view.refresh()
@@ -221,7 +221,7 @@ def test_controls_drive_the_state(editor):
 
 
 def test_static_bundle_is_a_picture_and_a_line(state):
-    bundle = dop.widgets.static_bundle(state)
+    bundle = dop.editor.widgets.static_bundle(state)
     import base64
 
     image = _png(base64.b64decode(bundle["image/png"]))

@@ -1,0 +1,473 @@
+"""Closed-form point-handle deformations that people use instead of DefOp: the peers of notebook 12.
+
+Each method is split into a *precompute* on the rest mesh and rest handles P, and an *evaluate* that maps
+handle positions Q to deformed vertex positions X, like ``DefOp.__call__``:
+
+- MLS similarity and rigid: Schaefer, McPhail & Warren 2006, §2.2 (μ_s) and §2.3 (f_r); O(n h) per frame.
+- Bookstein's thin-plate-spline warp: Bookstein 1989, §2 (U(r) = r² log r², the L matrix); X = G Q.
+- BBW + LBS: Jacobson, Baran, Popović & Sorkine 2011 (libigl ``bbw``), translations only; X = V + W (Q − P).
+- Biharmonic coordinates: Wang, Jacobson et al. 2015 (libigl ``biharmonic_coordinates``); X = W Q.
+- ARAP iterations: Sorkine & Alexa 2007 (libigl ``arap_solve``); k local-global steps per frame.
+
+Here P and Q hold *all* handles (h,2), fixed ones included; :func:`make_peer` wraps a method as a
+:class:`Peer` that takes the moving handles only, as a DefOp does, so one harness
+(:mod:`defop.analysis.compare`) times and scores them all.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+KINDS = ("mls-similarity", "mls-rigid", "tps", "bbw-lbs", "biharmonic", "arap")
+
+
+# ----------------------------------------------------------------------------------------------
+# input checks
+# ----------------------------------------------------------------------------------------------
+def _check_points(A, name, n=None):
+    A = np.asarray(A, dtype=float)
+    if A.ndim != 2 or A.shape[1] != 2 or (n is not None and len(A) != n):
+        want = f"({n}, 2)" if n is not None else "(n, 2)"
+        raise ValueError(f"{name} must have shape {want}, got {A.shape}")
+    if not np.isfinite(A).all():
+        raise ValueError(f"{name} has NaN or infinite entries")
+    return A
+
+
+def _check_handles(P, min_count=1, method="this method"):
+    P = _check_points(P, "P")
+    if len(P) < min_count:
+        raise ValueError(f"{method} needs at least {min_count} handles, got {len(P)}")
+    d = np.linalg.norm(P[:, None] - P[None], axis=-1) + np.eye(len(P))
+    i, j = np.unravel_index(np.argmin(d), d.shape)
+    if len(P) > 1 and d[i, j] < 1e-12 * max(1.0, np.abs(P).max()):
+        raise ValueError(f"handles {min(i, j)} and {max(i, j)} coincide at {P[i].tolist()}")
+    return P
+
+
+def _check_Q(Q, h):
+    Q = np.asarray(Q, dtype=float)
+    if Q.shape != (h, 2):
+        raise ValueError(f"Q must have shape ({h}, 2) for the {h} handles, got {Q.shape}")
+    if not np.isfinite(Q).all():
+        raise ValueError("Q has NaN or infinite entries")
+    return Q
+
+
+# ----------------------------------------------------------------------------------------------
+# Moving least squares (Schaefer, McPhail & Warren 2006)
+# ----------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class MLSPrecomputed:
+    """What MLS keeps between frames.
+
+    Attributes
+    ----------
+    kind : str
+        ``"similarity"`` or ``"rigid"``.
+    M : (2n, 2h) numpy array
+        Σ_i q_i A_i(v) / μ(v) as a matrix on the stacked Q (μ = μ_s for similarity, 1 for rigid).
+    Wn : (n, h) numpy array
+        Normalised weights w_i / Σ_j w_j: q* = Wn Q.
+    d_norm : (n,) numpy array
+        |v − p*|, the length f_r keeps (rigid only).
+    at_handle : (n,) int numpy array
+        The handle a vertex sits on, or −1 (there the weights are infinite and f(v) = q_i).
+    """
+
+    kind: str
+    M: np.ndarray
+    Wn: np.ndarray
+    d_norm: np.ndarray
+    at_handle: np.ndarray
+
+
+def mls_precompute(V, P, kind="rigid", alpha=1.0):
+    """Precompute MLS similarity or rigid deformation of the points V (Schaefer et al. 2006).
+
+    With weights w_i = 1 / |p_i − v|^{2α} (§2), centroids p* = Σ w_i p_i / Σ w_i, p̂_i = p_i − p*
+    and q* likewise, and A_i = w_i [p̂_i; −p̂_i^⊥] [v − p*; −(v − p*)^⊥]^T (§2.2), the similarity
+    deformation is f_s(v) = Σ_i q̂_i A_i / μ_s + q* with μ_s = Σ_i w_i |p̂_i|², and the rigid one (§2.3) is
+    f_r(v) = |v − p*| f⃗_r(v) / |f⃗_r(v)| + q* with f⃗_r(v) = Σ_i q̂_i A_i. As Σ_i A_i = 0, Σ q̂_i A_i =
+    Σ q_i A_i: both are linear in Q before the rigid normalisation, so a frame is one matrix product.
+
+    Parameters
+    ----------
+    V : (n,2) numpy array
+        The points to deform (mesh vertices or pixel centres).
+    P : (h,2) numpy array
+        Rest handle positions, at least 2 (a similarity needs two points), pairwise distinct.
+    kind : str
+        ``"similarity"`` or ``"rigid"``.
+    alpha : float
+        The weight exponent α > 0.
+
+    Returns
+    -------
+    pre : MLSPrecomputed
+    """
+    if kind not in ("similarity", "rigid"):
+        raise ValueError(f"kind must be 'similarity' or 'rigid', got {kind!r}")
+    if not alpha > 0:
+        raise ValueError(f"alpha must be positive, got {alpha!r}")
+    V = _check_points(V, "V")
+    P = _check_handles(P, 2, "MLS")
+    diff = P[None] - V[:, None]  # (n,h,2)
+    r2 = np.einsum("nhc,nhc->nh", diff, diff)
+    at = r2 <= 1e-24 * max(1.0, np.abs(P).max()) ** 2
+    at_handle = np.where(at.any(axis=1), np.argmax(at, axis=1), -1)
+    w = 1.0 / np.where(at, 1.0, r2) ** alpha
+    w[at_handle >= 0] = 0.0
+    w[at_handle >= 0, at_handle[at_handle >= 0]] = 1.0  # any finite rows: these vertices are overwritten
+    Wn = w / w.sum(axis=1, keepdims=True)
+    p_star = Wn @ P
+    ph = P[None] - p_star[:, None]  # p̂_i (n,h,2)
+    d = V - p_star  # v − p*
+    a = np.einsum("nhc,nc->nh", ph, d) * w  # w_i p̂_i·d
+    c = (ph[..., 0] * d[:, None, 1] - ph[..., 1] * d[:, None, 0]) * w  # w_i p̂_i×d
+    if kind == "similarity":
+        mu = np.einsum("nh,nhc,nhc->n", w, ph, ph)
+        mu[at_handle >= 0] = 1.0  # μ_s = 0 there; the row is overwritten by q_i
+        a, c = a / mu[:, None], c / mu[:, None]
+    # q A_i = (q_x a − q_y c, q_x c + q_y a), as rows 2v, 2v+1 over columns 2i, 2i+1
+    n, h = a.shape
+    M = np.empty((n, 2, h, 2))
+    M[:, 0, :, 0], M[:, 0, :, 1] = a, -c
+    M[:, 1, :, 0], M[:, 1, :, 1] = c, a
+    return MLSPrecomputed(kind, M.reshape(2 * n, 2 * h), Wn, np.linalg.norm(d, axis=1), at_handle)
+
+
+def mls_evaluate(pre, Q):
+    """MLS deformation f(V) for handle positions Q.
+
+    Parameters
+    ----------
+    pre : MLSPrecomputed
+    Q : (h,2) numpy array
+
+    Returns
+    -------
+    X : (n,2) numpy array
+    """
+    Q = _check_Q(Q, pre.Wn.shape[1])
+    f = (pre.M @ Q.ravel()).reshape(-1, 2)
+    if pre.kind == "rigid":
+        norm = np.linalg.norm(f, axis=1)
+        f = f * (pre.d_norm / np.where(norm > 0, norm, 1.0))[:, None]
+    X = f + pre.Wn @ Q
+    on = pre.at_handle >= 0
+    X[on] = Q[pre.at_handle[on]]
+    return X
+
+
+# ----------------------------------------------------------------------------------------------
+# Bookstein's thin-plate-spline warp (1989)
+# ----------------------------------------------------------------------------------------------
+def _tps_kernel(r2):
+    """U(r) = r² log r², with U(0) = 0 (Bookstein 1989, §2)."""
+    return np.where(r2 > 0, r2 * np.log(np.where(r2 > 0, r2, 1.0)), 0.0)
+
+
+def tps_precompute(V, P):
+    """Precompute the thin-plate-spline warp through the handles (Bookstein 1989).
+
+    f(x) = a_1 + a_x x + a_y y + Σ_i w_i U(|x − p_i|) with [K P̃; P̃^T 0] [w; a] = [Q; 0], K_ij = U(|p_i − p_j|)
+    and P̃ = [1 p_i] (Bookstein's L matrix). The solution is linear in Q, so f(V) = G Q with
+    G = [U(|V − P|) 1 V] L^{-1}[:, :h]. It interpolates the handles and reproduces affine maps exactly.
+
+    Parameters
+    ----------
+    V : (n,2) numpy array
+    P : (h,2) numpy array
+        At least 3 handles, not all on one line.
+
+    Returns
+    -------
+    G : (n,h) numpy array
+    """
+    V = _check_points(V, "V")
+    P = _check_handles(P, 3, "the TPS warp")
+    h = len(P)
+    Pt = np.hstack([np.ones((h, 1)), P])
+    if np.linalg.matrix_rank(Pt - [0, *P.mean(axis=0)], tol=1e-9 * np.ptp(P, axis=0).max()) < 3:
+        raise ValueError("the TPS warp needs handles that are not all on one line")
+    L = np.zeros((h + 3, h + 3))
+    L[:h, :h] = _tps_kernel(np.sum((P[:, None] - P[None]) ** 2, axis=-1))
+    L[:h, h:], L[h:, :h] = Pt, Pt.T
+    rhs = np.vstack([np.eye(h), np.zeros((3, h))])
+    coef = np.linalg.solve(L, rhs)  # (h+3, h): [w; a] per unit handle displacement
+    K = _tps_kernel(np.sum((V[:, None] - P[None]) ** 2, axis=-1))
+    return K @ coef[:h] + np.hstack([np.ones((len(V), 1)), V]) @ coef[h:]
+
+
+def linear_evaluate(G, Q):
+    """X = G Q for a method linear in the handles (TPS warp, biharmonic coordinates).
+
+    Parameters
+    ----------
+    G : (n,h) numpy array
+    Q : (h,2) numpy array
+
+    Returns
+    -------
+    X : (n,2) numpy array
+    """
+    return G @ _check_Q(Q, G.shape[1])
+
+
+# ----------------------------------------------------------------------------------------------
+# libigl: bounded biharmonic weights + LBS, biharmonic coordinates, ARAP iterations
+# ----------------------------------------------------------------------------------------------
+def _mesh_arrays(mesh, handles):
+    V = np.ascontiguousarray(mesh.V, dtype=float)
+    F = np.ascontiguousarray(mesh.F, dtype=np.int64)
+    b = np.asarray(handles, dtype=np.int64).ravel()
+    if len(b) == 0 or b.min() < 0 or b.max() >= len(V):
+        raise ValueError(f"handles must be vertex indices in [0, {len(V)}), got {b.tolist()}")
+    if len(np.unique(b)) != len(b):
+        raise ValueError("a vertex is given as a handle twice")
+    _check_handles(V[b])
+    return V, F, b
+
+
+def bbw_precompute(mesh, handles, max_iter=100):
+    """Bounded biharmonic weights (Jacobson et al. 2011) of point handles, rows normalised to sum 1.
+
+    Minimises Σ_i ∫ (Δw_i)² subject to w_i(p_j) = δ_ij, 0 ≤ w_i ≤ 1 (libigl ``bbw``, active set). With
+    translations only, linear blend skinning is X = V + W (Q − P).
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    handles : (h,) int numpy array
+        Vertex indices.
+    max_iter : int
+
+    Returns
+    -------
+    W : (n,h) numpy array
+    """
+    import igl
+
+    V, F, b = _mesh_arrays(mesh, handles)
+    bc = np.eye(len(b))
+    W = np.asarray(igl.bbw(V, F, b, bc, max_iter=int(max_iter)))
+    return W / W.sum(axis=1, keepdims=True)
+
+
+def lbs_evaluate(V, W, P, Q):
+    """Linear blend skinning with translations only: X = V + W (Q − P).
+
+    Parameters
+    ----------
+    V : (n,2) numpy array
+    W : (n,h) numpy array
+    P, Q : (h,2) numpy array
+
+    Returns
+    -------
+    X : (n,2) numpy array
+    """
+    return V + W @ (_check_Q(Q, W.shape[1]) - P)
+
+
+def biharmonic_precompute(mesh, handles, k=2):
+    """Biharmonic coordinates (Wang, Jacobson et al. 2015; libigl ``biharmonic_coordinates``).
+
+    Linearly precise coordinates W minimising the k-harmonic energy with the handles as the only
+    constraints: X = W Q, and W P = V.
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    handles : (h,) int numpy array
+        Vertex indices, at least 3 (libigl returns an empty matrix for fewer).
+    k : int
+        2 for biharmonic, 3 for triharmonic.
+
+    Returns
+    -------
+    W : (n,h) numpy array
+    """
+    import igl
+
+    V, F, b = _mesh_arrays(mesh, handles)
+    if len(b) < 3:
+        raise ValueError(f"biharmonic coordinates need at least 3 point handles (linear precision), got {len(b)}")
+    W = np.asarray(igl.biharmonic_coordinates(V, F, [[int(i)] for i in b], int(k)))
+    if W.shape != (len(V), len(b)) or not np.isfinite(W).all():
+        raise ValueError(f"libigl biharmonic_coordinates failed (returned shape {W.shape})")
+    return W
+
+
+class ARAPIterations:
+    """k local-global ARAP iterations per frame (libigl), warm-started from the previous frame.
+
+    libigl's ``arap_solve`` has no convergence test: it always runs ``iterations`` steps. It minimises
+    Σ_t A_t ‖J_t − R_t‖²_F (Sorkine & Alexa 2007, per triangle), the ARAP energy (10), and may flip triangles.
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    handles : (h,) int numpy array
+    iterations : int
+    """
+
+    def __init__(self, mesh, handles, iterations=10):
+        import igl
+
+        self._V, F, self._b = _mesh_arrays(mesh, handles)
+        self._F = F  # libigl keeps references: hold the arrays
+        self.iterations = int(iterations)
+        self.data = igl.ARAPData()
+        self.data.energy = igl.ARAP_ENERGY_TYPE_ELEMENTS
+        self.data.max_iter = self.iterations
+        igl.arap_precomputation(self._V, self._F, 2, self._b, self.data)
+        self.reset()
+
+    def reset(self):
+        """Start the next frame from the rest pose."""
+        self.U = self._V.copy()
+
+    def __call__(self, Q):
+        """(n,2) positions after ``iterations`` steps from the previous frame, handles at Q (h,2)."""
+        import igl
+
+        Q = np.ascontiguousarray(_check_Q(Q, len(self._b)))
+        U = np.ascontiguousarray(self.U)
+        U[self._b] = Q
+        self.U = np.array(igl.arap_solve(Q, self.data, U))
+        return self.U.copy()
+
+
+# ----------------------------------------------------------------------------------------------
+# one interface for all: Peer
+# ----------------------------------------------------------------------------------------------
+class Peer:
+    """A peer method bound to a shape: ``peer(Q)`` maps the *moving* handles to (n,2) positions, like DefOp.
+
+    Fixed handles stay at rest. Build one with :func:`make_peer`.
+
+    Parameters
+    ----------
+    name : str
+    mesh : defop.geometry.mesh.Mesh
+    handles : (h,) int numpy array
+    moving : (h,) bool numpy array
+    evaluate : callable
+        (h,2) targets of all handles → (n,2) positions.
+    precompute_time : float
+        Seconds the precompute took.
+    reset : callable, optional
+        Forget the previous frame (stateful methods).
+    """
+
+    def __init__(self, name, mesh, handles, moving, evaluate, precompute_time, reset=None):
+        self.name = name
+        self.mesh = mesh
+        self.handles = np.asarray(handles, dtype=np.int64)
+        self.moving = np.asarray(moving, dtype=bool)
+        self._evaluate = evaluate
+        self.precompute_time = float(precompute_time)
+        self._reset = reset
+
+    @property
+    def n_vertices(self) -> int:
+        return self.mesh.n_vertices
+
+    @property
+    def n_moving(self) -> int:
+        return int(self.moving.sum())
+
+    def __repr__(self):
+        return f"Peer({self.name!r}, {self.n_vertices} vertices, {self.n_moving} moving handles)"
+
+    def reset(self):
+        """Forget the previous frame (only ARAP iterations have one)."""
+        if self._reset is not None:
+            self._reset()
+
+    def __call__(self, Q):
+        """Deformed vertices for the moving handles Q.
+
+        Parameters
+        ----------
+        Q : (n_moving,2) or (k,n_moving,2) numpy array
+            A batch is evaluated frame by frame, in order.
+
+        Returns
+        -------
+        X : (n_vertices,2) or (k,n_vertices,2) numpy array
+        """
+        Q = np.asarray(Q, dtype=float)
+        if Q.ndim == 3:
+            return np.stack([self(q) for q in Q])
+        if Q.shape != (self.n_moving, 2):
+            n = self.n_moving
+            raise ValueError(f"Q must have shape ({n}, 2) or (k, {n}, 2) for the {n} moving handles, got {Q.shape}")
+        if not np.isfinite(Q).all():
+            raise ValueError("Q has NaN or infinite entries")
+        T = self.mesh.V[self.handles].copy()
+        T[self.moving] = Q
+        return self._evaluate(T)
+
+
+def make_peer(shape, kind, iterations=10, alpha=1.0):
+    """Precompute one peer method on a shape.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+        Its mesh and handles (all of them, fixed ones included).
+    kind : str
+        One of ``"mls-similarity"``, ``"mls-rigid"``, ``"tps"``, ``"bbw-lbs"``, ``"biharmonic"``, ``"arap"``.
+    iterations : int
+        Local-global iterations per frame for ``"arap"``.
+    alpha : float
+        MLS weight exponent.
+
+    Returns
+    -------
+    peer : Peer
+        With ``precompute_time`` measured.
+    """
+    if kind not in KINDS:
+        raise ValueError(f"unknown peer {kind!r}; known: {', '.join(KINDS)}")
+    mesh, b = shape.mesh, shape.handles
+    V, P = mesh.V, mesh.V[b]
+    t0 = time.perf_counter()
+    reset = None
+    if kind.startswith("mls"):
+        pre = mls_precompute(V, P, kind.split("-")[1], alpha)
+        evaluate, name = (lambda T: mls_evaluate(pre, T)), f"MLS {pre.kind}"
+    elif kind == "tps":
+        G = tps_precompute(V, P)
+        evaluate, name = (lambda T: linear_evaluate(G, T)), "TPS warp (Bookstein)"
+    elif kind == "bbw-lbs":
+        W = bbw_precompute(mesh, b)
+        evaluate, name = (lambda T: lbs_evaluate(V, W, P, T)), "BBW + LBS"
+    elif kind == "biharmonic":
+        G = biharmonic_precompute(mesh, b)
+        evaluate, name = (lambda T: linear_evaluate(G, T)), "biharmonic coordinates"
+    else:
+        arap = ARAPIterations(mesh, b, iterations)
+        evaluate, name, reset = arap, f"libigl ARAP, {arap.iterations} it.", arap.reset
+    seconds = time.perf_counter() - t0
+    return Peer(name, mesh, b, shape.moving, evaluate, seconds, reset)
+
+
+def make_peers(shape, kinds=KINDS, arap_iterations=(10,)):
+    """Every peer of ``kinds`` on a shape, ARAP once per entry of ``arap_iterations``.
+
+    Returns
+    -------
+    peers : list of Peer
+    """
+    out = []
+    for kind in kinds:
+        its = arap_iterations if kind == "arap" else (10,)
+        out += [make_peer(shape, kind, iterations=k) for k in its]
+    return out

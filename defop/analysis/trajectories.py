@@ -1,0 +1,675 @@
+"""Trajectories of points: displacement of a point as a function of a handle's displacement.
+
+Paper §3.1 (Fig. 3, Fig. 5) and §5 (Fig. 10). Fix a point x of the shape and move ONE handle
+q over a grid of positions while every other handle stays at rest. The *trajectory* of x is
+
+    T_x(q) = D(x, Q(q)) - x,        q in a grid around the handle's rest position p,
+
+for a deformation operator D: the variational DefOp D^E_Φ (the "ground truth", problem (6))
+or a trained (Φ, Ψ)-DefOp (Eq. 3). Because Q has 2 free coordinates, each component of T_x
+is a height field over the plane of handle positions, which is what Fig. 3 and Fig. 5 draw.
+
+Facts the notebooks check with this module:
+
+* A DefOp with the linear handle basis Ψ = {1, q^x, q^y} has an exactly affine trajectory
+  (``plane_fit_residual`` ~ 1e-15).
+* The variational DefOp of a non-convex energy is the minimiser of problem (6) and can jump
+  when the minimiser switches branch; ``neighbour_jumps``/``jump_ratio``/``discontinuities``
+  detect the jumps on the grid.
+* A smooth interpolant of samples on both sides of such a jump rings: ``range_and_error`` measures how
+  far each approximation leaves the ground truth's range (the TPS overshoot of Figs. 3, 5).
+* "Global" ground truth: every grid point is solved independently by the solver's multi-start
+  (``start="global"``: rest pose, saddles escaped, lowest verified minimum; no history). "Local"
+  ground truth: the solves are warm-started
+  along a path through the grid (a serpentine scan, like a user dragging the handle), so the
+  result depends on the path (§5, Fig. 10).
+
+Everything here is pure computation; drawing lives in ``defop.view.plot`` / ``defop.view.render``.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import config
+from .. import options as opt
+from ..training import cache as cache_mod
+from ..variational.energies import check_energy
+
+__all__ = [
+    "HandleGrid",
+    "Trajectory",
+    "defop_trajectories",
+    "discontinuities",
+    "discontinuity_points",
+    "ground_truth_trajectories",
+    "handle_grid",
+    "jump_ratio",
+    "max_jump",
+    "neighbour_jumps",
+    "path_jumps",
+    "plane_fit_residual",
+    "range_and_error",
+    "serpentine_path",
+]
+
+
+# --------------------------------------------------------------------------- grids
+@dataclass(frozen=True)
+class HandleGrid:
+    """A rectangular grid of positions of one moving handle.
+
+    Attributes
+    ----------
+    center : (2,) numpy array
+        Rest position p of the moving handle.
+    xs : (nx,) numpy array
+        Handle displacements along x (increasing), i.e. q^x - p^x.
+    ys : (ny,) numpy array
+        Handle displacements along y (increasing).
+
+    Grid arrays are indexed ``[i, j]`` with row ``i`` <-> ``ys[i]`` and column ``j`` <-> ``xs[j]``,
+    so ``imshow(Z, origin="lower", extent=grid.extent)`` draws them the right way up.
+    """
+
+    center: np.ndarray
+    xs: np.ndarray
+    ys: np.ndarray
+
+    @property
+    def shape(self):
+        """(ny, nx)."""
+        return (len(self.ys), len(self.xs))
+
+    @property
+    def size(self) -> int:
+        return len(self.ys) * len(self.xs)
+
+    @property
+    def displacements(self):
+        """(ny, nx, 2) numpy array: handle displacement q - p at every grid point."""
+        gx, gy = np.meshgrid(self.xs, self.ys)
+        return np.stack([gx, gy], axis=-1)
+
+    @property
+    def positions(self):
+        """(ny, nx, 2) numpy array: handle position q at every grid point."""
+        return self.center[None, None, :] + self.displacements
+
+    @property
+    def spacing(self):
+        """(hx, hy): grid steps (the largest step if the grid is not uniform)."""
+        hx = float(np.max(np.diff(self.xs))) if len(self.xs) > 1 else 0.0
+        hy = float(np.max(np.diff(self.ys))) if len(self.ys) > 1 else 0.0
+        return hx, hy
+
+    @property
+    def extent(self):
+        """(xmin, xmax, ymin, ymax) of the displacements (for ``imshow``)."""
+        return (float(self.xs[0]), float(self.xs[-1]), float(self.ys[0]), float(self.ys[-1]))
+
+    def nearest(self, displacement):
+        """Grid index ``(i, j)`` nearest to a handle displacement ``(dx, dy)``."""
+        d = np.asarray(displacement, dtype=float)
+        if d.shape != (2,):
+            raise ValueError(f"displacement must have shape (2,), got {d.shape}")
+        return int(np.argmin(np.abs(self.ys - d[1]))), int(np.argmin(np.abs(self.xs - d[0])))
+
+
+def handle_grid(center, radius, n, ny=None, radius_y=None):
+    """Square (or rectangular) grid of handle positions around a rest position.
+
+    Parameters
+    ----------
+    center : (2,) numpy array
+        Rest position p of the moving handle.
+    radius : float
+        Half width of the grid along x: displacements run over [-radius, radius].
+    n : int
+        Points along x (>= 2). Odd ``n`` puts the rest position on the grid.
+    ny : int, optional
+        Points along y (default ``n``).
+    radius_y : float, optional
+        Half height along y (default ``radius``).
+
+    Returns
+    -------
+    HandleGrid
+    """
+    center = np.asarray(center, dtype=float).reshape(-1)
+    if center.shape != (2,) or not np.isfinite(center).all():
+        raise ValueError(f"center must be a finite (2,) point, got {center!r}")
+    ny = n if ny is None else ny
+    radius_y = radius if radius_y is None else radius_y
+    n, ny = opt.integer("n", n, minimum=2), opt.integer("ny", ny, minimum=2)
+    radius, radius_y = opt.positive("radius", radius), opt.positive("radius_y", radius_y)
+    xs = np.linspace(-radius, radius, int(n))
+    ys = np.linspace(-radius_y, radius_y, int(ny))
+    return HandleGrid(center=center, xs=xs, ys=ys)
+
+
+def check_scan(ny, nx, start):
+    """Validate the grid shape and start of a boustrophedon scan (:func:`serpentine_path`, column scans)."""
+    if ny < 1 or nx < 1:
+        raise ValueError(f"grid shape must be positive, got ({ny}, {nx})")
+    if start not in ("bottom", "top"):
+        raise ValueError(f"start must be 'bottom' or 'top', got {start!r}")
+
+
+def serpentine_path(ny, nx, start="bottom"):
+    """A boustrophedon scan of a (ny, nx) grid: every step moves to a 4-neighbour.
+
+    Rows are scanned left-to-right, then right-to-left, ... A user dragging the handle
+    back and forth over the region would trace such a path.
+
+    Parameters
+    ----------
+    ny, nx : int
+        Grid shape.
+    start : {"bottom", "top"}
+        Start at row 0 (bottom, smallest y) or at the last row.
+
+    Returns
+    -------
+    path : (ny*nx, 2) numpy int array
+        Grid indices ``(i, j)`` in visiting order.
+    """
+    check_scan(ny, nx, start)
+    rows = range(ny) if start == "bottom" else range(ny - 1, -1, -1)
+    path = []
+    for r, i in enumerate(rows):
+        cols = range(nx) if r % 2 == 0 else range(nx - 1, -1, -1)
+        path.extend((i, j) for j in cols)
+    return np.asarray(path, dtype=np.int64)
+
+
+# ----------------------------------------------------------------- trajectories
+@dataclass
+class Trajectory:
+    """Deformations over a grid of positions of one moving handle.
+
+    Attributes
+    ----------
+    grid : HandleGrid
+    X : (ny, nx, n_vertices, 2) numpy array
+        Deformed vertex positions at every grid point.
+    rest : (n_vertices, 2) numpy array
+        Rest vertex positions.
+    kind : str
+        "global", "local" (ground truth) or the DefOp's handle basis name.
+    converged : (ny, nx) numpy bool array or None
+        Solver convergence flags (ground truth only).
+    energy : (ny, nx) numpy array or None
+        Final energy of each solve (ground truth only).
+    path : (k, 2) numpy int array or None
+        Visiting order of the warm-started ("local") solves.
+    """
+
+    grid: HandleGrid
+    X: np.ndarray
+    rest: np.ndarray
+    kind: str
+    converged: np.ndarray | None = None
+    energy: np.ndarray | None = None
+    path: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    def of(self, vertex):
+        """Trajectory T_x of one vertex: (ny, nx, 2) displacement X[vertex] - rest[vertex]."""
+        vertex = int(vertex)
+        if not 0 <= vertex < len(self.rest):
+            raise ValueError(f"vertex {vertex} out of range [0, {len(self.rest)})")
+        return self.X[:, :, vertex, :] - self.rest[vertex]
+
+    def deformation(self, displacement):
+        """Deformed vertices (n_vertices, 2) at the grid point nearest to a handle displacement."""
+        i, j = self.grid.nearest(displacement)
+        return self.X[i, j]
+
+
+def _moving_batch(grid, n_moving, moving, P_moving):
+    """(k, n_moving, 2) handle batch: handle ``moving`` on the grid, the others at rest."""
+    if not 0 <= moving < n_moving:
+        raise ValueError(f"moving handle index {moving} out of range [0, {n_moving})")
+    Q = np.repeat(np.asarray(P_moving, dtype=float)[None], grid.size, axis=0)
+    Q[:, moving] = grid.positions.reshape(-1, 2)
+    return Q
+
+
+def defop_trajectories(defop, grid, moving=0, kind=None, batch=4096):
+    """Trajectories of a trained (Φ, Ψ)-DefOp (Eq. 3) by batch evaluation.
+
+    Parameters
+    ----------
+    defop : DefOp
+        Trained operator; ``defop(Q)`` maps (k, n_moving, 2) handle batches to (k, n_vertices, 2).
+    grid : HandleGrid
+        Positions of the moving handle (its center should be the handle's rest position).
+    moving : int
+        Which moving handle follows the grid (index among the moving handles); the others stay at rest.
+    kind : str, optional
+        Label (default: the handle basis name from ``defop.meta`` or the class name).
+    batch : int
+        Grid points evaluated per call.
+
+    Returns
+    -------
+    Trajectory
+    """
+    _check_grid(grid)
+    batch = opt.integer("batch", batch, minimum=1)
+    P_moving = _defop_P_moving(defop)
+    Q = _moving_batch(grid, len(P_moving), moving, P_moving)
+    parts = [np.asarray(defop(Q[s : s + batch])) for s in range(0, len(Q), batch)]
+    X = np.concatenate(parts, axis=0)
+    rest = np.asarray(defop.geometry.mesh.V, dtype=float)
+    if kind is None:
+        meta = getattr(defop, "meta", None) or {}
+        kind = meta.get("basis") or type(getattr(defop, "handle_basis", defop)).__name__
+    return Trajectory(grid=grid, X=X.reshape(grid.shape + X.shape[1:]), rest=rest, kind=str(kind))
+
+
+def _check_grid(grid):
+    if not isinstance(grid, HandleGrid):
+        raise ValueError(f"grid must be a HandleGrid (see handle_grid), got {type(grid).__name__}")
+
+
+def _defop_P_moving(defop):
+    P = np.asarray(defop.P, dtype=float)
+    moving = getattr(defop, "moving", None)
+    if moving is not None and len(np.atleast_1d(moving)) == len(P) and np.asarray(moving).dtype == bool:
+        P = P[np.asarray(moving)]
+    return P
+
+
+# ------------------------------------------------------------ ground truth
+def _solver_for(shape, energy, solver_kw):
+    from ..variational.solver import Solver
+
+    return Solver(shape.mesh, shape.handles, energy=energy, **solver_kw)
+
+
+def _solve_one(solver, targets, X0, solve_kw, start="local"):
+    r = solver.solve(targets, X0=X0, start=start, **solve_kw)
+    return np.asarray(r.X), float(r.energy), bool(r.converged)
+
+
+def _solve_chunk(solver, targets_list, solve_kw):
+    """The "global" ground truth: :meth:`~defop.variational.Solver.solve_best` from the rest pose, saddles escaped."""
+    return [_solve_one(solver, t, None, solve_kw, start="global") for t in targets_list]
+
+
+def _cache_key(shape, grid, energy, mode, moving, path, solver, solve_kw):
+    """Key of a ground-truth trajectory: mesh, handles, grid, path and every solver setting."""
+    arrays = (shape.mesh.V, shape.mesh.F, np.asarray(shape.handles), np.asarray(shape.moving))
+    path = np.zeros((0, 2), np.int64) if path is None else np.asarray(path, np.int64)
+    settings = cache_mod.solver_settings(solver)
+    return cache_mod.key("traj", *arrays, grid.center, grid.xs, grid.ys, path, energy, mode, moving, settings, solve_kw)
+
+
+def _trajectory_expect(grid, n_vertices):
+    ny, nx = grid.shape
+    return {"X": ((ny, nx, n_vertices, 2), "f"), "energy": ((ny, nx), "f"), "converged": ((ny, nx), "b")}
+
+
+def _warm_started_solve(solver, X_prev, targets, solve_kw):
+    """Solve problem (6) at ``targets`` starting from the previous solution ``X_prev`` (path following).
+
+    The solver moves the handles from ``X_prev``'s positions to ``targets`` itself (biharmonic extension,
+    flip-free continuation stages when a barrier energy needs them), so every Newton stage starts flip-free
+    from a nearby local minimum; saddles are escaped, but no other start is tried ("local").
+    """
+    return _solve_one(solver, targets, X_prev, solve_kw)
+
+
+def ground_truth_trajectories(
+    shape,
+    grid,
+    energy="sarap",
+    mode="global",
+    moving=0,
+    path=None,
+    n_jobs=None,
+    cache=True,
+    progress=False,
+    solver_kw=None,
+    solve_kw=None,
+):
+    """Trajectories of the variational DefOp D^E_Φ (problem (6)) over a grid of handle positions.
+
+    Parameters
+    ----------
+    shape : Shape
+        Mesh and handles; the handle ``moving`` (index among the moving handles) follows the grid,
+        every other handle stays at its rest position.
+    grid : HandleGrid
+        Handle positions (``grid.center`` should be the moving handle's rest position).
+    energy : str
+        "sarap" (Eq. 11), "arap" (Eq. 10) or "isometric".
+    mode : {"global", "local"}
+        "global": every grid point solved independently, ``Solver.solve(..., start="global")`` (the
+        rest pose through flip-free continuation, saddles escaped along negative curvature, the lowest
+        verified minimum; parallel over ``n_jobs``). "local": solved in the order ``path``
+        (default: ``serpentine_path``), each warm-started from the previous solution.
+    path : (k, 2) numpy int array, optional
+        Visiting order for "local"; must visit every grid point once and move between 4-neighbours.
+    n_jobs : int, optional
+        joblib workers for "global" (default ``config.n_jobs()``).
+    cache : bool
+        Store/reuse the result under ``config.cache_dir()`` keyed by every parameter.
+    progress : bool
+        Show a tqdm progress bar.
+    solver_kw, solve_kw : dict, optional
+        Passed to ``Solver(...)`` and ``Solver.solve(...)``.
+
+    Returns
+    -------
+    Trajectory
+        With ``converged`` and ``energy`` filled in; a warning is issued if some solves did not converge.
+    """
+    if mode not in ("global", "local"):
+        raise ValueError(f"mode must be 'global' or 'local', got {mode!r}")
+    _check_grid(grid)
+    check_energy(energy)
+    moving = opt.integer("moving", moving, minimum=0)
+    opt.n_jobs(n_jobs)
+    store = cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
+    solver_kw = dict(solver_kw or {})
+    solve_kw = dict(solve_kw or {})
+    ny, nx = grid.shape
+    if mode == "local":
+        path = serpentine_path(ny, nx) if path is None else np.asarray(path, dtype=np.int64)
+        _check_path(path, grid.shape)
+    else:
+        path = None
+    P_moving = np.asarray(shape.P_moving, dtype=float)
+    if not 0 <= moving < len(P_moving):
+        raise ValueError(f"moving handle index {moving} out of range [0, {len(P_moving)})")
+    if not np.allclose(grid.center, P_moving[moving]):
+        raise ValueError(
+            f"grid.center {grid.center} is not the rest position {P_moving[moving]} of moving handle {moving}"
+        )
+
+    key = None
+    if store is not None:
+        key = _cache_key(shape, grid, energy, mode, moving, path, _solver_for(shape, energy, solver_kw), solve_kw)
+        hit = store.load("traj", key, _trajectory_expect(grid, shape.mesh.n_vertices))
+        if hit is not None:
+            z = hit[0]
+            return Trajectory(
+                grid=grid,
+                X=z["X"],
+                rest=shape.mesh.V.copy(),
+                kind=mode,
+                converged=z["converged"],
+                energy=z["energy"],
+                path=path,
+            )
+
+    Qm = _moving_batch(grid, len(P_moving), moving, P_moving)
+    targets = np.stack([shape.targets(q) for q in Qm])  # (k, h, 2)
+    solver = _solver_for(shape, energy, solver_kw)
+    n = shape.mesh.n_vertices
+    X = np.empty((ny * nx, n, 2))
+    E = np.empty(ny * nx)
+    conv = np.zeros(ny * nx, dtype=bool)
+
+    if mode == "global":
+        from joblib import Parallel, delayed
+
+        jobs = config.n_jobs() if n_jobs is None else n_jobs
+        chunks = np.array_split(np.arange(len(targets)), max(1, min(len(targets), 4 * _n_workers(jobs))))
+        it = Parallel(n_jobs=jobs, return_as="generator")(
+            delayed(_solve_chunk)(solver, [targets[k] for k in c], solve_kw) for c in chunks
+        )
+        it = _maybe_tqdm(it, progress, len(chunks), "global solves")
+        for c, res in zip(chunks, it):
+            for k, (Xk, ek, ck) in zip(c, res):
+                X[k], E[k], conv[k] = Xk, ek, ck
+    else:
+        flat = path[:, 0] * nx + path[:, 1]
+        k0 = flat[0]
+        X[k0], E[k0], conv[k0] = _solve_one(solver, targets[k0], None, solve_kw)
+        prev = k0
+        for k in _maybe_tqdm(flat[1:], progress, len(flat) - 1, "warm-started solves"):
+            X[k], E[k], conv[k] = _warm_started_solve(solver, X[prev], targets[k], solve_kw)
+            prev = k
+
+    if not conv.all():
+        warnings.warn(f"{int((~conv).sum())} of {len(conv)} {mode} ground-truth solves did not converge", stacklevel=2)
+    X = X.reshape(ny, nx, n, 2)
+    E = E.reshape(ny, nx)
+    conv = conv.reshape(ny, nx)
+    if store is not None:
+        store.store("traj", key, {"X": X, "energy": E, "converged": conv})
+    return Trajectory(grid=grid, X=X, rest=shape.mesh.V.copy(), kind=mode, converged=conv, energy=E, path=path)
+
+
+def _n_workers(jobs):
+    if jobs is None or jobs < 0:
+        return os.cpu_count() or 1
+    return max(1, int(jobs))
+
+
+def _maybe_tqdm(it, progress, total, desc):
+    """Iterate ``it`` under the one progress policy of :func:`defop.training.bootstrap._progress` (text bars in the
+    main job)."""
+    from ..training.bootstrap import _progress
+
+    bar = _progress(total, desc, progress)
+    if bar is None:
+        yield from it
+        return
+    try:
+        for x in it:
+            yield x
+            bar.update(1)
+    finally:
+        bar.close()
+
+
+def _check_path(path, shape):
+    ny, nx = shape
+    if path.ndim != 2 or path.shape[1] != 2:
+        raise ValueError(f"path must have shape (k,2), got {path.shape}")
+    if path.min() < 0 or (path[:, 0] >= ny).any() or (path[:, 1] >= nx).any():
+        raise ValueError(f"path leaves the ({ny}, {nx}) grid")
+    flat = path[:, 0] * nx + path[:, 1]
+    if len(flat) != ny * nx or len(np.unique(flat)) != ny * nx:
+        raise ValueError(f"path must visit each of the {ny * nx} grid points exactly once, got {len(flat)} steps")
+    step = np.abs(np.diff(path, axis=0)).sum(axis=1)
+    if (step != 1).any():
+        k = int(np.flatnonzero(step != 1)[0])
+        raise ValueError(
+            f"path step {k} jumps from {tuple(path[k])} to {tuple(path[k + 1])}; steps must join 4-neighbours"
+        )
+
+
+# ------------------------------------------------------------------- analysis
+def _as_field(D):
+    D = np.asarray(D, dtype=float)
+    if D.ndim == 2:
+        D = D[..., None]
+    if D.ndim != 3:
+        raise ValueError(f"trajectory must have shape (ny, nx) or (ny, nx, c), got {D.shape}")
+    return D
+
+
+def plane_fit_residual(grid, D):
+    """Relative residual of the best affine fit a + b q^x + c q^y to a trajectory.
+
+    Parameters
+    ----------
+    grid : HandleGrid
+    D : (ny, nx) or (ny, nx, c) numpy array
+        Trajectory components (e.g. ``traj.of(v)``).
+
+    Returns
+    -------
+    float
+        max |residual| / max |D - mean(D)| over all components (0 for a constant field).
+        A DefOp with the linear handle basis gives ~1e-15.
+    """
+    D = _as_field(D)
+    if D.shape[:2] != grid.shape:
+        raise ValueError(f"trajectory shape {D.shape[:2]} does not match grid shape {grid.shape}")
+    d = grid.displacements.reshape(-1, 2)
+    A = np.column_stack([np.ones(len(d)), d])
+    Z = D.reshape(len(d), -1)
+    coef, *_ = np.linalg.lstsq(A, Z, rcond=None)
+    res = np.abs(Z - A @ coef).max()
+    scale = np.abs(Z - Z.mean(axis=0)).max()
+    return float(res / scale) if scale > 0 else float(res)
+
+
+def neighbour_jumps(D):
+    """Jumps between 4-neighbouring grid points.
+
+    Parameters
+    ----------
+    D : (ny, nx) or (ny, nx, c) numpy array
+
+    Returns
+    -------
+    jx : (ny, nx-1) numpy array
+        |D[i, j+1] - D[i, j]| (Euclidean over components).
+    jy : (ny-1, nx) numpy array
+        |D[i+1, j] - D[i, j]|.
+    """
+    D = _as_field(D)
+    jx = np.linalg.norm(np.diff(D, axis=1), axis=-1)
+    jy = np.linalg.norm(np.diff(D, axis=0), axis=-1)
+    return jx, jy
+
+
+def max_jump(grid, D):
+    """Largest neighbour jump divided by the grid step: a discrete Lipschitz constant.
+
+    For a smooth trajectory this is about the largest slope |∂T/∂q| and stays put when the grid is
+    refined; across a discontinuity it grows like 1/h.
+    """
+    jx, jy = neighbour_jumps(D)
+    hx, hy = grid.spacing
+    vals = []
+    if jx.size:
+        vals.append(jx.max() / hx)
+    if jy.size:
+        vals.append(jy.max() / hy)
+    return float(max(vals))
+
+
+def jump_ratio(D):
+    """Largest neighbour jump / median neighbour jump (scale free).
+
+    A smooth trajectory sampled on a grid has ratio of a few; a jump of the minimiser (a
+    discontinuity of the variational DefOp) gives a large ratio.
+    """
+    jx, jy = neighbour_jumps(D)
+    j = np.concatenate([jx.ravel(), jy.ravel()])
+    med = np.median(j)
+    if med <= 0:
+        return float("inf") if j.max() > 0 else 1.0
+    return float(j.max() / med)
+
+
+def discontinuities(D, factor=8.0):
+    """Grid edges across which the trajectory jumps: jump > ``factor`` x median jump.
+
+    Parameters
+    ----------
+    D : (ny, nx) or (ny, nx, c) numpy array
+    factor : float
+        Threshold relative to the median neighbour jump.
+
+    Returns
+    -------
+    ex : (ny, nx-1) numpy bool array
+        True where the edge between [i, j] and [i, j+1] crosses a discontinuity.
+    ey : (ny-1, nx) numpy bool array
+        True where the edge between [i, j] and [i+1, j] crosses a discontinuity.
+    """
+    if factor <= 1:
+        raise ValueError(f"factor must be > 1, got {factor}")
+    jx, jy = neighbour_jumps(D)
+    med = np.median(np.concatenate([jx.ravel(), jy.ravel()]))
+    return jx > factor * med, jy > factor * med
+
+
+def discontinuity_points(grid, D, factor=8.0):
+    """Handle displacements (k, 2) at the midpoints of the edges returned by ``discontinuities``."""
+    ex, ey = discontinuities(D, factor)
+    d = grid.displacements
+    mx = 0.5 * (d[:, 1:] + d[:, :-1])[ex]
+    my = 0.5 * (d[1:, :] + d[:-1, :])[ey]
+    return np.concatenate([mx, my], axis=0).reshape(-1, 2)
+
+
+def path_jumps(D, path):
+    """(k-1,) jumps |D[path[s+1]] - D[path[s]]| along a visiting order (e.g. the warm-start path)."""
+    D = _as_field(D)
+    path = np.asarray(path, dtype=np.int64)
+    _check_path(path, D.shape[:2])
+    vals = D[path[:, 0], path[:, 1]]
+    return np.linalg.norm(np.diff(vals, axis=0), axis=-1)
+
+
+def range_and_error(T, reference="ground truth", mask=None):
+    """Range of each trajectory and its largest error against a reference trajectory (Figs. 3, 5).
+
+    An approximation that *overshoots* reaches displacements the reference never reaches: it leaves
+    the reference's range, typically next to a jump of the reference.
+
+    Parameters
+    ----------
+    T : dict of str -> (ny, nx, 2) numpy array
+        Trajectories T_x of one point on one grid (e.g. ``{name: traj.of(x)}``), ``reference`` among them.
+    reference : str
+        Key of the ground truth.
+    mask : (ny, nx) numpy bool array, optional
+        Grid points to measure (default: all), e.g. leaving out points where the reference is ambiguous.
+
+    Returns
+    -------
+    dict of str -> dict
+        Per trajectory, over the measured grid points: ``low``, ``high`` (2,) numpy arrays, the smallest
+        and largest value of each component (x, y); ``extent`` (2,) numpy array, max |T_x| per component
+        (the "±" range); ``overshoot`` (2,) numpy array, how far each component leaves the reference's
+        [low, high] (0 when it stays inside); ``max_error`` float, the largest Euclidean error
+        |T_x − T_ref|; ``argmax`` (i, j), the grid index where that error is largest.
+
+    Raises
+    ------
+    ValueError
+        A missing reference, a bad mask, trajectories of different shapes, or NaN/inf at a measured grid point.
+    """
+    if reference not in T:
+        raise ValueError(f"reference {reference!r} is not among the trajectories {sorted(T)}")
+    ref = np.asarray(T[reference], dtype=float)
+    if ref.ndim != 3 or ref.shape[-1] != 2:
+        raise ValueError(f"trajectories must have shape (ny, nx, 2), got {ref.shape} for {reference!r}")
+    mask = np.ones(ref.shape[:2], dtype=bool) if mask is None else np.asarray(mask)
+    if mask.shape != ref.shape[:2] or mask.dtype != bool or not mask.any():
+        raise ValueError(f"mask must be a boolean {ref.shape[:2]} array with at least one True, got {mask.shape}")
+    lo_ref, hi_ref = ref[mask].min(axis=0), ref[mask].max(axis=0)
+    out = {}
+    for name, t in T.items():
+        t = np.asarray(t, dtype=float)
+        if t.shape != ref.shape:
+            raise ValueError(f"trajectory {name!r} has shape {t.shape}, the reference {ref.shape}")
+        if not np.isfinite(t[mask]).all():
+            raise ValueError(f"trajectory {name!r} has NaN or infinite values at measured grid points")
+        err = np.where(mask, np.linalg.norm(t - ref, axis=-1), -np.inf)
+        lo, hi = t[mask].min(axis=0), t[mask].max(axis=0)
+        out[name] = {
+            "low": lo,
+            "high": hi,
+            "extent": np.abs(t[mask]).max(axis=0),
+            "overshoot": np.maximum(0.0, np.maximum(lo_ref - lo, hi - hi_ref)),
+            "max_error": float(err.max()),
+            "argmax": tuple(int(i) for i in np.unravel_index(np.argmax(err), err.shape)),
+        }
+    return out

@@ -1,0 +1,161 @@
+"""The in-browser editor: D(·, Q) evaluated in the page, not through the kernel (issue #18).
+
+Python sends the trained operator once (:func:`defop_to_payload`: Ψ's kind and centres or monomial
+plan, the float32 factors, the mesh and the handles); ``static/defop_editor.js`` evaluates
+D(·, Q) = x + δψ(Q) A B (Eq. 3 in the form (★) of :mod:`defop.operator.defop`) on every pointer move with
+the formulas of :mod:`defop.operator.handle_bases` and draws the mesh on a canvas. The kernel is used only for
+what must run in Python: the ground-truth overlay (a warm-started solve of problem 6), switching basis
+or shape, and reading Q back on release.
+
+- :class:`BrowserEditor`: the Jupyter widget (anywidget), a view of an :class:`~defop.editor.state.EditorState`;
+- :func:`defop.editor.export.to_html`: one self-contained offline page dragging the same operator (no Python,
+  no network).
+
+Both can show a picture on the mesh (notebook 13): :func:`image_payload` sends it once as a PNG with one
+texture coordinate per vertex (the rest vertex in the picture's pixels, as in :mod:`defop.view.warp`), and the page
+draws the deformed mesh textured in WebGL, so the picture warps piecewise affinely at every pointer move.
+
+Example
+-------
+>>> editor = BrowserEditor("bar", m=40)   # doctest: +SKIP
+>>> editor                                # drag in the page; editor.Q follows on release   # doctest: +SKIP
+>>> export.to_html(editor.state.operator, "bar.html", shape=editor.state.shape)   # doctest: +SKIP
+>>> _, to_pixels = defop.view.warp.image_to_mesh_frame(mask, shape.mesh)          # doctest: +SKIP
+>>> BrowserEditor(shape, {"tps": op}, image=picture, image_frame=to_pixels)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import anywidget
+import numpy as np
+import traitlets
+
+from .payload import JS_PATH, defop_to_payload, encode_payload, image_for
+from .state import EditorState, ground_truth_text
+
+
+class BrowserEditor(anywidget.AnyWidget):
+    """Drag the handles of a shape in the page; D(·, Q) is evaluated in JavaScript.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape or str
+    operators : dict, optional
+        Trained DefOps by basis kind.
+    shapes : sequence of str, optional
+        Shape names offered in the page (switching trains in the kernel); not with ``image``.
+    image : (H,W), (H,W,3) or (H,W,4) numpy array, or path, optional
+        A picture drawn on the deformed mesh as a WebGL texture, so dragging a handle warps it (notebook 13).
+        Grey, RGB or RGBA; bool, integer or float in [0,1]. Sent to the page once, as a PNG
+        (:func:`image_payload`; at most :data:`MAX_IMAGE_SIDE` pixels per side).
+    image_frame : callable or (n_vertices,2) numpy array
+        Required with ``image``: where the rest mesh lies in the picture, as a mesh → pixel map such as the
+        second result of :func:`defop.view.warp.image_to_mesh_frame` ``(mask, shape.mesh)``, or as the rest vertices
+        in pixels (x = column, y = row down).
+    **state_kw
+        Passed to :class:`~defop.editor.state.EditorState` (``basis``, ``energy``, ``m``, ``kinds``,
+        ``trainer``, ``solver``, ``pick_radius``).
+
+    Attributes
+    ----------
+    state : defop.editor.state.EditorState
+    """
+
+    _esm = JS_PATH.read_text()
+    payload_meta = traitlets.Dict().tag(sync=True)
+    payload_data = traitlets.Bytes().tag(sync=True)
+    q = traitlets.List().tag(sync=True)
+    basis = traitlets.Unicode().tag(sync=True)
+    shape_name = traitlets.Unicode().tag(sync=True)
+    ground_truth = traitlets.Bool(False).tag(sync=True)
+    gt_meta = traitlets.Dict().tag(sync=True)
+    gt_data = traitlets.Bytes().tag(sync=True)
+    image_meta = traitlets.Dict().tag(sync=True)  # the picture: set once, kept across basis switches
+    image_data = traitlets.Bytes().tag(sync=True)
+
+    def __init__(self, shape, operators=None, *, shapes=None, image=None, image_frame=None, **state_kw):
+        super().__init__()
+        if (image is not None or image_frame is not None) and shapes:
+            raise ValueError("a picture belongs to one shape's mesh: pass either image or shapes, not both")
+        self._state_kw = state_kw
+        self._shapes = list(shapes or [])
+        self._syncing = False
+        self.state = EditorState(shape, operators, **state_kw)
+        if image is not None or image_frame is not None:
+            meta, data = encode_payload(image_for(self.state.mesh, image, image_frame))
+            self._sync(image_meta=meta, image_data=data)
+        self._send_operator()
+        self.observe(self._on_q, names="q")
+        self.observe(self._on_basis, names="basis")
+        self.observe(self._on_shape, names="shape_name")
+        self.observe(self._on_ground_truth, names="ground_truth")
+
+    @property
+    def Q(self):
+        """(n,2) numpy array: the moving handles, as last released in the page (or set from Python)."""
+        return self.state.Q.copy()
+
+    def set_Q(self, Q):
+        """Move the handles from Python; the page follows."""
+        self.state.set_Q(Q)
+        self._sync(q=self.state.Q.ravel().tolist())
+        self._send_ground_truth()
+
+    def _repr_mimebundle_(self, **kwargs):
+        """The live widget plus a static fallback (:func:`defop.editor.widgets.static_bundle`): a picture of the
+        editor and one line of text, which a stored notebook shows without a kernel."""
+        from .widgets import static_bundle  # matplotlib only when displayed
+
+        bundle = super()._repr_mimebundle_(**kwargs) or {}
+        if isinstance(bundle, tuple):  # (data, metadata)
+            bundle = bundle[0]
+        return {**bundle, **static_bundle(self.state)}
+
+    def _sync(self, **traits):
+        self._syncing = True
+        try:
+            with self.hold_sync():
+                for name, value in traits.items():
+                    setattr(self, name, value)
+        finally:
+            self._syncing = False
+
+    def _send_operator(self):
+        s = self.state
+        payload = defop_to_payload(s.operator, s.regions)
+        payload.update(
+            title=f"{s.shape.name}: {s.energy} DefOp, Ψ = {s.kind}", kinds=list(s.kinds), shape=s.shape.name,
+            shapes=self._shapes, pick_radius=s.pick_radius,
+        )
+        meta, data = encode_payload(payload)
+        self._sync(payload_meta=meta, payload_data=data, q=s.Q.ravel().tolist(), basis=s.kind,
+                   shape_name=s.shape.name)
+        self._send_ground_truth()
+
+    def _send_ground_truth(self):
+        s = self.state
+        if s.gt_enabled and s.X_gt is not None:
+            self._sync(gt_meta={"text": ground_truth_text(s)}, gt_data=s.X_gt.astype(np.float32).tobytes())
+        else:
+            self._sync(gt_meta={"text": ""}, gt_data=b"")
+
+    def _on_q(self, change):
+        if self._syncing:
+            return
+        self.state.set_Q(np.reshape(change["new"], (-1, 2)))
+        self._send_ground_truth()
+
+    def _on_basis(self, change):
+        if not self._syncing:
+            self.state.set_basis(change["new"])
+            self._send_operator()
+
+    def _on_shape(self, change):
+        if not self._syncing:
+            self.state = EditorState(change["new"], **self._state_kw)
+            self._send_operator()
+
+    def _on_ground_truth(self, change):
+        if not self._syncing:
+            self.state.set_ground_truth(change["new"])
+            self._send_ground_truth()

@@ -1,0 +1,208 @@
+"""What the page needs to evaluate a DefOp: the operator, the mesh, the regions and a picture, as one payload.
+
+:func:`defop_to_payload` packs Ψ's kind and centres or monomial plan, the float32 factors, the mesh and the
+handles; ``static/defop_editor.js`` evaluates D(·, Q) = x + δψ(Q) A B (Eq. 3 in the form (★) of
+:mod:`defop.operator.defop`) with the formulas of :mod:`defop.operator.handle_bases`. Shared by the Jupyter
+widget (:mod:`.browser`) and the standalone page (:mod:`.export`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..geometry.planar.outlines import load_image
+from .state import reach_polygons
+
+JS_PATH = Path(__file__).with_name("static") / "defop_editor.js"
+_DTYPES = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u1": np.uint8}
+# WebGL guarantees far smaller textures, but every current GPU (and Chromium's SwiftShader) takes 4096 per side;
+# the page checks MAX_TEXTURE_SIZE again and draws the untextured mesh when the picture does not fit
+MAX_IMAGE_SIDE = 4096
+MAX_IMAGE_BYTES = 16 * 2**20  # the encoded PNG, sent once to the page (a widget message, or inlined in a page)
+
+
+def mesh_edges(F):
+    """Unique edges of a triangle mesh.
+
+    Parameters
+    ----------
+    F : (m,3) int numpy array
+
+    Returns
+    -------
+    E : (e,2) int numpy array
+    """
+    E = np.sort(np.asarray(F)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return np.unique(E, axis=0)
+
+
+def _polynomial_plan(monomials):
+    """Each monomial of degree ≥ 1 as (parent monomial index, z coordinate): ψ_j = ψ_parent · z_factor."""
+    index = {m: i for i, m in enumerate(monomials)}
+    parent = [index[m[:-1]] if len(m) > 1 else 0 for m in monomials[1:]]
+    factor = [m[-1] for m in monomials[1:]]
+    return np.array(parent, np.int32), np.array(factor, np.int32)
+
+
+def defop_to_payload(op, regions=None):
+    """Everything the page needs to evaluate and draw a DefOp: the one place that reads its internals.
+
+    Parameters
+    ----------
+    op : defop.operator.DefOp
+        Uses the compressed factors ``(A, B)`` of W_F when present, otherwise W_F (W[1:] with the handle
+        columns zeroed) as a single factor: the page evaluates (★) of :mod:`defop.operator.defop`.
+    regions : list of list of (k,2) numpy array, optional
+        Sampling-region polygons per moving handle (:func:`defop.editor.state.region_polygons`); default:
+        discs through the farthest training sample.
+
+    Returns
+    -------
+    payload : dict
+        Scalars (``kind``, ``size``, ``n_moving``, ``n_vertices``, ``scale``, ``rank``, ``regions``) and
+        numpy arrays (``P``, ``centers`` or ``parent``/``factor``, ``A``, ``B``, ``V``, ``F``, ``E``,
+        ``handles``, ``moving``), each flattened row-major by :func:`encode_payload`.
+    """
+    basis = op.handle_basis
+    if regions is None:
+        regions = reach_polygons(op.P, op.train_samples)
+    p = {
+        "kind": basis.kind,
+        "size": int(basis.size),
+        "n_moving": int(basis.n_handles),
+        "n_vertices": int(op.n_vertices),
+        "scale": float(basis.scale),
+        "regions": [[np.asarray(poly, float).ravel().tolist() for poly in polys] for polys in regions],
+        "P": np.asarray(basis.P, np.float64),
+        "V": np.asarray(op.mesh.V, np.float64),
+        "F": np.asarray(op.mesh.F, np.int32),
+        "E": mesh_edges(op.mesh.F).astype(np.int32),
+        "handles": np.asarray(op.handles, np.int32),
+        "moving": np.asarray(op.moving, np.uint8),
+    }
+    if basis.kind == "tps":
+        p["centers"] = np.asarray(basis.z(basis.centers), np.float64)  # z_k = (Q_k − P)/scale, (m, 2n)
+    else:
+        p["parent"], p["factor"] = _polynomial_plan(basis.monomials)
+    # (★) of defop.operator.defop: D(·, Q) = x + δψ(Q) W_F, the moving handles' columns set to Q − P exactly
+    if op.factors is not None:
+        p["A"], p["B"] = (np.asarray(f, np.float32) for f in op.factors)
+        p["rank"] = int(p["A"].shape[1])
+    else:
+        p["A"] = np.asarray(op._WF, np.float32)  # W[1:] with the handle columns zeroed
+    return p
+
+
+def pixel_coordinates(mesh, image_frame):
+    """The rest vertices in the picture's pixels, from a mesh → pixel map or the coordinates themselves.
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    image_frame : callable or (n_vertices,2) numpy array
+        ``to_pixels((k,2) mesh coordinates) -> (k,2) pixels``, e.g. the second result of
+        :func:`defop.view.warp.image_to_mesh_frame` ``(mask, mesh)``; or the rest vertices already in pixels.
+        Pixels as in :mod:`defop.view.warp`: x = column, y = row (down), pixel centres at integers.
+
+    Returns
+    -------
+    V_px : (n_vertices,2) numpy array
+    """
+    V_px = image_frame(mesh.V) if callable(image_frame) else image_frame
+    V_px = np.asarray(V_px, dtype=float)
+    if V_px.shape != mesh.V.shape:
+        raise ValueError(f"image_frame must give one pixel position per vertex, shape {mesh.V.shape}; got {V_px.shape}")
+    bad = ~np.isfinite(V_px).all(axis=1)
+    if bad.any():
+        raise ValueError(f"image_frame gave a NaN or infinite pixel position (vertex {int(np.flatnonzero(bad)[0])})")
+    return V_px
+
+
+def _png(img):
+    """PNG bytes of a float image in [0,1] ((H,W), (H,W,3) or (H,W,4)), 8 bits per channel."""
+    import io
+
+    from PIL import Image  # pillow: matplotlib's own image library
+
+    out = io.BytesIO()
+    Image.fromarray(np.round(img * 255).astype(np.uint8)).save(out, format="png", optimize=False)
+    return out.getvalue()
+
+
+def image_payload(image, V_px):
+    """A picture as the page's texture: PNG bytes and one texture coordinate per vertex.
+
+    Parameters
+    ----------
+    image : (H,W), (H,W,3) or (H,W,4) numpy array, or path
+        Grey, RGB or RGBA; bool, integer or float in [0,1] (validated by
+        :func:`defop.geometry.planar.outlines.load_image`).
+    V_px : (n_vertices,2) numpy array
+        The rest vertices in the picture's pixels (:func:`pixel_coordinates`): x = column, y = row.
+
+    Returns
+    -------
+    payload : dict
+        ``image_png`` ((bytes,) uint8 numpy array), ``uv`` ((n_vertices,2) float32 numpy array: texture
+        coordinates, ``(V_px + ½) / (W, H)``, the origin at the top-left corner of the first pixel, v down) and
+        ``image_size`` ([W, H]).
+
+    Raises
+    ------
+    ValueError
+        A bad picture (dtype, layout, NaN, empty, values outside [0,1]), a side above :data:`MAX_IMAGE_SIDE`,
+        a PNG above :data:`MAX_IMAGE_BYTES`, or a vertex more than a pixel outside the picture (a wrong frame).
+    """
+    img = load_image(image)
+    H, W = img.shape[:2]
+    if max(H, W) > MAX_IMAGE_SIDE:
+        raise ValueError(f"the picture is {W} x {H} pixels; the page takes at most {MAX_IMAGE_SIDE} per side "
+                         f"(downscale it, e.g. skimage.transform.rescale, and its pixel frame with it)")
+    V_px = np.asarray(V_px, dtype=float)
+    if V_px.ndim != 2 or V_px.shape[1] != 2 or not np.isfinite(V_px).all():
+        raise ValueError(f"V_px must be a finite (n_vertices, 2) array, got shape {V_px.shape}")
+    lo, hi = np.array([-0.5, -0.5]), np.array([W - 0.5, H - 0.5])  # the picture's outer pixel edges
+    gap = np.maximum(lo - V_px, 0).max(axis=1) + np.maximum(V_px - hi, 0).max(axis=1)
+    if gap.max() > 1.0:
+        i = int(np.argmax(gap))
+        raise ValueError(f"vertex {i} maps to pixel ({V_px[i, 0]:.1f}, {V_px[i, 1]:.1f}), {gap[i]:.1f} px outside "
+                         f"the {W} x {H} picture: image_frame must map the mesh to this picture's pixels "
+                         f"(x = column, y = row down)")
+    png = _png(img)
+    if len(png) > MAX_IMAGE_BYTES:
+        raise ValueError(f"the picture is {len(png) / 2**20:.1f} MiB as PNG; the page takes at most "
+                         f"{MAX_IMAGE_BYTES / 2**20:.0f} MiB (downscale it)")
+    uv = ((V_px + 0.5) / [W, H]).astype(np.float32)
+    return {"image_png": np.frombuffer(png, np.uint8), "uv": uv, "image_size": [int(W), int(H)]}
+
+
+def encode_payload(payload):
+    """Split a payload into JSON metadata and one byte buffer (arrays at 8-byte-aligned offsets).
+
+    Returns
+    -------
+    meta : dict
+        ``{"scalars": {...}, "arrays": {name: {"dtype", "shape", "offset", "length"}}}``
+    data : bytes
+    """
+    codes = {np.dtype(v): k for k, v in _DTYPES.items()}
+    scalars, arrays, chunks, offset = {}, {}, [], 0
+    for name, value in payload.items():
+        if not isinstance(value, np.ndarray):
+            scalars[name] = value
+            continue
+        a = np.ascontiguousarray(value)
+        raw = a.tobytes()
+        arrays[name] = {"dtype": codes[a.dtype], "shape": list(a.shape), "offset": offset, "length": int(a.size)}
+        pad = -len(raw) % 8
+        chunks.append(raw + b"\0" * pad)
+        offset += len(raw) + pad
+    return {"scalars": scalars, "arrays": arrays}, b"".join(chunks)
+
+
+def image_for(mesh, image, image_frame):
+    if image is None or image_frame is None:
+        raise ValueError("image and image_frame go together: the picture and where the mesh lies in its pixels")
+    return image_payload(image, pixel_coordinates(mesh, image_frame))

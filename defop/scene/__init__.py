@@ -1,0 +1,10 @@
+"""Scenes: a mesh with point handles and sampling regions (layer 2).
+
+:mod:`.regions` are the sampling regions of §3.3, :mod:`.models` the paper's catalogue (Table 1) and
+:mod:`.shapes` the :class:`Shape` and its constructors (``load``, ``from_polygon``, ``from_image``).
+"""
+
+from . import models, regions, shapes
+from .shapes import Shape
+
+__all__ = ["Shape", "models", "regions", "shapes"]

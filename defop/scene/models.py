@@ -1,0 +1,247 @@
+"""The paper's models as procedural outlines with default handles and sampling regions.
+
+``bar`` (Fig. 3, 7), ``u_shape`` (Fig. 4), ``gingerbread`` (Fig. 6), ``aleph`` (Fig. 8, 9; the
+letter א of DejaVu Sans through matplotlib's ``TextPath``), ``octopus`` (Fig. 1), ``crab`` (Fig. 2)
+and ``dino`` (Table 1). Each model is a :class:`Model`: pure geometry (outline, holes, handle
+points, moving flags, regions) that :func:`defop.scene.shapes.load` meshes. Organic outlines are unions
+of tapered capsules and ellipses (:mod:`defop.geometry.planar.outlines`). Every coordinate is computed element-wise
+(no BLAS), so the outline is the same on every CPU.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..geometry.planar.outlines import capsule, chain, cos_sin, ellipse, implicit_outline, union
+from ..geometry.planar.polygon import polygon_area
+from .regions import Disc, Ellipse, Mixture, Voronoi
+
+
+@dataclasses.dataclass
+class Model:
+    """Geometry of a named shape, before meshing.
+
+    Attributes
+    ----------
+    name : str
+    outer : (k,2) numpy array
+    holes : list of (l,2) numpy array
+    handles : (h,2) numpy array
+        Handle positions (they become mesh vertices).
+    moving : (h,) bool numpy array
+    regions : list of defop.scene.regions.Region
+        One per moving handle.
+    description : str
+    """
+
+    name: str
+    outer: np.ndarray
+    holes: list
+    handles: np.ndarray
+    moving: np.ndarray
+    regions: list
+    description: str
+
+
+def _bar():
+    outer = np.array([[0, 0], [1, 0], [1, 0.2], [0, 0.2]], float)
+    handles = [[0.96, 0.1], [0.02, 0.03], [0.02, 0.1], [0.02, 0.17]]
+    return Model(
+        "bar",
+        outer,
+        [],
+        np.array(handles),
+        np.array([True, False, False, False]),
+        [Ellipse((0.06, 0.3))],
+        "1 x 0.2 bar, left end clamped by 3 fixed handles, 1 moving handle at the right end (Fig. 3, 7); "
+        "its region is a tall ellipse: pushing the end in by more than ~6% buckles the bar up or down (a jump)",
+    )
+
+
+def _u_shape():
+    outer = np.array([[0, 0], [1, 0], [1, 1], [0.72, 1], [0.72, 0.3], [0.28, 0.3], [0.28, 1], [0, 1]], float)
+    handles = [[0.14, 0.93], [0.86, 0.93], [0.1, 0.08], [0.5, 0.08], [0.9, 0.08], [0.5, 0.22]]
+    return Model(
+        "u_shape",
+        outer,
+        [],
+        np.array(handles),
+        np.array([True, True, False, False, False, False]),
+        [Disc(0.2), Disc(0.2)],
+        "U shape: the two arm tips move, the base is held by fixed handles (Fig. 4)",
+    )
+
+
+def _from_field(field, bbox, name, handles, moving, regions, description):
+    outer, holes = implicit_outline(field, bbox)
+    return Model(name, outer, holes, np.asarray(handles, float), np.asarray(moving, bool), regions, description)
+
+
+def _gingerbread():
+    f = union(
+        ellipse((0, 0.78), 0.2, 0.2),  # head
+        ellipse((0, 0.22), 0.26, 0.36),  # body
+        capsule((-0.15, 0.42), (-0.55, 0.52), 0.11, 0.1),  # arms
+        capsule((0.15, 0.42), (0.55, 0.52), 0.11, 0.1),
+        capsule((-0.12, 0.0), (-0.3, -0.5), 0.13, 0.12),  # legs
+        capsule((0.12, 0.0), (0.3, -0.5), 0.13, 0.12),
+    )
+    handles = [[-0.55, 0.52], [0.55, 0.52], [-0.3, -0.5], [0.3, -0.5], [0, 0.82]]
+    return _from_field(
+        f,
+        [[-0.8, -0.75], [0.8, 1.1]],
+        "gingerbread",
+        handles,
+        [True] * 5,
+        [Disc(0.3)] * 5,
+        "gingerbread man with handles at the hands, feet and head (Fig. 6)",
+    )
+
+
+# picked on the normalised DejaVu Sans glyph: the ends of the three strokes and the diagonal
+_ALEPH_HANDLES = [[0.1, 0.95], [0.81, 0.93], [0.08, 0.05], [0.79, 0.05], [0.45, 0.5]]
+
+
+def _aleph():
+    from matplotlib.font_manager import FontProperties  # font outline data, not plotting
+    from matplotlib.textpath import TextPath
+
+    tp = TextPath((0, 0), "\u05d0", prop=FontProperties(family="DejaVu Sans"), size=1)
+    polys = [np.asarray(p) for p in tp.to_polygons()]
+    outer = max(polys, key=lambda p: abs(polygon_area(p)))
+    outer = (outer - outer.min(0)) / np.ptp(outer, axis=0).max()
+    n = len(_ALEPH_HANDLES)
+    return Model(
+        "aleph",
+        outer,
+        [],
+        np.array(_ALEPH_HANDLES),
+        np.ones(n, bool),
+        [Disc(0.12)] * n,
+        "the Hebrew letter aleph from DejaVu Sans (TextPath), 5 handles (Fig. 8, 9)",
+    )
+
+
+def _octopus():
+    parts = [ellipse((0, 0.35), 0.32, 0.38)]
+    tips = []
+    s = np.linspace(0, 1, 12)
+    wave = 0.1 * np.array([cos_sin(2 * math.pi * v)[1] for v in s]) * s
+    for k in range(8):
+        d = np.array(cos_sin(math.pi * (1.0 + k / 7)))  # fan out below the head
+        base = np.array([0.2 * d[0], 0.2 + 0.2 * d[1]])
+        nrm = np.array([-d[1], d[0]])
+        curve = base + (s * 0.8)[:, None] * d[None] + wave[:, None] * nrm[None]
+        parts.append(chain(curve, 0.075, 0.03))
+        tips.append(curve[-1] - 0.03 * d)
+    handles = np.vstack(tips + [np.array([[0, 0.5]])])
+    mix = Mixture((Disc(0.18), Voronoi(0.45)), (0.5, 0.5))
+    return _from_field(
+        union(*parts),
+        [[-1.2, -1.0], [1.2, 0.85]],
+        "octopus",
+        handles,
+        [True] * 9,
+        [mix] * 8 + [Disc(0.12)],
+        "octopus: 8 tentacle tips and the head; samples from discs and Voronoi cells (Fig. 1)",
+    )
+
+
+def _crab():
+    parts = [ellipse((0, 0), 0.42, 0.28)]
+    handles = []
+    for sgn in (-1, 1):
+        # claws: arm + two pincer fingers
+        arm = np.array([[0.25 * sgn, 0.15], [0.45 * sgn, 0.4], [0.5 * sgn, 0.62]])
+        parts.append(chain(arm, 0.07, 0.06))
+        parts.append(ellipse((0.52 * sgn, 0.72), 0.11, 0.14))
+        parts.append(capsule((0.46 * sgn, 0.78), (0.38 * sgn, 0.97), 0.05, 0.025))
+        parts.append(capsule((0.6 * sgn, 0.78), (0.62 * sgn, 0.97), 0.05, 0.025))
+        handles.append([0.52 * sgn, 0.72])
+        # four legs per side
+        for k in range(4):
+            y0 = 0.08 - 0.12 * k
+            knee = np.array([(0.62 - 0.03 * k) * sgn, y0 + 0.06])
+            foot = np.array([(0.8 + 0.02 * k) * sgn, y0 - 0.3 - 0.08 * k])
+            parts.append(chain(np.array([[0.15 * sgn, 0.6 * y0], knee, foot]), 0.042, 0.022))
+            leg = foot - knee
+            handles.append(foot - 0.03 * leg / math.sqrt(leg[0] * leg[0] + leg[1] * leg[1]))
+        parts.append(capsule((0.12 * sgn, 0.2), (0.14 * sgn, 0.36), 0.03, 0.035))  # eye stalks
+    # 2 claws + 8 legs = 10 moving, 1 fixed at the body centre
+    return _from_field(
+        union(*parts),
+        [[-1.05, -1.0], [1.05, 1.05]],
+        "crab",
+        np.vstack([handles, [[0.0, 0.0]]]),
+        [True] * 10 + [False],
+        [Disc(0.15)] * 10,
+        "crab: claws and 8 legs move, the body centre is held (Fig. 2)",
+    )
+
+
+def _dino():
+    body = ellipse((0, 0), 0.45, 0.25)
+    neck = chain(np.array([[0.3, 0.1], [0.55, 0.45], [0.7, 0.75]]), 0.13, 0.08)
+    head = ellipse((0.8, 0.8), 0.14, 0.08, angle=-0.2)
+    tail = chain(np.array([[-0.35, 0.0], [-0.75, 0.1], [-1.05, 0.3], [-1.3, 0.35]]), 0.16, 0.03)
+    legs = [capsule((x, -0.1), (x + 0.03, -0.55), 0.09, 0.07) for x in (-0.25, -0.1, 0.12, 0.27)]
+    return _from_field(
+        union(body, neck, head, tail, *legs),
+        [[-1.45, -0.7], [1.05, 1.0]],
+        "dino",
+        [[0.85, 0.8], [-1.27, 0.35], [-0.22, -0.52], [0.3, -0.52]],
+        [True, True, False, False],
+        [Disc(0.3)] * 2,
+        "dinosaur: head and tail tip move, the feet stand (Table 1)",
+    )
+
+
+CATALOGUE = {
+    "bar": _bar,
+    "u_shape": _u_shape,
+    "gingerbread": _gingerbread,
+    "aleph": _aleph,
+    "octopus": _octopus,
+    "crab": _crab,
+    "dino": _dino,
+}
+
+_DEFAULT_VERTICES = {
+    "bar": 600,
+    "u_shape": 800,
+    "gingerbread": 1200,
+    "aleph": 2900,
+    "octopus": 4000,
+    "crab": 2100,
+    "dino": 1700,
+}
+
+
+def check_name(name):
+    """Raise ValueError listing the known names if ``name`` is not one."""
+    if not isinstance(name, str) or name not in CATALOGUE:
+        raise ValueError(f"unknown shape {name!r}; known shapes: {', '.join(CATALOGUE)}")
+
+
+def model(name):
+    """The geometry of a named model.
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    model : Model
+    """
+    check_name(name)
+    return CATALOGUE[name]()
+
+
+def default_vertices(name):
+    """The default vertex count of a named shape (near Table 1)."""
+    check_name(name)
+    return _DEFAULT_VERTICES[name]

@@ -1,0 +1,494 @@
+"""Training a DefOp by bootstrapping (§3.3): sample, solve the variational problem, fit.
+
+Stages, each timed in the :class:`TrainingRecord`:
+
+1. **bootstrap**: the first 2n + 1 samples (n moving handles) are solved from the rest pose and a
+   *linear* operator is fitted to them;
+2. **solve**: every other sample is solved globally (:meth:`defop.variational.solver.Solver.solve_best`): from the
+   rest pose and from that linear operator's prediction (skipped when it flips a triangle under a
+   barrier energy), keeping the lowest verified minimum; ``rounds > 1`` re-solves every sample from its
+   current solution and the prediction of a smooth fit, keeping the lower;
+3. **fit**: the final basis (problem 8).
+
+Sample solves run in parallel with joblib on every core by default (``DEFOP_N_JOBS``), through
+whatever joblib backend is active, so ``with joblib.parallel_backend("dask"):`` runs them on a Dask
+cluster. Ground truths and trained operators are cached on disk (``DEFOP_CACHE``, :mod:`defop.training.cache`),
+keyed by a hash of everything that determines them (the solver's settings and the library version
+included), so notebooks and figures never retrain.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+import warnings
+
+import numpy as np
+
+from .. import config
+from .. import options as opt
+from ..geometry.mesh import Mesh
+from ..operator import handle_bases as hb
+from ..operator.defop import DefOp
+from ..operator.fit import check_distinct, fit
+from ..variational import energies as en
+from ..variational.solver import NotConvergedWarning, Solver
+from . import cache as cache_mod
+from .sampling import sample_shape
+
+DEFAULT_M = 200
+
+
+@dataclasses.dataclass
+class TrainingRecord:
+    """What training did.
+
+    Attributes
+    ----------
+    samples : (m,n,2) numpy array
+        The training configurations Q_k (rest pose excluded).
+    X : (m,n_vertices,2) numpy array or None
+        Their ground-truth deformations.
+    converged : (m,) bool numpy array or None
+    stage_times : dict of str -> float
+        Seconds per stage (``bootstrap``, ``solve``, ``fit``, ``fold``).
+    cache : str
+        ``"operator"`` (loaded trained operator), ``"ground truth"`` (loaded samples, refitted) or ``"none"``.
+    params : dict
+    """
+
+    samples: np.ndarray
+    X: np.ndarray | None
+    converged: np.ndarray | None
+    stage_times: dict
+    cache: str
+    params: dict
+
+    @property
+    def total_time(self) -> float:
+        return float(sum(self.stage_times.values()))
+
+
+def _check_samples(shape, samples, name="samples"):
+    """(m,n,2) float array of configurations of the shape's n moving handles, finite, m >= 1."""
+    samples = np.asarray(samples, float)
+    n = shape.n_moving
+    if samples.ndim != 3 or samples.shape[1:] != (n, 2) or len(samples) == 0:
+        raise ValueError(f"{name} must have shape (m, {n}, 2), m >= 1, for {n} moving handles, got {samples.shape}")
+    if not np.isfinite(samples).all():
+        raise ValueError(f"{name} has NaN or infinite entries")
+    return samples
+
+
+def min_samples(basis, n):
+    """The fewest samples Q_k (besides the rest pose) :func:`train` needs for a handle basis.
+
+    Parameters
+    ----------
+    basis : str
+        ``"linear"``, ``"quadratic"``, ``"cubic"`` or ``"tps"``.
+    n : int
+        Number of moving handles.
+
+    Returns
+    -------
+    int
+        |Ψ| - 1 for the polynomial bases (``fit`` adds the rest pose), 2n + 1 for TPS.
+    """
+    opt.choice("handle basis", basis, hb.KINDS)
+    return 2 * n + 1 if basis == "tps" else hb.basis_size(basis, n) - 1
+
+
+def _check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds):
+    """Validate :func:`train`'s options before any work; returns (m, samples or None)."""
+    opt.choice("handle basis", basis, hb.KINDS)
+    opt.choice("spatial basis", spatial, ("hat", "reduced"))
+    if spatial == "reduced":  # reduced_basis solves for k + 3 eigenpairs: k + 3 < n_vertices
+        opt.integer("k", k, minimum=3, maximum=shape.mesh.n_vertices - 4)
+    opt.seed(seed)
+    opt.n_jobs(n_jobs)
+    opt.integer("rounds", rounds, minimum=1)
+    if samples is not None:
+        samples = _check_samples(shape, samples)
+        m, given = len(samples), "given samples"
+    else:
+        m = opt.integer("m", DEFAULT_M if m is None else m, minimum=1)
+        given = f"m = {m}"
+    need = min_samples(basis, shape.n_moving)
+    if m < need:
+        raise ValueError(
+            f"the {basis} handle basis needs at least {need} samples Q_k besides the rest pose for "
+            f"{shape.n_moving} moving handles, got {given}"
+        )
+    if samples is not None and basis == "tps":  # before any solve, not after
+        check_distinct(samples)
+    return m, samples
+
+
+def _solver_key(shape, energy):
+    """The settings of the solver :func:`solve_samples` uses, for the cache keys.
+
+    Read from a Solver built like :func:`solve_samples`'s but on one triangle: its settings do not
+    depend on the mesh, and this takes 0.1 ms instead of 45 ms on the octopus (3911 vertices).
+    """
+    tiny = Mesh(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([[0, 1, 2]]))
+    return cache_mod.solver_settings(Solver(tiny, np.array([0]), energy))
+
+
+def _gt_expect(m, n_vertices):
+    return {"X": ((m, n_vertices, 2), "f"), "converged": ((m,), "b")}
+
+
+def _load_gt(store, key, m, n_vertices):
+    """(X, converged, meta) of a cached ground truth, or None."""
+    entry = None if store is None else store.load("gt", key, _gt_expect(m, n_vertices))
+    return None if entry is None else (entry[0]["X"], entry[0]["converged"], entry[1])
+
+
+def _operator_reader(shape, basis, spatial, n_samples):
+    """``DefOp.load`` plus the checks that the cached operator is the one asked for: ``shape``'s mesh and
+    handles, the handle basis Ψ, the spatial basis Φ and the sample count (a misplaced entry is not used)."""
+
+    def read(path):
+        op = DefOp.load(path)
+        if op.mesh.V.shape != shape.mesh.V.shape or not np.array_equal(op.handles, shape.handles):
+            raise cache_mod.CorruptEntry("the operator does not match the shape's mesh and handles")
+        got = (op.handle_basis.kind, op.meta.get("spatial"), op.meta.get("n_samples"))
+        if got != (basis, spatial, n_samples):
+            raise cache_mod.CorruptEntry(
+                f"the operator is (Ψ, Φ, m) = {got}, not the requested {(basis, spatial, n_samples)}"
+            )
+        if not np.isfinite(op.W).all():
+            raise cache_mod.CorruptEntry("the operator's coefficients have NaN or infinite entries")
+        return op
+
+    return read
+
+
+def _solve_chunk(solver, targets, starts, rest=True):
+    """:meth:`Solver.solve_best` per sample: its starts (None, one map or a list of maps) and the rest pose."""
+    out = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotConvergedWarning)
+        for T, X0 in zip(targets, starts):
+            extra = [] if X0 is None else list(X0) if isinstance(X0, (list, tuple)) else [X0]
+            r = solver.solve_best(T, starts=extra, rest=rest)
+            out.append((r.X, r.converged))
+    return out
+
+
+def _progress(total, desc, enabled):
+    """A progress bar over ``total`` sample solves, or None.
+
+    Parameters
+    ----------
+    total : int
+    desc : str
+    enabled : bool or callable
+        False: no bar. A callable: ``enabled(total=total, desc=desc)`` makes the bar, any object with
+        ``update(n)`` and ``close()`` (the playground passes its widget bar). True: ``tqdm.auto`` (a
+        widget in a live notebook), except with ``DEFOP_PROGRESS=text``, set by the main job: a plain
+        text bar on stderr, which the job forwards to the terminal instead of storing a widget frozen
+        at 0 % in the notebook.
+
+    Returns
+    -------
+    bar : object or None
+    """
+    if not enabled:
+        return None
+    if callable(enabled):
+        return enabled(total=total, desc=desc)
+    if os.environ.get("DEFOP_PROGRESS", "").strip().lower() == "text":
+        from tqdm.std import tqdm
+    else:
+        from tqdm.auto import tqdm
+    return tqdm(total=total, desc=desc, leave=False)
+
+
+def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress=True, desc="solving", rest=True):
+    """Solve problem (6) at every sample, in parallel: the lowest verified minimum over the starts
+    (:meth:`defop.variational.solver.Solver.solve_best`).
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    samples : (m,n,2) numpy array
+    energy : str
+    X0 : (m,n_vertices,2) numpy array or list, optional
+        Extra starts per sample: None, one (n_vertices,2) map, or a list of maps.
+    n_jobs : int, optional
+        Workers (default ``dop.config.n_jobs()``: all cores); 1 solves in this process.
+    progress : bool
+        A tqdm progress bar.
+    rest : bool
+        Also solve from the rest pose (through flip-free continuation).
+
+    Returns
+    -------
+    X : (m,n_vertices,2) numpy array
+    converged : (m,) bool numpy array
+        Verified local minimum (see :meth:`defop.variational.solver.Solver.verify`).
+    """
+    from joblib import Parallel, delayed
+
+    en.check_energy(energy)
+    samples = _check_samples(shape, samples)
+    n_jobs = opt.n_jobs(n_jobs)
+    m = len(samples)
+    if X0 is not None and len(X0) != m:
+        raise ValueError(f"X0 must give one warm start (or None) per sample: {len(X0)} for {m} samples")
+    targets = [shape.targets(q) for q in samples]
+    starts = list(X0) if X0 is not None else [None] * m
+    solver = Solver(shape.mesh, shape.handles, energy)
+    n_jobs = config.n_jobs() if n_jobs is None else n_jobs
+    bar = _progress(m, desc, progress)
+    results = []
+    if n_jobs == 1 or m <= 2:
+        for i in range(m):
+            results += _solve_chunk(solver, targets[i : i + 1], starts[i : i + 1], rest)
+            if bar:
+                bar.update(1)
+    else:
+        from joblib import effective_n_jobs
+
+        n_chunks = min(m, 4 * max(1, effective_n_jobs(n_jobs)))
+        bounds = np.linspace(0, m, n_chunks + 1).astype(int)
+        chunks = [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+        gen = Parallel(n_jobs=n_jobs, return_as="generator")(
+            delayed(_solve_chunk)(solver, targets[a:b], starts[a:b], rest) for a, b in chunks
+        )
+        for (a, b), res in zip(chunks, gen):
+            results += res
+            if bar:
+                bar.update(b - a)
+    if bar:
+        bar.close()
+    X = np.array([r[0] for r in results])
+    conv = np.array([r[1] for r in results], dtype=bool)
+    return X, conv
+
+
+def sample_ground_truth(shape, samples, energy="sarap", X0=None, n_jobs=None, progress=True, cache=True):
+    """:func:`solve_samples` with an on-disk cache (:mod:`defop.training.cache`).
+
+    The key holds the mesh, the handles, the energy, the solver's settings and the samples. The warm
+    starts ``X0`` are not in the key: they only choose among local minima the solver accepts.
+
+    Returns
+    -------
+    X : (m,n_vertices,2) numpy array
+    converged : (m,) bool numpy array
+    """
+    en.check_energy(energy)
+    samples = _check_samples(shape, samples)
+    opt.n_jobs(n_jobs)
+    store = cache_mod.open_cache(cache)
+    key = None
+    if store is not None:
+        mesh = shape.mesh
+        settings = _solver_key(shape, energy)
+        key = cache_mod.key("gt", mesh.V, mesh.F, shape.handles, shape.moving, energy, settings, samples)
+        hit = _load_gt(store, key, len(samples), mesh.n_vertices)
+        if hit is not None:
+            return hit[0], hit[1]
+    X, conv = solve_samples(shape, samples, energy, X0, n_jobs, progress)
+    if store is not None:
+        store.store("gt", key, {"X": X, "converged": conv})
+    return X, conv
+
+
+def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cache=True):
+    """Held-out test samples and their ground truth, solved like the training samples.
+
+    Each test configuration is solved globally (:meth:`defop.variational.solver.Solver.solve_best`): from the rest
+    pose and, when ``like`` is given, also from ``like(Q)``; the lowest verified minimum is kept (the rule
+    of the training solves), so the test set sits on the same branches as the training set.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    energy : str
+    m : int
+        Number of test samples.
+    seed : int
+        Seeds their sampling (use one the training did not).
+    like : defop.operator.DefOp, optional
+        An operator whose predictions warm-start the second solve.
+
+    Returns
+    -------
+    Q : (m,n,2) numpy array
+    X : (m,n_vertices,2) numpy array
+    converged : (m,) bool numpy array
+
+    Raises
+    ------
+    ValueError
+        Before any solve, naming the option: an unknown energy, ``m``, ``seed`` or ``n_jobs`` not an
+        integer in range, ``like`` not callable, a ``DEFOP_CACHE`` that cannot be used.
+    """
+    en.check_energy(energy)
+    m = opt.integer("m", m, minimum=1)
+    opt.seed(seed)
+    opt.n_jobs(n_jobs)
+    if like is not None and not callable(like):
+        raise ValueError(f"like must be a trained operator (a DefOp) or None, got {type(like).__name__}")
+    cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
+    Q = sample_shape(shape, m, np.random.default_rng(seed))
+    X, conv = sample_ground_truth(shape, Q, energy, None, n_jobs, progress, cache)
+    if like is not None:
+        # the rest-pose solutions (cached) and like's predictions as the starts of one multi-start solve
+        starts = [[x, w] for x, w in zip(X, _warm_starts(like, Q, shape.mesh, energy))]
+        X, conv = solve_samples(shape, Q, energy, starts, n_jobs, progress, desc="warm test solves", rest=False)
+    return Q, X, conv
+
+
+def _warm_starts(op, samples, mesh, energy):
+    from ..operator.defop import ExtrapolationWarning
+
+    starts = []
+    with warnings.catch_warnings():  # a warm start may extrapolate: the solver corrects it
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        predictions = op(samples)
+    for X in predictions:
+        starts.append(None if en.is_barrier(energy) and np.any(mesh.flipped(X)) else X)
+    return starts
+
+
+def train(
+    shape,
+    energy="sarap",
+    basis="tps",
+    m=None,
+    spatial="hat",
+    k=100,
+    seed=0,
+    samples=None,
+    n_jobs=None,
+    cache=True,
+    progress=True,
+    rounds=2,
+):
+    """Train a DefOp for a shape: sample, bootstrap, solve, fit (§3.3).
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    energy : str
+        ``"arap"``, ``"sarap"``, ``"isometric"`` (symmetric Dirichlet), ``"isometric_max"`` or ``"isometric_exp"``
+        (see :data:`defop.variational.energies.ENERGIES`).
+    basis : str
+        Handle basis Ψ: ``"linear"``, ``"quadratic"``, ``"cubic"`` or ``"tps"``.
+    m : int, optional
+        Number of samples Q_k (default 200; ignored when ``samples`` is given).
+    spatial : str
+        Φ: ``"hat"`` or ``"reduced"``.
+    k : int
+        Size of the reduced Φ.
+    seed : int
+        Seeds the sampling of Q_k.
+    samples : (m,n,2) numpy array, optional
+        Use these configurations instead of sampling.
+    n_jobs : int, optional
+        Parallel solves (default: every core).
+    cache : bool
+        Read and write the on-disk cache.
+    progress : bool
+        tqdm progress bars.
+    rounds : int
+        How many times the solve stage runs. Rounds after the first re-solve every sample warm-started
+        from a smooth (quadratic, or linear) fit of the current samples and keep whichever solution has
+        the lower energy: this moves samples that landed in a higher local minimum (measured on the bar:
+        1 of 17 samples at 1.5x the energy of the branch its neighbours are on) back onto the branch.
+
+    Returns
+    -------
+    defop : defop.operator.DefOp
+    record : TrainingRecord
+
+    Raises
+    ------
+    ValueError
+        Before any solve, naming the option: an unknown energy, handle basis or spatial basis; ``m``,
+        ``seed``, ``k``, ``rounds`` or ``n_jobs`` that is not an integer in range; fewer samples than
+        the handle basis needs (:func:`min_samples`, the message names the basis); ``samples`` of the
+        wrong shape or not finite; a ``DEFOP_CACHE`` or ``DEFOP_N_JOBS`` that cannot be used.
+    """
+    en.check_energy(energy)
+    m, samples = _check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds)
+    store = cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
+    if samples is None:
+        samples = sample_shape(shape, m, np.random.default_rng(seed))
+    params = dict(
+        shape=shape.name,
+        energy=energy,
+        basis=basis,
+        m=m,
+        spatial=spatial,
+        k=k if spatial == "reduced" else None,
+        seed=seed,
+        rounds=rounds,
+    )
+    mesh = shape.mesh
+    gt_key = op_key = None
+    if store is not None:
+        settings = _solver_key(shape, energy)
+        gt_key = cache_mod.key(
+            "gt-train", mesh.V, mesh.F, shape.handles, shape.moving, energy, settings, samples, rounds
+        )
+        op_key = cache_mod.key("op", gt_key, basis, spatial, params["k"])
+    times = {}
+    t0 = time.perf_counter()
+    op = None if store is None else store.load_with("op", op_key, _operator_reader(shape, basis, spatial, m))
+    if op is not None:
+        times["load"] = time.perf_counter() - t0
+        gt = _load_gt(store, gt_key, m, mesh.n_vertices)
+        X, conv = (None, None) if gt is None else gt[:2]
+        return op, TrainingRecord(samples, X, conv, times, "operator", params)
+
+    meta = {"shape": shape.name, "energy": energy, "seed": seed}
+    gt = _load_gt(store, gt_key, m, mesh.n_vertices)
+    if gt is not None:
+        X, conv = gt[0], gt[1]
+        times.update(gt[2].get("times", {}))  # how long the cached solves took when they ran
+        cache_state = "ground truth"
+    else:
+        cache_state = "none"
+        n = shape.n_moving
+        nb = min(m, 2 * n + 1)
+        t0 = time.perf_counter()
+        Xb, cb = solve_samples(shape, samples[:nb], energy, None, n_jobs, progress, desc="bootstrap solves")
+        lin = fit(shape.mesh, shape.handles, shape.moving, samples[:nb], Xb, "linear", "hat", meta=meta)
+        times["bootstrap"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        X, conv = Xb, cb
+        if m > nb:
+            starts = _warm_starts(lin, samples[nb:], shape.mesh, energy)
+            Xr, cr = solve_samples(shape, samples[nb:], energy, starts, n_jobs, progress, desc="sample solves")
+            X, conv = np.concatenate([Xb, Xr]), np.concatenate([cb, cr])
+        for _ in range(rounds - 1):
+            # a smooth predictor (not an interpolant, which would reproduce a bad local minimum)
+            smooth = "quadratic" if m + 1 >= 1 + 3 * n + 2 * n * n else "linear"
+            inter = fit(shape.mesh, shape.handles, shape.moving, samples, X, smooth, "hat", meta=meta)
+            # the current solutions and the smooth fit's predictions: the lower verified minimum of the two
+            starts = [[x, w] for x, w in zip(X, _warm_starts(inter, samples, shape.mesh, energy))]
+            X, conv = solve_samples(shape, samples, energy, starts, n_jobs, progress, desc="re-solves", rest=False)
+        times["solve"] = time.perf_counter() - t0
+        if store is not None:
+            store.store("gt", gt_key, {"X": X, "converged": conv}, meta={"times": times})
+    if not conv.all():
+        warnings.warn(
+            f"{int((~conv).sum())} of {m} sample solves did not converge; they are used as they are",
+            NotConvergedWarning,
+            stacklevel=2,
+        )
+    t0 = time.perf_counter()
+    op = fit(shape.mesh, shape.handles, shape.moving, samples, X, basis, spatial, k, meta=meta)
+    times["fit"] = op.fit_time
+    times["fold"] = time.perf_counter() - t0 - op.fit_time
+    op.meta["stage_times"] = dict(times)  # kept with the cached operator (Table 1's preprocess column)
+    if store is not None:
+        store.store_with("op", op_key, op.save)
+    return op, TrainingRecord(samples, X, conv, times, cache_state, params)

@@ -1,0 +1,77 @@
+"""Training handle configurations Q_k (§3.3).
+
+Each Q_k is drawn independently per moving handle l, around its rest position p_l, from the handle's
+region: uniform in a disc, on a circle, Gaussian, uniform in the Voronoi cell of p_l with respect to the
+other moving handles (clipped to a disc), or a mixture of these (Fig. 1 mixes discs and Voronoi cells).
+Fixed handles are not variables: they stay at rest and are not part of Q. All randomness goes through
+the ``rng`` argument (a ``numpy.random.Generator``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..scene.regions import as_region
+
+
+def sample_region(rng, region, center, m, P=None, index=None):
+    """m points of one handle's region (see :meth:`defop.scene.regions.Region.sample`).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    region : defop.scene.regions.Region or dict
+    center : (2,) numpy array
+        The handle's rest position p_l.
+    m : int
+    P : (n,2) numpy array, optional
+        All moving handles' rest positions (for ``voronoi``).
+    index : int, optional
+        Row of this handle in ``P``.
+
+    Returns
+    -------
+    points : (m,2) numpy array
+    """
+    return as_region(region).sample(rng, center, m, P, index)
+
+
+def sample_handles(P, regions, m, rng):
+    """m configurations of the moving handles.
+
+    Parameters
+    ----------
+    P : (n,2) numpy array
+        Rest positions of the moving handles.
+    regions : list of defop.scene.regions.Region or dict
+        One region per moving handle.
+    m : int
+        Number of samples.
+    rng : numpy.random.Generator or int
+        Randomness (an int seeds ``numpy.random.default_rng``).
+
+    Returns
+    -------
+    Q : (m,n,2) numpy array
+    """
+    P = np.asarray(P, float)
+    if len(regions) != len(P):
+        raise ValueError(f"{len(regions)} regions for {len(P)} moving handles")
+    if int(m) != m or m < 1:
+        raise ValueError(f"m must be a positive integer, got {m!r}")
+    regions = [as_region(r, f"region {i}") for i, r in enumerate(regions)]
+    rng = np.random.default_rng(rng)
+    Q = np.empty((int(m), len(P), 2))
+    for i, region in enumerate(regions):
+        Q[:, i] = region.sample(rng, P[i], int(m), P, i)
+    return Q
+
+
+def sample_shape(shape, m, rng):
+    """m configurations of a :class:`defop.scene.shapes.Shape`'s moving handles, from its regions.
+
+    Returns
+    -------
+    Q : (m,n,2) numpy array
+    """
+    return sample_handles(shape.P_moving, shape.regions, m, rng)

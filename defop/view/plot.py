@@ -1,0 +1,456 @@
+"""Matplotlib drawing helpers (presentation only; the core never imports this module).
+
+Colours follow the paper: moving handles red, fixed handles blue (Fig. 4), sampling regions
+drawn as translucent outlines around the moving handles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib import patches
+from matplotlib import pyplot as plt
+
+from ..scene.regions import as_region
+
+MOVING = "#d62728"
+FIXED = "#1f77b4"
+FILL = "#f2d7a6"
+REGION = "#ff7f0e"
+
+
+def plot_mesh(ax, V, F, X=None, color=FILL, edges=True, edge_color="#00000040", lw=0.3, scalars=None, **kw):
+    """Draw a (deformed) triangle mesh.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    V : (n,2) numpy array
+        Rest positions (drawn when ``X`` is None).
+    F : (m,3) numpy array
+        Triangles.
+    X : (n,2) numpy array, optional
+        Deformed positions.
+    color : str
+        Fill colour when ``scalars`` is None.
+    edges : bool
+        Draw the triangle edges.
+    scalars : (m,) or (n,) numpy array, optional
+        Colour per triangle or per vertex (``tripcolor``).
+
+    Returns
+    -------
+    artist : the fill artist (a PolyCollection)
+    """
+    P = np.asarray(V if X is None else X)
+    F = np.asarray(F)
+    if scalars is None:
+        art = ax.tripcolor(P[:, 0], P[:, 1], F, facecolors=np.zeros(len(F)), cmap=_single(color), **kw)
+    else:
+        scalars = np.asarray(scalars)
+        key = "facecolors" if len(scalars) == len(F) and len(F) != len(P) else "C"
+        art = ax.tripcolor(P[:, 0], P[:, 1], F, **{key: scalars}, **kw)
+    if edges:
+        ax.triplot(P[:, 0], P[:, 1], F, color=edge_color, lw=lw)
+    ax.set_aspect("equal")
+    ax.set_axis_off()
+    return art
+
+
+def _single(color):
+    from matplotlib.colors import ListedColormap
+
+    return ListedColormap([color])
+
+
+def plot_handles(ax, X, handles, moving=None, size=30, zorder=5):
+    """Draw handles: moving ones red, fixed ones blue.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    X : (n,2) numpy array
+        Vertex positions (rest or deformed).
+    handles : (h,) int numpy array
+        Handle vertex indices.
+    moving : (h,) bool numpy array, optional
+        All moving when None.
+    """
+    handles = np.asarray(handles, dtype=int)
+    moving = np.ones(len(handles), bool) if moving is None else np.asarray(moving, bool)
+    X = np.asarray(X)
+    ax.scatter(*X[handles[~moving]].T, s=size, c=FIXED, zorder=zorder, edgecolors="k", linewidths=0.5)
+    ax.scatter(*X[handles[moving]].T, s=size, c=MOVING, zorder=zorder + 1, edgecolors="k", linewidths=0.5)
+
+
+def region_outlines(center, region, P=None, index=None, n=96):
+    """Closed outlines of a sampling region, for drawing (see :meth:`defop.scene.regions.Region.outlines`).
+
+    Parameters
+    ----------
+    center : (2,) numpy array
+        The moving handle's rest position p_l.
+    region : defop.scene.regions.Region or dict
+    P : (n,2) numpy array, optional
+        All moving handles' rest positions (needed for ``voronoi``).
+    index : int, optional
+        Row of ``center`` in ``P`` (needed for ``voronoi``).
+    n : int
+        Points per circle.
+
+    Returns
+    -------
+    outlines : list of ((k,2) numpy array, str)
+        Polygons with a line style (``"-"``, ``"--"`` or ``":"``).
+    """
+    return as_region(region).outlines(center, P, index, n)
+
+
+def plot_regions(ax, P_moving, regions, color=REGION):
+    """Draw the sampling region of every moving handle.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    P_moving : (n,2) numpy array
+        Rest positions of the moving handles.
+    regions : list of defop.scene.regions.Region or dict
+        One region per moving handle.
+    """
+    for i, (c, region) in enumerate(zip(np.asarray(P_moving), regions, strict=True)):
+        for poly, ls in region_outlines(c, region, P_moving, i):
+            if len(poly) < 3:
+                continue
+            ax.add_patch(patches.Polygon(poly, closed=True, fill=(ls == "-"), alpha=0.15, color=color))
+            ax.add_patch(patches.Polygon(poly, closed=True, fill=False, ls=ls, lw=1.0, color=color))
+
+
+def plot_shape(ax, shape, X=None, regions=True, title=True, edges=True):
+    """Draw a :class:`defop.scene.shapes.Shape`: its mesh, handles and sampling regions.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    shape : defop.scene.shapes.Shape
+    X : (n,2) numpy array, optional
+        Deformed positions (rest pose when None).
+    regions : bool
+        Draw the sampling regions (at rest positions).
+    title : bool or str
+        Title text; ``True`` uses the name and vertex count.
+    """
+    mesh = shape.mesh
+    plot_mesh(ax, mesh.V, mesh.F, X, edges=edges)
+    if regions and X is None:
+        plot_regions(ax, shape.P_moving, shape.regions)
+    plot_handles(ax, mesh.V if X is None else X, shape.handles, shape.moving)
+    if title is True:
+        n_fixed = len(shape.handles) - shape.n_moving
+        title = f"{shape.name}  ({mesh.n_vertices} v, {shape.n_moving} moving, {n_fixed} fixed)"
+    if title:
+        ax.set_title(title, fontsize=9)
+    ax.autoscale_view()
+
+
+def shape_gallery(shapes, ncols=4, size=3.2):
+    """A grid of every shape with its handles and sampling regions.
+
+    Parameters
+    ----------
+    shapes : list of defop.scene.shapes.Shape
+    ncols : int
+    size : float
+        Inches per panel.
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    nrows = -(-len(shapes) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(size * ncols, size * nrows), squeeze=False)
+    for ax in axes.flat:
+        ax.set_axis_off()
+    for ax, shape in zip(axes.flat, shapes, strict=False):
+        plot_shape(ax, shape)
+    fig.tight_layout()
+    return fig
+
+
+def plot_deformation(ax, shape, X, highlight_flips=True, title=None, edges=True, flip_color="#e31a1c", zoom_flips=True):
+    """Draw a deformed shape, its handles, and its flipped triangles in red.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    shape : defop.scene.shapes.Shape
+    X : (n,2) numpy array
+        Deformed positions.
+    highlight_flips : bool
+        Fill triangles with det J <= 0 in ``flip_color``.
+    title : str, optional
+    zoom_flips : bool
+        Add an inset magnifying the first flipped region.
+    """
+    mesh = shape.mesh
+    plot_mesh(ax, mesh.V, mesh.F, X, edges=edges)
+    if highlight_flips:
+        flipped = mesh.flipped(X)
+        if flipped.any():
+            ax.tripcolor(
+                X[:, 0],
+                X[:, 1],
+                mesh.F[flipped],
+                facecolors=np.zeros(flipped.sum()),
+                cmap=_single(flip_color),
+                zorder=3,
+            )
+            if zoom_flips:
+                c = X[mesh.F[np.flatnonzero(flipped)[0]]].mean(axis=0)
+                r = 0.04 * mesh.bbox_diagonal
+                ins = ax.inset_axes([0.62, 0.02, 0.36, 0.36])
+                plot_mesh(ins, mesh.V, mesh.F, X, edges=True, lw=0.5)
+                ins.tripcolor(
+                    X[:, 0],
+                    X[:, 1],
+                    mesh.F[flipped],
+                    facecolors=np.zeros(flipped.sum()),
+                    cmap=_single(flip_color),
+                    zorder=3,
+                )
+                plot_handles(ins, X, shape.handles, shape.moving, size=15)
+                ins.set_xlim(c[0] - r, c[0] + r)
+                ins.set_ylim(c[1] - r, c[1] + r)
+                ins.set_axis_on()
+                ins.set_xticks([])
+                ins.set_yticks([])
+                ax.indicate_inset_zoom(ins, edgecolor="k")
+    plot_handles(ax, X, shape.handles, shape.moving)
+    if title:
+        ax.set_title(title, fontsize=9)
+    ax.autoscale_view()
+
+
+def plot_handle_zoom(ax, shape, X, vertex, radius=0.12, vmax=90.0, flip_color="#e31a1c"):
+    """The neighbourhood of one handle, triangles coloured by their largest corner-angle change (Fig. 6's cusps).
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    shape : defop.scene.shapes.Shape
+    X : (n,2) numpy array
+        Deformed positions.
+    vertex : int
+        The handle vertex to centre on.
+    radius : float
+        Half-width of the window, in the shape's units.
+    vmax : float
+        Angle change (degrees) at the top of the colour map; flipped triangles are drawn in ``flip_color``.
+
+    Returns
+    -------
+    artist : the PolyCollection coloured by angle change (for a colour bar)
+    """
+    from ..analysis.distortion import corner_angles
+
+    mesh = shape.mesh
+    change = np.degrees(np.abs(corner_angles(X, mesh.F) - corner_angles(mesh.V, mesh.F))).max(axis=1)
+    art = plot_mesh(ax, mesh.V, mesh.F, X, scalars=change, cmap="magma_r", vmin=0, vmax=vmax, lw=0.5)
+    flipped = mesh.flipped(X)
+    if flipped.any():
+        ax.tripcolor(
+            X[:, 0], X[:, 1], mesh.F[flipped], facecolors=np.zeros(flipped.sum()), cmap=_single(flip_color), zorder=3
+        )
+    plot_outline(ax, mesh, X, lw=0.8)
+    plot_handles(ax, X, shape.handles, shape.moving, size=25)
+    c = X[vertex]
+    ax.set_xlim(c[0] - radius, c[0] + radius)
+    ax.set_ylim(c[1] - radius, c[1] + radius)
+    return art
+
+
+def plot_energy_comparison(axes, zooms, shape, results, titles, vertex, radius=0.12):
+    """Fig. 6: one column per energy, the deformation over the rest outline (dashed) and a zoom on one handle.
+
+    Parameters
+    ----------
+    axes, zooms : sequences of matplotlib Axes
+        One each per entry of ``results``.
+    shape : defop.scene.shapes.Shape
+    results : dict of str -> defop.variational.solver.SolveResult
+    titles : dict of str -> str
+        Panel title per energy.
+    vertex : int
+        The handle vertex the zooms centre on.
+
+    Returns
+    -------
+    artist : the last zoom's colour-mapped PolyCollection (for a colour bar)
+    """
+    from ..analysis.distortion import deformation_summary
+
+    art = None
+    for ax, zoom, (energy, r) in zip(axes, zooms, results.items()):
+        s = deformation_summary(shape.mesh, r.X, shape.moving_handles)
+        plot_outline(ax, shape.mesh, shape.mesh.V, color="0.45", lw=0.7, ls="--")
+        area, scaled = 100 * s["area_change"], 100 * s["scaled"]
+        title = f"{titles[energy]}\n{s['flips']} flipped, area {area:+.0f}%, {scaled:.0f}% scaled"
+        plot_deformation(ax, shape, r.X, title=title, zoom_flips=False)
+        art = plot_handle_zoom(zoom, shape, r.X, vertex, radius)
+        zoom.set_title(f"max over the handles: {s['handle_angle']:.0f}°", fontsize=8)
+    return art
+
+
+def plot_convergence(axes, results, E_star=None, labels=None):
+    """Energy gap (E − E*)/E* against iteration and against time, one line per solver.
+
+    Parameters
+    ----------
+    axes : (2,) sequence of matplotlib Axes
+        Iteration axis, time axis.
+    results : dict of str -> defop.variational.solver.SolveResult
+    E_star : float, optional
+        Reference minimum (default: the lowest energy any result reached).
+    """
+    if E_star is None:
+        E_star = min(float(np.min(r.energy_history)) for r in results.values())
+    for name, r in results.items():
+        gap = np.maximum((r.energy_history - E_star) / E_star, 1e-16)
+        axes[0].semilogy(np.arange(len(gap)), gap, label=name)
+        axes[1].loglog(np.maximum(r.time_history, 1e-4), gap, label=name)
+    axes[0].set_xlabel("iteration")
+    axes[1].set_xlabel("time [s]")
+    for ax in axes:
+        ax.set_ylabel("(E − E*) / E*")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+
+
+def plot_outline(ax, mesh, X, color="k", lw=1.0, ls="-", **kw):
+    """Draw the boundary loops of a deformed mesh (e.g. the ground truth over an approximation).
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    mesh : defop.geometry.mesh.Mesh
+    X : (n,2) numpy array
+    """
+    for loop in mesh.boundary_loops():
+        P = X[np.append(loop, loop[0])]
+        ax.plot(P[:, 0], P[:, 1], color=color, lw=lw, ls=ls, **kw)
+
+
+def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2, notes=None):
+    """Rows = operators, columns = handle configurations; each panel: D(·, Q) filled, ground truth outlined.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    Q : (k,n,2) numpy array
+    X_true : (k,n_vertices,2) numpy array
+    operators : dict of str -> DefOp or None
+        Row label -> operator; a None row shows the ground truth alone, marked as not fitted (e.g. a basis
+        that needs more samples).
+    titles : list of str, optional
+        Column titles.
+    notes : dict of str -> list of str, optional
+        Row label -> one short text per column, printed in the panel's corner (e.g. its error).
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    k = len(Q)
+    rows = len(operators)
+    fig, axes = plt.subplots(rows, k, figsize=(size * k, 0.9 * size * rows), squeeze=False)
+    D = {name: None if op is None else op(Q) for name, op in operators.items()}
+    allX = np.concatenate([X_true.reshape(-1, 2)] + [d.reshape(-1, 2) for d in D.values() if d is not None])
+    lo, hi = allX.min(axis=0), allX.max(axis=0)
+    pad = 0.05 * (hi - lo).max()
+    for r, name in enumerate(operators):
+        for c in range(k):
+            ax = axes[r, c]
+            if D[name] is None:
+                ax.text(0.5, 0.5, "not fitted", transform=ax.transAxes, ha="center", va="center", fontsize=8)
+                ax.set_aspect("equal")
+                ax.set_axis_off()
+            else:
+                plot_mesh(ax, shape.mesh.V, shape.mesh.F, D[name][c], edges=False)
+                plot_handles(ax, D[name][c], shape.handles, shape.moving, size=12)
+            plot_outline(ax, shape.mesh, X_true[c], lw=0.8)
+            if notes is not None and name in notes:
+                ax.text(0.98, 0.02, notes[name][c], transform=ax.transAxes, ha="right", va="bottom", fontsize=7)
+            ax.set_xlim(lo[0] - pad, hi[0] + pad)
+            ax.set_ylim(lo[1] - pad, hi[1] + pad)
+            if c == 0:
+                ax.text(-0.02, 0.5, name, transform=ax.transAxes, rotation=90, ha="right", va="center", fontsize=10)
+            if r == 0 and titles is not None:
+                ax.set_title(titles[c], fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def plot_trajectories(shape, truth, approx, T, vertex, picks, jumps=None, size=3.0):
+    """Fig. 3: deformations with their approximations (top row), the trajectory of the starred point (below).
+
+    Top row: the rest pose with the starred point ``vertex``, then one panel per handle displacement in
+    ``picks``: the variational deformation (filled), the approximation ``approx`` (dashed outline), the
+    starred point on both (filled: ground truth, hollow: approximation), and the handle's position as a
+    coloured dot. Below, one column per trajectory in ``T``: its x and y components as images over the
+    handle plane, the same coloured dots, and black crosses at the ground truth's jumps.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    truth : defop.analysis.trajectories.Trajectory
+        The variational ground truth on a grid.
+    approx : defop.analysis.trajectories.Trajectory
+        The approximation drawn over it in the top row (the paper uses TPS).
+    T : dict of str -> (ny, nx, 2) numpy array
+        Trajectories T_x of ``vertex`` (columns), the ground truth first.
+    vertex : int
+        The starred point x.
+    picks : (k,2) numpy array
+        Handle displacements q − p of the top row (snapped to the nearest grid point).
+    jumps : (j,2) numpy array, optional
+        Handle displacements where the ground truth jumps (:func:`defop.analysis.trajectories.discontinuity_points`).
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    grid, mesh = truth.grid, shape.mesh
+    colors = plt.cm.tab10(np.arange(len(picks)))
+    snapped = np.array([grid.displacements[grid.nearest(d)] for d in picks])
+    ncol = max(len(picks) + 1, len(T))
+    fig = plt.figure(figsize=(size * ncol, 3.0 * size))
+    outer = fig.add_gridspec(2, 1, height_ratios=[0.7, 2], hspace=0.12)
+    top = outer[0].subgridspec(1, ncol, wspace=0.08)
+    ax = fig.add_subplot(top[0, 0])
+    plot_mesh(ax, mesh.V, mesh.F, edges=True, edge_color="#00000018")
+    plot_handles(ax, mesh.V, shape.handles, shape.moving, size=14)
+    ax.plot(*mesh.V[vertex], "*", color="k", ms=13, zorder=12)
+    ax.set_title("rest pose, starred point x", fontsize=9)
+    for k, d in enumerate(snapped):
+        ax = fig.add_subplot(top[0, k + 1])
+        X, Y = truth.deformation(d), approx.deformation(d)
+        plot_mesh(ax, mesh.V, mesh.F, X, edges=True, edge_color="#00000018")
+        plot_outline(ax, mesh, Y, color="k", lw=1.0, ls="--")
+        plot_handles(ax, X, shape.handles, shape.moving, size=14)
+        ax.plot(*X[vertex], "*", color="k", ms=13, zorder=12)
+        ax.plot(*Y[vertex], "*", mfc="none", mec="k", ms=13, zorder=12)
+        ax.plot(*(grid.center + d), "o", color=colors[k], ms=8, mec="k", zorder=11)
+        ax.set_title(f"q − p = ({d[0]:+.2f}, {d[1]:+.2f})", fontsize=9)
+    bottom = outer[1].subgridspec(2, len(T) + 1, width_ratios=[1] * len(T) + [0.06], hspace=0.4, wspace=0.25)
+    for c in range(2):
+        vmax = max(np.abs(t[..., c]).max() for t in T.values())
+        for k, (name, t) in enumerate(T.items()):
+            ax = fig.add_subplot(bottom[c, k])
+            im = ax.imshow(t[..., c], origin="lower", extent=grid.extent, cmap="coolwarm", vmin=-vmax, vmax=vmax)
+            if k == 0 and jumps is not None and len(jumps):
+                ax.plot(jumps[:, 0], jumps[:, 1], "kx", ms=4)
+            ax.scatter(*snapped.T, c=colors, s=30, edgecolors="k")
+            ax.set_title(f"{name}: T_x, {'xy'[c]} component", fontsize=9)
+            ax.set_xlabel("q_x − p_x")
+            if k == 0:
+                ax.set_ylabel("q_y − p_y")
+        fig.colorbar(im, cax=fig.add_subplot(bottom[c, len(T)]))
+    return fig
