@@ -28,10 +28,12 @@ figures: $(STAMP)
 	$(BIN)/python -m defop figures
 
 test: $(STAMP)
+	$(BIN)/lint-imports --no-cache
 	DEFOP_FAST=1 $(BIN)/python -m pytest -p no:cacheprovider tests notebooks $(NBVAL)
 
 lint: $(STAMP)
 	$(BIN)/ruff check defop tests benchmarks notebooks
+	$(BIN)/lint-imports --no-cache
 
 benchmarks: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done

@@ -17,7 +17,7 @@ import warnings
 import numpy as np
 
 import defop as dop
-from defop.analysis.metrics import compare, peers
+from defop.analysis import compare, peers
 
 
 def main(m=100):

@@ -27,7 +27,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import defop as dop
-from defop.editor import browser, export
+from defop.editor import browser, export, payload
 from defop.editor.state import EditorState, ground_truth_text, inside_polygon
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,9 +58,9 @@ def operators(shape):
 
 def node_eval(op, Qs, tmp_path, regions=None):
     """Run the page's module in Node on Qs (k,n,2); returns X (k,n_vertices,2), psi (k,|Ψ|) and outside lists."""
-    meta, data = browser.encode_payload(browser.defop_to_payload(op, regions))
+    meta, data = payload.encode_payload(payload.defop_to_payload(op, regions))
     spec = {
-        "js": str(browser.JS_PATH),
+        "js": str(payload.JS_PATH),
         "meta": meta,
         "data": base64.b64encode(data).decode(),
         "Q": [np.asarray(Q, float).ravel().tolist() for Q in Qs],
@@ -158,8 +158,8 @@ def test_javascript_extrapolation_matches_state(operators, shape, tmp_path):
 
 
 def test_payload_round_trip(operators):
-    p = browser.defop_to_payload(operators["cubic"])
-    meta, data = browser.encode_payload(p)
+    p = payload.defop_to_payload(operators["cubic"])
+    meta, data = payload.encode_payload(p)
     for name, a in meta["arrays"].items():
         assert a["offset"] % 8 == 0
         dt = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u1": np.uint8}[a["dtype"]]
@@ -532,7 +532,7 @@ def test_image_payload_png_round_trip(layout, dtype, h, w, seed):
     img = (img > 0.5) if dtype == "bool" else (np.round(img * 255).astype(np.uint8) if dtype == "uint8" else
                                                img.astype(dtype))
     V_px = rng.uniform(-0.5, [w - 0.5, h - 0.5], size=(7, 2))
-    p = browser.image_payload(img, V_px)
+    p = payload.image_payload(img, V_px)
     expected = dop.geometry.planar.outlines.load_image(img)
     back = _png_array(p["image_png"])
     assert back.shape == expected.shape and back.dtype == np.uint8
@@ -548,11 +548,11 @@ def test_image_payload_png_round_trip(layout, dtype, h, w, seed):
     (np.full((20, 20, 3), np.nan), "NaN"),
     (np.zeros((20, 20), complex), "real numbers"),
     (np.full((20, 20), 1.5), r"\[0,1\]"),
-    (np.zeros((20, browser.MAX_IMAGE_SIDE + 1)), "at most 4096 per side"),
+    (np.zeros((20, payload.MAX_IMAGE_SIDE + 1)), "at most 4096 per side"),
 ], ids=["empty", "1d", "two-channels", "nan", "complex", "out-of-range", "too-large"])
 def test_image_payload_rejects_bad_pictures(image, match):
     with pytest.raises(ValueError, match=match):
-        browser.image_payload(image, np.zeros((3, 2)))
+        payload.image_payload(image, np.zeros((3, 2)))
 
 
 def test_image_frame_is_checked(operators, shape, monkeypatch):
@@ -645,7 +645,7 @@ def _open_picture_editor(page, how, op, shape, image, to_pixels, tmp_path):
     for k in ("payload_data", "gt_data", "image_data"):
         traits[k] = {"base64": base64.b64encode(getattr(widget, k)).decode()}
     host = tmp_path / "host.html"
-    host.write_text(_WIDGET_HOST.format(js=browser.JS_PATH.read_text()))
+    host.write_text(_WIDGET_HOST.format(js=payload.JS_PATH.read_text()))
     page.goto(host.as_uri())
     page.wait_for_function("() => window.defopRender")
     page.evaluate(_MOUNT_WIDGET, traits)

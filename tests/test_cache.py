@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop.analysis.metrics import trajectories as tr
+from defop.analysis import trajectories as tr
 from defop.training import cache as cm
 
 TRAIN = dict(energy="sarap", basis="tps", m=8, seed=4, n_jobs=1, progress=False)

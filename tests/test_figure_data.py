@@ -6,14 +6,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import defop as dop
-from defop.analysis.metrics import figure_data as fd
-from defop.analysis.trajectories import _check_path
+from defop.analysis import figure_data as fd
+from defop.analysis.trajectories import check_path
 
 
 @given(st.integers(1, 12), st.integers(1, 12), st.sampled_from(["bottom", "top"]))
 def test_column_path_visits_every_point_once_between_neighbours(ny, nx, start):
     path = fd.column_path(ny, nx, start)
-    _check_path(path, (ny, nx))  # raises unless a 4-neighbour path visiting every point once
+    check_path(path, (ny, nx))  # raises unless a 4-neighbour path visiting every point once
     assert tuple(path[0]) == ((0, 0) if start == "bottom" else (ny - 1, 0))
     assert (np.diff(path[:ny, 1]) == 0).all()  # the first column is swept first
 

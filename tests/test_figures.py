@@ -67,8 +67,8 @@ def test_a_hanging_cell_fails_fast_naming_notebook_and_cell(tmp_path):
 
 def test_progress_goes_to_the_terminal_and_is_not_stored(tmp_path):
     bar = (
-        "from defop.training.bootstrap import _progress\n"
-        "bar = _progress(5, 'sample solves', True)\n"
+        "from defop.training.batch import progress\n"
+        "bar = progress(5, 'sample solves', True)\n"
         "for _ in range(5):\n    bar.update(1)\nbar.close()\nprint('trained')"
     )
     path = _write(tmp_path, "04_train", bar)

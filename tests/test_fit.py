@@ -104,8 +104,8 @@ def test_fit_time_is_the_fastest_refit_and_needs_ground_truth():
 
 def test_symmetric_tps_path_equals_the_general_null_space_method():
     """TPS interpolation through the positive definite H = Qnᵀ K Qn gives the same G, β as the LU path."""
-    from defop.operator.defop import fit as F
-    from defop.operator.defop import handle_bases as hb
+    from defop.operator import fit as F
+    from defop.operator import handle_bases as hb
 
     rng = np.random.default_rng(4)
     P = rng.standard_normal((3, 2))

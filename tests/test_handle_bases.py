@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from defop.operator.defop import handle_bases as hb
+from defop.operator import handle_bases as hb
 
 P = np.array([[0.0, 0.0], [1.0, 0.5], [0.3, 1.2]])
 

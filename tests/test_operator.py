@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 import defop as dop
 from defop.operator.defop import DefOp, ExtrapolationWarning
-from defop.operator.defop import handle_bases as hb
+from defop.operator import handle_bases as hb
 
 
 @pytest.fixture(scope="module")

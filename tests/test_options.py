@@ -7,7 +7,7 @@ import pytest
 
 import defop as dop
 from defop import options as opt
-from defop.analysis.metrics import trajectories as tr
+from defop.analysis import trajectories as tr
 
 
 @pytest.mark.parametrize("value", [3, np.int64(3), 3.0, np.float32(3.0)])

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop.analysis.metrics import compare, peers
+from defop.analysis import compare, peers
 from defop.view import warp
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop.operator.defop import spatial
+from defop.operator import spatial
 
 
 def test_hat_basis_is_the_identity(grid):

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from defop.analysis.metrics import trajectories as tr
+from defop.analysis import trajectories as tr
 from defop.geometry.mesh import Mesh
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..variational.solver import NotConvergedWarning, Solver
 from .metrics import approximation_error
-from .trajectories import Trajectory, _defop_P_moving, _moving_batch, check_scan, discontinuities
+from .trajectories import Trajectory, check_scan, discontinuities, moving_batch, moving_rest_positions
 
 __all__ = [
     "column_path",
@@ -254,7 +254,7 @@ def grid_error(defop, truth, moving=0):
         raise ValueError(f"the trajectory has {X.shape[2]} vertices, the DefOp {defop.n_vertices}")
     if isinstance(moving, bool) or int(moving) != moving:
         raise ValueError(f"moving must be the integer index of a moving handle, got {moving!r}")
-    Q = _moving_batch(truth.grid, len(_defop_P_moving(defop)), int(moving), _defop_P_moving(defop))
+    Q = moving_batch(truth.grid, len(moving_rest_positions(defop)), int(moving), moving_rest_positions(defop))
     handles, mask = getattr(defop, "handles", None), getattr(defop, "moving", None)
     if handles is not None and mask is not None:  # the truth's handle sits on the grid where its solve converged
         v = int(np.asarray(handles)[np.asarray(mask, bool)][int(moving)])

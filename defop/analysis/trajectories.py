@@ -29,18 +29,21 @@ Everything here is pure computation; drawing lives in ``defop.view.plot`` / ``de
 
 from __future__ import annotations
 
-import os
+import functools
 import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import config
 from .. import options as opt
+from ..training import batch
 from ..training import cache as cache_mod
 from ..variational.energies import check_energy
 
 __all__ = [
+    "check_path",
+    "moving_batch",
+    "moving_rest_positions",
     "HandleGrid",
     "Trajectory",
     "defop_trajectories",
@@ -231,7 +234,7 @@ class Trajectory:
         return self.X[i, j]
 
 
-def _moving_batch(grid, n_moving, moving, P_moving):
+def moving_batch(grid, n_moving, moving, P_moving):
     """(k, n_moving, 2) handle batch: handle ``moving`` on the grid, the others at rest."""
     if not 0 <= moving < n_moving:
         raise ValueError(f"moving handle index {moving} out of range [0, {n_moving})")
@@ -262,8 +265,8 @@ def defop_trajectories(defop, grid, moving=0, kind=None, batch=4096):
     """
     _check_grid(grid)
     batch = opt.integer("batch", batch, minimum=1)
-    P_moving = _defop_P_moving(defop)
-    Q = _moving_batch(grid, len(P_moving), moving, P_moving)
+    P_moving = moving_rest_positions(defop)
+    Q = moving_batch(grid, len(P_moving), moving, P_moving)
     parts = [np.asarray(defop(Q[s : s + batch])) for s in range(0, len(Q), batch)]
     X = np.concatenate(parts, axis=0)
     rest = np.asarray(defop.geometry.mesh.V, dtype=float)
@@ -278,7 +281,8 @@ def _check_grid(grid):
         raise ValueError(f"grid must be a HandleGrid (see handle_grid), got {type(grid).__name__}")
 
 
-def _defop_P_moving(defop):
+def moving_rest_positions(defop):
+    """The rest positions (n_moving, 2) of a DefOp's (or a peer's) moving handles."""
     P = np.asarray(defop.P, dtype=float)
     moving = getattr(defop, "moving", None)
     if moving is not None and len(np.atleast_1d(moving)) == len(P) and np.asarray(moving).dtype == bool:
@@ -383,7 +387,7 @@ def ground_truth_trajectories(
     ny, nx = grid.shape
     if mode == "local":
         path = serpentine_path(ny, nx) if path is None else np.asarray(path, dtype=np.int64)
-        _check_path(path, grid.shape)
+        check_path(path, grid.shape)
     else:
         path = None
     P_moving = np.asarray(shape.P_moving, dtype=float)
@@ -397,82 +401,47 @@ def ground_truth_trajectories(
     key = None
     if store is not None:
         key = _cache_key(shape, grid, energy, mode, moving, path, _solver_for(shape, energy, solver_kw), solve_kw)
-        hit = store.load("traj", key, _trajectory_expect(grid, shape.mesh.n_vertices))
-        if hit is not None:
-            z = hit[0]
-            return Trajectory(
-                grid=grid,
-                X=z["X"],
-                rest=shape.mesh.V.copy(),
-                kind=mode,
-                converged=z["converged"],
-                energy=z["energy"],
-                path=path,
-            )
-
-    Qm = _moving_batch(grid, len(P_moving), moving, P_moving)
+    Qm = moving_batch(grid, len(P_moving), moving, P_moving)
     targets = np.stack([shape.targets(q) for q in Qm])  # (k, h, 2)
     solver = _solver_for(shape, energy, solver_kw)
-    n = shape.mesh.n_vertices
-    X = np.empty((ny * nx, n, 2))
-    E = np.empty(ny * nx)
-    conv = np.zeros(ny * nx, dtype=bool)
 
-    if mode == "global":
-        from joblib import Parallel, delayed
+    def compute():
+        if mode == "global":
+            job = functools.partial(_solve_chunk, solver, solve_kw=solve_kw)
+            res = batch.parallel_map(job, list(targets), n_jobs, progress, "global solves")
+        else:
+            res = _follow_path(solver, targets, path[:, 0] * nx + path[:, 1], solve_kw, progress)
+        X, E, conv = (np.array([r[i] for r in res]) for i in range(3))
+        if not conv.all():
+            warnings.warn(f"{int((~conv).sum())} of {len(conv)} {mode} ground-truth solves did not converge",
+                          stacklevel=4)
+        conv = conv.reshape(ny, nx).astype(bool)
+        return {"X": X.reshape(ny, nx, -1, 2), "energy": E.reshape(ny, nx), "converged": conv}
 
-        jobs = config.n_jobs() if n_jobs is None else n_jobs
-        chunks = np.array_split(np.arange(len(targets)), max(1, min(len(targets), 4 * _n_workers(jobs))))
-        it = Parallel(n_jobs=jobs, return_as="generator")(
-            delayed(_solve_chunk)(solver, [targets[k] for k in c], solve_kw) for c in chunks
-        )
-        it = _maybe_tqdm(it, progress, len(chunks), "global solves")
-        for c, res in zip(chunks, it):
-            for k, (Xk, ek, ck) in zip(c, res):
-                X[k], E[k], conv[k] = Xk, ek, ck
-    else:
-        flat = path[:, 0] * nx + path[:, 1]
-        k0 = flat[0]
-        X[k0], E[k0], conv[k0] = _solve_one(solver, targets[k0], None, solve_kw)
-        prev = k0
-        for k in _maybe_tqdm(flat[1:], progress, len(flat) - 1, "warm-started solves"):
-            X[k], E[k], conv[k] = _warm_started_solve(solver, X[prev], targets[k], solve_kw)
-            prev = k
-
-    if not conv.all():
-        warnings.warn(f"{int((~conv).sum())} of {len(conv)} {mode} ground-truth solves did not converge", stacklevel=2)
-    X = X.reshape(ny, nx, n, 2)
-    E = E.reshape(ny, nx)
-    conv = conv.reshape(ny, nx)
-    if store is not None:
-        store.store("traj", key, {"X": X, "energy": E, "converged": conv})
-    return Trajectory(grid=grid, X=X, rest=shape.mesh.V.copy(), kind=mode, converged=conv, energy=E, path=path)
+    z = batch.load_or_compute(store, "traj", key, _trajectory_expect(grid, shape.mesh.n_vertices), compute)
+    return Trajectory(grid=grid, X=z["X"], rest=shape.mesh.V.copy(), kind=mode, converged=z["converged"],
+                      energy=z["energy"], path=path)
 
 
-def _n_workers(jobs):
-    if jobs is None or jobs < 0:
-        return os.cpu_count() or 1
-    return max(1, int(jobs))
-
-
-def _maybe_tqdm(it, progress, total, desc):
-    """Iterate ``it`` under the one progress policy of :func:`defop.training.bootstrap._progress` (text bars in the
-    main job)."""
-    from ..training.bootstrap import _progress
-
-    bar = _progress(total, desc, progress)
-    if bar is None:
-        yield from it
-        return
+def _follow_path(solver, targets, order, solve_kw, show):
+    """Solve at ``targets[order[0]]``, then at each next point of ``order`` warm-started from the previous solution;
+    results in grid order."""
+    res = [None] * len(targets)
+    res[order[0]] = _solve_one(solver, targets[order[0]], None, solve_kw)
+    bar = batch.progress(len(order) - 1, "warm-started solves", show)
     try:
-        for x in it:
-            yield x
-            bar.update(1)
+        for prev, k in zip(order[:-1], order[1:]):
+            res[k] = _warm_started_solve(solver, res[prev][0], targets[k], solve_kw)
+            if bar:
+                bar.update(1)
     finally:
-        bar.close()
+        if bar:
+            bar.close()
+    return res
 
 
-def _check_path(path, shape):
+def check_path(path, shape):
+    """Raise unless ``path`` (k, 2) visits every point of a ``shape`` = (ny, nx) grid once, between 4-neighbours."""
     ny, nx = shape
     if path.ndim != 2 or path.shape[1] != 2:
         raise ValueError(f"path must have shape (k,2), got {path.shape}")
@@ -612,7 +581,7 @@ def path_jumps(D, path):
     """(k-1,) jumps |D[path[s+1]] - D[path[s]]| along a visiting order (e.g. the warm-start path)."""
     D = _as_field(D)
     path = np.asarray(path, dtype=np.int64)
-    _check_path(path, D.shape[:2])
+    check_path(path, D.shape[:2])
     vals = D[path[:, 0], path[:, 1]]
     return np.linalg.norm(np.diff(vals, axis=0), axis=-1)
 

@@ -11,13 +11,16 @@ of tapered capsules and ellipses (:mod:`defop.geometry.planar.outlines`). Every 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 
 from ..geometry.planar.outlines import capsule, chain, cos_sin, ellipse, implicit_outline, union
-from ..geometry.planar.polygon import polygon_area
 from .regions import Disc, Ellipse, Mixture, Voronoi
+
+ALEPH_OUTLINE = Path(__file__).with_name("data") / "aleph.json"
 
 
 @dataclasses.dataclass
@@ -106,12 +109,8 @@ _ALEPH_HANDLES = [[0.1, 0.95], [0.81, 0.93], [0.08, 0.05], [0.79, 0.05], [0.45, 
 
 
 def _aleph():
-    from matplotlib.font_manager import FontProperties  # font outline data, not plotting
-    from matplotlib.textpath import TextPath
-
-    tp = TextPath((0, 0), "\u05d0", prop=FontProperties(family="DejaVu Sans"), size=1)
-    polys = [np.asarray(p) for p in tp.to_polygons()]
-    outer = max(polys, key=lambda p: abs(polygon_area(p)))
+    # the glyph's outline, as matplotlib's TextPath gave it (data/aleph.json says how), bit for bit
+    outer = np.array(json.loads(ALEPH_OUTLINE.read_text())["outline"], dtype=float)
     outer = (outer - outer.min(0)) / np.ptp(outer, axis=0).max()
     n = len(_ALEPH_HANDLES)
     return Model(

@@ -20,13 +20,12 @@ included), so notebooks and figures never retrain.
 from __future__ import annotations
 
 import dataclasses
-import os
+import functools
 import time
 import warnings
 
 import numpy as np
 
-from .. import config
 from .. import options as opt
 from ..geometry.mesh import Mesh
 from ..operator import handle_bases as hb
@@ -34,6 +33,7 @@ from ..operator.defop import DefOp
 from ..operator.fit import check_distinct, fit
 from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning, Solver
+from . import batch
 from . import cache as cache_mod
 from .sampling import sample_shape
 
@@ -166,45 +166,17 @@ def _operator_reader(shape, basis, spatial, n_samples):
     return read
 
 
-def _solve_chunk(solver, targets, starts, rest=True):
-    """:meth:`Solver.solve_best` per sample: its starts (None, one map or a list of maps) and the rest pose."""
+def _solve_chunk(solver, jobs, rest=True):
+    """:meth:`Solver.solve_best` per (targets, starts) job: its starts (None, one map or a list of maps) and the rest
+    pose."""
     out = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotConvergedWarning)
-        for T, X0 in zip(targets, starts):
+        for T, X0 in jobs:
             extra = [] if X0 is None else list(X0) if isinstance(X0, (list, tuple)) else [X0]
             r = solver.solve_best(T, starts=extra, rest=rest)
             out.append((r.X, r.converged))
     return out
-
-
-def _progress(total, desc, enabled):
-    """A progress bar over ``total`` sample solves, or None.
-
-    Parameters
-    ----------
-    total : int
-    desc : str
-    enabled : bool or callable
-        False: no bar. A callable: ``enabled(total=total, desc=desc)`` makes the bar, any object with
-        ``update(n)`` and ``close()`` (the playground passes its widget bar). True: ``tqdm.auto`` (a
-        widget in a live notebook), except with ``DEFOP_PROGRESS=text``, set by the main job: a plain
-        text bar on stderr, which the job forwards to the terminal instead of storing a widget frozen
-        at 0 % in the notebook.
-
-    Returns
-    -------
-    bar : object or None
-    """
-    if not enabled:
-        return None
-    if callable(enabled):
-        return enabled(total=total, desc=desc)
-    if os.environ.get("DEFOP_PROGRESS", "").strip().lower() == "text":
-        from tqdm.std import tqdm
-    else:
-        from tqdm.auto import tqdm
-    return tqdm(total=total, desc=desc, leave=False)
 
 
 def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress=True, desc="solving", rest=True):
@@ -231,8 +203,6 @@ def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress
     converged : (m,) bool numpy array
         Verified local minimum (see :meth:`defop.variational.solver.Solver.verify`).
     """
-    from joblib import Parallel, delayed
-
     en.check_energy(energy)
     samples = _check_samples(shape, samples)
     n_jobs = opt.n_jobs(n_jobs)
@@ -242,29 +212,9 @@ def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress
     targets = [shape.targets(q) for q in samples]
     starts = list(X0) if X0 is not None else [None] * m
     solver = Solver(shape.mesh, shape.handles, energy)
-    n_jobs = config.n_jobs() if n_jobs is None else n_jobs
-    bar = _progress(m, desc, progress)
-    results = []
-    if n_jobs == 1 or m <= 2:
-        for i in range(m):
-            results += _solve_chunk(solver, targets[i : i + 1], starts[i : i + 1], rest)
-            if bar:
-                bar.update(1)
-    else:
-        from joblib import effective_n_jobs
-
-        n_chunks = min(m, 4 * max(1, effective_n_jobs(n_jobs)))
-        bounds = np.linspace(0, m, n_chunks + 1).astype(int)
-        chunks = [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-        gen = Parallel(n_jobs=n_jobs, return_as="generator")(
-            delayed(_solve_chunk)(solver, targets[a:b], starts[a:b], rest) for a, b in chunks
-        )
-        for (a, b), res in zip(chunks, gen):
-            results += res
-            if bar:
-                bar.update(b - a)
-    if bar:
-        bar.close()
+    results = batch.parallel_map(
+        functools.partial(_solve_chunk, solver, rest=rest), list(zip(targets, starts)), n_jobs, progress, desc
+    )
     X = np.array([r[0] for r in results])
     conv = np.array([r[1] for r in results], dtype=bool)
     return X, conv
@@ -285,18 +235,18 @@ def sample_ground_truth(shape, samples, energy="sarap", X0=None, n_jobs=None, pr
     samples = _check_samples(shape, samples)
     opt.n_jobs(n_jobs)
     store = cache_mod.open_cache(cache)
+    mesh = shape.mesh
     key = None
     if store is not None:
-        mesh = shape.mesh
         settings = _solver_key(shape, energy)
         key = cache_mod.key("gt", mesh.V, mesh.F, shape.handles, shape.moving, energy, settings, samples)
-        hit = _load_gt(store, key, len(samples), mesh.n_vertices)
-        if hit is not None:
-            return hit[0], hit[1]
-    X, conv = solve_samples(shape, samples, energy, X0, n_jobs, progress)
-    if store is not None:
-        store.store("gt", key, {"X": X, "converged": conv})
-    return X, conv
+
+    def compute():
+        X, conv = solve_samples(shape, samples, energy, X0, n_jobs, progress)
+        return {"X": X, "converged": conv}
+
+    gt = batch.load_or_compute(store, "gt", key, _gt_expect(len(samples), mesh.n_vertices), compute)
+    return gt["X"], gt["converged"]
 
 
 def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cache=True):

@@ -195,6 +195,30 @@ def subtract(f, g):
 
 
 # ----------------------------------------------------------------------------------- images
+def read_image(path):
+    """The pixels of an image file, as matplotlib's ``imread`` gives them (Pillow does the reading).
+
+    8-bit PNGs become float32 in [0, 1] (the value / 255, palettes and grey + alpha as RGBA); other formats
+    keep Pillow's integer pixels, which :func:`load_image` scales.
+
+    Returns
+    -------
+    (H,W), (H,W,3) or (H,W,4) numpy array
+    """
+    from PIL import Image, PngImagePlugin
+
+    with Image.open(path) as image:
+        image.load()
+        if not isinstance(image, PngImagePlugin.PngImageFile):
+            return np.asarray(image)
+        if image.mode in ("P", "LA"):
+            image = image.convert("RGBA")
+        if image.mode == "1":
+            return np.asarray(image, np.float32)
+        top = 2**16 - 1 if image.mode.startswith("I") else 2**8 - 1
+        return np.divide(image, top, dtype=np.float32)
+
+
 def load_image(image):
     """An image as a float array in [0,1]: (H,W), (H,W,3) or (H,W,4).
 
@@ -210,9 +234,7 @@ def load_image(image):
         path = Path(image)
         if not path.exists():
             raise ValueError(f"no such image file: {path}")
-        from matplotlib.image import imread  # reading a file, not plotting
-
-        image = imread(path)
+        image = read_image(path)
     img = np.asarray(image)
     if img.dtype == bool:
         img = img.astype(float)

@@ -1,0 +1,139 @@
+"""The package's architecture as checked properties: the subpackages, the import rule, no private reach-ins.
+
+The layer rule itself is import-linter's (``[tool.importlinter]`` in pyproject.toml); this file runs it, so that
+``pytest`` alone checks it too, and checks what import-linter does not: private names across subpackages, the
+public face, and that the core loads no plotting or widget library at run time.
+"""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import defop as dop
+
+PACKAGE = Path(dop.__file__).parent
+CORE = ("geometry", "scene", "variational", "operator", "training", "analysis")
+
+
+def _modules():
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE.parent).with_suffix("")
+        parts = list(rel.parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        yield path, ".".join(parts)
+
+
+def _subpackage(module):
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def _imports(path, module):
+    """(target module, imported names, line) of every import in a file, relative ones resolved."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            yield target, [a.name for a in node.names], node.lineno
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name, [], node.lineno
+
+
+def test_every_listed_subpackage_exists_and_imports():
+    for name in dop._SUBPACKAGES:
+        assert (PACKAGE / name / "__init__.py").exists() or (PACKAGE / f"{name}.py").exists(), name
+        assert inspect.ismodule(getattr(dop, name))
+
+
+def test_the_public_face():
+    assert dop.shapes is dop.scene.shapes
+    assert dop.solve is dop.variational.solver.solve
+    assert dop.train is dop.training.bootstrap.train
+    assert dop.DefOp is dop.operator.defop.DefOp
+    assert dop.Mesh is dop.geometry.mesh.Mesh and dop.Shape is dop.scene.shapes.Shape
+    with pytest.raises(AttributeError, match="module 'defop' has no attribute 'experiments'"):
+        dop.experiments  # noqa: B018
+
+
+def test_no_private_name_is_imported_across_subpackages():
+    reach_ins = []
+    for path, module in _modules():
+        for target, names, line in _imports(path, module):
+            if not target.startswith("defop"):
+                continue
+            other = _subpackage(target) != _subpackage(module)
+            private_module = any(p.startswith("_") and p != "__init__" for p in target.split(".")[1:])
+            private_names = [n for n in names if n.startswith("_") and n != "__version__"]
+            if other and (private_module or private_names):
+                reach_ins.append(f"{module}:{line} imports {target} {private_names}")
+    assert reach_ins == []
+
+
+def test_no_module_reaches_the_package_through_import_defop():
+    """Hidden links: ``import defop as dop`` inside the package hides which layer a module uses."""
+    hidden = [
+        f"{module}:{line}"
+        for path, module in _modules()
+        for target, names, line in _imports(path, module)
+        if target == "defop" and not names
+    ]
+    assert hidden == []
+
+
+def test_the_import_contracts_hold():
+    lint = shutil.which("lint-imports") or str(Path(sys.executable).with_name("lint-imports"))
+    if not Path(lint).exists():
+        pytest.skip("import-linter is not installed (pip install -e '.[dev]')")
+    root = PACKAGE.parent
+    r = subprocess.run([lint, "--no-cache"], cwd=root, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
+    assert "3 kept, 0 broken" in r.stdout
+
+
+def test_the_core_loads_no_plotting_or_widget_library():
+    """At run time, not only in the import graph: a shape, a solve and a training import nothing heavy."""
+    code = (
+        "import sys, numpy as np, defop as dop\n"
+        "for sub in " + repr(CORE) + ": getattr(dop, sub)\n"
+        "shape = dop.shapes.load('bar')\n"
+        "r = dop.solve(shape.mesh, shape.handles, shape.targets(shape.P_moving + [[0.0, 0.05]]), energy='arap')\n"
+        "loaded = [m for m in ('matplotlib', 'pyvista', 'vtk', 'ipywidgets', 'anywidget') if m in sys.modules]\n"
+        "print(loaded)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["DEFOP_CACHE"] = "off"
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_every_name_in_every_subpackage_imports_without_a_display():
+    """In a fresh interpreter without DISPLAY, so the lazy presentation modules are imported too."""
+    code = (
+        "import inspect, defop\n"
+        "count = 0\n"
+        "for sub in defop._SUBPACKAGES:\n"
+        "    mod = getattr(defop, sub)\n"
+        "    for n in dir(mod):\n"
+        "        getattr(mod, n); count += 1\n"
+        "print(count)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["MPLBACKEND"] = "Agg"
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert int(r.stdout.split()[-1]) > 50
