@@ -1,6 +1,6 @@
 """The in-page editor (issue #18): its JavaScript evaluation, the editor state and the standalone page.
 
-- The page's own module ``defop/static/defop_editor.js`` is run in Node and compared with ``DefOp.__call__``
+- The page's own module ``defop/editor/static/defop_editor.js`` is run in Node and compared with ``DefOp.__call__``
   at random Q (hypothesis) for every handle basis; handles and rest pose are exact up to the float32
   storage of the factors, with the bound stated in :func:`_float32_bound`.
 - :class:`defop.editor.state.EditorState` is driven through its public API only.
@@ -297,9 +297,9 @@ def test_javascript_is_package_data():
     import importlib.resources
     import tomllib
 
-    assert importlib.resources.files("defop").joinpath("static/defop_editor.js").is_file()
+    assert importlib.resources.files("defop").joinpath("editor/static/defop_editor.js").is_file()
     data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["defop"]
-    assert "static/*.js" in data
+    assert "editor/static/*.js" in data and "scene/data/*.json" in data
 
 
 # ---------------------------------------------------------------------------------------------- (d)
@@ -572,7 +572,7 @@ def test_image_frame_is_checked(operators, shape, monkeypatch):
         export.to_html(op, "unused.html", image_frame=to_pixels)
     with pytest.raises(ValueError, match="either image or shapes"):
         browser.BrowserEditor(shape, {"tps": op}, image=image, image_frame=to_pixels, shapes=["u_shape", "bar"])
-    monkeypatch.setattr(browser, "MAX_IMAGE_BYTES", 1000)
+    monkeypatch.setattr(payload, "MAX_IMAGE_BYTES", 1000)
     with pytest.raises(ValueError, match="MiB as PNG"):
         browser.BrowserEditor(shape, {"tps": op}, image=image, image_frame=to_pixels)
 

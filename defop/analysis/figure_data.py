@@ -260,7 +260,7 @@ def grid_error(defop, truth, moving=0):
         v = int(np.asarray(handles)[np.asarray(mask, bool)][int(moving)])
         ok = np.ones(X.shape[:2], bool) if truth.converged is None else np.asarray(truth.converged, bool)
         off = float(np.abs(X[:, :, v] - truth.grid.positions)[ok].max(initial=0.0))
-        if not off <= 1e-9 * defop.geometry.mesh.bbox_diagonal:
+        if not off <= 1e-9 * defop.mesh.bbox_diagonal:
             raise ValueError(
                 f"moving handle {int(moving)} (vertex {v}) is {off:.3g} off the trajectory's grid: "
                 "was the ground truth solved for another moving handle?"

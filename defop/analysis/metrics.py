@@ -58,7 +58,7 @@ def approximation_error(defop, samples, X_true, per_sample=False):
     samples = _samples(defop, samples)
     X_true = _ground_truth(defop, samples, X_true)
     D = defop(samples)
-    m = defop.geometry.mesh.mass_matrix.diagonal()
+    m = defop.mesh.mass_matrix.diagonal()
     terms = np.einsum("v,kvc->k", m, (D - X_true) ** 2)
     err = float(terms.sum() / defop.n_vertices)
     return (err, terms / defop.n_vertices) if per_sample else err
@@ -74,7 +74,7 @@ def relative_rms_error(defop, samples, X_true):
     samples = _samples(defop, samples)
     D = defop(samples)
     X_true = _ground_truth(defop, samples, X_true)
-    return float(np.sqrt(np.mean(np.sum((D - X_true) ** 2, axis=-1))) / defop.geometry.mesh.bbox_diagonal)
+    return float(np.sqrt(np.mean(np.sum((D - X_true) ** 2, axis=-1))) / defop.mesh.bbox_diagonal)
 
 
 def flips(defop, samples):
@@ -85,7 +85,7 @@ def flips(defop, samples):
     counts : (k,) int numpy array
     """
     D = defop(_samples(defop, samples))
-    return np.array([int(np.count_nonzero(defop.geometry.mesh.flipped(X))) for X in D])
+    return np.array([int(np.count_nonzero(defop.mesh.flipped(X))) for X in D])
 
 
 def fit_timing(shape, samples, X, basis, spatial="hat", k=100, repeats=5):
@@ -318,9 +318,9 @@ def guarantee_errors(defop, samples):
         ``handles``: max |D(p_ℓ, Q) − q_ℓ| over the moving handles and the samples; ``rest``: max |D(·, P) − x|.
     """
     samples = np.asarray(samples, float)
-    hv, diag = defop.handles[defop.moving], defop.geometry.mesh.bbox_diagonal
+    hv, diag = defop.handles[defop.moving], defop.mesh.bbox_diagonal
     handles = max(float(np.abs(defop.evaluate_fast(q)[hv] - q).max()) for q in samples)
-    rest = float(np.abs(defop.evaluate_fast(defop.P) - defop.geometry.mesh.V).max())
+    rest = float(np.abs(defop.evaluate_fast(defop.P) - defop.mesh.V).max())
     return {"handles": handles / diag, "rest": rest / diag}
 
 

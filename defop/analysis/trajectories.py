@@ -269,7 +269,7 @@ def defop_trajectories(defop, grid, moving=0, kind=None, batch=4096):
     Q = moving_batch(grid, len(P_moving), moving, P_moving)
     parts = [np.asarray(defop(Q[s : s + batch])) for s in range(0, len(Q), batch)]
     X = np.concatenate(parts, axis=0)
-    rest = np.asarray(defop.geometry.mesh.V, dtype=float)
+    rest = np.asarray(defop.mesh.V, dtype=float)
     if kind is None:
         meta = getattr(defop, "meta", None) or {}
         kind = meta.get("basis") or type(getattr(defop, "handle_basis", defop)).__name__
