@@ -11,8 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import defop as dop
-from defop.operator.defop import DefOp, ExtrapolationWarning
 from defop.operator import handle_bases as hb
+from defop.operator.defop import DefOp, ExtrapolationWarning
 
 
 @pytest.fixture(scope="module")
