@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import defop as dop
+from defop.geometry import planar
 from defop.scene import shapes
 
 SQUARE = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
@@ -34,7 +35,7 @@ def test_polygon_with_hole_areas_orientation_and_loops():
     assert np.allclose(d_outer, 0, atol=1e-12)  # every outer-loop vertex lies on the square
     d_inner = np.minimum.reduce([inner[:, 0] - 0.4, 0.6 - inner[:, 0], inner[:, 1] - 0.4, 0.6 - inner[:, 1]])
     assert np.allclose(d_inner, 0, atol=1e-12)
-    assert abs(shapes.polygon_area(outer)) == pytest.approx(1.0)  # the loop walks around the whole outline
+    assert abs(planar.polygon_area(outer)) == pytest.approx(1.0)  # the loop walks around the whole outline
 
 
 @pytest.mark.parametrize("name", shapes.names())
@@ -47,10 +48,10 @@ def test_named_shape(name):
     assert np.all(dop.geometry.mesh.signed_areas(s.mesh.V, s.mesh.F) > 0)
     # every handle is exactly a mesh vertex, inside the outline, and the outline is one simple polygon
     assert np.array_equal(s.P, s.mesh.V[s.handles])
-    assert shapes.points_in_polygon(s.P, s.outline).all()
+    assert planar.polygon.points_in_polygon(s.P, s.outline).all()
     assert len(s.mesh.boundary_loops()) == len(s.outline)
     assert s.mesh.areas.sum() == pytest.approx(
-        abs(shapes.polygon_area(s.outline[0])) - sum(abs(shapes.polygon_area(h)) for h in s.outline[1:]), rel=2e-2
+        abs(planar.polygon_area(s.outline[0])) - sum(abs(planar.polygon_area(h)) for h in s.outline[1:]), rel=2e-2
     )
 
 
@@ -135,19 +136,19 @@ def test_self_intersecting_polygon():
 
 def test_hole_crossing_the_outline():
     with pytest.raises(ValueError, match="self-intersecting.*hole 0"):
-        shapes.triangulate(SQUARE, [HOLE + 0.5])
+        planar.triangulate(SQUARE, [HOLE + 0.5])
 
 
 def test_too_few_points():
     with pytest.raises(ValueError, match="2 points; a polygon needs at least 3"):
-        shapes.triangulate(np.array([[0, 0], [1, 0]], float))
+        planar.triangulate(np.array([[0, 0], [1, 0]], float))
 
 
 def test_nan_coordinates():
     bad = SQUARE.copy()
     bad[2, 1] = np.nan
     with pytest.raises(ValueError, match="NaN"):
-        shapes.triangulate(bad)
+        planar.triangulate(bad)
 
 
 def test_handle_outside_the_shape():

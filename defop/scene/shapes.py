@@ -7,7 +7,7 @@ configurations Q_k are drawn).
 
 Shapes come from a polygon (:func:`from_polygon`), an image (:func:`from_image`) or the paper's
 catalogue (:func:`load`, :func:`names`). The work is done by one module per concern, whose public
-names are re-exported here:
+modules are:
 
 - :mod:`defop.geometry.planar.polygon`: polygon geometry and validation (what Triangle can mesh);
 - :mod:`defop.geometry.planar.meshing`: Triangle (:func:`triangulate`);
@@ -27,44 +27,23 @@ import numpy as np
 from .. import options as opt
 from ..geometry.mesh import Mesh
 from ..geometry.planar.meshing import MAX_VERTICES, check_n_vertices, triangulate
-from ..geometry.planar.outlines import capsule, chain, ellipse, image_outline, implicit_outline, subtract, union
+from ..geometry.planar.outlines import image_outline
 from ..geometry.planar.polygon import (
-    check_polygon,
     distance_to_outline,
     points_in_polygon,
-    polygon_area,
-    resample,
-    self_intersections,
     validate_polygon,
 )
 from .models import check_name as _check_name
 from .models import default_vertices, model
-from .regions import REGION_KINDS, Disc, Region, as_region, check_region
+from .regions import REGION_KINDS, Disc, Region, as_region
 
 __all__ = [
     "Shape",
-    "from_polygon",
-    "from_image",
     "load",
     "names",
+    "from_polygon",
+    "from_image",
     "default_vertices",
-    "triangulate",
-    "validate_polygon",
-    "check_polygon",
-    "polygon_area",
-    "points_in_polygon",
-    "distance_to_outline",
-    "self_intersections",
-    "resample",
-    "image_outline",
-    "implicit_outline",
-    "capsule",
-    "ellipse",
-    "chain",
-    "union",
-    "subtract",
-    "check_region",
-    "as_region",
     "REGION_KINDS",
     "MAX_VERTICES",
 ]
