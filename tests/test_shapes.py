@@ -242,22 +242,18 @@ def test_bad_images(image, kw, match):
         shapes.from_image(image, **kw)
 
 
-def test_facade_keeps_the_public_names():
-    for name in (
-        "Shape",
-        "load",
-        "names",
-        "from_polygon",
-        "from_image",
-        "triangulate",
-        "polygon_area",
-        "points_in_polygon",
-        "image_outline",
-        "implicit_outline",
-        "capsule",
-        "check_region",
-    ):
-        assert callable(getattr(shapes, name)), name
+def test_shapes_lists_what_shape_users_need_and_planar_the_polygon_helpers():
+    assert set(shapes.__all__) == {
+        "Shape", "load", "names", "from_polygon", "from_image", "default_vertices", "REGION_KINDS", "MAX_VERTICES"
+    }
+    for name in shapes.__all__:
+        assert hasattr(shapes, name), name
+    for name in ("triangulate", "polygon_area"):
+        assert callable(getattr(planar, name)), name
+    for name in ("points_in_polygon", "validate_polygon", "self_intersections"):
+        assert callable(getattr(planar.polygon, name)), name
+    for name in ("image_outline", "implicit_outline", "capsule", "read_image", "load_image"):
+        assert callable(getattr(planar.outlines, name)), name
     assert set(shapes.names()) == set(dop.scene.models.CATALOGUE)
 
 
