@@ -1,4 +1,4 @@
-"""Sparse factorisation libraries side by side on the solver's reduced Hessian (issue 15).
+"""Sparse factorisation libraries side by side on the solver's reduced Hessian, on triangle and tet meshes.
 
 The Newton step of ``defop.variational.solver`` factorises the reduced (free-vertex) Hessian of the S-ARAP energy, an
 SPD matrix with one dense 2×2 block per mesh edge and vertex. Its numeric factorisation is about 45% of
@@ -9,18 +9,26 @@ a cold solve on large meshes (issue 15), so this compares, on aleph-like meshes 
 * **cholespy** (PyPI wheel, CHOLMOD's supernodal Cholesky bundled; its constructor analyses and factorises,
   there is no numeric-only refactorisation);
 * **scikit-sparse** (CHOLMOD, ``cholesky_inplace`` = numeric only) when it is installed (the current
-  release needs SuiteSparse 7; Debian 12 ships 5.12).
+  release needs SuiteSparse 7; Debian 12 ships 5.12);
+* **pypardiso** (MKL PARDISO, supernodal; x86-64 only, Intel's licence) when it is installed: the symbolic analysis
+  (phase 11) once, then numeric refactorisation (phase 22) and solve (phase 33), through pypardiso's low-level call.
+
+``--dim 3`` uses tetrahedral patterns instead: a structured grid of cubes, each split into 6 tetrahedra
+(Kuhn), with 3 unknowns per vertex and one dense 3×3 block per edge, the pattern of a volumetric Hessian, with
+the vertices of one face pinned as handles. ``--threads N`` lets BLAS and MKL use N threads (default 1).
 
 The matrix has the Hessian's exact sparsity pattern, kron(−L_cot + εI, [[2, 1], [1, 2]]) restricted to
 the free vertices (SPD; a factorisation's cost depends on the pattern, not on the values), so the
 benchmark does not depend on ``solve.py``'s internals. One BLAS thread (threadpoolctl); each time is
 the median and best of 5; every solution's relative residual is printed.
 
-Run: ``python benchmarks/bench_factor.py``.
+Run: ``python benchmarks/bench_factor.py [--dim 3] [--threads 2] [--sizes 1000 4000]``.
 """
 
 from __future__ import annotations
 
+import argparse
+import os
 import time
 
 import numpy as np
@@ -29,6 +37,42 @@ import scipy.sparse.linalg as sla
 from threadpoolctl import threadpool_limits
 
 SIZES = (1000, 3000, 10000, 30000)
+SIZES_3D = (1000, 4000, 10000)
+
+
+def kuhn_grid(n_vertices):
+    """(V, T) of a structured tet grid of about ``n_vertices`` vertices, a 2:1:1 box, 6 tets per cube."""
+    k = max(2, round((n_vertices / 4) ** (1 / 3)))
+    nx, ny, nz = 2 * k, k, k
+    idx = np.arange((nx + 1) * (ny + 1) * (nz + 1)).reshape(nx + 1, ny + 1, nz + 1)
+    g = np.stack(np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), np.arange(nz + 1), indexing="ij"), -1)
+    V = g.reshape(-1, 3).astype(float)
+    c = np.stack([idx[i : i + nx, j : j + ny, m : m + nz].ravel() for i in (0, 1) for j in (0, 1) for m in (0, 1)], 1)
+    # the cube's corners c[:, 4i + 2j + m]; the 6 Kuhn tets share the diagonal 0 -> 7
+    paths = [(0, 4, 6, 7), (0, 4, 5, 7), (0, 2, 6, 7), (0, 2, 3, 7), (0, 1, 5, 7), (0, 1, 3, 7)]
+    T = np.concatenate([c[:, list(p)] for p in paths])
+    return V, T
+
+
+def tet_laplacian(V, T):
+    """The graph Laplacian of the tets' edges (the cotangent Laplacian's pattern), (n, n)."""
+    e = np.concatenate([T[:, [a, b]] for a in range(4) for b in range(a + 1, 4)])
+    n = len(V)
+    A = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    A = ((A + A.T) > 0).astype(float)
+    return sp.diags(np.asarray(A.sum(1)).ravel()) - A
+
+
+def reduced_hessian_3d(n_vertices):
+    """An SPD matrix with a volumetric Hessian's pattern: 3 unknowns a vertex, the face x = 0 pinned."""
+    V, T = kuhn_grid(n_vertices)
+    n = len(V)
+    L = tet_laplacian(V, T)
+    block = np.array([[3.0, 1.0, 1.0], [1.0, 3.0, 1.0], [1.0, 1.0, 3.0]])
+    K = sp.kron(L + 1e-8 * sp.identity(n), block).tocsc()
+    free = np.flatnonzero(V[:, 0] > 0)
+    dofs = (3 * free[:, None] + np.arange(3)).ravel()
+    return sp.csc_matrix(K[dofs][:, dofs]), n
 
 
 def reduced_hessian(n_vertices):
@@ -87,6 +131,27 @@ def candidates(K, b):
     except ImportError:
         pass
     try:
+        import pypardiso
+
+        ps = pypardiso.PyPardisoSolver(mtype=2)  # real symmetric positive definite: the upper triangle, CSR
+        up_csr = sp.triu(K, format="csr")
+        up_csr.sort_indices()
+        rhs = b.reshape(-1, 1)
+        t0 = time.perf_counter()
+        ps.set_phase(11)
+        ps._call_pardiso(up_csr, rhs)
+        out["_pardiso_analysis_s"] = time.perf_counter() - t0
+
+        def pd():
+            ps.set_phase(22)
+            ps._call_pardiso(up_csr, rhs)
+            ps.set_phase(33)
+            return np.asarray(ps._call_pardiso(up_csr, rhs)).ravel()
+
+        out["pypardiso MKL (refactor + solve)"] = pd
+    except ImportError:
+        pass
+    try:
         from sksparse.cholmod import cholesky
 
         f = cholesky(K)
@@ -101,23 +166,38 @@ def candidates(K, b):
     return out
 
 
-def main(sizes=SIZES):
-    print("reduced S-ARAP Hessian pattern on aleph-like meshes; one BLAS thread; median / best of 5 (ms)")
+def main(sizes=None, dim=2, threads=1):
+    sizes = sizes or (SIZES if dim == 2 else SIZES_3D)
+    where = "aleph-like meshes" if dim == 2 else "structured tet grids (6 Kuhn tets a cube)"
+    load = os.getloadavg()[0]
+    print(f"reduced S-ARAP Hessian pattern on {where}; {threads} BLAS/MKL thread(s); median / best of 5 (ms); "
+          f"load average {load:.1f}")
     for size in sizes:
-        K, n = reduced_hessian(size)
+        K, n = reduced_hessian(size) if dim == 2 else reduced_hessian_3d(size)
         b = np.random.default_rng(0).standard_normal(K.shape[0])
         print(f"\n{n} vertices: {K.shape[0]} unknowns, {K.nnz} nonzeros")
         base = None
-        with threadpool_limits(limits=1):
-            for name, f in candidates(K, b).items():
-                med, best, x = timed(f)
+        with threadpool_limits(limits=threads):
+            found = candidates(K, b)
+            analysis = found.pop("_pardiso_analysis_s", None)
+            for name, f in found.items():
+                repeats = 5 if K.shape[0] < 20000 or "qdldl" not in name else 3
+                med, best, x = timed(f, repeats)
                 res = np.linalg.norm(K @ x - b) / np.linalg.norm(b)
                 base = base or best
                 print(
                     f"  {name:42s} {1e3 * med:9.1f} / {1e3 * best:9.1f}   {base / best:5.2f}x qdldl's speed   "
                     f"residual {res:.1e}"
                 )
+            if analysis is not None:
+                print(f"  (PARDISO's symbolic analysis, once per pattern: {1e3 * analysis:.1f} ms)")
+    print(f"\nload average {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":
-    main()
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dim", type=int, choices=(2, 3), default=2)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--sizes", type=int, nargs="*")
+    args = parser.parse_args()
+    main(args.sizes, args.dim, args.threads)
