@@ -322,6 +322,9 @@ _HOLD_BASES = (
 )
 
 
+_DIAG = [0, 4, 8]  # vec indices of the diagonal of a 3×3 matrix
+
+
 def kink_stiff_modes(on):
     """Which of the 9 modes of :func:`eigensystem` are held stiff, for tetrahedra with ``on = on_kink(S, kink)``.
 
@@ -400,17 +403,21 @@ def eigensystem(J, energy, project=True, mu=0.0, kink=0.0):
         if held.any():
             d1, lam_s, E, flip = (x.copy() for x in (d1, lam_s, E, flip))
             d1[held], lam_s[held], E[held], flip[held] = _hold(on[held], d1[held], d2[held], flip[held])
-    B = np.einsum("mia,mjb->mabij", U, V).reshape(len(S), 3, 3, 9)  # vec(U e_a e_bᵀ Vᵀ)
-    Bd = B[:, [0, 1, 2], [0, 1, 2], :]
-    grad = np.einsum("ma,man->mn", d1, Bd)
-    scaling = np.einsum("mak,man->mnk", E, Bd)
-    twists = np.stack([(B[:, j, i] - B[:, i, j]) / _R2 for i, j in PAIRS], axis=-1)
-    flips = np.stack([(B[:, i, j] + B[:, j, i]) / _R2 for i, j in PAIRS], axis=-1)
+    m = len(S)
+    K = (U[:, :, None, :, None] * V[:, None, :, None, :]).reshape(m, 9, 9)  # U ⊗ V: vec(U A Vᵀ) = K vec(A)
+    Kd = K[:, :, _DIAG]  # vec(U e_a e_aᵀ Vᵀ)
+    with np.errstate(invalid="ignore"):  # ∂ψ = inf where ψ overflows (isometric_exp): meaningless there, like ψ
+        grad = np.matmul(Kd, d1[:, :, None])[:, :, 0]
+    modes = np.empty((m, 9, 9))
+    modes[:, :, :3] = np.matmul(Kd, E)
+    for k, (i, j) in enumerate(PAIRS):
+        modes[:, :, 3 + k] = (K[:, :, 3 * j + i] - K[:, :, 3 * i + j]) / _R2  # twist U(E_ji − E_ij)Vᵀ/√2
+        modes[:, :, 6 + k] = (K[:, :, 3 * i + j] + K[:, :, 3 * j + i]) / _R2  # flip U(E_ij + E_ji)Vᵀ/√2
     lam = np.concatenate([lam_s, np.where(np.isfinite(twist), twist, -np.inf), flip], axis=1)
     if project:
         lam = np.maximum(lam, 0.0)
     lam = np.where(np.isfinite(lam), lam, 0.0)
-    return psi, grad, lam, np.concatenate([scaling, twists, flips], axis=2)
+    return psi, grad, lam, modes
 
 
 def hessian(J, energy, project=True, mu=0.0):
