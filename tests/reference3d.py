@@ -41,6 +41,28 @@ def grid_tets(k=2, size=1.0):
     return V, T
 
 
+def twisted_cube(seed, k=2):
+    """A k×k×k grid whose 8 corners are handles in a random order: bottom fixed, top twisted about z and moved.
+
+    Returns
+    -------
+    V : (n,3) numpy array
+    T : (m,4) int numpy array
+    handles : (8,) int numpy array
+        Corner vertices, permuted by ``seed``.
+    targets : (8,3) numpy array
+    """
+    rng = np.random.default_rng(seed)
+    V, T = grid_tets(k)
+    handles = rng.permutation(np.flatnonzero(((V == 0) | (V == 1)).all(axis=1)))
+    ang = rng.uniform(0.2, 0.6)
+    Rz = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1]])
+    targets = V[handles].copy()
+    top = targets[:, 2] == 1
+    targets[top] = (targets[top] - 0.5) @ Rz.T + 0.5 + rng.uniform(-0.1, 0.2, 3)
+    return V, T, handles, targets
+
+
 def _edges(X, T):
     X = np.asarray(X, dtype=float)
     return np.swapaxes(X[..., T[:, 1:], :] - X[..., T[:, :1], :], -1, -2)  # (..., m, 3, 3): columns are edges
@@ -120,6 +142,8 @@ def fd_newton(V, T, handles, targets, energy="arap", X0=None, tol=1e-7, max_iter
     fixed[handles] = True
     free = np.flatnonzero(~fixed.ravel())
     E = total_energy(V, T, X, energy, mu)
+    if not np.isfinite(E):
+        raise ValueError(f"X0 must have finite {energy} energy (no inverted tetrahedra), got E = {E}")
     iterations = 0
     while True:
         g, H = _fd_grad_hess(V, T, X, energy, mu)

@@ -285,6 +285,12 @@ def test_on_kink_and_the_held_eigensystem():
     J = U @ (S[:, :, None] * np.eye(3)) @ V.T
     on = vo.on_kink(vo.signed_svd(J)[1], 1e-4)
     assert on.tolist() == [[True, False], [False, True], [True, True], [False, False], [True, False]]
+    Sj = vo.signed_svd(J)[1]
+    assert np.array_equal(vo.on_kink(Sj, np.full(len(S), 1e-4)), on)  # one threshold per tetrahedron
+    per_set = np.array([[1e-4, -1.0]] * len(S))  # released from σ₂ = σ₃ (the solver's active set), per set
+    assert vo.on_kink(Sj, per_set).tolist() == [[True, False], [False, False], [True, False], [False, False]] + [
+        [True, False]
+    ]
     near_rest = np.array([[1.001 + 5e-6, 1.001 - 5e-6, 0.9], [1.001, 1.001, 0.9]])  # r ≈ 2e-6: the cone vanishes
     assert vo.on_kink(near_rest, 1e-4)[:, 0].tolist() == [False, True]  # a gap of 1e-5 is off it, 0 is on it
     psi, grad, lam, modes = vo.eigensystem(J, "sarap", project=False, kink=1e-4)
@@ -346,26 +352,13 @@ def test_libigl_element_arap_energy_is_ours():
     assert np.allclose(r3.libigl_element_arap_energy(V, T, X), ours, rtol=1e-12)
 
 
-def _twisted_cube(seed):
-    """The 2×2×2 grid with its 8 corners as handles in a random order: bottom fixed, top twisted and lifted."""
-    rng = np.random.default_rng(seed)
-    V, T = r3.grid_tets(2)
-    corners = rng.permutation(np.flatnonzero(((V == 0) | (V == 1)).all(axis=1)))
-    ang = rng.uniform(0.2, 0.6)
-    Rz = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1]])
-    targets = V[corners].copy()
-    top = targets[:, 2] == 1
-    targets[top] = (targets[top] - 0.5) @ Rz.T + 0.5 + rng.uniform(-0.1, 0.2, 3)
-    return V, T, corners, targets
-
-
 @settings(deadline=None, max_examples=3)
 @given(seed=st.integers(0, 2**16))
 def test_fd_newton_arap_agrees_with_libigl(seed):
     """The finite-difference Newton reference and libigl's element ARAP (2000 iterations) find the same minimiser,
     with the handles in any order. libigl fits its 3D rotations in single precision (``fit_rotations(S, true, R)``
     in arap_solve), so its fixed point is only ~1e-5 from the double-precision one (measured 8.0e-6)."""
-    V, T, handles, targets = _twisted_cube(seed)
+    V, T, handles, targets = r3.twisted_cube(seed)
     X, info = r3.fd_newton(V, T, handles, targets, "arap")
     assert info["grad_norm"] < 1e-7 and np.allclose(X[handles], targets)
     Xi = r3.libigl_arap(V, T, handles, targets, iterations=2000)
@@ -379,7 +372,7 @@ def test_fd_newton_arap_agrees_with_libigl(seed):
 
 def test_fd_newton_sarap_is_a_stationary_point_of_the_analytic_gradient():
     """S-ARAP by μ-continuation of the reference Newton; the assembled analytic gradient vanishes there."""
-    V, T, handles, targets = _twisted_cube(11)
+    V, T, handles, targets = r3.twisted_cube(11)
     X = None
     for mu in (1e-2, 1e-4, 0.0):
         X, info = r3.fd_newton(V, T, handles, targets, "sarap", X0=X, mu=mu)
@@ -392,3 +385,17 @@ def test_fd_newton_sarap_is_a_stationary_point_of_the_analytic_gradient():
         np.add.at(G, T[:, 0], -Gl[:, :, c])
     G[handles] = 0
     assert np.abs(G).max() < 1e-6
+
+
+@pytest.mark.parametrize("energy,mu", [("arap", 0), ("sarap", 1e-2), ("isometric", 0), ("isometric_exp", 0)])
+def test_exact_hessian_at_repeated_singular_values(energy, mu):
+    """Where σᵢ = σⱼ the flip eigenvalue is its limit ψᵢᵢ − ψᵢⱼ (smooth energies): still the exact Hessian."""
+    U, V = _rotation(np.array([0.7, -0.2, 0.4, 0.1])), _rotation(np.array([0.1, 0.5, -0.6, 0.3]))
+    S = np.array([[1.3, 1.3, 0.8], [1.3, 0.8, 0.8], [0.9, 0.9, 0.9], [1.2, 1.2 - 1e-9, 0.7]])
+    J = U @ (S[:, :, None] * np.eye(3)) @ V.T
+    _, _, H = vo.hessian(J, energy, project=False, mu=mu)
+    h = 1e-6
+    for k in range(9):
+        dJ = h * _unit(k)
+        fd_h = (vo.gradient(J + dJ, energy, mu)[1] - vo.gradient(J - dJ, energy, mu)[1]).reshape(-1, 9) / (2 * h)
+        assert np.allclose(fd_h, H[:, :, k], rtol=1e-5, atol=1e-5)
