@@ -58,25 +58,10 @@ def _jacobians(J):
 
 
 def signed_svd(J):
-    """Rotation-variant SVD of 3×3 matrices: J = U diag(σ₁, σ₂, σ₃) Vᵀ with U, V rotations.
+    """Rotation-variant SVD J = U diag(S) Vᵀ of J (m,3,3): rotations U, V (m,3,3) and S (m,3), σ₁ ≥ σ₂ ≥ |σ₃|.
 
-    Parameters
-    ----------
-    J : (m,3,3) numpy array
-
-    Returns
-    -------
-    U : (m,3,3) numpy array
-        Rotations (det +1).
-    S : (m,3) numpy array
-        σ₁ ≥ σ₂ ≥ |σ₃|; σ₃ < 0 exactly when det J < 0.
-    V : (m,3,3) numpy array
-        Rotations (det +1).
-
-    Notes
-    -----
-    From LAPACK's SVD, a reflection in U or V moves into σ₃ (Irving, Teran & Fedkiw 2004): the last column of U
-    (of V) is negated where det U < 0 (det V < 0), and σ₃ with it, once per negation.
+    σ₃ < 0 exactly when det J < 0. From LAPACK's SVD, a reflection in U or V moves into σ₃ (Irving, Teran & Fedkiw
+    2004): the last column of U (of V) is negated where det U < 0 (det V < 0), and σ₃ with it, once per negation.
     """
     J = _jacobians(J)
     U, S, Vt = np.linalg.svd(J)
@@ -224,21 +209,7 @@ def psi_value(energy, s1, s2, s3, mu=0.0, both=False):
 
 
 def density(J, energy, mu=0.0):
-    """ψ(J_t) per tetrahedron.
-
-    Parameters
-    ----------
-    J : (m,3,3) numpy array
-    energy : str
-        One of :data:`defop.variational.energies.ENERGIES`.
-    mu : float
-        S-ARAP smoothing.
-
-    Returns
-    -------
-    psi : (m,) numpy array
-        +inf on inverted tetrahedra for the barrier energies.
-    """
+    """ψ(J_t) (m,) per tetrahedron for J (m,3,3); +inf on inverted ones for the barrier energies."""
     check_energy(energy)
     S = signed_svd(J)[1]
     return psi_value(energy, *S.T, mu=mu)
@@ -367,15 +338,8 @@ def eigensystem(J, energy, project=True, mu=0.0, kink=0.0):
     Modes, orthonormal in vec(J): 0–2 scaling U diag(eₖ) Vᵀ (eₖ the eigenvectors of the 3×3 Hessian of ψ in σ),
     3–5 twists and 6–8 flips of the pairs (σ₁, σ₂), (σ₁, σ₃), (σ₂, σ₃) (module docstring).
 
-    Parameters
-    ----------
-    J : (m,3,3) numpy array
-    energy : str
-    project : bool
-        Clamp negative eigenvalues to zero (PSD); otherwise exact where ψ is smooth.
-    mu : float
-        S-ARAP smoothing.
-    kink : float, (m,) or (m,2) numpy array
+    J (m,3,3); ``project`` clamps negative eigenvalues to zero (PSD), else the Hessian is exact where ψ is smooth;
+    ``mu`` is S-ARAP's smoothing. ``kink`` (float, (m,) or (m,2)):
         S-ARAP with ``mu = 0`` only: tetrahedra within ``kink`` of a kink set (:func:`on_kink`) are held there, as in
         2D: the gradient keeps only the part symmetric in the pair (the mean of ψᵢ and ψⱼ), and the set's
         anti-conformal modes (:func:`kink_stiff_modes`) get a curvature 1e8 times the scale of ψ's Hessian. Then the
@@ -384,13 +348,8 @@ def eigensystem(J, energy, project=True, mu=0.0, kink=0.0):
 
     Returns
     -------
-    psi : (m,) numpy array
-    grad : (m,9) numpy array
-        vec(∂ψ/∂J).
-    lam : (m,9) numpy array
-        Eigenvalues; non-finite ones are set to 0.
-    modes : (m,9,9) numpy array
-        ``modes[t, :, k]`` is the k-th unit eigenvector, vec of the eigenmatrix.
+    (psi (m,), grad (m,9) = vec(∂ψ/∂J), lam (m,9) eigenvalues with non-finite ones set to 0, modes (m,9,9) whose
+    column ``modes[t, :, k]`` is vec of the k-th unit eigenmatrix), as :func:`defop.variational.energies.eigensystem`.
     """
     check_energy(energy)
     U, S, V = signed_svd(J)
@@ -442,15 +401,7 @@ def max_flip_free_step(J, dJ, safety=0.9):
     it: a near-double root counts, conservatively) is polished by two Newton steps on the cubic in t. The step is
     ``safety`` times the smallest root over all tetrahedra, capped at 1.
 
-    Parameters
-    ----------
-    J, dJ : (m,3,3) numpy arrays
-        Current Jacobians (all det > 0) and their change along the search direction.
-    safety : float
-
-    Returns
-    -------
-    t : float
+    J (all det > 0) and dJ, its change along the search direction, are (m,3,3); returns t (float).
     """
     J, dJ = _jacobians(J), _jacobians(dJ)
     if dJ.shape != J.shape:
