@@ -398,3 +398,42 @@ def test_exact_hessian_at_repeated_singular_values(energy, mu):
         dJ = h * _unit(k)
         fd_h = (vo.gradient(J + dJ, energy, mu)[1] - vo.gradient(J - dJ, energy, mu)[1]).reshape(-1, 9) / (2 * h)
         assert np.allclose(fd_h, H[:, :, k], rtol=1e-5, atol=1e-5)
+
+
+@given(F=hnp.arrays(float, (9,), elements=st.floats(-1, 1, allow_nan=False)), s=st.floats(0.5, 2.0), q=rotation_params)
+@settings(deadline=None, max_examples=30)
+def test_kink_force_is_the_dual_norm_of_the_cone_at_the_triple_point(F, s, q):
+    """On σ₁ = σ₂ = σ₃ = s, ψ grows along the held modes a like vol·(F·a) allows exactly when kink_force ≤ r:
+    sup_a F·a / ψ'(a) = kink_force / r, with ψ'(a) the one-sided slope of ψ (finite differences of density)."""
+    assume(abs(s - 1) > 0.1 and np.abs(F[[1, 2, 6, 7, 8]]).max() > 0.05)
+    U, V = _rotation(q), _rotation(q[::-1])
+    J0 = s * U @ V.T
+    _, _, _, modes = vo.eigensystem(J0[None], "sarap", project=False, kink=1e-4)
+    on = vo.on_kink(np.array([[s, s, s]]), 1e-4)
+    assert on.all()
+    stiff = vo.kink_stiff_modes(on)[0]
+    r = vo.kink_radius(np.array([[s, s, s]]))[0][0, 0]
+    ratio = vo.kink_force(on, F[None])[0] / r
+    h = 1e-6
+
+    def slope(a):
+        Z = (modes[0] @ a).reshape(3, 3)
+        return (
+            vo.density(np.stack([J0 + h * Z, J0 + 2 * h * Z]), "sarap") @ [4, -1] - 3 * vo.density(J0[None], "sarap")[0]
+        ) / (2 * h)
+
+    rng = np.random.default_rng(0)
+    for a in rng.normal(size=(200, 9)) * stiff:
+        assert F @ a <= ratio * slope(a) * (1 + 1e-5) + 1e-9
+    # the maximiser: the projection on G's positive eigenvectors, written in the held modes
+    G = np.zeros((3, 3))
+    G[np.diag_indices(3)] = vo._HOLD_BASES[2][:, 1:3] @ F[1:3]
+    for k, (i, j) in enumerate(vo.PAIRS):
+        G[i, j] = G[j, i] = F[6 + k] / np.sqrt(2)
+    ev, vec = np.linalg.eigh(G)
+    P = (vec * (ev > 0)) @ vec.T  # Π₊
+    P -= np.trace(P) / 3 * np.eye(3)
+    a = np.zeros(9)
+    a[1:3] = vo._HOLD_BASES[2][:, 1:3].T @ np.diag(P)
+    a[6:] = [np.sqrt(2) * P[i, j] for i, j in vo.PAIRS]
+    assert F @ a == pytest.approx(ratio * slope(a), rel=1e-4)

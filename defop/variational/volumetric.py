@@ -313,6 +313,44 @@ def kink_stiff_modes(on):
     return np.stack([z, both, one | both, z, z, z, a, both, b], axis=-1)
 
 
+def kink_force(on, F):
+    """The size of the force on the held modes, in the norm whose bound is the cone: equilibrium ⇔ ‖F‖ ≤ vol · r.
+
+    Held on one set (σᵢ = σⱼ), the cone ¼|w(σᵢ) − w(σⱼ)| has the disk of radius r (:func:`kink_radius`) as its
+    subdifferential, and this is the Euclidean norm of F on the set's two stiff modes (:func:`kink_stiff_modes`).
+    Held on both (σ₁ = σ₂ = σ₃ = s), the five stiff modes make a traceless symmetric G = Σₖ Fₖ Aₖ (Aₖ their unit
+    matrices in the frame of σ), the cone is ½ w'(s)(λ_max − λ_min) = √2 r (λ_max − λ_min), whose dual norm is
+    ½‖G‖_* (half the nuclear norm, the sum of G's positive eigenvalues): returned divided by √2, so the same test
+    against r holds.
+
+    Parameters
+    ----------
+    on : (m,2) bool numpy array
+        :func:`on_kink`.
+    F : (m,9) numpy array
+        Force on each mode of :func:`eigensystem` (held basis); only the stiff modes are read.
+
+    Returns
+    -------
+    norm : (m,) numpy array
+        0 where the tetrahedron is not held.
+    """
+    on, F = np.asarray(on, dtype=bool), np.asarray(F, dtype=float)
+    stiff = kink_stiff_modes(on)
+    norm = np.sqrt(np.where(stiff, F * F, 0.0).sum(axis=1))
+    both = on[:, 0] & on[:, 1]
+    if both.any():
+        basis = _HOLD_BASES[2]  # scaling columns 1 and 2 are the traceless diagonals
+        Fb = F[both]
+        G = (Fb[:, 1:3] @ basis[:, 1:3].T)[:, :, None] * np.eye(3)
+        for k, (i, j) in enumerate(PAIRS):
+            G[:, i, j] += Fb[:, 6 + k] / _R2
+            G[:, j, i] += Fb[:, 6 + k] / _R2
+        ev = np.linalg.eigvalsh(G)
+        norm[both] = np.maximum(ev, 0.0).sum(axis=1) / _R2
+    return norm
+
+
 def _hold(on, d1, d2, flip):
     """The kink treatment of :func:`eigensystem` on the held rows: (∂ψ, scaling λ (k,3), eigenvectors (k,3,3), flip)."""
     a, b = on[:, 0], on[:, 1]
