@@ -78,6 +78,8 @@ html_theme_options = {
     "home_page_in_toc": True,
     "navigation_with_keys": False,
 }
+# the figures are drawn on white; with no mode at all the theme logs a console error on a first visit
+html_context = {"default_mode": "light"}
 html_show_sourcelink = False
 html_copy_source = False
 html_last_updated_fmt = None
