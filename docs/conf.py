@@ -35,7 +35,8 @@ extensions = [
 ]
 
 root_doc = "index"
-exclude_patterns = ["_build", "_static/**", "_templates/**", "_extra/**", "benchmarks/**", "figures/**", "**/.ipynb_checkpoints"]
+exclude_patterns = ["_build", "_static/**", "_templates/**", "_extra/**", "benchmarks/**", "figures/**"]
+exclude_patterns += ["**/.ipynb_checkpoints"]
 templates_path = ["_templates"]
 suppress_warnings = ["myst.header"]  # notebooks start at "#" and some skip a level for their sub-headings
 
