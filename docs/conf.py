@@ -89,11 +89,37 @@ html_last_updated_fmt = None
 # The docstrings write norms and sizes as |Ψ|, |x|: in reStructuredText that is a substitution reference. Escape
 # such a pair of bars (no space inside them; table rows "| a | b |" have spaces and are left alone).
 _NORM = re.compile(r"(?<![\\|`])\|(?=[^\s|`])([^|\n`]*?[^\s|\\`])\|(?![|_`])")
+_ROW = re.compile(r"^(\s*)\|(.*)\|\s*$")
+_RULE = re.compile(r"^\s*\|[\s:|-]*-[\s:|-]*\|\s*$")
 
 
-def _escape_norms(app, what, name, obj, options, lines):
-    lines[:] = [_NORM.sub(r"\\|\1\\|", line) for line in lines]
+def _cells(line):
+    return [c.strip() for c in _ROW.match(line)[2].split("|")]
+
+
+def _markdown_tables(lines):
+    """A Markdown pipe table in a docstring (header row, |---| rule, rows) as an rST list-table."""
+    out, i = [], 0
+    while i < len(lines):
+        if i + 1 < len(lines) and _ROW.match(lines[i]) and _RULE.match(lines[i + 1]):
+            indent, rows = _ROW.match(lines[i])[1], [_cells(lines[i])]
+            i += 2
+            while i < len(lines) and _ROW.match(lines[i]):
+                rows.append(_cells(lines[i]))
+                i += 1
+            out += [f"{indent}.. list-table::", f"{indent}   :header-rows: 1", ""]
+            for row in rows:
+                out += [f"{indent}   * - {row[0]}"] + [f"{indent}     - {cell}" for cell in row[1:]]
+            out.append("")
+        else:
+            out.append(lines[i])
+            i += 1
+    return out
+
+
+def _docstring_to_rst(app, what, name, obj, options, lines):
+    lines[:] = [_NORM.sub(r"\\|\1\\|", line) for line in _markdown_tables(lines)]
 
 
 def setup(app):
-    app.connect("autodoc-process-docstring", _escape_norms)
+    app.connect("autodoc-process-docstring", _docstring_to_rst)

@@ -29,8 +29,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.browser
-
 ROOT = Path(__file__).resolve().parents[1]
 # the lessons every book has (the landing page's reading order); later lessons only add to it
 LESSONS = ("00_shapes", "01_energies", "04_convergence", "07_octopus", "12_peers", "13_image_warping")
@@ -196,6 +194,7 @@ def _check_images(page):
     return page.evaluate("() => document.images.length")
 
 
+@pytest.mark.browser
 def test_every_page_offline_no_errors_maths_images_links(book, server, browser):
     pages = pages_of(book)
     visit = Visit(browser, server)
@@ -231,6 +230,7 @@ def _canvas_pixels(locator):
     return np.asarray(Image.open(io.BytesIO(locator.screenshot())).convert("RGB"), dtype=np.int16)
 
 
+@pytest.mark.browser
 def test_drag_the_embedded_octopus(book, server, browser):
     """The editor page inside the landing page's iframe: a mouse drag from moving handle 0 moves the mesh."""
     visit = Visit(browser, server, viewport=(1280, 1000))
