@@ -120,6 +120,8 @@ def test_the_site_has_the_lessons_the_api_and_the_benchmarks(book):
     pages = set(pages_of(book))
     for name in LESSONS:
         assert f"notebooks/{name}.html" in pages, f"lesson {name} missing from the book"
+    for nb in (ROOT / "notebooks").glob("[0-9]*.ipynb"):  # a lesson added later is in the book too
+        assert f"notebooks/{nb.stem}.html" in pages, f"{nb.name} has no page in the book"
     for sub in SUBPACKAGES:
         assert f"generated/defop.{sub}.html" in pages, f"API reference of defop.{sub} missing"
     assert {"index.html", "api.html", "benchmarks.html", "editors/octopus.html"} <= pages
