@@ -3,8 +3,8 @@
 The site's sources are staged into ``<OUT>-src`` (a copy of ``docs/`` with the notebooks, the figures, the
 standalone editor pages and the benchmarks README beside it, in the repository's own layout so the notebooks'
 ``../figures/…`` links resolve), then Sphinx writes HTML to OUT. Nothing is executed (myst-nb reads the stored
-outputs) and nothing is fetched. Nothing is written outside OUT, ``<OUT>-src`` and ``<OUT>-doctrees``; the
-default OUT is the git-ignored ``build/book``.
+outputs) and nothing is fetched. Each build is a full one (about 15 s of CPU). Nothing is written outside OUT,
+``<OUT>-src`` and ``<OUT>-doctrees``; the default OUT is the git-ignored ``build/book``.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ DOCS = ROOT / "docs"
 
 
 def stage(src: Path) -> Path:
-    """Copy the book's sources into ``src`` (emptied first); copies keep their mtimes for incremental builds."""
+    """Copy the book's sources into ``src`` (emptied first)."""
     if src.exists():
         shutil.rmtree(src)
     shutil.copytree(DOCS, src, ignore=shutil.ignore_patterns("build.py", "__pycache__", "_build"))
@@ -44,9 +44,12 @@ def build(out: Path, strict: bool = False, quiet: bool = True) -> int:
 
     out = Path(out).resolve()
     src = stage(out.with_name(out.name + "-src"))
-    doctrees = out.with_name(out.name + "-doctrees")  # kept: an unchanged lesson is not parsed again
-    if out.exists():  # no page of an earlier build survives (a renamed lesson, a removed module)
-        shutil.rmtree(out)
+    doctrees = out.with_name(out.name + "-doctrees")
+    # always a full build: an unchanged page can show what changed elsewhere (the API tables show the
+    # docstrings' first lines), and no page of an earlier build survives (a renamed lesson, a removed module)
+    for folder in (out, doctrees):
+        if folder.exists():
+            shutil.rmtree(folder)
     os.environ["DEFOP_BOOK_ROOT"] = str(ROOT)
     args = ["-b", "html", "-d", str(doctrees), "-j", "1", "--keep-going"]
     args += ["-W"] if strict else []

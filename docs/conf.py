@@ -16,6 +16,8 @@ import sys
 import warnings
 from pathlib import Path
 
+import sphinx.ext.autosummary as autosummary_module
+
 # autodoc imports the package the build was staged from (docs/build.py sets DEFOP_BOOK_ROOT to the worktree)
 ROOT = Path(os.environ.get("DEFOP_BOOK_ROOT", Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(ROOT))
@@ -64,6 +66,8 @@ napoleon_numpy_docstring = True
 napoleon_use_rtype = False
 napoleon_use_ivar = True
 warnings.filterwarnings("ignore", category=DeprecationWarning)
+# the one-line summaries of the API tables end at a sentence's full stop, not at the paper's "Eq." or "Fig."
+autosummary_module.WELL_KNOWN_ABBREVIATIONS += ("Eq.", "Eqs.", "Fig.", "Figs.", "Prop.", "App.", "Sec.", "vs.", "cf.")
 
 # --- theme: local assets only -----------------------------------------------------------------------------------
 html_theme = "sphinx_book_theme"
