@@ -3,8 +3,8 @@
 The site is the one ``make book`` built when ``DEFOP_BOOK`` names it (``make test`` does), otherwise it is built
 once per session into a temporary folder with ``docs/build.py``. It is served by ``http.server`` on 127.0.0.1 and
 every request that leaves that server is aborted and recorded: the site must work offline. On every page: no
-console error and no uncaught exception, every image loaded (``naturalWidth > 0``), every link, script, style
-sheet, image and frame of the site resolving to a file of the build (and a ``#fragment`` to an id on its page),
+console error, no uncaught exception, no HTTP error, every image loaded (``naturalWidth > 0``), every link,
+script, style sheet, image and frame of the site resolving to a file of the build (a ``#fragment`` to an id there),
 and, on a page with maths, MathJax typeset every formula with no TeX error. On the landing page a handle of the
 embedded octopus editor (``figures/octopus.html``) is dragged with the mouse and the canvas pixels must change.
 
@@ -103,6 +103,7 @@ class Visit:
         self.page = self.context.new_page()
         self.page.on("console", lambda m: m.type == "error" and self.errors.append(f"console: {m.text}"))
         self.page.on("pageerror", lambda e: self.errors.append(f"uncaught: {e}"))
+        self.page.on("response", lambda r: r.status >= 400 and self.errors.append(f"HTTP {r.status}: {r.url}"))
 
     def _route(self, route):
         url = route.request.url
@@ -213,7 +214,8 @@ def test_every_page_offline_no_errors_maths_images_links(book, server, browser):
             for url in _local_targets(visit.page, server):
                 if (why := _resolves(book, server, url, ids_cache)) is not None:
                     problems.append(f"{rel}: {why}")
-            visit.page.wait_for_timeout(50)  # late console errors (fonts, frames) are reported on this page
+            visit.page.evaluate("() => document.fonts.ready.then(() => true)")  # MathJax's and the theme's fonts
+            visit.page.wait_for_timeout(50)  # late console errors (frames) are reported on this page
             problems += [f"{rel}: {e}" for e in visit.errors]
         external = list(visit.external)
     finally:
