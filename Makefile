@@ -1,6 +1,7 @@
 # Two commands do all the set-up on a fresh machine (see README):
 #   make figures   regenerate every figure into figures/ (the main job)
-#   make test      unit tests + every notebook under nbval (fast mode)
+#   make test      unit tests + every notebook under nbval (fast mode) + the book in Chromium
+#   make book      the lessons as a static site from their stored outputs: build/book/index.html
 # Both create .venv on first use, installing the tested versions pinned in constraints.txt
 # (`make constraints` refreshes them; see README "Tests and CI").
 
@@ -8,12 +9,12 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.defop-installed
-EXTRAS := test,notebook,dask,dev,browser
+EXTRAS := test,notebook,dask,dev,browser,docs
 # pins of a venv that passed make test: a new release of any dependency cannot break make
 CONSTRAINTS := constraints.txt
 NBVAL  := --nbval-lax --nbval-cell-timeout=600 --nbval-sanitize-with .ci/nbval-sanitize.cfg
 
-.PHONY: figures test setup lint benchmarks clean-venv constraints lab normalise
+.PHONY: figures test book setup lint benchmarks clean-venv constraints lab normalise
 
 setup: $(STAMP)
 
@@ -27,9 +28,14 @@ $(STAMP): pyproject.toml $(CONSTRAINTS)
 figures: $(STAMP)
 	$(BIN)/python -m defop figures
 
-test: $(STAMP)
+# the book is built first, from the stored outputs, and tests/test_book.py opens every page of it in Chromium
+test: book
 	$(BIN)/lint-imports --no-cache
-	DEFOP_FAST=1 $(BIN)/python -m pytest -p no:cacheprovider tests notebooks $(NBVAL)
+	DEFOP_FAST=1 DEFOP_BOOK=build/book $(BIN)/python -m pytest -p no:cacheprovider tests notebooks $(NBVAL)
+
+# the lessons as a static site (Sphinx + myst-nb, nothing executed, nothing fetched): build/book/index.html
+book: $(STAMP)
+	$(BIN)/python docs/build.py build/book
 
 lint: $(STAMP)
 	$(BIN)/ruff check defop tests benchmarks notebooks

@@ -17,7 +17,7 @@ def test_environment_yml_matches_pyproject():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     wanted = {_name(r) for r in project["dependencies"]}
     extras = project["optional-dependencies"]
-    for extra in ("test", "notebook", "dev"):
+    for extra in ("test", "notebook", "dev", "docs"):
         wanted |= {_name(r) for r in extras[extra]}
     text = (ROOT / "environment.yml").read_text().split("dependencies:", 1)[1]
     deps = [ln.strip()[2:].strip() for ln in text.splitlines() if ln.strip().startswith("- ")]
