@@ -5,6 +5,6 @@ implicit outlines and pictures (Triangle).
 """
 
 from . import mesh, planar
-from .mesh import Mesh, read_mesh, signed_areas, write_mesh
+from .mesh import Mesh, read_mesh, signed_areas, signed_volumes, write_mesh
 
-__all__ = ["Mesh", "mesh", "planar", "read_mesh", "signed_areas", "write_mesh"]
+__all__ = ["Mesh", "mesh", "planar", "read_mesh", "signed_areas", "signed_volumes", "write_mesh"]
