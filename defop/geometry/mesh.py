@@ -204,7 +204,7 @@ def _check_manifold_tets(T):
 
 def _same_cyclic(A, B):
     """(k,) bool: whether triangles A[i] and B[i] (same vertex set) have the same orientation."""
-    return ((A == B) | (A == B[:, [1, 2, 0]]) | (A == B[:, [2, 0, 1]])).all(axis=1)
+    return (A == B).all(axis=1) | (A == B[:, [1, 2, 0]]).all(axis=1) | (A == B[:, [2, 0, 1]]).all(axis=1)
 
 
 def check_closed_surface(S, what="the surface"):
@@ -499,6 +499,43 @@ class Mesh:
                 inside &= _simplex_volumes(p0, P[:, f]) >= eps
             out[k] = bool(inside.any())
         return out
+
+    @cached_property
+    def _centroid_tree(self):
+        P = self.V[self.F]
+        return cKDTree(P.sum(axis=1) / (self.dim + 1))
+
+    def locate(self, points, k=16):
+        """The element holding each point and the point's barycentric coordinates in it.
+
+        Used to embed a fine surface in a coarser tetrahedral mesh: the embedded points follow a
+        deformation X as ``(bary[:, :, None] * X[mesh.F[elements]]).sum(1)``.
+
+        Parameters
+        ----------
+        points : (p, d) numpy array
+        k : int
+            How many elements (nearest centroids) are tried per point.
+
+        Returns
+        -------
+        elements : (p,) int numpy array
+        bary : (p, d + 1) numpy array
+            Barycentric coordinates (rows sum to 1, all ≥ 0 inside the element). A point outside the
+            mesh gets the candidate element where it is least outside (some coordinates negative).
+        """
+        points = _check_V(np.atleast_2d(points), "points", d=self.dim)
+        k = min(k, self.n_faces)
+        _, cand = self._centroid_tree.query(points, k=k)
+        cand = np.asarray(cand).reshape(len(points), k)
+        P = self.V[self.F[cand.ravel()]]  # (p*k, d+1, d)
+        p0 = np.repeat(points, k, axis=0)
+        lam = np.stack([_simplex_volumes(p0, P[:, f]) for f in FACETS[self.dim]], axis=1)
+        lam = lam / self.volumes[cand.ravel()][:, None]
+        lam = lam.reshape(len(points), k, self.dim + 1)
+        best = np.argmax(lam.min(axis=2), axis=1)
+        rows = np.arange(len(points))
+        return cand[rows, best].astype(np.int64), lam[rows, best]
 
     # ----------------------------------------------------------------- I/O
     def save(self, path):
