@@ -19,7 +19,17 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["Mesh", "read_mesh", "write_mesh", "signed_volumes", "signed_areas", "ELEMENT", "FACETS"]
+__all__ = [
+    "Mesh",
+    "read_mesh",
+    "write_mesh",
+    "signed_volumes",
+    "signed_areas",
+    "boundary_facets",
+    "check_closed_surface",
+    "ELEMENT",
+    "FACETS",
+]
 
 #: the name of an element of a d-dimensional mesh
 ELEMENT = {2: "triangle", 3: "tetrahedron"}
@@ -142,6 +152,14 @@ def _facets(F):
     d = F.shape[1] - 1
     facets = np.concatenate([F[:, f] for f in FACETS[d]])
     return facets, np.tile(np.arange(len(F)), d + 1)
+
+
+def boundary_facets(F):
+    """(k, d) int numpy array: the facets of the elements F (m, d + 1) that lie in one element only,
+    outward-oriented (edges of triangles, triangles of tetrahedra)."""
+    facets, _ = _facets(F)
+    _, inv, counts = np.unique(np.sort(facets, axis=1), axis=0, return_inverse=True, return_counts=True)
+    return np.ascontiguousarray(facets[counts[inv.ravel()] == 1])
 
 
 def _check_manifold(F):
@@ -366,9 +384,7 @@ class Mesh:
         Edges in 2D (counter-clockwise around Ω: the interior on their left), triangles in 3D
         (the closed boundary surface; normals by the right-hand rule point out of Ω).
         """
-        facets, _ = _facets(self.F)
-        _, inv, counts = np.unique(np.sort(facets, axis=1), axis=0, return_inverse=True, return_counts=True)
-        return np.ascontiguousarray(facets[counts[inv.ravel()] == 1])
+        return boundary_facets(self.F)
 
     @cached_property
     def boundary_vertices(self):

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from ..mesh import Mesh, signed_volumes
+from ..mesh import Mesh, boundary_facets, signed_volumes
 from .grid import clean_cubes, cubes_to_tets, grid_centres
 
 __all__ = ["tet_mesh", "grid_spacing", "snap_boundary", "field_projector", "round_spacing"]
@@ -52,21 +52,37 @@ def occupied_cubes(inside, bbox, h):
     return clean_cubes(occ), lo
 
 
-def grid_spacing(inside, bbox, n_vertices, coarse=24):
+def _n_vertices(inside, bbox, h):
+    occ, lo = occupied_cubes(inside, bbox, h)
+    return len(cubes_to_tets(occ, lo, h)[0])
+
+
+def grid_spacing(inside, bbox, n_vertices, coarse=(32, 48)):
     """The cube side h that gives about ``n_vertices`` mesh vertices.
 
-    The solid's volume is estimated on a coarse grid (``coarse`` cubes along the longest side), h is
-    chosen so that one vertex per cube matches ``n_vertices``, then corrected once by the vertex count
-    of that grid. Rounded by :func:`round_spacing`.
+    The vertex count is measured on two coarse grids (``coarse`` cubes along the longest side) and
+    fitted by n(h) = a/h³ + b/h² (volume and surface terms), which is solved for ``n_vertices`` by
+    bisection. Rounded by :func:`round_spacing`.
     """
     bbox = _check_bbox(bbox)
-    ext = bbox[1] - bbox[0]
-    h0 = round_spacing(float(ext.max()) / coarse)
-    occ, _ = occupied_cubes(inside, bbox, h0)
-    h1 = round_spacing(h0 * (occ.sum() / n_vertices) ** (1 / 3))
-    occ, lo = occupied_cubes(inside, bbox, h1)
-    n1 = len(cubes_to_tets(occ, lo, h1)[0])
-    return round_spacing(h1 * (n1 / n_vertices) ** (1 / 3))
+    if not (isinstance(n_vertices, (int, np.integer)) and n_vertices >= 8):
+        raise ValueError(f"n_vertices must be an integer >= 8, got {n_vertices!r}")
+    ext = float((bbox[1] - bbox[0]).max())
+    h1, h2 = (round_spacing(ext / c) for c in coarse)
+    n1, n2 = _n_vertices(inside, bbox, h1), _n_vertices(inside, bbox, h2)
+    # n = a/h^3 + b/h^2 through both points: n h^3 = a + b h
+    b = (n1 * h1 * h1 * h1 - n2 * h2 * h2 * h2) / (h1 - h2)
+    a = n1 * h1 * h1 * h1 - b * h1
+    if a <= 0 or b < 0:  # a very round or very coarse solid: the volume term alone
+        a, b = n2 * h2 * h2 * h2, 0.0
+    lo, hi = 1e-6 * ext, ext
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if a / (mid * mid * mid) + b / (mid * mid) > n_vertices:
+            lo = mid
+        else:
+            hi = mid
+    return round_spacing(0.5 * (lo + hi))
 
 
 def snap_boundary(V, T, target, h, min_volume=0.25, max_move=1.0):
@@ -167,7 +183,7 @@ def tet_mesh(inside, bbox, h, project=None, min_volume=0.25):
     occ, lo = occupied_cubes(inside, bbox, h)
     V, T = cubes_to_tets(occ, lo, h)
     if project is not None:
-        B = Mesh(V, T).boundary_vertices
+        B = np.unique(boundary_facets(T))
         target = V.copy()
         target[B] = project(V[B])
         V = snap_boundary(V, T, target, h, min_volume)

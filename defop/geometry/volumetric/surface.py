@@ -16,6 +16,7 @@ purpose.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import defaultdict
 
 import igl
@@ -35,6 +36,7 @@ __all__ = [
     "inside_surface",
     "surface_projector",
     "surface_parts",
+    "EmbeddedSurface",
 ]
 
 
@@ -257,3 +259,42 @@ def surface_mesh(V, F, n_vertices=2000, min_volume=0.1, checked=False, overlappi
     inside = inside_surface(V, F)
     h = grid_spacing(inside, bbox, n_vertices)
     return tet_mesh(inside, bbox, h, project=surface_projector(V, F), min_volume=min_volume)
+
+
+@dataclasses.dataclass(eq=False)
+class EmbeddedSurface:
+    """A fine closed surface carried by a tetrahedral mesh: each vertex at fixed barycentric coordinates.
+
+    Attributes
+    ----------
+    V : (k, 3) numpy array
+        Rest positions of the surface vertices.
+    F : (l, 3) int numpy array
+        Surface triangles.
+    elements : (k,) int numpy array
+        The tetrahedron of each surface vertex (:meth:`defop.geometry.mesh.Mesh.locate`).
+    bary : (k, 4) numpy array
+        Its barycentric coordinates there (negative where the vertex is outside the tetrahedral mesh).
+    tets : (m, 4) int numpy array
+        The tetrahedra of the carrying mesh.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    elements: np.ndarray
+    bary: np.ndarray
+    tets: np.ndarray
+
+    @classmethod
+    def embed(cls, mesh, V, F):
+        """Embed the surface (V (k,3), F (l,3)) in ``mesh`` (a tetrahedral defop.geometry.mesh.Mesh)."""
+        elements, bary = mesh.locate(V)
+        return cls(np.asarray(V, float), np.asarray(F, np.int64), elements, bary, mesh.F)
+
+    def deform(self, X):
+        """(k, 3) numpy array: the surface vertices under the piecewise-linear map X (n, 3) of the tetrahedra."""
+        X = np.asarray(X, float)
+        if X.ndim != 2 or X.shape[1] != 3 or len(X) <= self.tets.max():
+            raise ValueError(f"X must have shape (n,3) with a row per mesh vertex, got {X.shape}")
+        P = X[self.tets[self.elements]]  # (k, 4, 3)
+        return (self.bary[:, :, None] * P).sum(axis=1)
