@@ -101,8 +101,8 @@ def _critical_fixes(occ):
 def clean_cubes(occ, max_rounds=100):
     """One solid with a closed 2-manifold boundary, from a boolean array of cubes.
 
-    Fills cavities, keeps the largest face-connected piece and adds cubes where the boundary would
-    pinch (:func:`_critical_fixes`) until nothing changes. Only adds cubes next to kept ones (and
+    Adds cubes where the boundary would pinch (:func:`_critical_fixes`: pieces meeting at an edge or a
+    corner are joined), fills cavities and keeps the largest face-connected piece, until nothing changes. Only adds cubes next to kept ones (and
     drops disconnected pieces); the grid must have at least two empty layers around the solid.
 
     Parameters
@@ -115,11 +115,11 @@ def clean_cubes(occ, max_rounds=100):
     """
     occ = np.asarray(occ, bool)
     for _ in range(max_rounds):
-        occ = _fill_and_keep_largest(occ)
-        add = _critical_fixes(occ)
-        if not add.any():
+        add = _critical_fixes(occ)  # first: cubes meeting at an edge or a corner become one piece
+        cleaned = _fill_and_keep_largest(occ | add)
+        if not add.any() and np.array_equal(cleaned, occ):
             return occ
-        occ = occ | add
+        occ = cleaned
     raise RuntimeError(f"the cube set did not become well-composed in {max_rounds} rounds")
 
 
