@@ -101,9 +101,9 @@ def _critical_fixes(occ):
 def clean_cubes(occ, max_rounds=100):
     """One solid with a closed 2-manifold boundary, from a boolean array of cubes.
 
-    Adds cubes where the boundary would pinch (:func:`_critical_fixes`: pieces meeting at an edge or a
-    corner are joined), fills cavities and keeps the largest face-connected piece, until nothing changes. Only adds cubes next to kept ones (and
-    drops disconnected pieces); the grid must have at least two empty layers around the solid.
+    Adds cubes where the boundary would pinch (:func:`_critical_fixes`: pieces meeting at an edge or
+    a corner are joined), fills cavities and keeps the largest face-connected piece, until nothing
+    changes. The grid must have at least two empty layers around the solid.
 
     Parameters
     ----------
