@@ -91,6 +91,17 @@ def test_ball_mesh_volume_thickness_and_snapping():
     assert np.median(np.abs(f(voxel.V[voxel.boundary_vertices]))) > np.median(d)
 
 
+@settings(max_examples=8, deadline=None)
+@given(st.tuples(*[st.floats(0.2, 0.6)] * 3), st.floats(-0.3, 0.3))
+def test_random_ellipsoids_mesh_to_their_volume(radii, shift):
+    h = min(radii) / 4
+    f = ellipsoid((shift, 0.0, -shift), radii)
+    lo, hi = np.array([shift, 0, -shift]) - radii, np.array([shift, 0, -shift]) + radii
+    m = mesher.tet_mesh(lambda P: f(P) > 0, [lo, hi], h, project=mesher.field_projector(f, h))
+    assert m.volumes.sum() == pytest.approx(4 / 3 * math.pi * np.prod(radii), rel=0.06)
+    assert m.volumes.min() >= 0.25 * h**3 / 6 * (1 - 1e-12)
+
+
 @settings(max_examples=5, deadline=None)
 @given(st.integers(800, 4000))
 def test_grid_spacing_gives_about_the_asked_vertex_count(n):

@@ -84,7 +84,7 @@ def _critical_fixes(occ):
     cube = [occ[_shifted(occ.shape, _CORNERS[c])] for c in range(8)]
     count = sum(x.astype(np.int8) for x in cube)
     bad = np.zeros_like(cube[0])
-    for ax in range(3):  # the four 2x2 slices of the block perpendicular to each axis... their diagonals
+    for ax in range(3):  # the two 2x2 slices of the block across each axis: their diagonal pairs
         for lo in (0, 1 << ax):
             others = [c for c in range(8) if c & (1 << ax) == lo]
             a, b, c, d = (cube[k] for k in others)  # corners ordered by their two free bits: 00, 01, 10, 11
