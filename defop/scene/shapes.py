@@ -181,9 +181,10 @@ def check_handles_span(P):
         off = np.sqrt((C[:, 0] * C[:, 0] + C[:, 1] * C[:, 1] + C[:, 2] * C[:, 2]) / max(float(len2.max()), 1e-300))
         if off.max() > 1e-9 * np.sqrt(max(float(len2.max()), 1e-300)):
             return
+    what = f"the {len(P)} handles lie on one line" if len(P) > 1 else "a single handle"
     raise ValueError(
-        f"the {len(P)} handles lie on one line: in 3D a rotation about that line costs nothing (the Hessian is "
-        "singular); use at least 3 handles that are not collinear (for example a small patch of handles)"
+        f"{what}: in 3D a rotation about a line through them costs nothing (the Hessian is singular); "
+        "use at least 3 handles that are not collinear (for example a small patch of handles)"
     )
 
 
