@@ -302,3 +302,12 @@ def test_2d_mesh_unchanged_by_the_generic_code(grid):
     assert grid.dim == 2 and repr(grid) == "Mesh(n_vertices=45, n_faces=64)"
     assert grid.boundary_facets.shape == (24, 2)
     assert dop.geometry.mesh.signed_areas is dop.geometry.mesh.signed_volumes
+
+
+def test_tet_mesh_round_trips_through_npz_and_refuses_obj(tmp_path):
+    m = block()
+    m.save(tmp_path / "t.npz")
+    assert Mesh.load(tmp_path / "t.npz") == m
+    with pytest.raises(ValueError, match=r"a tetrahedral mesh is written as .npz \(.obj holds triangle surfaces\)"):
+        m.save(tmp_path / "t.obj")
+    assert not (tmp_path / "t.obj").exists()

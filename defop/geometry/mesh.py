@@ -582,6 +582,8 @@ def write_mesh(path, mesh):
     if ext == ".npz":
         with open(path, "wb") as f:  # np.savez(path) would append ".npz" to "m.NPZ"
             np.savez(f, V=mesh.V, F=mesh.F)
+    elif ext in (".obj", ".off") and mesh.dim == 3:
+        raise ValueError(f"a tetrahedral mesh is written as .npz ({ext} holds triangle surfaces)")
     elif ext in (".obj", ".off"):
         V3 = np.hstack([mesh.V, np.zeros((mesh.n_vertices, 1))])
         igl.write_triangle_mesh(str(path), V3, mesh.F.astype(np.int64), igl.FileEncoding.Ascii)
