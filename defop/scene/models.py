@@ -248,7 +248,7 @@ class Solid:
     def mesh(self, n_vertices):
         """The tetrahedral mesh with about ``n_vertices`` vertices (:func:`defop.geometry.volumetric.tet_mesh`)."""
         h = self.spacing(n_vertices) if self.spacing else mesher.grid_spacing(self.inside, self.bbox, n_vertices)
-        return mesher.tet_mesh(self.inside, self.bbox, h, project=self.project, min_volume=0.1)
+        return mesher.tet_mesh(self.inside, self.bbox, h, project=self.project)
 
 
 def _ball(r):

@@ -85,7 +85,7 @@ def grid_spacing(inside, bbox, n_vertices, coarse=(32, 48)):
     return round_spacing(0.5 * (lo + hi))
 
 
-def snap_boundary(V, T, target, h, min_volume=0.25, max_move=1.0):
+def snap_boundary(V, T, target, h, min_volume=0.1, max_move=1.0, grow_rounds=6):
     """Move the boundary vertices toward their targets while every tetrahedron stays thick.
 
     Parameters
@@ -101,6 +101,8 @@ def snap_boundary(V, T, target, h, min_volume=0.25, max_move=1.0):
         Every tetrahedron keeps a volume of at least ``min_volume`` × h³/6.
     max_move : float
         No vertex moves farther than ``max_move`` × h.
+    grow_rounds : int
+        Rounds in which held-back vertices try to go halfway further.
 
     Returns
     -------
@@ -110,22 +112,39 @@ def snap_boundary(V, T, target, h, min_volume=0.25, max_move=1.0):
     -----
     Each vertex moves a fraction t of its way (t = 1 at first); the vertices of a tetrahedron that
     got too thin have their t halved, and set to 0 below 1/64, until no tetrahedron is too thin. A
-    tetrahedron whose vertices are all back at t = 0 is a Kuhn tetrahedron again, so this ends.
+    tetrahedron whose vertices are all back at t = 0 is a Kuhn tetrahedron again, so this ends. Then,
+    ``grow_rounds`` times, every held-back vertex tries to go halfway to t = 1; the vertices of
+    tetrahedra that get too thin go back (until none does), so every tetrahedron stays thick.
     """
     D = np.asarray(target, float) - V
     length = np.sqrt(D[:, 0] * D[:, 0] + D[:, 1] * D[:, 1] + D[:, 2] * D[:, 2])
     D = D * np.minimum(1.0, max_move * h / np.maximum(length, 1e-300))[:, None]
-    t = np.ones(len(V))
     floor = min_volume * h * h * h / 6
+    t = _shrink_until_thick(V, T, D, np.ones(len(V)), floor)
+    for _ in range(grow_rounds):  # then let the held-back vertices go further, where that stays thick
+        t = _shrink_until_thick(V, T, D, t, floor, np.minimum(1.0, t + 0.5 * (1.0 - t)))
+    return V + t[:, None] * D
+
+
+def _shrink_until_thick(V, T, D, t, floor, t_try=None):
+    """Fractions t (n,) with every tetrahedron of V + t D at least ``floor`` thick.
+
+    Without ``t_try``: halve the t of the vertices of thin tetrahedra (0 below 1/64) until none is thin.
+    With it: try ``t_try``, and put the vertices of thin tetrahedra back to ``t`` (feasible) until none is.
+    """
+    t = t.copy()
+    cur = t if t_try is None else t_try.copy()
     for _ in range(10 * len(V) + 10):
-        X = V + t[:, None] * D
-        bad = signed_volumes(X, T) < floor
+        bad = signed_volumes(V + cur[:, None] * D, T) < floor
         if not bad.any():
-            return X
+            return cur
         verts = np.unique(T[bad])
-        t[verts] *= 0.5
-        t[t < 1 / 64] = 0.0
-    return V.copy()  # unreachable in practice: t = 0 everywhere is the grid
+        if t_try is None:
+            cur[verts] *= 0.5
+            cur[cur < 1 / 64] = 0.0
+        else:
+            cur[verts] = t[verts]
+    return np.zeros(len(V)) if t_try is None else t  # not reached in practice: t = 0 is the grid
 
 
 def field_projector(field, h, iterations=4):
@@ -155,7 +174,7 @@ def field_projector(field, h, iterations=4):
     return project
 
 
-def tet_mesh(inside, bbox, h, project=None, min_volume=0.25):
+def tet_mesh(inside, bbox, h, project=None, min_volume=0.1):
     """A tetrahedral mesh of a solid: Kuhn cubes inside, boundary snapped onto the surface.
 
     Parameters
