@@ -272,7 +272,7 @@ def test_two_cubes_sharing_a_face_are_a_mesh():
         (np.vstack([UNIT_TET, [[1, 1, 1.0]]]), [[0, 1, 2, 3], [4, 1, 2, 3]], r"tetrahedron 1 is inverted"),
         (np.vstack([UNIT_TET, [[0.5, 0.5, 0.0]]]), [[0, 1, 2, 3], [1, 4, 2, 3]], r"degenerate \(zero-volume\)"),
         (np.vstack([UNIT_TET, [[5, 5, 5.0]]]), [[0, 1, 2, 3]], "1 vertices are not used by any tetrahedron, first is "),
-        (UNIT_TET, [[0, 1, 2]], r"V must have shape \(n,2\)"),
+        (UNIT_TET, [[0, 1, 2]], r"V must have shape \(n,2\) for triangles F \(m,3\); a 3D mesh is made of tetrahedra"),
         (UNIT_TET[:, :2], [[0, 1, 2, 3]], r"V must have shape \(n,3\) for F of 4 columns \(tetrahedra\)"),
         (UNIT_TET, [[0, 1, 2, 4]], "tetrahedron 0 indexes vertex 4, but V has 4"),
     ],

@@ -312,7 +312,11 @@ class Mesh:
 
     def __init__(self, V, F):
         d = _dim_of(V, F)
-        V = _check_V(V, d=d, F_note=f" for F of {d + 1} columns ({_ELEMENTS[d]})" if d == 3 else "")
+        V_cols = np.shape(V)[1] if np.ndim(V) == 2 else None
+        note = f" for F of {d + 1} columns ({_ELEMENTS[d]})" if d == 3 else ""
+        if d == 2 and V_cols == 3:
+            note = " for triangles F (m,3); a 3D mesh is made of tetrahedra, F (m,4)"
+        V = _check_V(V, d=d, F_note=note)
         F = _check_F(F, len(V), d)
         a = signed_volumes(V, F)
         tiny = np.abs(a) <= 1e-14 * _degenerate_scale(V, d)
