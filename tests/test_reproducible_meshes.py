@@ -1,4 +1,4 @@
-"""Meshes are identical on every CPU and BLAS build (issue #13).
+"""Meshes, planar and tetrahedral, are identical on every CPU and BLAS build (issue #13, #27).
 
 OpenBLAS picks its kernels per CPU and numpy dispatches some ufuncs (e.g. ``exp``) to AVX-512 code, so
 anything on the way to Triangle that goes through them can round differently on another machine, and
@@ -37,6 +37,32 @@ print("star_image", image.mesh.n_vertices, digest(image.mesh))
 """
 
 
+SCRIPT_3D = """
+import hashlib
+import numpy as np
+from defop.geometry.fields import capsule, ellipsoid, union
+from defop.geometry.volumetric import mesher
+from defop.geometry.volumetric import surface as surf
+from defop.scene import models
+
+def digest(mesh):
+    return hashlib.sha256(mesh.V.tobytes() + mesh.F.tobytes()).hexdigest()[:20]
+
+for name, n in (("bar_3d", 1500), ("octopus_3d", 3000), ("nut", 1500)):
+    mesh = models.model(name).mesh(n)
+    print(name, mesh.n_vertices, digest(mesh))
+f = union(ellipsoid((0, 0, 0), (0.5, 0.4, 0.3)), capsule((0.3, 0, 0), (1.0, 0.2, 0.1), 0.15, 0.08))
+bbox = [[-0.6, -0.5, -0.4], [1.2, 0.5, 0.4]]
+h = mesher.grid_spacing(lambda P: f(P) > 0, bbox, 2500)
+mesh = mesher.tet_mesh(lambda P: f(P) > 0, bbox, h, project=mesher.field_projector(f, h))
+print("field", mesh.n_vertices, digest(mesh))
+V, F = surf.read_surface(models.pyvista_example_path("sphere.ply"))
+mesh = surf.surface_mesh(V, F, n_vertices=1500)
+el, bary = mesh.locate(V)
+print("sphere", mesh.n_vertices, digest(mesh), hashlib.sha256(bary.tobytes()).hexdigest()[:20])
+"""
+
+
 def _numpy_simd_off():
     """NPY_DISABLE_CPU_FEATURES value that turns off numpy's dispatched SIMD targets (AVX2/AVX-512 ...)."""
     import numpy as np
@@ -58,10 +84,10 @@ CONFIGS = {
 }
 
 
-def _run(extra):
+def _run(extra, script=SCRIPT):
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OPENBLAS_CORETYPE", "NPY_DISABLE"))}
     env.update(extra, OPENBLAS_NUM_THREADS="1")
-    r = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=600)
+    r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     return dict(line.split(" ", 1) for line in r.stdout.strip().splitlines())
 
@@ -74,3 +100,14 @@ def test_meshes_identical_under_every_blas_kernel_and_simd_target():
     for name, got in results.items():
         differ = {k: (reference[k], v) for k, v in got.items() if v != reference[k]}
         assert not differ, f"{name}: meshes differ from the default run: {differ}"
+
+
+@pytest.mark.slow
+def test_tet_meshes_identical_under_every_blas_kernel_and_simd_target():
+    """The Kuhn-cube meshes of the solids, of a field and of a closed surface (with its embedding), bit for bit."""
+    results = {name: _run(extra, SCRIPT_3D) for name, extra in CONFIGS.items()}
+    reference = results["default"]
+    assert len(reference) == 5
+    for name, got in results.items():
+        differ = {k: (reference[k], v) for k, v in got.items() if v != reference[k]}
+        assert not differ, f"{name}: tetrahedral meshes differ from the default run: {differ}"

@@ -1,10 +1,21 @@
 """Geometry: the domain Ω as a simplicial mesh (layer 1).
 
 :class:`Mesh` holds ``V (n, d)`` and ``F (m, d + 1)``. :mod:`.planar` makes planar meshes from polygons,
-implicit outlines and pictures (Triangle).
+implicit outlines and pictures (Triangle); :mod:`.volumetric` makes tetrahedral meshes of solids and closed
+surfaces (Kuhn cubes); :mod:`.fields` holds the implicit primitives both use.
 """
 
-from . import mesh, planar
-from .mesh import Mesh, read_mesh, signed_areas, write_mesh
+from . import fields, mesh, planar, volumetric
+from .mesh import Mesh, read_mesh, signed_areas, signed_volumes, write_mesh
 
-__all__ = ["Mesh", "mesh", "planar", "read_mesh", "signed_areas", "write_mesh"]
+__all__ = [
+    "Mesh",
+    "fields",
+    "mesh",
+    "planar",
+    "volumetric",
+    "read_mesh",
+    "signed_areas",
+    "signed_volumes",
+    "write_mesh",
+]

@@ -1,9 +1,11 @@
-"""Triangle meshes of a planar domain Ω and the operators the paper builds on them.
+"""Simplicial meshes of a domain Ω ⊂ R^d (d = 2 or 3) and the operators the paper builds on them.
 
-A :class:`Mesh` holds ``V (n,2)`` and ``F (m,3)`` with counter-clockwise triangles.
-It supplies what problem (6) and problem (8) need: triangle areas, the per-triangle
-Jacobian J of a piecewise-linear map ``X (n,2)`` (the deformation gradient of
-f_Φ, Eq. 1), the mass matrix A (Appendix A) and the cotangent Laplacian.
+A :class:`Mesh` holds ``V (n, d)`` and ``F (m, d + 1)``: counter-clockwise triangles in 2D,
+positively oriented tetrahedra in 3D; ``mesh.dim`` is d, read from the data. It supplies what
+problem (6) and problem (8) need: element volumes (areas in 2D), the per-element Jacobian J
+(d × d) of a piecewise-linear map ``X (n, d)`` (the deformation gradient of f_Φ, Eq. 1), the mass
+matrix A (Appendix A) and the cotangent Laplacian. One code path serves both dimensions; only the
+determinant and the element's facets are written per dimension.
 """
 
 from __future__ import annotations
@@ -14,36 +16,86 @@ from pathlib import Path
 import igl
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["Mesh", "read_mesh", "write_mesh", "signed_areas"]
+__all__ = [
+    "Mesh",
+    "read_mesh",
+    "write_mesh",
+    "signed_volumes",
+    "signed_areas",
+    "boundary_facets",
+    "check_closed_surface",
+    "ELEMENT",
+    "FACETS",
+]
+
+#: the name of an element of a d-dimensional mesh
+ELEMENT = {2: "triangle", 3: "tetrahedron"}
+_ELEMENTS = {2: "triangles", 3: "tetrahedra"}
+
+#: facet j of an element is the one opposite its vertex j, ordered so that it faces outward:
+#: for a positive element, the simplex (p, *facet) is positive exactly when p is on the element's side
+FACETS = {
+    2: np.array([[1, 2], [2, 0], [0, 1]]),
+    3: np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]),
+}
 
 
-def signed_areas(V, F):
-    """Signed area of every triangle.
+def _simplex_volumes(P0, P):
+    """Signed volume of the simplices (P0, P[:, 0], ..., P[:, d-1]); element-wise, no BLAS.
+
+    P0 : (m, d), P : (m, d, d) (the other vertices). Area in 2D, volume in 3D.
+    """
+    d = P0.shape[1]
+    e = [P[:, i] - P0 for i in range(d)]
+    if d == 2:
+        return 0.5 * (e[0][:, 0] * e[1][:, 1] - e[0][:, 1] * e[1][:, 0])
+    c0 = e[1][:, 1] * e[2][:, 2] - e[1][:, 2] * e[2][:, 1]
+    c1 = e[1][:, 2] * e[2][:, 0] - e[1][:, 0] * e[2][:, 2]
+    c2 = e[1][:, 0] * e[2][:, 1] - e[1][:, 1] * e[2][:, 0]
+    return (e[0][:, 0] * c0 + e[0][:, 1] * c1 + e[0][:, 2] * c2) / 6.0
+
+
+def signed_volumes(V, F):
+    """Signed volume of every element: the area of a triangle in 2D, the volume of a tetrahedron in 3D.
 
     Parameters
     ----------
-    V : (n,2) numpy array
-        Vertex positions.
-    F : (m,3) numpy int array
-        Triangles.
+    V : (n, d) numpy array
+        Vertex positions, d = 2 or 3.
+    F : (m, d + 1) numpy int array
+        Triangles (d = 2) or tetrahedra (d = 3).
 
     Returns
     -------
-    a : (m,) numpy array
-        Positive for counter-clockwise triangles, negative for flipped ones.
+    vol : (m,) numpy array
+        Positive for counter-clockwise triangles and positively oriented tetrahedra (det J > 0),
+        negative for flipped ones. Element-wise arithmetic: the same bits on every CPU.
     """
     V = np.asarray(V, dtype=float)
-    e1 = V[F[:, 1]] - V[F[:, 0]]
-    e2 = V[F[:, 2]] - V[F[:, 0]]
-    return 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    P = V[F]
+    return _simplex_volumes(P[:, 0], P[:, 1:])
 
 
-def _check_V(V, name="V"):
+#: the planar name of :func:`signed_volumes` (triangles: signed areas)
+signed_areas = signed_volumes
+
+
+def _dim_of(V, F):
+    """d from F's columns (3: triangles, 4: tetrahedra), else from V; V's columns must agree."""
+    F_ = np.asarray(F)
+    if F_.ndim == 2 and F_.shape[1] in (3, 4):
+        return F_.shape[1] - 1
+    V_ = np.asarray(V)
+    return V_.shape[1] if V_.ndim == 2 and V_.shape[1] in (2, 3) else 2
+
+
+def _check_V(V, name="V", d=2, F_note=""):
     V = np.asarray(V, dtype=np.float64)
-    if V.ndim != 2 or V.shape[1] != 2:
-        raise ValueError(f"{name} must have shape (n,2), got {V.shape}")
+    if V.ndim != 2 or V.shape[1] != d:
+        raise ValueError(f"{name} must have shape (n,{d}){F_note}, got {V.shape}")
     bad = ~np.isfinite(V).all(axis=1)
     if bad.any():
         raise ValueError(
@@ -52,41 +104,62 @@ def _check_V(V, name="V"):
     return V
 
 
-def _check_F(F, n):
-    """F as an (m,3) int64 array of indices into n vertices; ValueError naming the bad entry."""
+def _check_F(F, n, d=2):
+    """F as an (m, d + 1) int64 array of indices into n vertices; ValueError naming the bad entry."""
     F = np.asarray(F)
-    if F.ndim != 2 or F.shape[1] != 3:
-        raise ValueError(f"F must have shape (m,3), got {F.shape}")
+    el, els = ELEMENT[d], _ELEMENTS[d]
+    if F.ndim != 2 or F.shape[1] != d + 1:
+        raise ValueError(f"F must have shape (m,{d + 1}), got {F.shape}")
     if len(F) == 0:
-        raise ValueError("F has no triangles")
+        raise ValueError(f"F has no {els}")
     if F.dtype == bool or not (np.issubdtype(F.dtype, np.integer) or np.issubdtype(F.dtype, np.floating)):
         raise ValueError(f"F must hold integer vertex indices, got dtype {F.dtype}")
     if not np.issubdtype(F.dtype, np.integer):
         bad = ~np.isfinite(F) | (F != np.round(F))
         if bad.any():
             t, j = (int(x) for x in np.argwhere(bad)[0])
-            raise ValueError(f"F must hold integer vertex indices: triangle {t} has {F[t, j].item()!r}")
+            raise ValueError(f"F must hold integer vertex indices: {el} {t} has {F[t, j].item()!r}")
     bad = (F < 0) | (F >= n)
     if bad.any():
         t, j = (int(x) for x in np.argwhere(bad)[0])
         raise ValueError(
-            f"triangle {t} indexes vertex {F[t, j].item()!r}, but V has {n} vertices (valid indices 0 to {n - 1})"
+            f"{el} {t} indexes vertex {F[t, j].item()!r}, but V has {n} vertices (valid indices 0 to {n - 1})"
         )
     return F.astype(np.int64)
 
 
 def _orient(F, a):
-    """F counter-clockwise: all-clockwise input is flipped; a mix means inverted triangles."""
+    """F positively oriented: all-negative input is flipped; a mix means inverted elements."""
     cw = a < 0
     if cw.all():
-        return np.ascontiguousarray(F[:, [0, 2, 1]])
+        return np.ascontiguousarray(F[:, [0, 2, 1, *range(3, F.shape[1])]])
     if cw.any():
         t = int(np.flatnonzero(cw)[0])
+        if F.shape[1] == 3:
+            raise ValueError(
+                f"triangle {t} is inverted (clockwise, signed area {a[t]:.3g}) while {int((~cw).sum())} triangles "
+                f"are counter-clockwise ({int(cw.sum())} inverted in all): the mesh folds over itself"
+            )
         raise ValueError(
-            f"triangle {t} is inverted (clockwise, signed area {a[t]:.3g}) while {int((~cw).sum())} triangles are "
-            f"counter-clockwise ({int(cw.sum())} inverted in all): the mesh folds over itself"
+            f"tetrahedron {t} is inverted (signed volume {a[t]:.3g}) while {int((~cw).sum())} tetrahedra are "
+            f"positively oriented ({int(cw.sum())} inverted in all): the mesh folds over itself"
         )
     return F
+
+
+def _facets(F):
+    """All facets of the elements, outward-oriented: (m(d+1), d) and the element of each."""
+    d = F.shape[1] - 1
+    facets = np.concatenate([F[:, f] for f in FACETS[d]])
+    return facets, np.tile(np.arange(len(F)), d + 1)
+
+
+def boundary_facets(F):
+    """(k, d) int numpy array: the facets of the elements F (m, d + 1) that lie in one element only,
+    outward-oriented (edges of triangles, triangles of tetrahedra)."""
+    facets, _ = _facets(F)
+    _, inv, counts = np.unique(np.sort(facets, axis=1), axis=0, return_inverse=True, return_counts=True)
+    return np.ascontiguousarray(facets[counts[inv.ravel()] == 1])
 
 
 def _check_manifold(F):
@@ -122,41 +195,147 @@ def _check_manifold(F):
         )
 
 
-class Mesh:
-    """A triangulated planar domain Ω.
+def _check_manifold_tets(T):
+    """Every triangle in at most two tetrahedra, from opposite sides; the boundary a closed manifold surface."""
+    facets, tet = _facets(T)
+    uniq, inv, counts = np.unique(np.sort(facets, axis=1), axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    if (counts > 2).any():
+        k = int(np.flatnonzero(counts > 2)[0])
+        raise ValueError(
+            f"triangle {tuple(int(x) for x in uniq[k])} is shared by {int(counts[k])} tetrahedra "
+            f"({', '.join(map(str, np.sort(tet[inv == k])))}): the mesh is not a manifold"
+        )
+    shared = np.flatnonzero(counts[inv] == 2)
+    if len(shared):  # two tetrahedra on the same side of their common triangle overlap
+        order = np.argsort(inv[shared], kind="stable")
+        a, b = shared[order[0::2]], shared[order[1::2]]
+        same = _same_cyclic(facets[a], facets[b])
+        if same.any():
+            k = int(np.flatnonzero(same)[0])
+            raise ValueError(
+                f"tetrahedra {min(tet[a[k]], tet[b[k]])} and {max(tet[a[k]], tet[b[k]])} lie on the same side of "
+                f"their common triangle {tuple(int(x) for x in np.sort(facets[a[k]]))}: the mesh folds over itself"
+            )
+    check_closed_surface(facets[counts[inv] == 1], what="the boundary surface of the tetrahedra")
+
+
+def _same_cyclic(A, B):
+    """(k,) bool: whether triangles A[i] and B[i] (same vertex set) have the same orientation."""
+    return (A == B).all(axis=1) | (A == B[:, [1, 2, 0]]).all(axis=1) | (A == B[:, [2, 0, 1]]).all(axis=1)
+
+
+def check_closed_surface(S, what="the surface"):
+    """Raise ValueError unless the triangles S (k, 3) form a closed, oriented 2-manifold.
+
+    Every edge lies in exactly two triangles that traverse it in opposite directions, and the
+    triangles around each vertex form a single fan (no two pieces touching at a vertex).
 
     Parameters
     ----------
-    V : (n,2) numpy array
-        Vertex positions (float64).
-    F : (m,3) numpy int array
-        Triangles, all counter-clockwise or all clockwise (then re-oriented).
+    S : (k, 3) int numpy array
+        Triangles (indices into some vertex array).
+    what : str
+        How the message names the surface.
+    """
+    S = np.asarray(S, dtype=np.int64)
+    E = np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [2, 0]]])
+    uniq, inv, counts = np.unique(np.sort(E, axis=1), axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    if (counts != 2).any():
+        k = int(np.flatnonzero(counts != 2)[0])
+        e, c = (int(uniq[k, 0]), int(uniq[k, 1])), int(counts[k])
+        kind = (
+            f"open: edge {e} lies in only 1 triangle" if c == 1 else f"not a manifold: edge {e} lies in {c} triangles"
+        )
+        ts = np.sort(np.tile(np.arange(len(S)), 3)[inv == k])
+        raise ValueError(f"{what} is {kind} ({', '.join(map(str, ts))})")
+    d_uniq, d_counts = np.unique(E, axis=0, return_counts=True)
+    if (d_counts > 1).any():
+        i, j = (int(x) for x in d_uniq[int(np.flatnonzero(d_counts > 1)[0])])
+        raise ValueError(
+            f"{what} is not consistently oriented: edge ({i}, {j}) is traversed in the same direction by two "
+            "triangles (a flipped triangle or a Möbius-like fold)"
+        )
+    _check_single_fans(S, E, inv)
+
+
+def _check_single_fans(S, E, inv):
+    """Each vertex's triangles form one fan: corners (t, v) linked across the edges at v are one component."""
+    k = len(S)
+    order = np.argsort(inv, kind="stable")
+    a, b = order[0::2], order[1::2]  # the two half-edges of every edge; half-edge h belongs to triangle h % k
+    ta, tb = a % k, b % k
+    # half-edge h = block*k + t runs S[t, block] -> S[t, (block+1)%3]; its ends are corners (t, block), (t, block+1)
+    ja, jb = a // k, b // k
+    # edge (u -> w) in triangle ta and (w -> u) in tb: corner (ta, u) ~ (tb, u), corner (ta, w) ~ (tb, w)
+    src = np.concatenate([3 * ta + ja, 3 * ta + (ja + 1) % 3])
+    dst = np.concatenate([3 * tb + (jb + 1) % 3, 3 * tb + jb])
+    G = sp.coo_matrix((np.ones(len(src)), (src, dst)), shape=(3 * k, 3 * k))
+    _, label = connected_components(G, directed=False)
+    vertex = S.ravel()  # corner 3t + j is vertex S[t, j]
+    pairs = np.unique(np.column_stack([vertex, label]), axis=0)
+    fans = np.bincount(pairs[:, 0])
+    if (fans > 1).any():
+        v = int(np.flatnonzero(fans > 1)[0])
+        raise ValueError(
+            f"vertex {v} is not a manifold vertex: its triangles form {int(fans[v])} separate fans on the boundary "
+            "surface (as where two pieces touch at a corner)"
+        )
+
+
+def _degenerate_scale(V, d):
+    """The volume below which an element counts as degenerate: 1e-14 × (largest extent)^d."""
+    return max(np.ptp(V, axis=0).max(), 1e-300) ** d
+
+
+class Mesh:
+    """A simplicial mesh of a domain Ω ⊂ R^d: triangles in 2D, tetrahedra in 3D.
+
+    Parameters
+    ----------
+    V : (n, d) numpy array
+        Vertex positions (float64), d = 2 or 3.
+    F : (m, d + 1) numpy int array
+        Triangles (d = 2), all counter-clockwise or all clockwise, or tetrahedra (d = 3), all
+        positively or all negatively oriented; an all-negative mesh is re-oriented.
 
     Raises
     ------
     ValueError
-        For wrong shapes, non-finite coordinates, out-of-range indices,
-        degenerate (zero-area) triangles, inverted triangles (a mesh that folds
-        over itself), edges shared by more than two triangles, vertices where
-        separate fans meet, or vertices no
-        triangle uses; the message names the triangle, edge or vertex.
+        For wrong shapes, non-finite coordinates, out-of-range indices, degenerate (zero-volume)
+        elements, inverted elements (a mesh that folds over itself; the message names the first
+        and its signed volume), a facet shared by more than two elements, a boundary that is not
+        a manifold (in 3D: not a closed, oriented, manifold triangle surface), or vertices no
+        element uses; the message names the element, edge, triangle or vertex.
     """
 
     def __init__(self, V, F):
-        V = _check_V(V)
-        F = _check_F(F, len(V))
-        a = signed_areas(V, F)
-        scale = max(np.ptp(V, axis=0).max(), 1e-300) ** 2
-        tiny = np.abs(a) <= 1e-14 * scale
+        d = _dim_of(V, F)
+        V_cols = np.shape(V)[1] if np.ndim(V) == 2 else None
+        note = f" for F of {d + 1} columns ({_ELEMENTS[d]})" if d == 3 else ""
+        if d == 2 and V_cols == 3:
+            note = " for triangles F (m,3); a 3D mesh is made of tetrahedra, F (m,4)"
+        V = _check_V(V, d=d, F_note=note)
+        F = _check_F(F, len(V), d)
+        a = signed_volumes(V, F)
+        tiny = np.abs(a) <= 1e-14 * _degenerate_scale(V, d)
         if tiny.any():
             first = int(np.flatnonzero(tiny)[0])
-            raise ValueError(f"{int(tiny.sum())} degenerate (zero-area) triangles, first is triangle {first}")
+            what = "zero-area" if d == 2 else "zero-volume"
+            raise ValueError(
+                f"{int(tiny.sum())} degenerate ({what}) {_ELEMENTS[d]}, first is {ELEMENT[d]} {first}"
+                + ("" if d == 2 else f" (volume {a[first]:.3g})")
+            )
         F = _orient(F, a)
-        _check_manifold(F)
+        if d == 2:
+            _check_manifold(F)
+        else:
+            _check_manifold_tets(F)
         unused = np.flatnonzero(np.bincount(F.ravel(), minlength=len(V)) == 0)
         if len(unused):
             raise ValueError(
-                f"{len(unused)} vertices are not used by any triangle, first is vertex {int(unused[0])}; "
+                f"{len(unused)} vertices are not used by any {ELEMENT[d]}, first is vertex {int(unused[0])}; "
                 "remove them (handle indices refer to rows of V)"
             )
         self.V = np.ascontiguousarray(V)
@@ -164,30 +343,62 @@ class Mesh:
 
     # ------------------------------------------------------------------ sizes
     @property
+    def dim(self) -> int:
+        """d: 2 for a triangle mesh, 3 for a tetrahedral mesh."""
+        return self.V.shape[1]
+
+    @property
     def n_vertices(self) -> int:
         return len(self.V)
 
     @property
     def n_faces(self) -> int:
+        """Number of elements (rows of F): triangles in 2D, tetrahedra in 3D."""
         return len(self.F)
 
     def __repr__(self):
-        return f"Mesh(n_vertices={self.n_vertices}, n_faces={self.n_faces})"
+        if self.dim == 2:
+            return f"Mesh(n_vertices={self.n_vertices}, n_faces={self.n_faces})"
+        return f"Mesh(n_vertices={self.n_vertices}, n_tets={self.n_faces}, dim=3)"
 
     @cached_property
+    def volumes(self):
+        """(m,) numpy array: rest volume of every element (area A_t of a triangle in 2D)."""
+        return signed_volumes(self.V, self.F)
+
+    @property
     def areas(self):
-        """(m,) numpy array: rest area A_t of every triangle."""
-        return signed_areas(self.V, self.F)
+        """(m,) numpy array: the planar name of :attr:`volumes` (in 3D, tetrahedron volumes)."""
+        return self.volumes
 
     @cached_property
     def bbox_diagonal(self) -> float:
         """Length of the bounding-box diagonal."""
         ext = np.ptp(self.V, axis=0)
-        return float(np.sqrt(ext[0] * ext[0] + ext[1] * ext[1]))  # element-wise: the same on every BLAS
+        s = ext[0] * ext[0]
+        for k in range(1, self.dim):
+            s = s + ext[k] * ext[k]
+        return float(np.sqrt(s))  # element-wise: the same on every BLAS
 
     # ------------------------------------------------------------- boundary
+    @cached_property
+    def boundary_facets(self):
+        """(k, d) int numpy array: the boundary, outward-oriented.
+
+        Edges in 2D (counter-clockwise around Ω: the interior on their left), triangles in 3D
+        (the closed boundary surface; normals by the right-hand rule point out of Ω).
+        """
+        return boundary_facets(self.F)
+
+    @cached_property
+    def boundary_vertices(self):
+        """(b,) int numpy array: the vertices on the boundary, sorted."""
+        return np.unique(self.boundary_facets)
+
     def boundary_loops(self):
-        """Boundary loops, outer loop first (longest), each a (k,) int array."""
+        """Boundary loops of a 2D mesh, outer loop first (longest), each a (k,) int array."""
+        if self.dim != 2:
+            raise ValueError("boundary_loops is for 2D meshes; a 3D mesh's boundary is boundary_facets (triangles)")
         loops = igl.boundary_loop_all(self.F) if hasattr(igl, "boundary_loop_all") else [igl.boundary_loop(self.F)]
         loops = [np.asarray(loop, dtype=np.int64) for loop in loops]
         return sorted(loops, key=lambda loop: -len(loop))
@@ -195,68 +406,72 @@ class Mesh:
     # ------------------------------------------------------------ Jacobians
     @cached_property
     def local_gradients(self):
-        """(m,3,2) numpy array: ∇φ_i of the three hat functions on every triangle.
+        """(m, d + 1, d) numpy array: ∇φ_i of the d + 1 hat functions on every element.
 
-        For a piecewise-linear map with vertex positions X, the Jacobian on
-        triangle t is ``J_t = X[F[t]].T @ local_gradients[t]`` (2×2).
+        For a piecewise-linear map with vertex positions X, the Jacobian on element t is
+        ``J_t = X[F[t]].T @ local_gradients[t]`` (d × d).
         """
-        P = self.V[self.F]  # (m,3,2)
-        E = np.stack([P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]], axis=2)  # (m,2,2) columns e1,e2
-        Einv = np.linalg.inv(E)  # rows: ∇λ1, ∇λ2
-        g12 = Einv  # (m,2,2): row i = grad of barycentric λ_{i+1}
-        g0 = -g12.sum(axis=1, keepdims=True)
-        return np.ascontiguousarray(np.concatenate([g0, g12], axis=1))
+        P = self.V[self.F]  # (m, d+1, d)
+        E = np.stack([P[:, i] - P[:, 0] for i in range(1, self.dim + 1)], axis=2)  # (m,d,d) columns e_i
+        g = np.linalg.inv(E)  # (m,d,d): row i = grad of barycentric λ_{i+1}
+        g0 = -g.sum(axis=1, keepdims=True)
+        return np.ascontiguousarray(np.concatenate([g0, g], axis=1))
 
     def jacobians(self, X):
-        """Per-triangle Jacobians of the piecewise-linear map X.
+        """Per-element Jacobians of the piecewise-linear map X.
 
         Parameters
         ----------
-        X : (n,2) numpy array
+        X : (n, d) numpy array
             Deformed vertex positions.
 
         Returns
         -------
-        J : (m,2,2) numpy array
-            ``J[t, a, b] = ∂X_a/∂x_b`` on triangle t.
+        J : (m, d, d) numpy array
+            ``J[t, a, b] = ∂X_a/∂x_b`` on element t.
         """
         X = np.asarray(X, dtype=float)
         if X.shape != self.V.shape:
             raise ValueError(f"X must have shape {self.V.shape}, got {X.shape}")
-        return (self.jacobian_operator @ X.ravel()).reshape(-1, 2, 2)  # sparse: 15x faster than einsum
+        d = self.dim
+        return (self.jacobian_operator @ X.ravel()).reshape(-1, d, d)  # sparse: 15x faster than einsum
 
     @cached_property
     def jacobian_operator(self):
-        """Sparse (4m, 2n) operator G with ``G @ X.ravel() == jacobians(X).reshape(-1)``.
+        """Sparse (d²m, dn) operator G with ``G @ X.ravel() == jacobians(X).reshape(-1)``.
 
-        ``X.ravel()`` is row-major (x0, y0, x1, y1, ...); each block of four rows
-        is (J00, J01, J10, J11) of one triangle.
+        ``X.ravel()`` is row-major (x0, y0, [z0,] x1, ...); each block of d² rows is J of one
+        element, row-major (J00, J01, ..., J10, ...).
         """
-        m = self.n_faces
-        D = self.local_gradients  # (m,3,2)
+        m, d = self.n_faces, self.dim
+        D = self.local_gradients  # (m, d+1, d)
         t = np.arange(m)
         rows, cols, vals = [], [], []
-        for a in range(2):
-            for b in range(2):
-                for i in range(3):
-                    rows.append(4 * t + 2 * a + b)
-                    cols.append(2 * self.F[:, i] + a)
+        for a in range(d):
+            for b in range(d):
+                for i in range(d + 1):
+                    rows.append(d * d * t + d * a + b)
+                    cols.append(d * self.F[:, i] + a)
                     vals.append(D[:, i, b])
-        G = sp.csr_matrix(
+        return sp.csr_matrix(
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-            shape=(4 * m, 2 * self.n_vertices),
+            shape=(d * d * m, d * self.n_vertices),
         )
-        return G
 
     def flipped(self, X):
-        """(m,) bool array: triangles whose orientation X reverses or collapses (det J ≤ 0)."""
-        return signed_areas(X, self.F) <= 0
+        """(m,) bool array: elements whose orientation X reverses or collapses (det J ≤ 0)."""
+        return signed_volumes(X, self.F) <= 0
 
     # ------------------------------------------------------- FEM matrices
     @cached_property
     def mass_matrix(self):
-        """(n,n) scipy sparse: lumped (Voronoi) mass matrix A of the hat functions (libigl)."""
-        return igl.massmatrix(self.V, self.F, igl.MASSMATRIX_TYPE_VORONOI).tocsr()
+        """(n,n) scipy sparse: lumped mass matrix A of the hat functions (libigl).
+
+        Voronoi areas in 2D; in 3D a quarter of each tetrahedron's volume to each of its vertices
+        (barycentric lumping: positive for every tetrahedron, where libigl's Voronoi variant is not).
+        """
+        kind = igl.MASSMATRIX_TYPE_VORONOI if self.dim == 2 else igl.MASSMATRIX_TYPE_BARYCENTRIC
+        return igl.massmatrix(self.V, self.F, kind).tocsr()
 
     @cached_property
     def mass_matrix_full(self):
@@ -265,7 +480,8 @@ class Mesh:
 
     @cached_property
     def cotmatrix(self):
-        """(n,n) scipy sparse: cotangent Laplacian L (negative semi-definite, libigl)."""
+        """(n,n) scipy sparse: cotangent Laplacian L (negative semi-definite, libigl; cotangent weights of
+        dihedral angles times edge lengths on tetrahedra)."""
         return igl.cotmatrix(self.V, self.F).tocsr()
 
     # -------------------------------------------------------------- lookup
@@ -278,34 +494,68 @@ class Mesh:
 
         Parameters
         ----------
-        points : (k,2) numpy array
+        points : (k, d) numpy array
 
         Returns
         -------
         idx : (k,) int array
         dist : (k,) numpy array
         """
-        points = _check_V(np.atleast_2d(points), "points")
+        points = _check_V(np.atleast_2d(points), "points", d=self.dim)
         dist, idx = self._kdtree.query(points)
         return np.asarray(idx, dtype=np.int64), np.asarray(dist)
 
     def contains(self, points):
-        """(k,) bool array: whether each point lies in Ω (inside some triangle)."""
-        points = _check_V(np.atleast_2d(points), "points")
-        # barycentric test against triangles near the nearest vertex is not exact
-        # for concave shapes; use the robust full test with a tolerance.
-        P = self.V[self.F]
+        """(k,) bool array: whether each point lies in Ω (inside some element, with a 1e-12 tolerance)."""
+        points = _check_V(np.atleast_2d(points), "points", d=self.dim)
+        P = self.V[self.F]  # (m, d+1, d)
+        facets = FACETS[self.dim]
+        eps = -0.5e-12 * self.bbox_diagonal**self.dim
         out = np.zeros(len(points), dtype=bool)
-        for k, p in enumerate(points):
-            d0 = P[:, 0] - p
-            d1 = P[:, 1] - p
-            d2 = P[:, 2] - p
-            c0 = d0[:, 0] * d1[:, 1] - d0[:, 1] * d1[:, 0]
-            c1 = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-            c2 = d2[:, 0] * d0[:, 1] - d2[:, 1] * d0[:, 0]
-            eps = -1e-12 * self.bbox_diagonal**2
-            out[k] = bool(np.any((c0 >= eps) & (c1 >= eps) & (c2 >= eps)))
+        for k, p in enumerate(points):  # p inside iff every simplex (p, facet) is positive
+            p0 = np.broadcast_to(p, (len(P), self.dim))
+            inside = np.ones(len(P), dtype=bool)
+            for f in facets:
+                inside &= _simplex_volumes(p0, P[:, f]) >= eps
+            out[k] = bool(inside.any())
         return out
+
+    @cached_property
+    def _centroid_tree(self):
+        P = self.V[self.F]
+        return cKDTree(P.sum(axis=1) / (self.dim + 1))
+
+    def locate(self, points, k=16):
+        """The element holding each point and the point's barycentric coordinates in it.
+
+        Used to embed a fine surface in a coarser tetrahedral mesh: the embedded points follow a
+        deformation X as ``(bary[:, :, None] * X[mesh.F[elements]]).sum(1)``.
+
+        Parameters
+        ----------
+        points : (p, d) numpy array
+        k : int
+            How many elements (nearest centroids) are tried per point.
+
+        Returns
+        -------
+        elements : (p,) int numpy array
+        bary : (p, d + 1) numpy array
+            Barycentric coordinates (rows sum to 1, all ≥ 0 inside the element). A point outside the
+            mesh gets the candidate element where it is least outside (some coordinates negative).
+        """
+        points = _check_V(np.atleast_2d(points), "points", d=self.dim)
+        k = min(k, self.n_faces)
+        _, cand = self._centroid_tree.query(points, k=k)
+        cand = np.asarray(cand).reshape(len(points), k)
+        P = self.V[self.F[cand.ravel()]]  # (p*k, d+1, d)
+        p0 = np.repeat(points, k, axis=0)
+        lam = np.stack([_simplex_volumes(p0, P[:, f]) for f in FACETS[self.dim]], axis=1)
+        lam = lam / self.volumes[cand.ravel()][:, None]
+        lam = lam.reshape(len(points), k, self.dim + 1)
+        best = np.argmax(lam.min(axis=2), axis=1)
+        rows = np.arange(len(points))
+        return cand[rows, best].astype(np.int64), lam[rows, best]
 
     # ----------------------------------------------------------------- I/O
     def save(self, path):
@@ -336,6 +586,8 @@ def write_mesh(path, mesh):
     if ext == ".npz":
         with open(path, "wb") as f:  # np.savez(path) would append ".npz" to "m.NPZ"
             np.savez(f, V=mesh.V, F=mesh.F)
+    elif ext in (".obj", ".off") and mesh.dim == 3:
+        raise ValueError(f"a tetrahedral mesh is written as .npz ({ext} holds triangle surfaces)")
     elif ext in (".obj", ".off"):
         V3 = np.hstack([mesh.V, np.zeros((mesh.n_vertices, 1))])
         igl.write_triangle_mesh(str(path), V3, mesh.F.astype(np.int64), igl.FileEncoding.Ascii)

@@ -1,4 +1,4 @@
-"""The paper's models as procedural outlines with default handles and sampling regions.
+"""The paper's models as procedural outlines with default handles and sampling regions; 3D solids beyond it.
 
 ``bar`` (Fig. 3, 7), ``u_shape`` (Fig. 4), ``gingerbread`` (Fig. 6), ``aleph`` (Fig. 8, 9; the
 letter א of DejaVu Sans through matplotlib's ``TextPath``), ``octopus`` (Fig. 1), ``crab`` (Fig. 2)
@@ -6,18 +6,30 @@ and ``dino`` (Table 1). Each model is a :class:`Model`: pure geometry (outline, 
 points, moving flags, regions) that :func:`defop.scene.shapes.load` meshes. Organic outlines are unions
 of tapered capsules and ellipses (:mod:`defop.geometry.planar.outlines`). Every coordinate is computed element-wise
 (no BLAS), so the outline is the same on every CPU.
+
+Beyond the paper, three solids (:class:`Solid`, meshed into tetrahedra by
+:mod:`defop.geometry.volumetric`): ``bar_3d`` (a 1 × 0.2 × 0.2 beam with handle patches at both ends,
+for the twist and bend of Fig. 7), ``octopus_3d`` (a head ellipsoid and eight tapered, waving arms:
+an implicit union) and ``nut`` (a hexagonal nut modelled as a closed triangle surface, read from the
+example data inside the installed PyVista wheel with libigl, without importing PyVista). They are
+listed by ``names(dim=3)``; ``names()`` keeps listing the 2D catalogue.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
+from ..geometry.fields import ellipsoid
 from ..geometry.planar.outlines import capsule, chain, cos_sin, ellipse, implicit_outline, union
+from ..geometry.volumetric import mesher
+from ..geometry.volumetric import surface as surfaces
 from .regions import Disc, Ellipse, Mixture, Voronoi
 
 ALEPH_OUTLINE = Path(__file__).with_name("data") / "aleph.json"
@@ -198,6 +210,136 @@ def _dino():
     )
 
 
+@dataclasses.dataclass
+class Solid:
+    """Geometry of a named 3D shape, before tetrahedral meshing.
+
+    Attributes
+    ----------
+    name : str
+    inside : callable
+        ``inside(P (k,3)) -> (k,) bool``.
+    bbox : (2,3) numpy array
+    handles : (h,3) numpy array
+        Handle points; each becomes its nearest mesh vertex (they lie inside the solid).
+    moving : (h,) bool numpy array
+    regions : list of dict
+        One per moving handle, ``{"kind": "ball", "radius": r}``.
+    description : str
+    project : callable, optional
+        ``project(P (k,3)) -> (k,3)``, the nearest surface point (snaps the mesh boundary).
+    spacing : callable, optional
+        ``spacing(n_vertices) -> h``; by default h is fitted to the vertex count.
+    surface : tuple of (V (k,3), F (l,3)), optional
+        A finer closed surface to embed in the mesh (for drawing).
+    """
+
+    name: str
+    inside: Callable
+    bbox: np.ndarray
+    handles: np.ndarray
+    moving: np.ndarray
+    regions: list
+    description: str
+    project: Callable | None = None
+    spacing: Callable | None = None
+    surface: tuple | None = None
+
+    def mesh(self, n_vertices):
+        """The tetrahedral mesh with about ``n_vertices`` vertices (:func:`defop.geometry.volumetric.tet_mesh`)."""
+        h = self.spacing(n_vertices) if self.spacing else mesher.grid_spacing(self.inside, self.bbox, n_vertices)
+        return mesher.tet_mesh(self.inside, self.bbox, h, project=self.project)
+
+
+def _ball(r):
+    return {"kind": "ball", "radius": r}
+
+
+def _bar_3d():
+    size = np.array([1.0, 0.2, 0.2])
+
+    def inside(P):
+        return (P > 0).all(axis=1) & (P < size).all(axis=1)
+
+    def spacing(n):  # an integer number of cubes across 0.2: the faces of the beam lie on the grid
+        k = min(range(2, 60), key=lambda k: abs((5 * k + 1) * (k + 1) ** 2 - n))
+        return 0.2 / k
+
+    ring = [(0.04, 0.04), (0.16, 0.04), (0.16, 0.16), (0.04, 0.16)]  # never midway between grid lines
+    handles = [[0.0, y, z] for y, z in ring] + [[1.0, y, z] for y, z in ring]
+    return Solid(
+        "bar_3d",
+        inside,
+        np.array([[0, 0, 0], size]),
+        np.array(handles),
+        np.array([False] * 4 + [True] * 4),
+        [_ball(0.12)] * 4,
+        "1 x 0.2 x 0.2 beam: a patch of 4 fixed handles clamps the left end face, 4 moving handles on the right "
+        "end face twist or bend it (Fig. 7 in 3D)",
+        spacing=spacing,
+    )
+
+
+def _octopus_3d():
+    parts = [ellipsoid((0, 0, 0.45), (0.34, 0.34, 0.42))]
+    tips = []
+    s = np.linspace(0, 1, 10)
+    for k in range(8):
+        c, si = cos_sin(2 * math.pi * (k + 0.5) / 8)
+        wave = np.array([cos_sin(2 * math.pi * v)[1] for v in s])
+        rad = 0.15 + 0.85 * s
+        curve = np.column_stack(
+            [rad * c - 0.1 * wave * s * si, rad * si + 0.1 * wave * s * c, 0.25 - 0.35 * s + 0.2 * s * s]
+        )
+        parts.append(chain(curve, 0.12, 0.055))
+        tips.append(curve[-1] - [0.05 * c, 0.05 * si, 0.0])
+    field = union(*parts)
+    bbox = np.array([[-1.15, -1.15, -0.2], [1.15, 1.15, 0.9]])
+    return Solid(
+        "octopus_3d",
+        lambda P: field(P) > 0,
+        bbox,
+        np.vstack(tips + [np.array([[0.0, 0.0, 0.5]])]),
+        np.ones(9, bool),
+        [_ball(0.25)] * 8 + [_ball(0.12)],
+        "octopus: a head ellipsoid and 8 tapered, waving arms (an implicit union); handles at the 8 arm tips and "
+        "the head (Fig. 1 in 3D)",
+        project=mesher.field_projector(field, 0.01),
+    )
+
+
+def pyvista_example_path(filename):
+    """The path of a data file shipped in the installed PyVista wheel's examples (PyVista is not imported)."""
+    spec = importlib.util.find_spec("pyvista")
+    if spec is None or not spec.submodule_search_locations:
+        raise ValueError(f"{filename} comes with PyVista's wheel, and PyVista is not installed")
+    path = Path(list(spec.submodule_search_locations)[0]) / "examples" / filename
+    if not path.exists():
+        raise ValueError(f"{path} is missing from the installed PyVista (0.49 ships it)")
+    return path
+
+
+def _nut():
+    V, F = surfaces.check_surface(*surfaces.read_surface(pyvista_example_path("nut.ply")))
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    scale = 1.0 / float(np.ptp(V, axis=0).max())
+    V = (V - lo) * scale  # about 1 x 0.63 x 1, the axis of the hole along y
+    c = (hi - lo) * scale / 2
+    handles = [[c[0], c[1], 0.04], [c[0], c[1], 0.96], [0.04, c[1], c[2]], [0.96, c[1], c[2]]]
+    return Solid(
+        "nut",
+        surfaces.inside_surface(V, F),
+        np.array([V.min(axis=0), V.max(axis=0)]),
+        np.array(handles),
+        np.array([True, True, False, True]),
+        [_ball(0.15)] * 3,
+        "a hexagonal nut (PyVista's example nut.ply, a closed genus-1 surface of 523 vertices) meshed by Kuhn "
+        "cubes; three outer faces move, one is held",
+        project=surfaces.surface_projector(V, F),
+        surface=(V, F),
+    )
+
+
 CATALOGUE = {
     "bar": _bar,
     "u_shape": _u_shape,
@@ -208,7 +350,16 @@ CATALOGUE = {
     "dino": _dino,
 }
 
+SOLIDS = {
+    "bar_3d": _bar_3d,
+    "octopus_3d": _octopus_3d,
+    "nut": _nut,
+}
+
 _DEFAULT_VERTICES = {
+    "bar_3d": 1500,
+    "octopus_3d": 10000,
+    "nut": 3000,
     "bar": 600,
     "u_shape": 800,
     "gingerbread": 1200,
@@ -221,8 +372,14 @@ _DEFAULT_VERTICES = {
 
 def check_name(name):
     """Raise ValueError listing the known names if ``name`` is not one."""
-    if not isinstance(name, str) or name not in CATALOGUE:
-        raise ValueError(f"unknown shape {name!r}; known shapes: {', '.join(CATALOGUE)}")
+    if not isinstance(name, str) or (name not in CATALOGUE and name not in SOLIDS):
+        raise ValueError(f"unknown shape {name!r}; known shapes: {', '.join([*CATALOGUE, *SOLIDS])}")
+
+
+def dim(name):
+    """2 for the planar models, 3 for the solids."""
+    check_name(name)
+    return 3 if name in SOLIDS else 2
 
 
 def model(name):
@@ -234,10 +391,11 @@ def model(name):
 
     Returns
     -------
-    model : Model
+    model : Model or Solid
+        A :class:`Model` (planar outline) or a :class:`Solid` (3D).
     """
     check_name(name)
-    return CATALOGUE[name]()
+    return SOLIDS[name]() if name in SOLIDS else CATALOGUE[name]()
 
 
 def default_vertices(name):

@@ -5,15 +5,16 @@ A :class:`Shape` is a mesh of Ω with its point handles p_l (mesh vertices), whi
 handles of Fig. 4), and one sampling region per moving handle (§3.3: where the training
 configurations Q_k are drawn).
 
-Shapes come from a polygon (:func:`from_polygon`), an image (:func:`from_image`) or the paper's
-catalogue (:func:`load`, :func:`names`). The work is done by one module per concern, whose public
-modules are:
+Shapes come from a polygon (:func:`from_polygon`), an image (:func:`from_image`), a closed triangle
+surface (:func:`from_surface`, a tetrahedral mesh in 3D) or the catalogue (:func:`load`, :func:`names`).
+The work is done by one module per concern, whose public modules are:
 
 - :mod:`defop.geometry.planar.polygon`: polygon geometry and validation (what Triangle can mesh);
 - :mod:`defop.geometry.planar.meshing`: Triangle (:func:`triangulate`);
 - :mod:`defop.geometry.planar.outlines`: implicit fields and image silhouettes;
 - :mod:`defop.scene.models`: the paper's models (``bar``, ``u_shape``, ``gingerbread``, ``aleph``,
   ``octopus``, ``crab``, ``dino``);
+- :mod:`defop.geometry.volumetric`: tetrahedral meshes of solids and closed surfaces;
 - :mod:`defop.scene.regions`: sampling regions.
 """
 
@@ -33,8 +34,10 @@ from ..geometry.planar.polygon import (
     points_in_polygon,
     validate_polygon,
 )
+from ..geometry.volumetric import surface as surfaces
 from .models import check_name as _check_name
 from .models import default_vertices, model
+from .models import dim as _model_dim
 from .regions import REGION_KINDS, Disc, Region, as_region
 
 __all__ = [
@@ -43,6 +46,7 @@ __all__ = [
     "names",
     "from_polygon",
     "from_image",
+    "from_surface",
     "default_vertices",
     "REGION_KINDS",
     "MAX_VERTICES",
@@ -66,7 +70,9 @@ class Shape:
         (:mod:`defop.scene.regions`; dicts such as ``{"kind": "disc", "radius": r}`` are converted).
     description : str
     outline : list of (k,2) numpy array
-        The polygon the mesh was made from (outer loop first).
+        The polygon the mesh was made from (outer loop first); empty in 3D.
+    surface : defop.geometry.volumetric.surface.EmbeddedSurface or None
+        In 3D, the closed surface the tetrahedra were made from, embedded in them (for drawing).
     """
 
     name: str
@@ -76,6 +82,7 @@ class Shape:
     regions: list
     description: str = ""
     outline: list = dataclasses.field(default_factory=list)
+    surface: object = None
 
     def __post_init__(self):
         n = self.mesh.n_vertices
@@ -99,11 +106,13 @@ class Shape:
             self.regions = [self.regions]
         if len(self.regions) != self.n_moving:
             raise ValueError(f"{len(self.regions)} regions for {self.n_moving} moving handles")
+        if self.mesh.dim == 3:
+            check_handles_span(self.P)
         self.regions = [as_region(r, f"region {i}") for i, r in enumerate(self.regions)]
 
     @property
     def P(self):
-        """(h,2) numpy array: rest positions of all handles."""
+        """(h,d) numpy array: rest positions of all handles."""
         return self.mesh.V[self.handles]
 
     @property
@@ -118,7 +127,7 @@ class Shape:
 
     @property
     def P_moving(self):
-        """(n,2) numpy array: rest positions p_l of the moving handles."""
+        """(n,d) numpy array: rest positions p_l of the moving handles."""
         return self.mesh.V[self.moving_handles]
 
     @property
@@ -130,17 +139,17 @@ class Shape:
 
         Parameters
         ----------
-        Q : (n,2) numpy array
+        Q : (n,d) numpy array
             Positions of the moving handles.
 
         Returns
         -------
-        T : (h,2) numpy array
+        T : (h,d) numpy array
         """
         Q = opt.real_array("Q", Q)
-        if Q.shape != (self.n_moving, 2):
-            n = self.n_moving
-            raise ValueError(f"Q must have shape ({n}, 2) for the {n} moving handles, got {Q.shape}")
+        if Q.shape != (self.n_moving, self.mesh.dim):
+            n, d = self.n_moving, self.mesh.dim
+            raise ValueError(f"Q must have shape ({n}, {d}) for the {n} moving handles, got {Q.shape}")
         if not np.isfinite(Q).all():
             raise ValueError("Q has NaN or infinite entries")
         T = self.P.copy()
@@ -149,9 +158,70 @@ class Shape:
 
     def __repr__(self):
         return (
-            f"Shape({self.name!r}, {self.mesh.n_vertices} vertices, {self.mesh.n_faces} triangles, "
+            f"Shape({self.name!r}, {self.mesh.n_vertices} vertices, {self.mesh.n_faces} "
+            f"{'triangles' if self.mesh.dim == 2 else 'tetrahedra'}, "
             f"{self.n_moving} moving + {len(self.handles) - self.n_moving} fixed handles)"
         )
+
+
+def check_handles_span(P):
+    """Raise ValueError if the handle points P (h,3) lie on one line (or are fewer than 3).
+
+    Point handles fix positions only: a rotation about a line through all of them costs nothing, so
+    the variational problem has no unique minimum (its Hessian is singular).
+    """
+    P = np.asarray(P, float)
+    if len(P) >= 3:
+        D = P - P[0]
+        len2 = D[:, 0] * D[:, 0] + D[:, 1] * D[:, 1] + D[:, 2] * D[:, 2]
+        u = D[int(np.argmax(len2))]
+        C = np.column_stack(
+            [D[:, 1] * u[2] - D[:, 2] * u[1], D[:, 2] * u[0] - D[:, 0] * u[2], D[:, 0] * u[1] - D[:, 1] * u[0]]
+        )
+        off = np.sqrt((C[:, 0] * C[:, 0] + C[:, 1] * C[:, 1] + C[:, 2] * C[:, 2]) / max(float(len2.max()), 1e-300))
+        if off.max() > 1e-9 * np.sqrt(max(float(len2.max()), 1e-300)):
+            return
+    what = f"the {len(P)} handles lie on one line" if len(P) > 1 else "a single handle"
+    raise ValueError(
+        f"{what}: in 3D a rotation about a line through them costs nothing (the Hessian is singular); "
+        "use at least 3 handles that are not collinear (for example a small patch of handles)"
+    )
+
+
+def handle_vertices(mesh, points, tolerance=0.5):
+    """The mesh vertex of each handle point (the nearest one); ValueError for points outside the mesh.
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    points : (h,d) numpy array
+    tolerance : float
+        A point outside the mesh is accepted if its nearest vertex is at most ``tolerance`` × the typical
+        edge length away (the snapped boundary of a tetrahedral mesh may pass just inside a surface point).
+
+    Returns
+    -------
+    idx : (h,) int64 numpy array
+    """
+    H = opt.real_array("handles", points)
+    if H.ndim != 2 or H.shape[1] != mesh.dim or len(H) == 0:
+        raise ValueError(f"handles must have shape (h,{mesh.dim}), got {np.shape(points)}")
+    if not np.isfinite(H).all():
+        raise ValueError("handles have NaN or infinite entries")
+    idx, dist = mesh.nearest_vertex(H)
+    edge = (6 * float(np.median(mesh.volumes))) ** (1 / 3) if mesh.dim == 3 else np.sqrt(2 * np.median(mesh.volumes))
+    outside = ~mesh.contains(H) & (dist > tolerance * edge)
+    if outside.any():
+        k = int(np.flatnonzero(outside)[0])
+        raise ValueError(f"handle {k} is outside the mesh (nearest vertex is {dist[k]:.3g} away)")
+    uniq, first, counts = np.unique(idx, return_index=True, return_counts=True)
+    if (counts > 1).any():
+        v = int(uniq[counts > 1][0])
+        a, b = np.flatnonzero(idx == v)[:2]
+        raise ValueError(
+            f"handles {a} and {b} both become vertex {v} (the nearest to each): move them apart or use more vertices"
+        )
+    return idx
 
 
 def handle_indices(handles, n):
@@ -326,21 +396,33 @@ def _auto_handles(outer, holes, k):
     return cand[pick]
 
 
-def names():
+def names(dim=2):
     """Names of the built-in shapes.
+
+    Parameters
+    ----------
+    dim : {2, 3, None}
+        2 (default): the paper's planar models; 3: the solids (tetrahedral meshes); None: all.
 
     Returns
     -------
     names : list of str
     """
-    from .models import CATALOGUE
+    from .models import CATALOGUE, SOLIDS
 
-    return list(CATALOGUE)
+    if dim not in (2, 3, None):
+        raise ValueError(f"dim must be 2, 3 or None (all), got {dim!r}")
+    return [*(CATALOGUE if dim in (2, None) else ()), *(SOLIDS if dim in (3, None) else ())]
 
 
 @functools.lru_cache(maxsize=32)
 def _load(name, n_vertices):
     m = model(name)
+    if _model_dim(name) == 3:
+        mesh = m.mesh(n_vertices or default_vertices(name))
+        surface = None if m.surface is None else surfaces.EmbeddedSurface.embed(mesh, *m.surface)
+        idx = handle_vertices(mesh, m.handles)
+        return Shape(m.name, mesh, idx, m.moving, list(m.regions), m.description, [], surface)
     return from_polygon(
         m.outer,
         m.holes,
@@ -354,12 +436,12 @@ def _load(name, n_vertices):
 
 
 def load(name, n_vertices=None):
-    """One of the paper's models as a :class:`Shape`.
+    """One of the catalogue's models as a :class:`Shape`.
 
     Parameters
     ----------
     name : str
-        One of :func:`names`.
+        One of :func:`names` (``names(dim=3)`` for the solids, meshed into tetrahedra).
     n_vertices : int, optional
         About how many mesh vertices, 20 to ``MAX_VERTICES`` (default: near Table 1).
 
@@ -388,4 +470,73 @@ def load(name, n_vertices=None):
         list(s.regions),
         s.description,
         [L.copy() for L in s.outline],
+        s.surface,  # read-only by convention; the same for every copy
     )
+
+
+def from_surface(
+    V,
+    F,
+    handles=None,
+    moving=None,
+    regions=None,
+    n_vertices=2000,
+    name="surface",
+    description="",
+    region_scale=0.25,
+    overlapping_parts=False,
+):
+    """A 3D :class:`Shape` from a closed triangle surface: a tetrahedral mesh of the solid it bounds.
+
+    The solid is meshed by Kuhn cubes (:func:`defop.geometry.volumetric.surface.surface_mesh`: the cubes
+    whose centre has winding number ≥ 1/2, boundary snapped toward the surface while every tetrahedron
+    keeps a tenth of its volume), the same on every CPU. The surface is embedded in the tetrahedra
+    (``shape.surface``) so that it can be drawn deformed.
+
+    Parameters
+    ----------
+    V : (n,3) numpy array
+        Surface vertices (read a file with :func:`defop.geometry.volumetric.surface.read_surface`).
+    F : (k,3) int numpy array
+        Surface triangles: a closed, consistently oriented, manifold surface that does not cross itself
+        (inward-facing orientation is flipped).
+    handles : (h,3) numpy array
+        Handle points inside the solid; each becomes its nearest mesh vertex. At least 3, not all on one
+        line (a rotation about that line would be free).
+    moving : (h,) bool numpy array, optional
+        Which handles move (default: all).
+    regions : list of defop.scene.regions.Region or dict, optional
+        One per moving handle (default: ``{"kind": "ball", "radius": region_scale × bounding-box diagonal / 2}``).
+    n_vertices : int
+        About how many tetrahedral mesh vertices, 100 to ``MAX_VERTICES``.
+    name, description : str
+    region_scale : float
+    overlapping_parts : bool
+        Accept separate closed parts that cross each other, meshed as their union.
+
+    Returns
+    -------
+    shape : Shape
+
+    Raises
+    ------
+    ValueError
+        An open or non-manifold surface (the message names the edge or vertex), inconsistent orientation,
+        two triangles that cross (pairs sharing a vertex are not tested:
+        :func:`defop.geometry.volumetric.surface.self_intersections`), a handle outside the mesh, handles
+        on one line, or a bad vertex count.
+    """
+    if handles is None:
+        raise ValueError("from_surface needs handles: an (h,3) array of handle positions inside the solid")
+    n_vertices = check_n_vertices(n_vertices)
+    if n_vertices < 100:
+        raise ValueError(f"n_vertices must be an integer >= 100, got {n_vertices!r}")
+    V, F = surfaces.check_surface(V, F, overlapping_parts=overlapping_parts)
+    mesh = surfaces.surface_mesh(V, F, n_vertices, checked=True)
+    idx = handle_vertices(mesh, handles)
+    moving = np.ones(len(idx), bool) if moving is None else moving  # Shape checks the flags
+    if regions is None:
+        r = region_scale * mesh.bbox_diagonal / 2
+        regions = [{"kind": "ball", "radius": r} for _ in range(int(np.count_nonzero(moving)))]
+    surface = surfaces.EmbeddedSurface.embed(mesh, V, F)
+    return Shape(name, mesh, idx, moving, list(regions), description, [], surface)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..fields import capsule, chain, subtract, union  # noqa: F401  (dimension-generic; re-exported here)
 from .polygon import points_in_polygon, polygon_area
 
 FOREGROUNDS = ("auto", "dark", "light", "alpha")
@@ -122,27 +123,7 @@ def cos_sin(angle):
 
 
 # --------------------------------------------- primitives: "inside-ness" fields, union by max
-def capsule(a, b, ra, rb=None):
-    """Tapered capsule from a (radius ra) to b (radius rb): field = radius(t) - distance.
-
-    Returns
-    -------
-    f : callable, ``f(P (k,2)) -> (k,)``
-    """
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    rb = ra if rb is None else rb
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    dd = dx * dx + dy * dy
-
-    def f(P):
-        px, py = P[:, 0] - a[0], P[:, 1] - a[1]
-        t = np.clip((px * dx + py * dy) / dd, 0, 1)
-        ex, ey = px - t * dx, py - t * dy
-        return ra + (rb - ra) * t - np.sqrt(ex * ex + ey * ey)
-
-    return f
-
-
+# capsule, chain, union and subtract are dimension-generic (defop.geometry.fields); the ellipse turns.
 def ellipse(c, rx, ry, angle=0.0):
     """Ellipse field: scaled so that it behaves like a distance near the boundary.
 
@@ -159,39 +140,6 @@ def ellipse(c, rx, ry, angle=0.0):
         return min(rx, ry) * (1 - np.sqrt((u / rx) ** 2 + (v / ry) ** 2))
 
     return f
-
-
-def chain(points, r0, r1):
-    """A tapered tube along a polyline (union of capsules), radius r0 → r1.
-
-    Returns
-    -------
-    f : callable, ``f(P (k,2)) -> (k,)``
-    """
-    pts = np.asarray(points, float)
-    d = np.diff(pts, axis=0)
-    L = np.concatenate([[0], np.cumsum(np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2))])
-    r = r0 + (r1 - r0) * L / L[-1]
-    parts = [capsule(pts[i], pts[i + 1], r[i], r[i + 1]) for i in range(len(pts) - 1)]
-    return union(*parts)
-
-
-def union(*fields):
-    """Union of fields (their maximum)."""
-
-    def f(P):
-        return np.max([g(P) for g in fields], axis=0)
-
-    return f
-
-
-def subtract(f, g):
-    """Difference of fields: inside f and outside g."""
-
-    def h(P):
-        return np.minimum(f(P), -g(P))
-
-    return h
 
 
 # ----------------------------------------------------------------------------------- images

@@ -1,0 +1,300 @@
+"""Closed triangle surfaces: validation, inside test, tetrahedral meshing and embedding.
+
+A surface is ``V (n, 3)`` and ``F (k, 3)``. :func:`check_surface` rejects what cannot bound a solid:
+an open surface, an edge in more than two triangles, inconsistent orientation, a pinched vertex, and
+triangles that cross each other (:func:`self_intersections`). Inside is decided by libigl's
+generalised winding number (``igl.winding_number``, core libigl, MPL-2.0; exact, not the fast
+approximation), the boundary of the tetrahedral mesh is snapped to the closest surface point
+(``igl.point_mesh_squared_distance``); :meth:`defop.geometry.mesh.Mesh.locate` gives each surface vertex
+its tetrahedron and barycentric coordinates, so the fine surface can be drawn deformed.
+
+libigl is compiled code without run-time CPU dispatch; its winding number uses libm's ``atan2``, whose
+last bit could differ between libm builds. Only a cube centre within about 1e-15 of winding number 1/2
+(on the surface) could change side, and a centre on the surface is not a case the grid produces on
+purpose.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections import defaultdict
+
+import igl
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from ..mesh import check_closed_surface, signed_volumes
+from .mesher import grid_spacing, tet_mesh
+
+__all__ = [
+    "check_surface",
+    "self_intersections",
+    "surface_mesh",
+    "read_surface",
+    "enclosed_volume",
+    "inside_surface",
+    "surface_projector",
+    "surface_parts",
+    "EmbeddedSurface",
+]
+
+
+def read_surface(path):
+    """A triangle surface from a file libigl reads (PLY, OBJ, OFF, STL, ...), without PyVista.
+
+    Returns
+    -------
+    V : (n, 3) numpy array
+    F : (k, 3) int numpy array
+    """
+    V, F = igl.read_triangle_mesh(str(path))
+    return np.asarray(V, float), np.asarray(F, np.int64)
+
+
+def _as_surface(V, F):
+    V = np.asarray(V, dtype=float)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) < 4:
+        raise ValueError(f"V must have shape (n,3) with n >= 4 (a closed surface), got {np.shape(V)}")
+    if not np.isfinite(V).all():
+        raise ValueError(
+            f"V has non-finite (NaN or inf) rows, first at row {int(np.flatnonzero(~np.isfinite(V).all(1))[0])}"
+        )
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[1] != 3 or len(F) < 4:
+        raise ValueError(f"F must have shape (k,3) with k >= 4 triangles (a closed surface), got {np.shape(F)}")
+    if not np.issubdtype(F.dtype, np.integer) or F.min() < 0 or F.max() >= len(V):
+        raise ValueError(
+            f"F must hold integer vertex indices from 0 to {len(V) - 1}, got {F.dtype} in [{F.min()}, {F.max()}]"
+        )
+    F = F.astype(np.int64)
+    unused = np.flatnonzero(np.bincount(F.ravel(), minlength=len(V)) == 0)
+    if len(unused):
+        raise ValueError(
+            f"{len(unused)} surface vertices are in no triangle, first is vertex {int(unused[0])}; remove them"
+        )
+    return V, F
+
+
+def _triangle_areas2(V, F):
+    """Twice the area of every triangle, squared (element-wise)."""
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    e1, e2 = b - a, c - a
+    n = np.column_stack(
+        [
+            e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1],
+            e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
+            e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0],
+        ]
+    )
+    return n[:, 0] * n[:, 0] + n[:, 1] * n[:, 1] + n[:, 2] * n[:, 2]
+
+
+def enclosed_volume(V, F):
+    """Signed volume enclosed by a closed triangle surface (positive for outward normals)."""
+    return float(signed_volumes(np.vstack([V, V.mean(axis=0)]), np.column_stack([np.full(len(F), len(V)), F])).sum())
+
+
+def _candidate_pairs(V, F):
+    """Pairs (i < j) of triangles whose bounding boxes overlap and that share no vertex: a hash grid."""
+    P = V[F]
+    lo, hi = P.min(axis=1), P.max(axis=1)
+    cell = float(np.median((hi - lo).max(axis=1))) or 1.0
+    a, b = np.floor(lo / cell).astype(np.int64), np.floor(hi / cell).astype(np.int64)
+    buckets = defaultdict(list)
+    for t in range(len(F)):
+        for i in range(a[t, 0], b[t, 0] + 1):
+            for j in range(a[t, 1], b[t, 1] + 1):
+                for k in range(a[t, 2], b[t, 2] + 1):
+                    buckets[i, j, k].append(t)
+    pairs = set()
+    for ts in buckets.values():
+        for x in range(len(ts)):
+            for y in range(x + 1, len(ts)):
+                pairs.add((ts[x], ts[y]))
+    if not pairs:
+        return np.zeros((0, 2), np.int64)
+    pairs = np.array(sorted(pairs), dtype=np.int64)
+    i, j = pairs[:, 0], pairs[:, 1]
+    overlap = ((lo[i] <= hi[j]) & (lo[j] <= hi[i])).all(axis=1)
+    share = (F[i][:, :, None] == F[j][:, None, :]).any(axis=(1, 2))
+    return pairs[overlap & ~share]
+
+
+def surface_parts(F):
+    """(k,) int numpy array: the connected part (by shared vertices) of every triangle, numbered from 0."""
+    n = int(F.max()) + 1
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]]])
+    G = sp.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n))
+    return connected_components(G, directed=False)[1][F[:, 0]]
+
+
+def self_intersections(V, F, limit=1, within_parts_only=False):
+    """Pairs of triangles that cross each other, up to ``limit`` of them.
+
+    Candidate pairs come from a hash grid of bounding boxes; each is tested exactly by libigl's
+    ``tri_tri_intersection_test_3d`` (Guigue–Devillers, core libigl). Triangles that share a vertex
+    are not tested: a surface folded through itself at one vertex, or two triangles overlapping
+    across a shared edge, passes this check (the orientation and manifold checks catch many of these).
+
+    Parameters
+    ----------
+    V : (n, 3) numpy array
+    F : (k, 3) int numpy array
+    limit : int
+        Stop after this many intersecting pairs.
+    within_parts_only : bool
+        Test only pairs in the same connected part (:func:`surface_parts`): closed parts may overlap.
+
+    Returns
+    -------
+    pairs : (p, 2) int numpy array
+        Triangle index pairs, p ≤ limit.
+    """
+    found = []
+    pairs = _candidate_pairs(V, F)
+    if within_parts_only:
+        part = surface_parts(F)
+        pairs = pairs[part[pairs[:, 0]] == part[pairs[:, 1]]]
+    for i, j in pairs:
+        p = [V[F[i, c]][None] for c in range(3)] + [V[F[j, c]][None] for c in range(3)]
+        if igl.tri_tri_intersection_test_3d(*p)[0]:
+            found.append((int(i), int(j)))
+            if len(found) >= limit:
+                break
+    return np.array(found, dtype=np.int64).reshape(-1, 2)
+
+
+def check_surface(V, F, self_intersection=True, overlapping_parts=False):
+    """A closed, oriented, manifold, non-self-intersecting triangle surface, outward-oriented.
+
+    Parameters
+    ----------
+    V : (n, 3) array-like
+    F : (k, 3) int array-like
+    self_intersection : bool
+        Test for triangles crossing each other (:func:`self_intersections`, which documents its limit).
+    overlapping_parts : bool
+        Allow separate closed parts (connected components) to cross each other: the solid is their
+        union (the winding number is ≥ 1/2 inside any part). Each part must still not cross itself.
+
+    Returns
+    -------
+    V : (n, 3) numpy array
+    F : (k, 3) int numpy array
+        Oriented so that normals point out of the solid (flipped if the input pointed in).
+
+    Raises
+    ------
+    ValueError
+        Wrong shapes or indices, unused vertices, zero-area triangles, an open or non-manifold
+        surface, inconsistent orientation, a pinched vertex, or two triangles that cross; the
+        message names the edge, vertex or triangles.
+    """
+    V, F = _as_surface(V, F)
+    a2 = _triangle_areas2(V, F)
+    ext = np.ptp(V, axis=0).max()
+    tiny = a2 <= (1e-12 * ext * ext) ** 2
+    if tiny.any():
+        raise ValueError(
+            f"{int(tiny.sum())} surface triangles have zero area, first is triangle {int(np.flatnonzero(tiny)[0])}"
+        )
+    check_closed_surface(F, what="the surface")
+    if enclosed_volume(V, F) < 0:
+        F = np.ascontiguousarray(F[:, [0, 2, 1]])
+    if self_intersection:
+        bad = self_intersections(V, F, within_parts_only=overlapping_parts)
+        if len(bad):
+            i, j = (int(x) for x in bad[0])
+            hint = (
+                ""
+                if overlapping_parts
+                else " (if the surface is several closed parts meant as their union, pass overlapping_parts=True)"
+            )
+            raise ValueError(f"the surface intersects itself: triangles {i} and {j} cross{hint}")
+    return V, F
+
+
+def inside_surface(V, F):
+    """``inside(P (k, 3)) -> (k,) bool``: generalised winding number of the surface ≥ 1/2."""
+
+    def inside(P):
+        return np.asarray(igl.winding_number(V, F, np.ascontiguousarray(P, dtype=float))) >= 0.5
+
+    return inside
+
+
+def surface_projector(V, F):
+    """``project(P (k, 3)) -> (k, 3)``: the closest point of the surface to each point (libigl)."""
+
+    def project(P):
+        return np.asarray(igl.point_mesh_squared_distance(np.ascontiguousarray(P, dtype=float), V, F)[2])
+
+    return project
+
+
+def surface_mesh(V, F, n_vertices=2000, min_volume=0.1, checked=False, overlapping_parts=False):
+    """A tetrahedral mesh of the solid bounded by a closed triangle surface.
+
+    Parameters
+    ----------
+    V : (n, 3) numpy array
+    F : (k, 3) int numpy array
+    n_vertices : int
+        About how many tetrahedral mesh vertices.
+    min_volume : float
+        Snapping keeps every tetrahedron's volume at least this fraction of h³/6.
+    checked : bool
+        Whether (V, F) already passed :func:`check_surface` (else it is checked here).
+    overlapping_parts : bool
+        See :func:`check_surface`.
+
+    Returns
+    -------
+    mesh : defop.geometry.mesh.Mesh
+    """
+    if not checked:
+        V, F = check_surface(V, F, overlapping_parts=overlapping_parts)
+    bbox = np.array([V.min(axis=0), V.max(axis=0)])
+    inside = inside_surface(V, F)
+    h = grid_spacing(inside, bbox, n_vertices)
+    return tet_mesh(inside, bbox, h, project=surface_projector(V, F), min_volume=min_volume)
+
+
+@dataclasses.dataclass(eq=False)
+class EmbeddedSurface:
+    """A fine closed surface carried by a tetrahedral mesh: each vertex at fixed barycentric coordinates.
+
+    Attributes
+    ----------
+    V : (k, 3) numpy array
+        Rest positions of the surface vertices.
+    F : (l, 3) int numpy array
+        Surface triangles.
+    elements : (k,) int numpy array
+        The tetrahedron of each surface vertex (:meth:`defop.geometry.mesh.Mesh.locate`).
+    bary : (k, 4) numpy array
+        Its barycentric coordinates there (negative where the vertex is outside the tetrahedral mesh).
+    tets : (m, 4) int numpy array
+        The tetrahedra of the carrying mesh.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    elements: np.ndarray
+    bary: np.ndarray
+    tets: np.ndarray
+
+    @classmethod
+    def embed(cls, mesh, V, F):
+        """Embed the surface (V (k,3), F (l,3)) in ``mesh`` (a tetrahedral defop.geometry.mesh.Mesh)."""
+        elements, bary = mesh.locate(V)
+        return cls(np.asarray(V, float), np.asarray(F, np.int64), elements, bary, mesh.F)
+
+    def deform(self, X):
+        """(k, 3) numpy array: the surface vertices under the piecewise-linear map X (n, 3) of the tetrahedra."""
+        X = np.asarray(X, float)
+        if X.ndim != 2 or X.shape[1] != 3 or len(X) <= self.tets.max():
+            raise ValueError(f"X must have shape (n,3) with a row per mesh vertex, got {X.shape}")
+        P = X[self.tets[self.elements]]  # (k, 4, 3)
+        return (self.bary[:, :, None] * P).sum(axis=1)
