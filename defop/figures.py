@@ -412,7 +412,7 @@ def write_runtimes(report, mode, path=RUNTIMES):
     Returns
     -------
     record : dict
-        ``{mode: {"date", "machine", "notebooks": {name: {"seconds", "ok", "cache", "cold", "warm"}}}}``:
+        ``{mode: {"date", "machine", "load", "notebooks": {name: {"seconds", "ok", "cache", "cold", "warm"}}}}``:
         ``seconds``, ``ok`` and ``cache`` are the last run's; ``cold`` and ``warm`` the last run of that kind
         (kept when a later run is of the other kind or ``partial``).
     """
@@ -421,6 +421,8 @@ def write_runtimes(report, mode, path=RUNTIMES):
     entry = record.setdefault(mode, {"notebooks": {}})
     entry["date"] = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     entry["machine"] = machine_info()
+    if hasattr(os, "getloadavg"):  # how busy the machine was: 1, 5 and 15 minute load averages at the end of the run
+        entry["load"] = [round(x, 2) for x in os.getloadavg()]
     for r in report:
         old = entry["notebooks"].get(r["name"], {})
         new = {"seconds": round(r["seconds"], 1), "ok": r["ok"]}
