@@ -12,10 +12,24 @@ from matplotlib import pyplot as plt
 
 from ..scene.regions import as_region
 
+#: readable names of the energies and handle bases, for titles (never a code identifier such as "sarap")
+NAMES = {
+    "arap": "ARAP",
+    "sarap": "S-ARAP",
+    "isometric": "symmetric Dirichlet",
+    "linear": "linear",
+    "quadratic": "quadratic",
+    "cubic": "cubic",
+    "tps": "TPS",
+    "hat": "hat functions",
+    "reduced": "reduced",
+}
+
 MOVING = "#d62728"
 FIXED = "#1f77b4"
 FILL = "#f2d7a6"
 REGION = "#ff7f0e"
+FLIP = "#e31a1c"
 
 
 def plot_mesh(ax, V, F, X=None, color=FILL, edges=True, edge_color="#00000040", lw=0.3, scalars=None, **kw):
@@ -175,7 +189,7 @@ def shape_gallery(shapes, ncols=4, size=3.2):
     return fig
 
 
-def plot_deformation(ax, shape, X, highlight_flips=True, title=None, edges=True, flip_color="#e31a1c", zoom_flips=True):
+def plot_deformation(ax, shape, X, highlight_flips=True, title=None, edges=True, flip_color=FLIP, zoom_flips=True):
     """Draw a deformed shape, its handles, and its flipped triangles in red.
 
     Parameters
@@ -229,7 +243,7 @@ def plot_deformation(ax, shape, X, highlight_flips=True, title=None, edges=True,
     ax.autoscale_view()
 
 
-def plot_handle_zoom(ax, shape, X, vertex, radius=0.12, vmax=90.0, flip_color="#e31a1c"):
+def plot_handle_zoom(ax, shape, X, vertex, radius=0.12, vmax=90.0, flip_color=FLIP):
     """The neighbourhood of one handle, triangles coloured by their largest corner-angle change (Fig. 6's cusps).
 
     Parameters
@@ -338,8 +352,52 @@ def plot_outline(ax, mesh, X, color="k", lw=1.0, ls="-", **kw):
         ax.plot(P[:, 0], P[:, 1], color=color, lw=lw, ls=ls, **kw)
 
 
+def figure_key(fig, fill="operator D(·, Q)", outline="ground truth", fixed=False, extra=(), y=0.0, ncol=None):
+    """A key below a figure for the marks of the deformation panels: fill, outline, handles and ``extra``.
+
+    Parameters
+    ----------
+    fig : matplotlib Figure
+    fill, outline : str or None
+        Labels of the filled shape and of its black outline (None leaves one out).
+    fixed : bool
+        Also key the fixed handles (blue).
+    extra : sequence of (matplotlib artist, str)
+        Further entries.
+    y : float
+        Figure coordinate of the key's top edge.
+
+    Returns
+    -------
+    legend : matplotlib Legend
+    """
+    from matplotlib.lines import Line2D
+
+    dot = dict(marker="o", ls="none", mec="k", mew=0.5, ms=6)
+    items = []
+    if fill:
+        items.append((patches.Patch(facecolor=FILL, edgecolor="none"), fill))
+    if outline:
+        items.append((Line2D([], [], color="k", lw=1.0), outline))
+    items.append((Line2D([], [], mfc=MOVING, **dot), "moving handle"))
+    if fixed:
+        items.append((Line2D([], [], mfc=FIXED, **dot), "fixed handle"))
+    items += list(extra)
+    return fig.legend(
+        [h for h, _ in items],
+        [t for _, t in items],
+        loc="upper center",
+        bbox_to_anchor=(0.5, y),
+        ncol=ncol or len(items),
+        fontsize=8,
+        frameon=False,
+    )
+
+
 def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2, notes=None):
     """Rows = operators, columns = handle configurations; each panel: D(·, Q) filled, ground truth outlined.
+
+    A key below the panels names the fill, the outline and the handles.
 
     Parameters
     ----------
@@ -347,12 +405,12 @@ def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2, notes=No
     Q : (k,n,2) numpy array
     X_true : (k,n_vertices,2) numpy array
     operators : dict of str -> DefOp or None
-        Row label -> operator; a None row shows the ground truth alone, marked as not fitted (e.g. a basis
-        that needs more samples).
+        Row label -> operator; a None row shows an empty panel saying "not fitted" (e.g. a basis that needs more
+        samples), with the row's note under it.
     titles : list of str, optional
         Column titles.
     notes : dict of str -> list of str, optional
-        Row label -> one short text per column, printed in the panel's corner (e.g. its error).
+        Row label -> one short text per column, printed under the panel (e.g. its error), clear of the shapes.
 
     Returns
     -------
@@ -360,7 +418,7 @@ def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2, notes=No
     """
     k = len(Q)
     rows = len(operators)
-    fig, axes = plt.subplots(rows, k, figsize=(size * k, 0.9 * size * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, k, figsize=(size * k, size * rows), squeeze=False)
     D = {name: None if op is None else op(Q) for name, op in operators.items()}
     allX = np.concatenate([X_true.reshape(-1, 2)] + [d.reshape(-1, 2) for d in D.values() if d is not None])
     lo, hi = allX.min(axis=0), allX.max(axis=0)
@@ -368,23 +426,169 @@ def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2, notes=No
     for r, name in enumerate(operators):
         for c in range(k):
             ax = axes[r, c]
+            note = notes[name][c] if notes is not None and name in notes else ""
             if D[name] is None:
-                ax.text(0.5, 0.5, "not fitted", transform=ax.transAxes, ha="center", va="center", fontsize=8)
-                ax.set_aspect("equal")
-                ax.set_axis_off()
+                ax.text(
+                    0.5,
+                    0.5,
+                    "not fitted\n" + note,
+                    transform=ax.transAxes,
+                    ha="center",
+                    va="center",
+                    fontsize=8,
+                    color="0.4",
+                )
+                note = ""
             else:
                 plot_mesh(ax, shape.mesh.V, shape.mesh.F, D[name][c], edges=False)
                 plot_handles(ax, D[name][c], shape.handles, shape.moving, size=12)
-            plot_outline(ax, shape.mesh, X_true[c], lw=0.8)
-            if notes is not None and name in notes:
-                ax.text(0.98, 0.02, notes[name][c], transform=ax.transAxes, ha="right", va="bottom", fontsize=7)
+                plot_outline(ax, shape.mesh, X_true[c], lw=0.8)
+            ax.set_aspect("equal")
+            ax.set_axis_off()
+            if note:
+                ax.text(0.5, -0.01, note, transform=ax.transAxes, ha="center", va="top", fontsize=7)
             ax.set_xlim(lo[0] - pad, hi[0] + pad)
             ax.set_ylim(lo[1] - pad, hi[1] + pad)
             if c == 0:
                 ax.text(-0.02, 0.5, name, transform=ax.transAxes, rotation=90, ha="right", va="center", fontsize=10)
             if r == 0 and titles is not None:
                 ax.set_title(titles[c], fontsize=8)
+    fig.tight_layout(h_pad=1.2)
+    figure_key(fig, fixed=not np.all(shape.moving))
+    return fig
+
+
+def readable(name):
+    """The readable name of an energy or a handle basis (``"sarap"`` -> ``"S-ARAP"``); other names unchanged."""
+    return NAMES.get(name, name)
+
+
+def plot_gallery(panels, rms, size=3.4):
+    """Fig. 11: per model, the ground truth (top) and the DefOp at the same Q (bottom, ground truth outlined).
+
+    Parameters
+    ----------
+    panels : sequence of (Shape, DefOp, (n,2) numpy array, (n_vertices,2) numpy array)
+        Model, operator, held-out configuration Q and its ground truth.
+    rms : dict of str -> float
+        RMS vertex error over the bounding-box diagonal, per model name.
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    fig, axes = plt.subplots(2, len(panels), figsize=(size * len(panels), 6.8), squeeze=False)
+    for k, (shape, op, q, X) in enumerate(panels):
+        energy, basis = readable(op.energy), readable(op.handle_basis.kind)
+        plot_deformation(axes[0, k], shape, X, edges=False, title=f"{shape.name}\n{energy} ground truth")
+        plot_deformation(
+            axes[1, k],
+            shape,
+            op(q),
+            edges=False,
+            title=f"DefOp, {basis} Ψ, m = {op.n_samples}\nRMS error {100 * rms[shape.name]:.2g}% of the diagonal",
+        )
+        plot_outline(axes[1, k], shape.mesh, X, lw=0.6)
+    fig.suptitle("Fig. 11: ground truths (top) and their real-time approximations (bottom, ground truth outlined)")
     fig.tight_layout()
+    fixed = any(not np.all(shape.moving) for shape, *_ in panels)
+    flips = any(shape.mesh.flipped(op(q)).any() or shape.mesh.flipped(X).any() for shape, op, q, X in panels)
+    extra = [(patches.Patch(color=FLIP), "flipped triangle (inset: magnified)")] if flips else []
+    figure_key(
+        fig, fill="DefOp (bottom) / ground truth (top)", outline="ground truth (bottom)", fixed=fixed, extra=extra
+    )
+    return fig
+
+
+def plot_local_vs_global(shape, grid, runs, jumps, vertex, col, rows, show, first_up=True):
+    """Fig. 10: deformations and the star's trajectory from global and from local (dragged) optima.
+
+    Left: one row per entry of ``show``, the bar at the handle positions ``rows`` of column ``col``. Then a
+    heat map of the star's y-displacement T_y over the handle plane (cells with their true edges, ○ the
+    positions shown at left, × the jump in each column, ▲/▼ the direction each column was dragged in), one
+    colour bar for both, and on the right the trajectory and the energy along column ``col``.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    grid : defop.analysis.trajectories.HandleGrid
+    runs : dict of str -> defop.analysis.trajectories.Trajectory
+        With an ``energy`` (ny, nx) array each; the entries other than ``"rest"`` are drawn on the right.
+    jumps : dict of str -> (nx,) numpy array
+        Per column, the q_y − p_y of the jump (NaN: none).
+    vertex : int
+        The starred point.
+    col : int
+        The column of the deformation panels and of the right-hand plots.
+    rows : sequence of int
+        Grid rows of the deformation panels.
+    show : dict of str -> str
+        Run name -> row label; a name starting with "local" gets the drag arrows.
+    first_up : bool
+        The drag went up column 0 (then down column 1, ...).
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    from matplotlib.lines import Line2D
+
+    nrow, ncol = len(show), len(rows)
+    fig, axes = plt.subplots(
+        nrow,
+        ncol + 2,
+        figsize=(4.0 * ncol + 9, 3.6 * nrow),
+        layout="constrained",
+        squeeze=False,
+        gridspec_kw={"width_ratios": [1] * ncol + [1.1, 1.25]},
+    )
+    xe = np.concatenate([grid.xs - np.gradient(grid.xs) / 2, [grid.xs[-1] + np.gradient(grid.xs)[-1] / 2]])
+    ye = np.concatenate([grid.ys - np.gradient(grid.ys) / 2, [grid.ys[-1] + np.gradient(grid.ys)[-1] / 2]])
+    vmax = max(np.abs(r.of(vertex)[..., 1]).max() for r in runs.values())
+    for a, (k, label) in zip(axes, show.items()):
+        r = runs[k]
+        for ax, i in zip(a, rows):
+            where = f"q − p = ({grid.xs[col]:+.2f}, {grid.ys[i]:+.3f})"
+            plot_deformation(ax, shape, r.X[i, col], edges=False, title=f"{label}\n{where}")
+            ax.plot(*r.X[i, col, vertex], "k*", ms=9)
+            ax.set_xlim(-0.1, 1.05), ax.set_ylim(-0.45, 0.65)
+        hm = a[ncol]
+        im = hm.pcolormesh(xe, ye, r.of(vertex)[..., 1], cmap="coolwarm", vmin=-vmax, vmax=vmax, shading="flat")
+        hm.plot(np.full(len(rows), grid.xs[col]), grid.ys[rows], "ko", mfc="none", ms=7, clip_on=False, zorder=4)
+        hm.plot(grid.xs, jumps[k], "kx", ms=6, zorder=4)
+        if k.startswith("local"):
+            up = (np.arange(len(grid.xs)) % 2 == 0) == first_up
+            for j, u in enumerate(up):
+                hm.plot(grid.xs[j], ye[-1], "^" if u else "v", color="k", ms=4, clip_on=False, zorder=4)
+        hm.set_xlim(xe[0], xe[-1]), hm.set_ylim(ye[0], ye[-1])
+        hm.set_title(f"{label}: T_y of the star", fontsize=9, pad=10)
+        hm.set_xlabel("q_x − p_x"), hm.set_ylabel("q_y − p_y")
+    fig.colorbar(im, ax=axes[:, ncol], shrink=0.85, location="right", label="T_y: y-displacement of the star")
+    styles = {k: "o-" if k == "global" else ".--" for k in runs if k != "rest"}
+    right = axes[:, ncol + 1]
+    for k, st in styles.items():
+        right[0].plot(grid.ys, runs[k].of(vertex)[:, col, 1], st, label=k)
+        if nrow > 1:
+            right[1].plot(grid.ys, runs[k].energy[:, col], st, label=k)
+    right[0].set_title(f"along the column q_x − p_x = {grid.xs[col]:+.2f}", fontsize=9)
+    right[0].set_ylabel("T_y of the star")
+    if nrow > 1:
+        right[1].set_ylabel("S-ARAP energy")
+    for ax in right:
+        ax.set_xlabel("q_y − p_y"), ax.legend(fontsize=7), ax.grid(alpha=0.3)
+    mark = dict(ls="none", color="k")
+    key = [
+        (patches.Patch(facecolor=FILL), "the bar"),
+        (Line2D([], [], marker="*", ms=9, **mark), "the star (a mid-bar point)"),
+        (Line2D([], [], marker="o", mfc=MOVING, mec="k", ls="none"), "moving handle"),
+        (Line2D([], [], marker="o", mfc=FIXED, mec="k", ls="none"), "fixed handles"),
+        (Line2D([], [], marker="o", mfc="none", ms=7, **mark), "handle positions shown at left"),
+        (Line2D([], [], marker="x", ms=6, **mark), "jump of T_y in a column"),
+        (Line2D([], [], marker="^", ms=5, **mark), "drag direction of each column (▲ up, ▼ down)"),
+    ]
+    fig.legend(
+        [h for h, _ in key], [t for _, t in key], loc="outside lower center", ncol=len(key), fontsize=8, frameon=False
+    )
     return fig
 
 
