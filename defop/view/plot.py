@@ -281,7 +281,7 @@ def plot_handle_zoom(ax, shape, X, vertex, radius=0.12, vmax=90.0, flip_color=FL
     return art
 
 
-def plot_energy_comparison(axes, zooms, shape, results, titles, vertex, radius=0.12):
+def plot_energy_comparison(axes, zooms, shape, results, titles, vertex, radius=0.12, vmax=None):
     """Fig. 6: one column per energy, the deformation over the rest outline (dashed) and a zoom on one handle.
 
     Parameters
@@ -294,6 +294,9 @@ def plot_energy_comparison(axes, zooms, shape, results, titles, vertex, radius=0
         Panel title per energy.
     vertex : int
         The handle vertex the zooms centre on.
+    vmax : float, optional
+        Angle change (degrees) at the top of the colour map; default: the largest change at any handle over all
+        results, rounded up to 30°, so the colour bar covers every value drawn.
 
     Returns
     -------
@@ -301,16 +304,74 @@ def plot_energy_comparison(axes, zooms, shape, results, titles, vertex, radius=0
     """
     from ..analysis.distortion import deformation_summary
 
+    summary = {energy: deformation_summary(shape.mesh, r.X, shape.moving_handles) for energy, r in results.items()}
+    if vmax is None:
+        vmax = 30.0 * np.ceil(max(max(s["handle_angle"] for s in summary.values()), 90.0) / 30.0)
     art = None
     for ax, zoom, (energy, r) in zip(axes, zooms, results.items()):
-        s = deformation_summary(shape.mesh, r.X, shape.moving_handles)
+        s = summary[energy]
         plot_outline(ax, shape.mesh, shape.mesh.V, color="0.45", lw=0.7, ls="--")
         area, scaled = 100 * s["area_change"], 100 * s["scaled"]
         title = f"{titles[energy]}\n{s['flips']} flipped, area {area:+.0f}%, {scaled:.0f}% scaled"
         plot_deformation(ax, shape, r.X, title=title, zoom_flips=False)
-        art = plot_handle_zoom(zoom, shape, r.X, vertex, radius)
-        zoom.set_title(f"max over the handles: {s['handle_angle']:.0f}°", fontsize=8)
+        art = plot_handle_zoom(zoom, shape, r.X, vertex, radius, vmax=vmax)
+        zoom.set_title(f"largest change at a handle: {s['handle_angle']:.0f}°", fontsize=8)
     return art
+
+
+def plot_energies_figure(shape, results, titles, vertex, solvers, E_star=None):
+    """Fig. 6 whole: the energies' deformations, zooms coloured by corner-angle change, and the solver race.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    results : dict of str -> SolveResult
+        One deformation per energy (``X``).
+    titles : dict of str -> str
+    vertex : int
+        The handle the zooms centre on.
+    solvers : dict of str -> SolveResult
+        With ``energy_history`` and ``time_history`` (:func:`plot_convergence`).
+    E_star : float, optional
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    from matplotlib.lines import Line2D
+
+    k = len(results)
+    fig = plt.figure(figsize=(3.2 * k, 10.5))
+    grid = fig.add_gridspec(3, 2 * k + 1, height_ratios=[1.25, 0.75, 0.8], hspace=0.45)
+    tops = [fig.add_subplot(grid[0, 2 * i : 2 * i + 2]) for i in range(k)]
+    zooms = [fig.add_subplot(grid[1, 2 * i : 2 * i + 2]) for i in range(k)]
+    art = plot_energy_comparison(tops, zooms, shape, results, titles, vertex)
+    holder = fig.add_subplot(grid[1, 2 * k])
+    holder.set_axis_off()
+    cax = holder.inset_axes([0.1, 0.0, 0.25, 1.0])
+    fig.colorbar(art, cax=cax, label="largest corner-angle change [°]")
+    race = grid[2, :].subgridspec(1, 2, wspace=0.25)
+    axes = [fig.add_subplot(race[0]), fig.add_subplot(race[1])]
+    plot_convergence(axes, solvers, E_star)
+    axes[0].set_title("S-ARAP, half the move: projected Newton (ours) against L-BFGS (the paper's)", fontsize=9)
+    axes[1].set_title("the same, against time", fontsize=9)
+    key = [
+        (patches.Patch(facecolor=FILL), "deformed shape"),
+        (Line2D([], [], color="0.45", lw=0.7, ls="--"), "rest outline"),
+        (Line2D([], [], marker="o", mfc=MOVING, mec="k", ls="none"), "moving handle"),
+        (patches.Patch(color=FLIP), "flipped triangle"),
+    ]
+    fig.legend(
+        [h for h, _ in key],
+        [t for _, t in key],
+        loc="upper center",
+        bbox_to_anchor=(0.5, 0.955),
+        ncol=4,
+        fontsize=9,
+        frameon=False,
+    )
+    fig.suptitle("Fig. 6: variational deformations with different energies; second row: the right hand's handle")
+    return fig
 
 
 def plot_convergence(axes, results, E_star=None, labels=None):
@@ -458,6 +519,13 @@ def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2, notes=No
     return fig
 
 
+def cell_edges(centres):
+    """(k+1,) edges of the cells around k increasing grid values (for ``pcolormesh``: each value fills its cell)."""
+    c = np.asarray(centres, float)
+    step = np.gradient(c) / 2 if len(c) > 1 else np.array([0.5])
+    return np.concatenate([c - step, [c[-1] + step[-1]]])
+
+
 def readable(name):
     """The readable name of an energy or a handle basis (``"sarap"`` -> ``"S-ARAP"``); other names unchanged."""
     return NAMES.get(name, name)
@@ -542,8 +610,7 @@ def plot_local_vs_global(shape, grid, runs, jumps, vertex, col, rows, show, firs
         squeeze=False,
         gridspec_kw={"width_ratios": [1] * ncol + [1.1, 1.25]},
     )
-    xe = np.concatenate([grid.xs - np.gradient(grid.xs) / 2, [grid.xs[-1] + np.gradient(grid.xs)[-1] / 2]])
-    ye = np.concatenate([grid.ys - np.gradient(grid.ys) / 2, [grid.ys[-1] + np.gradient(grid.ys)[-1] / 2]])
+    xe, ye = cell_edges(grid.xs), cell_edges(grid.ys)
     vmax = max(np.abs(r.of(vertex)[..., 1]).max() for r in runs.values())
     for a, (k, label) in zip(axes, show.items()):
         r = runs[k]
@@ -592,7 +659,7 @@ def plot_local_vs_global(shape, grid, runs, jumps, vertex, col, rows, show, firs
     return fig
 
 
-def plot_trajectories(shape, truth, approx, T, vertex, picks, jumps=None, size=3.0):
+def plot_trajectories(shape, truth, approx, T, vertex, picks, jumps=None, size=3.0, approx_name="TPS"):
     """Fig. 3: deformations with their approximations (top row), the trajectory of the starred point (below).
 
     Top row: the rest pose with the starred point ``vertex``, then one panel per handle displacement in
@@ -616,16 +683,20 @@ def plot_trajectories(shape, truth, approx, T, vertex, picks, jumps=None, size=3
         Handle displacements q − p of the top row (snapped to the nearest grid point).
     jumps : (j,2) numpy array, optional
         Handle displacements where the ground truth jumps (:func:`defop.analysis.trajectories.discontinuity_points`).
+    approx_name : str
+        The approximation's name in the key.
 
     Returns
     -------
     fig : matplotlib Figure
     """
+    from matplotlib.lines import Line2D
+
     grid, mesh = truth.grid, shape.mesh
     colors = plt.cm.tab10(np.arange(len(picks)))
     snapped = np.array([grid.displacements[grid.nearest(d)] for d in picks])
     ncol = max(len(picks) + 1, len(T))
-    fig = plt.figure(figsize=(size * ncol, 3.0 * size))
+    fig = plt.figure(figsize=(size * ncol, 3.0 * size + 0.4))
     outer = fig.add_gridspec(2, 1, height_ratios=[0.7, 2], hspace=0.12)
     top = outer[0].subgridspec(1, ncol, wspace=0.08)
     ax = fig.add_subplot(top[0, 0])
@@ -644,17 +715,41 @@ def plot_trajectories(shape, truth, approx, T, vertex, picks, jumps=None, size=3
         ax.plot(*(grid.center + d), "o", color=colors[k], ms=8, mec="k", zorder=11)
         ax.set_title(f"q − p = ({d[0]:+.2f}, {d[1]:+.2f})", fontsize=9)
     bottom = outer[1].subgridspec(2, len(T) + 1, width_ratios=[1] * len(T) + [0.06], hspace=0.4, wspace=0.25)
+    xe, ye = cell_edges(grid.xs), cell_edges(grid.ys)
     for c in range(2):
         vmax = max(np.abs(t[..., c]).max() for t in T.values())
         for k, (name, t) in enumerate(T.items()):
             ax = fig.add_subplot(bottom[c, k])
-            im = ax.imshow(t[..., c], origin="lower", extent=grid.extent, cmap="coolwarm", vmin=-vmax, vmax=vmax)
+            im = ax.pcolormesh(xe, ye, t[..., c], cmap="coolwarm", vmin=-vmax, vmax=vmax, shading="flat")
             if k == 0 and jumps is not None and len(jumps):
-                ax.plot(jumps[:, 0], jumps[:, 1], "kx", ms=4)
-            ax.scatter(*snapped.T, c=colors, s=30, edgecolors="k")
-            ax.set_title(f"{name}: T_x, {'xy'[c]} component", fontsize=9)
+                ax.plot(jumps[:, 0], jumps[:, 1], "kx", ms=4, clip_on=False)
+            ax.scatter(*snapped.T, c=colors, s=30, edgecolors="k", clip_on=False, zorder=3)
+            ax.set_xlim(xe[0], xe[-1]), ax.set_ylim(ye[0], ye[-1])
+            ax.set_aspect("equal")
+            ax.set_title(f"{readable(name)}: T_x, {'xy'[c]} component", fontsize=9)
             ax.set_xlabel("q_x − p_x")
             if k == 0:
                 ax.set_ylabel("q_y − p_y")
-        fig.colorbar(im, cax=fig.add_subplot(bottom[c, len(T)]))
+        fig.colorbar(im, cax=fig.add_subplot(bottom[c, len(T)]), label=f"{'xy'[c]}-displacement of x")
+    star = dict(marker="*", ls="none", ms=11, mec="k")
+    dot = dict(marker="o", ls="none", mec="k", mew=0.5)
+    key = [
+        (patches.Patch(facecolor=FILL), "S-ARAP ground truth"),
+        (Line2D([], [], color="k", lw=1.0, ls="--"), f"{approx_name} outline"),
+        (Line2D([], [], mfc="k", **star), "starred point x (ground truth)"),
+        (Line2D([], [], mfc="none", **star), "x under the approximation"),
+        (Line2D([], [], mfc="0.7", ms=7, **dot), "handle position of a top panel (same colour below)"),
+        (Line2D([], [], marker="x", color="k", ls="none", ms=5), "jump of the ground truth"),
+        (Line2D([], [], mfc=MOVING, ms=5, **dot), "moving handle"),
+        (Line2D([], [], mfc=FIXED, ms=5, **dot), "fixed handles"),
+    ]
+    fig.legend(
+        [h for h, _ in key],
+        [t for _, t in key],
+        loc="upper center",
+        bbox_to_anchor=(0.5, 0.06),
+        ncol=4,
+        fontsize=8,
+        frameon=False,
+    )
     return fig
