@@ -341,7 +341,7 @@ def plot_energies_figure(shape, results, titles, vertex, solvers, E_star=None):
     from matplotlib.lines import Line2D
 
     k = len(results)
-    fig = plt.figure(figsize=(3.2 * k, 10.5))
+    fig = plt.figure(figsize=(max(3.2 * k, 14.0), 10.5))
     grid = fig.add_gridspec(3, 2 * k + 1, height_ratios=[1.25, 0.75, 0.8], hspace=0.45)
     tops = [fig.add_subplot(grid[0, 2 * i : 2 * i + 2]) for i in range(k)]
     zooms = [fig.add_subplot(grid[1, 2 * i : 2 * i + 2]) for i in range(k)]
@@ -752,4 +752,88 @@ def plot_trajectories(shape, truth, approx, T, vertex, picks, jumps=None, size=3
         fontsize=8,
         frameon=False,
     )
+    return fig
+
+
+def plot_trajectories_3d(shape, truth, T, vertex, titles=None, n_poses=5, component=1):
+    """Fig. 5: deformations of the bar (left) and one component of the starred point's trajectory as surfaces.
+
+    Left, as in the paper: the ground truth at ``n_poses`` × ``n_poses`` handle positions spread over the grid,
+    overlaid as outlines, each with its moving handle (a dot) and the starred point (a star). Right: for each
+    trajectory in ``T``, its ``component`` (1: y, the paper's choice) as a surface over the handle plane, one colour
+    scale for all.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    truth : defop.analysis.trajectories.Trajectory
+    T : dict of str -> (ny, nx, 2) numpy array
+        Trajectories of ``vertex``, the ground truth first.
+    vertex : int
+    titles : dict of str -> str, optional
+        Panel title per entry of ``T`` (default: the readable name).
+    n_poses : int
+        Poses per axis of the left panel.
+    component : {0, 1}
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    from matplotlib.lines import Line2D
+
+    grid, mesh = truth.grid, shape.mesh
+    c = "xy"[component]
+    fig = plt.figure(figsize=(4.3 * (len(T) + 1), 4.4))
+    spec = fig.add_gridspec(1, len(T) + 2, width_ratios=[1.15] + [1] * len(T) + [0.05], wspace=0.08)
+    ax = fig.add_subplot(spec[0])
+    pick = np.linspace(0, len(grid.xs) - 1, n_poses).round().astype(int)
+    colours = plt.cm.viridis(np.linspace(0, 1, n_poses * n_poses))
+    plot_mesh(ax, mesh.V, mesh.F, edges=False, color="0.85")
+    for k, (i, j) in enumerate((i, j) for i in pick for j in pick):
+        X = truth.X[i, j]
+        plot_outline(ax, mesh, X, color=colours[k], lw=0.6, alpha=0.8)
+        ax.plot(*X[vertex], "*", color=colours[k], ms=6, mec="k", mew=0.3)
+        ax.plot(*(grid.center + grid.displacements[i, j]), "o", color=colours[k], ms=4, mec="k", mew=0.3)
+    ax.set_axis_on()
+    ax.set_xlabel("x"), ax.set_ylabel("y")
+    ax.set_title(f"S-ARAP deformations at {n_poses * n_poses} handle positions", fontsize=9)
+    ax.legend(
+        [
+            patches.Patch(color="0.85"),
+            Line2D([], [], marker="o", color="0.4", ls="none", ms=4),
+            Line2D([], [], marker="*", color="0.4", ls="none", ms=7),
+        ],
+        ["rest pose", "handle position", "starred point x"],
+        fontsize=7,
+        loc="upper left",
+    )
+    vmax = max(np.abs(t[..., component]).max() for t in T.values())
+    gx, gy = np.meshgrid(grid.xs, grid.ys)
+    surf = None
+    for k, (name, t) in enumerate(T.items()):
+        a = fig.add_subplot(spec[k + 1], projection="3d")
+        surf = a.plot_surface(
+            gx,
+            gy,
+            t[..., component],
+            cmap="coolwarm",
+            vmin=-vmax,
+            vmax=vmax,
+            lw=0.2,
+            edgecolor="0.3",
+            rstride=1,
+            cstride=1,
+        )
+        a.set_zlim(-vmax, vmax)
+        a.set_xlabel("q_x − p_x", fontsize=7, labelpad=4), a.set_ylabel("q_y − p_y", fontsize=7, labelpad=9)
+        a.set_zlabel(f"T_{c}", fontsize=7, labelpad=2)
+        a.tick_params(labelsize=6, pad=0)
+        for axis in (a.xaxis, a.yaxis, a.zaxis):
+            axis.set_major_locator(plt.MaxNLocator(3))
+        a.set_title((titles or {}).get(name, readable(name)), fontsize=9, y=0.98)
+        a.view_init(elev=28, azim=-60)
+        a.set_box_aspect(None, zoom=0.92)
+    fig.colorbar(surf, cax=fig.add_subplot(spec[-1]), label=f"T_{c}: {c}-displacement of x")
+    fig.suptitle(f"Fig. 5: the trajectory of the starred point x, {c} component T_{c}, over the handle plane", y=0.99)
     return fig
