@@ -511,7 +511,8 @@ def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2, notes=No
             ax.set_xlim(lo[0] - pad, hi[0] + pad)
             ax.set_ylim(lo[1] - pad, hi[1] + pad)
             if c == 0:
-                ax.text(-0.02, 0.5, name, transform=ax.transAxes, rotation=90, ha="right", va="center", fontsize=10)
+                label = readable(name)  # a basis name as a word: "tps" -> "TPS"
+                ax.text(-0.02, 0.5, label, transform=ax.transAxes, rotation=90, ha="right", va="center", fontsize=10)
             if r == 0 and titles is not None:
                 ax.set_title(titles[c], fontsize=8)
     fig.tight_layout(h_pad=1.2)
@@ -785,7 +786,7 @@ def plot_trajectories_3d(shape, truth, T, vertex, titles=None, n_poses=5, compon
     grid, mesh = truth.grid, shape.mesh
     c = "xy"[component]
     fig = plt.figure(figsize=(4.3 * (len(T) + 1), 4.4))
-    spec = fig.add_gridspec(1, len(T) + 2, width_ratios=[1.15] + [1] * len(T) + [0.05], wspace=0.08)
+    spec = fig.add_gridspec(1, len(T) + 2, width_ratios=[1.15] + [1] * len(T) + [0.05], wspace=0.22)
     ax = fig.add_subplot(spec[0])
     pick = np.linspace(0, len(grid.xs) - 1, n_poses).round().astype(int)
     colours = plt.cm.viridis(np.linspace(0, 1, n_poses * n_poses))
@@ -827,13 +828,13 @@ def plot_trajectories_3d(shape, truth, T, vertex, titles=None, n_poses=5, compon
         )
         a.set_zlim(-vmax, vmax)
         a.set_xlabel("q_x − p_x", fontsize=7, labelpad=4), a.set_ylabel("q_y − p_y", fontsize=7, labelpad=9)
-        a.set_zlabel(f"T_{c}", fontsize=7, labelpad=2)
+        a.set_zlabel(f"T_{c}", fontsize=8, labelpad=5)
         a.tick_params(labelsize=6, pad=0)
         for axis in (a.xaxis, a.yaxis, a.zaxis):
             axis.set_major_locator(plt.MaxNLocator(3))
         a.set_title((titles or {}).get(name, readable(name)), fontsize=9, y=0.98)
         a.view_init(elev=28, azim=-60)
-        a.set_box_aspect(None, zoom=0.92)
+        a.set_box_aspect(None, zoom=0.88)
     fig.colorbar(surf, cax=fig.add_subplot(spec[-1]), label=f"T_{c}: {c}-displacement of x")
     fig.suptitle(f"Fig. 5: the trajectory of the starred point x, {c} component T_{c}, over the handle plane", y=0.99)
     return fig
