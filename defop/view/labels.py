@@ -164,4 +164,3 @@ def check_no_overlap(fig, tolerance=1.0):
         pairs = "; ".join(f"{a!r} over {b!r} ({area:.0f} px²)" for a, b, area in found[:8])
         raise ValueError(f"{len(found)} pairs of texts overlap in the figure: {pairs}")
     return fig
-

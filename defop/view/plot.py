@@ -361,15 +361,7 @@ def plot_energies_figure(shape, results, titles, vertex, solvers, E_star=None):
         (Line2D([], [], marker="o", mfc=MOVING, mec="k", ls="none"), "moving handle"),
         (patches.Patch(color=FLIP), "flipped triangle"),
     ]
-    fig.legend(
-        [h for h, _ in key],
-        [t for _, t in key],
-        loc="upper center",
-        bbox_to_anchor=(0.5, 0.955),
-        ncol=4,
-        fontsize=9,
-        frameon=False,
-    )
+    key_legend(fig, key, loc="upper center", bbox_to_anchor=(0.5, 0.955), ncol=4, fontsize=9)
     fig.suptitle("Fig. 6: variational deformations with different energies; second row: the right hand's handle")
     return fig
 
@@ -413,6 +405,12 @@ def plot_outline(ax, mesh, X, color="k", lw=1.0, ls="-", **kw):
         ax.plot(P[:, 0], P[:, 1], color=color, lw=lw, ls=ls, **kw)
 
 
+def key_legend(fig, items, **kw):
+    """A frameless figure legend of ``items``, (artist, text) pairs: the keys of the lessons' figures."""
+    kw.setdefault("fontsize", 8)
+    return fig.legend([h for h, _ in items], [t for _, t in items], frameon=False, **kw)
+
+
 def figure_key(fig, fill="operator D(·, Q)", outline="ground truth", fixed=False, extra=(), y=0.0, ncol=None):
     """A key below a figure for the marks of the deformation panels: fill, outline, handles and ``extra``.
 
@@ -444,15 +442,7 @@ def figure_key(fig, fill="operator D(·, Q)", outline="ground truth", fixed=Fals
     if fixed:
         items.append((Line2D([], [], mfc=FIXED, **dot), "fixed handle"))
     items += list(extra)
-    return fig.legend(
-        [h for h, _ in items],
-        [t for _, t in items],
-        loc="upper center",
-        bbox_to_anchor=(0.5, y),
-        ncol=ncol or len(items),
-        fontsize=8,
-        frameon=False,
-    )
+    return key_legend(fig, items, loc="upper center", bbox_to_anchor=(0.5, y), ncol=ncol or len(items), fontsize=8)
 
 
 def plot_bases_grid(shape, Q, X_true, operators, titles=None, size=2.2, notes=None):
@@ -654,9 +644,7 @@ def plot_local_vs_global(shape, grid, runs, jumps, vertex, col, rows, show, firs
         (Line2D([], [], marker="x", ms=6, **mark), "jump of T_y in a column"),
         (Line2D([], [], marker="^", ms=5, **mark), "drag direction of each column (▲ up, ▼ down)"),
     ]
-    fig.legend(
-        [h for h, _ in key], [t for _, t in key], loc="outside lower center", ncol=len(key), fontsize=8, frameon=False
-    )
+    key_legend(fig, key, loc="outside lower center", ncol=len(key), fontsize=8)
     return fig
 
 
@@ -744,15 +732,7 @@ def plot_trajectories(shape, truth, approx, T, vertex, picks, jumps=None, size=3
         (Line2D([], [], mfc=MOVING, ms=5, **dot), "moving handle"),
         (Line2D([], [], mfc=FIXED, ms=5, **dot), "fixed handles"),
     ]
-    fig.legend(
-        [h for h, _ in key],
-        [t for _, t in key],
-        loc="upper center",
-        bbox_to_anchor=(0.5, 0.06),
-        ncol=4,
-        fontsize=8,
-        frameon=False,
-    )
+    key_legend(fig, key, loc="upper center", bbox_to_anchor=(0.5, 0.06), ncol=4)
     return fig
 
 

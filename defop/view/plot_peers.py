@@ -7,6 +7,7 @@ import numpy as np
 from matplotlib.collections import PolyCollection
 
 from ..analysis.compare import pareto_front
+from .plot import key_legend
 
 FILL, FLIP, HANDLE = "#9ecae1", "#e31a1c", "#d95f02"
 
@@ -79,6 +80,25 @@ def draw_deformation(ax, mesh, X, handles=None, reference=None, title=None):
     ax.axis("off")
     if title:
         ax.set_title(title, fontsize=8)
+
+
+def deformation_key(fig, y=0.0):
+    """A key below a figure of :func:`draw_deformation` panels: fill, flips, ground-truth outline, handles.
+
+    Returns
+    -------
+    legend : matplotlib Legend
+    """
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    items = [
+        (Patch(color=FILL), "the method's deformation"),
+        (Patch(color=FLIP), "flipped triangle"),
+        (Line2D([], [], color="k", lw=0.8), "S-ARAP ground truth (outline)"),
+        (Line2D([], [], marker="o", color=HANDLE, ls="none", ms=5), "handle target"),
+    ]
+    return key_legend(fig, items, loc="upper center", bbox_to_anchor=(0.5, y), ncol=len(items))
 
 
 def coat_picture(mask, period=20.0):
