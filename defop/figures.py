@@ -293,7 +293,10 @@ def _run_one(path, tag, log, cold=False, **kw):
 
     from .config import cache_dir
 
-    cache = cache_dir()
+    try:
+        cache = cache_dir()
+    except ValueError:  # a bad DEFOP_CACHE: the notebook fails with the message, and this run measures nothing
+        cache = None
     before = {f: f.stat().st_mtime for f in FIGURES.glob("*")}
     own = Path(tempfile.mkdtemp(prefix="defop-cold-cache-")) if cold and cache is not None else None
     cached = _entries(cache)
