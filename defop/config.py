@@ -9,15 +9,22 @@
     computation starts, before any work is done.
 ``DEFOP_N_JOBS``
     Default number of parallel workers for sample solves (default: all cores).
+``DEFOP_FIGURES``
+    Where notebooks write their figures (see :func:`figures_dir`). Only the main job
+    (``python -m defop figures``, full mode) sets it, to the repository's ``figures/``; everything else (fast mode,
+    the test suite, a notebook opened by hand) writes into a temporary directory, so the shipped figures never
+    change outside the main job.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
-__all__ = ["fast_mode", "cache_dir", "n_jobs", "pick"]
+__all__ = ["fast_mode", "cache_dir", "figures_dir", "n_jobs", "pick"]
 
 _OFF = ("off", "0", "none", "false", "no")
 
@@ -60,6 +67,42 @@ def cache_dir() -> Path | None:
     except OSError as exc:
         why = exc.strerror or exc
         raise ValueError(f"{source}: cannot write to the cache directory {path} ({why}); {hint}") from exc
+    return path
+
+
+_TEMP_FIGURES: list[Path] = []  # this process's temporary figures directory, made on first use
+
+
+def figures_dir() -> Path:
+    """Where a notebook writes its figures: ``FIG = dop.config.figures_dir()``.
+
+    ``DEFOP_FIGURES`` when set (the main job sets it to the repository's ``figures/`` for its full runs), else
+    one temporary directory per process (removed when the process exits), so that fast runs and tests never write
+    into the repository.
+
+    Returns
+    -------
+    path : pathlib.Path
+        An existing directory.
+
+    Raises
+    ------
+    ValueError
+        ``DEFOP_FIGURES`` names a file or a directory that cannot be created.
+    """
+    value = os.environ.get("DEFOP_FIGURES", "").strip()
+    if not value:
+        if not _TEMP_FIGURES:
+            _TEMP_FIGURES.append(Path(tempfile.mkdtemp(prefix="defop-figures-")))
+            atexit.register(shutil.rmtree, _TEMP_FIGURES[0], ignore_errors=True)
+        return _TEMP_FIGURES[0]
+    path = Path(value).expanduser()
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"DEFOP_FIGURES={value!r}: {path} is not a directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"DEFOP_FIGURES={value!r}: cannot create {path} ({exc.strerror or exc})") from exc
     return path
 
 

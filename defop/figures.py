@@ -3,7 +3,8 @@
 Each notebook in ``notebooks/`` is executed with nbclient, in its own directory, in full mode
 (``DEFOP_FAST`` unset) unless ``fast=True``. Full runs store their outputs back into the
 notebook, as the project's notebooks keep outputs from full runs. Figures are written by the
-notebooks themselves into ``figures/``.
+notebooks themselves into ``dop.config.figures_dir()``: the job sets ``DEFOP_FIGURES`` to ``figures/`` for full
+runs only, so fast runs (and the test suite, which never sets it) write into a temporary directory.
 
 What the job guarantees:
 
@@ -16,8 +17,12 @@ What the job guarantees:
 * **One failure is not the end.** A failed notebook is reported, the others still run, and
   :func:`regenerate` reports the failure so that ``python -m defop figures`` exits non-zero.
 * **A timing record.** ``figures/runtimes.json`` holds, per mode (``full``/``fast``), each
-  notebook's seconds, the date and the machine. :func:`update_stated_times` writes those numbers into
-  the "Run time" lines of the notebook headers, ``notebooks/README.md`` and ``README.md``.
+  notebook's seconds, the date and the machine, and two figures per notebook: ``cold``, from an empty cache, and
+  ``warm``, with the cache of a previous run. A clean run (``--clean``) runs every notebook with an empty cache of
+  its own (its new entries are then moved into ``DEFOP_CACHE``), so its times are ``cold``; any other run whose
+  notebook stored no new cache entry (everything it needed was cached) is ``warm``; a run that stored some is
+  ``partial`` and sets neither. :func:`update_stated_times` writes those numbers into the "Run time" lines of the
+  notebook headers, ``notebooks/README.md`` and ``README.md``.
 * **No churn.** Stored notebooks are normalised by :func:`normalise` (nbstripout, keeping outputs):
   execution counts 1, 2, ... in order, no timing or widget-state metadata, no interpreter version, and widget outputs
   keep only their static picture and text line, so a regeneration that changes nothing gives no diff.
@@ -205,7 +210,12 @@ def run_notebook(path, fast=False, store=None, timeout=CELL_TIMEOUT, kernel_name
     path = Path(path)
     store = (not fast) if store is None else store
     nb = nbformat.read(path, as_version=4)
-    env = {"DEFOP_FAST": "1" if fast else None, "DEFOP_PROGRESS": "text", "TQDM_MININTERVAL": None}
+    env = {
+        "DEFOP_FAST": "1" if fast else None,
+        "DEFOP_FIGURES": None if fast else str(FIGURES),  # only full runs write the repository's figures/
+        "DEFOP_PROGRESS": "text",
+        "TQDM_MININTERVAL": None,
+    }
     if progress is not None and not progress.isatty():
         env["TQDM_MININTERVAL"] = "15"  # a log file gets a line every 15 s, not every 0.1 s
     old = {k: os.environ.get(k) for k in env}
@@ -262,21 +272,60 @@ def _print(message):
     print(message, flush=True)
 
 
-def _run_one(path, tag, log, **kw):
-    """Run one notebook between its two report lines; a failure is reported, not raised."""
+def _entries(folder):
+    """{name: (inode, mtime)} of the cache entries in ``folder`` (hidden temporaries left out)."""
+    if folder is None or not Path(folder).is_dir():
+        return {}
+    return {
+        f.name: (f.stat().st_ino, f.stat().st_mtime_ns) for f in Path(folder).iterdir() if not f.name.startswith(".")
+    }
+
+
+def _run_one(path, tag, log, cold=False, **kw):
+    """Run one notebook between its two report lines; a failure is reported, not raised.
+
+    ``cold``: run it with an empty cache of its own (a temporary ``DEFOP_CACHE``) whose entries are moved into the
+    real cache afterwards. The report's ``cache`` is ``"cold"`` then, else ``"warm"`` when the notebook stored no
+    new cache entry and ``"partial"`` when it stored some.
+    """
+    import shutil
+    import tempfile
+
+    from .config import cache_dir
+
+    try:
+        cache = cache_dir()
+    except ValueError:  # a bad DEFOP_CACHE: the notebook fails with the message, and this run measures nothing
+        cache = None
     before = {f: f.stat().st_mtime for f in FIGURES.glob("*")}
-    log(f"{tag} started ({'fast' if kw['fast'] else 'full'} mode)")
+    own = Path(tempfile.mkdtemp(prefix="defop-cold-cache-")) if cold and cache is not None else None
+    cached = _entries(cache)
+    log(f"{tag} started ({'fast' if kw['fast'] else 'full'} mode{', empty cache' if cold else ''})")
+    old = os.environ.get("DEFOP_CACHE")
+    if own is not None:
+        os.environ["DEFOP_CACHE"] = str(own)
     t0 = time.perf_counter()
     try:
         seconds, error = run_notebook(path, **kw), None
     except NotebookError as exc:
         seconds, error = time.perf_counter() - t0, str(exc)
+    finally:
+        if own is not None:
+            _set_env({"DEFOP_CACHE": old})
+            for f in own.iterdir():  # the notebook's results serve the next runs
+                if not f.name.startswith("."):
+                    shutil.move(str(f), str(cache / f.name))
+            shutil.rmtree(own, ignore_errors=True)
+    if cold or cache is None:
+        state = "cold"  # no cache at all (DEFOP_CACHE=off) is an empty cache on every run
+    else:
+        state = "warm" if all(cached.get(k) == v for k, v in _entries(cache).items()) else "partial"
     written = sorted(f.name for f in FIGURES.glob("*") if before.get(f) != f.stat().st_mtime)
     status = "ok" if error is None else "FAILED"
-    log(f"{tag} {status:6s} {seconds:7.1f} s" + (f"  -> {', '.join(written)}" if written else ""))
+    log(f"{tag} {status:6s} {seconds:7.1f} s ({state} cache)" + (f"  -> {', '.join(written)}" if written else ""))
     if error:
         log(f"    {error}")
-    return dict(name=path.stem, seconds=seconds, ok=error is None, error=error, figures=written)
+    return dict(name=path.stem, seconds=seconds, ok=error is None, error=error, figures=written, cache=state)
 
 
 def regenerate(
@@ -296,7 +345,8 @@ def regenerate(
         Per-cell timeout in seconds.
     clean : bool
         A clean run: delete the figures and empty the cache of ground truths and operators
-        (``DEFOP_CACHE``) first, so everything is recomputed.
+        (``DEFOP_CACHE``) first, and run every notebook with an empty cache of its own (its new entries are
+        moved into ``DEFOP_CACHE`` after it), so everything is recomputed and the times are "from an empty cache".
     log : callable
     record : path or None
         The timing record to update (``figures/runtimes.json``); None writes none.
@@ -306,7 +356,8 @@ def regenerate(
     Returns
     -------
     report : list of dict
-        ``name``, ``seconds``, ``ok``, ``error`` (None or the message) and ``figures`` written.
+        ``name``, ``seconds``, ``ok``, ``error`` (None or the message), ``figures`` written and ``cache``
+        (``"cold"``, ``"warm"`` or ``"partial"``, see :func:`_run_one`).
     """
     from .view import render
 
@@ -319,7 +370,7 @@ def regenerate(
     report = []
     for i, path in enumerate(paths, 1):
         tag = f"[{i:2d}/{len(paths)}] {path.stem:<20s}"
-        report.append(_run_one(path, tag, log, fast=fast, store=store, timeout=timeout))
+        report.append(_run_one(path, tag, log, cold=clean, fast=fast, store=store, timeout=timeout))
     failed = [r["name"] for r in report if not r["ok"]]
     total = sum(r["seconds"] for r in report)
     log(
@@ -364,15 +415,28 @@ def write_runtimes(report, mode, path=RUNTIMES):
     Returns
     -------
     record : dict
-        ``{mode: {"date", "machine", "notebooks": {name: {"seconds", "ok"}}}}``.
+        ``{mode: {"date", "machine", "load", "notebooks": {name: {"seconds", "ok", "cache", "cold", "warm"}}}}``:
+        ``seconds``, ``ok`` and ``cache`` are the last run's; ``cold`` and ``warm`` the last run of that kind
+        (kept when a later run is of the other kind or ``partial``).
     """
     path = Path(path)
     record = json.loads(path.read_text()) if path.exists() else {}
     entry = record.setdefault(mode, {"notebooks": {}})
     entry["date"] = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     entry["machine"] = machine_info()
+    if hasattr(os, "getloadavg"):  # how busy the machine was: 1, 5 and 15 minute load averages at the end of the run
+        entry["load"] = [round(x, 2) for x in os.getloadavg()]
     for r in report:
-        entry["notebooks"][r["name"]] = {"seconds": round(r["seconds"], 1), "ok": r["ok"]}
+        old = entry["notebooks"].get(r["name"], {})
+        new = {"seconds": round(r["seconds"], 1), "ok": r["ok"]}
+        if "cache" in r:
+            new["cache"] = r["cache"]
+            new.update({k: old[k] for k in ("cold", "warm") if k in old})
+            if old.get("ok") and "cache" not in old:  # a record from before cold/warm: its runs were warm
+                new.setdefault("warm", old["seconds"])
+            if r["ok"] and r["cache"] in ("cold", "warm"):
+                new[r["cache"]] = new["seconds"]
+        entry["notebooks"][r["name"]] = new
     entry["notebooks"] = dict(sorted(entry["notebooks"].items()))
     path.write_text(json.dumps(dict(sorted(record.items())), indent=1) + "\n")
     return record
@@ -392,6 +456,21 @@ RUN_TIME_RE = re.compile(
 )
 
 
+# the canonical sentence (run_time_sentence), tried first so that a rewrite replaces all of it
+_MEASURED = "(?:" + _NUM.format("{0}") + "|not measured)"
+CANONICAL_RE = re.compile(
+    r"\*\*Run time\*\* \(measured by the main job\): full "
+    + _NUM.format("full")
+    + " with the cache of a previous run, "
+    + _MEASURED.format("full_cold")
+    + " from an empty cache; fast "
+    + _NUM.format("fast")
+    + " with the cache, "
+    + _MEASURED.format("fast_cold")
+    + " from an empty cache"
+)
+
+
 def _seconds(value, unit):
     return float(value.replace(",", "")) * (60.0 if unit == "min" else 1.0)
 
@@ -401,17 +480,44 @@ def format_seconds(seconds):
     return f"{seconds:.0f} s" if seconds < 600 else f"{seconds / 60:.1f} min"
 
 
-def parse_run_time(text):
-    """The stated (full, fast) run times in seconds from a "Run time" sentence, or None when there is none."""
-    m = RUN_TIME_RE.search(text)
-    if m is None:
+def _search(text):
+    return CANONICAL_RE.search(text) or RUN_TIME_RE.search(text)
+
+
+def parse_run_time(text, cold=False):
+    """The stated (full, fast) run times in seconds from a "Run time" sentence, or None when there is none.
+
+    ``cold=True``: the times "from an empty cache" of the canonical sentence instead (None for each one "not
+    measured"; None for a sentence of another form, which states no such time).
+    """
+    m = _search(text)
+    if m is None or (cold and m.re is not CANONICAL_RE):
         return None
+    if cold:
+        return tuple(None if m[k] is None else _seconds(m[k], m[k + "_unit"]) for k in ("full_cold", "fast_cold"))
     return _seconds(m["full"], m["full_unit"]), _seconds(m["fast"], m["fast_unit"])
 
 
-def run_time_sentence(full, fast):
-    """The canonical, machine-readable sentence: ``**Run time:** full 95 s, fast 20 s (measured by the main job)``."""
-    return f"**Run time:** full {format_seconds(full)}, fast {format_seconds(fast)} (measured by the main job)"
+def _replace_run_time(text, sentence):
+    pattern = CANONICAL_RE if CANONICAL_RE.search(text) else RUN_TIME_RE
+    return pattern.sub(lambda _: sentence, text, count=1)
+
+
+def run_time_sentence(full, fast, full_cold=None, fast_cold=None):
+    """The canonical, machine-readable sentence (the cache-warm times first; a cold time None is "not measured").
+
+    ``**Run time** (measured by the main job): full 95 s with the cache of a previous run, 4.2 min from an empty
+    cache; fast 20 s with the cache, not measured from an empty cache``
+    """
+
+    def cold(seconds):
+        return "not measured" if seconds is None else format_seconds(seconds)
+
+    return (
+        f"**Run time** (measured by the main job): full {format_seconds(full)} with the cache of a previous run, "
+        f"{cold(full_cold)} from an empty cache; fast {format_seconds(fast)} with the cache, {cold(fast_cold)} "
+        "from an empty cache"
+    )
 
 
 def stated_times(root=ROOT):
@@ -460,17 +566,16 @@ def update_stated_times(path=RUNTIMES, root=ROOT):
     """
     import nbformat
 
-    record = json.loads(Path(path).read_text())
-    full = {k: v["seconds"] for k, v in record.get("full", {}).get("notebooks", {}).items()}
-    fast = {k: v["seconds"] for k, v in record.get("fast", {}).get("notebooks", {}).items()}
-    both = {k: (full[k], fast[k]) for k in full.keys() & fast.keys()}
+    full, full_cold = recorded_times(path, "full")
+    fast, fast_cold = recorded_times(path, "fast")
+    both = {k: (full[k], fast[k], full_cold.get(k), fast_cold.get(k)) for k in full.keys() & fast.keys()}
     changed = []
     for nb_path in notebooks(directory=Path(root) / "notebooks"):
         if nb_path.stem not in both:
             continue
         nb = nbformat.read(nb_path, as_version=4)
         sentence = run_time_sentence(*both[nb_path.stem])
-        new = RUN_TIME_RE.sub(lambda _, s=sentence: s, nb.cells[0].source, count=1)
+        new = _replace_run_time(nb.cells[0].source, sentence)
         if new != nb.cells[0].source:
             nb.cells[0].source = new
             nb_path.write_text(nbformat.writes(nb) + "\n")
@@ -479,15 +584,35 @@ def update_stated_times(path=RUNTIMES, root=ROOT):
     def row(m):
         if m["name"] not in both:
             return m[0]
-        f, q = both[m["name"]]
+        f, q = both[m["name"]][:2]
         return f"| `{m['name']}` |{m['mid']}| {format_seconds(f)} | {format_seconds(q)} |"
 
     changed += _rewrite(Path(root) / "notebooks" / "README.md", lambda t: _ROW_RE.sub(row, t))
     if full and fast and full.keys() == fast.keys():
-        total = run_time_sentence(sum(full.values()), sum(fast.values()))
+
+        def total(times, cold):
+            return sum(cold.values()) if cold.keys() == times.keys() else None
+
+        sentence = run_time_sentence(
+            sum(full.values()), sum(fast.values()), total(full, full_cold), total(fast, fast_cold)
+        )
         for doc in ("README.md", "notebooks/README.md"):
-            changed += _rewrite(Path(root) / doc, lambda t, s=total: RUN_TIME_RE.sub(lambda _: s, t, count=1))
+            changed += _rewrite(Path(root) / doc, lambda t, s=sentence: _replace_run_time(t, s))
     return sorted(set(changed))
+
+
+def recorded_times(path=RUNTIMES, mode="full"):
+    """The recorded seconds of one mode: ``(warm, cold)``, two dicts ``{name: seconds}``.
+
+    ``warm`` ("with the cache of a previous run") holds every notebook with such a run (a record written before
+    the cold/warm distinction counts as warm); ``cold`` ("from an empty cache") only those measured so.
+    """
+    notebooks_ = json.loads(Path(path).read_text()).get(mode, {}).get("notebooks", {})
+    warm = {
+        k: v["warm"] if "warm" in v else v["seconds"] for k, v in notebooks_.items() if "warm" in v or "cache" not in v
+    }
+    cold = {k: v["cold"] for k, v in notebooks_.items() if "cold" in v}
+    return warm, cold
 
 
 def _rewrite(path, edit):

@@ -197,6 +197,7 @@ def test_fig9_grid_marks_missing_operators_and_prints_notes(bar):
     fig = dop.view.plot.plot_bases_grid(bar, Q[3:], X[3:], rows, ["one", "two"], notes=notes)
     texts = [[t.get_text() for t in ax.texts] for ax in fig.axes]
     assert len(fig.axes) == 4
-    assert "not fitted" in texts[0] and "m < |Ψ|" in texts[0] and "cubic, m = 3" in texts[0]
+    # a missing operator: an empty panel saying so, with its note (no outline, nothing over the shapes)
+    assert "not fitted\nm < |Ψ|" in texts[0] and "cubic, m = 3" in texts[0] and not fig.axes[0].lines
     assert "not fitted" not in texts[2] and "a" in texts[2] and "b" in texts[3]
     assert [fig.axes[c].get_title() for c in range(2)] == ["one", "two"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import io
 import json
+import os
 import time
 
 import nbformat
@@ -164,7 +165,10 @@ def test_update_stated_times_rewrites_headers_and_tables(tmp_path):
         "total:notebooks/README.md": (502.0, 21.0),
     }
     head = nbformat.read(nb, as_version=4).cells[0].source
-    assert "**Run time:** full 502 s, fast 21 s (measured by the main job)." in head and head.endswith("\n\nMath.")
+    assert (
+        "**Run time** (measured by the main job): full 502 s with the cache of a previous run, not measured from an "
+        "empty cache; fast 21 s with the cache, not measured from an empty cache." in head
+    ) and head.endswith("\n\nMath.")
     assert figures.update_stated_times(record, root=tmp_path) == []
 
 
@@ -202,3 +206,59 @@ def test_notebooks_stored_by_the_main_job_are_normalised():
             text = path.read_text()
             nb = nbformat.reads(text, as_version=4)
             assert nbformat.writes(figures.normalise(nb)) + "\n" == text, f"{path.name}: run make normalise"
+
+
+def test_runtimes_record_keeps_cold_and_warm_times_apart(tmp_path):
+    path = tmp_path / "runtimes.json"
+    path.write_text(json.dumps({"full": {"notebooks": {"00_a": {"seconds": 9.0, "ok": True}}}}))  # an older record
+    figures.write_runtimes([dict(name="00_a", seconds=300.0, ok=True, cache="cold")], "full", path)
+    figures.write_runtimes([dict(name="00_a", seconds=7.0, ok=True, cache="partial")], "full", path)
+    record = figures.write_runtimes([dict(name="00_a", seconds=11.0, ok=True, cache="warm")], "full", path)
+    assert record["full"]["notebooks"]["00_a"] == {
+        "seconds": 11.0,
+        "ok": True,
+        "cache": "warm",
+        "cold": 300.0,
+        "warm": 11.0,
+    }
+    figures.write_runtimes([dict(name="00_a", seconds=99.0, ok=False, cache="cold")], "full", path)
+    warm, cold = figures.recorded_times(path, "full")
+    assert warm == {"00_a": 11.0} and cold == {"00_a": 300.0}  # a failed run measures nothing
+
+
+def test_the_run_time_sentence_states_both_caches_and_reads_back():
+    sentence = figures.run_time_sentence(11.0, 8.0, 250.0, None)
+    assert "full 11 s with the cache of a previous run, 250 s from an empty cache" in sentence
+    assert "fast 8 s with the cache, not measured from an empty cache" in sentence
+    text = f"# A\n**Writes:** x. {sentence}.\n\nMath."
+    assert figures.parse_run_time(text) == (11.0, 8.0)
+    assert figures.parse_run_time(text, cold=True) == (250.0, None)
+    assert figures.parse_run_time("**Run time:** full 95 s, fast 20 s.", cold=True) is None
+    again = figures._replace_run_time(text, figures.run_time_sentence(12.0, 9.0, 700.0, 30.0))
+    assert again.count("Run time") == 1 and again.endswith(".\n\nMath.") and "11.7 min from an empty cache" in again
+
+
+def test_a_clean_run_gives_each_notebook_an_empty_cache_and_keeps_its_entries(tmp_path, monkeypatch, quiet_log):
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    (cache / "op-old.npz").write_text("an entry of another run")
+    monkeypatch.setenv("DEFOP_CACHE", str(cache))
+    monkeypatch.setattr(figures, "_clean", lambda log: None)  # keep the real figures/ (the test writes none)
+    folder = tmp_path / "nbs"
+    folder.mkdir()
+    store = "import os, pathlib\nd = pathlib.Path(os.environ['DEFOP_CACHE'])\n"
+    for name in ("01_a", "02_b"):  # each stores its entry when missing, as defop's cache users do
+        entry = f"op-{name[-1]}.npz"
+        _write(
+            folder,
+            name,
+            store + f"p = d / {entry!r}\nif not p.exists():\n    p.write_text('x')\nprint(len(list(d.iterdir())))",
+        )
+    lines, log = quiet_log
+    report = figures.regenerate(fast=True, clean=True, directory=folder, log=log, record=None)
+    assert [(r["ok"], r["cache"]) for r in report] == [(True, "cold"), (True, "cold")], lines
+    assert sorted(f.name for f in cache.iterdir()) == ["op-a.npz", "op-b.npz", "op-old.npz"]
+    assert os.environ["DEFOP_CACHE"] == str(cache)
+    (cache / "op-b.npz").unlink()
+    report = figures.regenerate(fast=True, directory=folder, log=log, record=None)
+    assert [r["cache"] for r in report] == ["warm", "partial"]

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import json
 import pathlib
+import re
 
 import pytest
+
+from defop import figures
 
 NOTEBOOKS = sorted((pathlib.Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
 
@@ -27,3 +30,43 @@ def test_notebook_opens_with_a_header_and_checks_its_claims(path):
     assert all(c.get("execution_count") for c in cells if c["cell_type"] == "code")
     checked = [c for c in cells if c["cell_type"] == "code" and "".join(c["source"]).startswith("# NBVAL_CHECK_OUTPUT")]
     assert all(c.get("outputs") for c in checked), "every # NBVAL_CHECK_OUTPUT cell has a stored output"
+
+
+# development history belongs in git, not in a lesson: words that speak of issues, earlier versions or earlier runs
+HISTORY = re.compile(
+    r"\bissues?\b|#\d+|\bearlier\b|\bversions?\b|\bsessions?\b|\b20\d\d-\d\d(-\d\d)?\b|\bno longer\b|\bused to\b"
+    r"|\bthe run before\b|\bprevious (?:run|version|output|notebook)s?\b|\bstored versions?\b"
+    r"|\bbefore the (?:fix|change)\b|\bwas fixed\b",
+    re.I,
+)
+
+
+def _prose(source):
+    """A markdown cell without its run-time sentence (its "with the cache of a previous run" is a measurement)."""
+    source = figures.CANONICAL_RE.sub("", source)
+    return re.sub(r"`[^`]*`", "", source)  # code spans name things (a function may have "version" in its name)
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_no_markdown_cell_speaks_of_development_history(path):
+    cells = json.loads(path.read_text())["cells"]
+    found = [
+        (i, m.group(0), _prose("".join(c["source"]))[max(0, m.start() - 40) : m.end() + 40])
+        for i, c in enumerate(cells)
+        if c["cell_type"] == "markdown"
+        for m in HISTORY.finditer(_prose("".join(c["source"])))
+    ]
+    assert not found, f"{path.name}: history in a lesson (state what is, with numbers): {found}"
+
+
+def test_the_history_check_catches_what_it_is_for():
+    for text in (
+        "The previous version of this notebook",
+        "(issue #12)",
+        "the issue measured 7x",
+        "When the kink check was fixed (2026-11-24",
+        "an earlier run on a busier machine",
+    ):
+        assert HISTORY.search(_prose(text)), text
+    assert not HISTORY.search(_prose(figures.run_time_sentence(10, 5)))
+    assert not HISTORY.search(_prose("each solve warm-started from the previous one"))

@@ -179,9 +179,9 @@ def fit_diagnostics(op, Q_train, X_train, Q_test, X_test):
     Returns
     -------
     dict
-        ``train``, ``test``: error (8a)/n divided by the number of samples in the set (so the two compare; the
-        sum over samples is :func:`defop.analysis.metrics.approximation_error`); ``cond``: 2-norm condition number of
-        the (m, |Ψ|) matrix Ψ(Q_k) (the fit's handle-basis design matrix);
+        ``train``, ``test``: the mean (8a)/n per sample of each set, (8a)/n over its N samples divided by N
+        (so the two sets compare; (8a)/n over N is :func:`defop.analysis.metrics.approximation_error`);
+        ``cond``: 2-norm condition number of the (m, |Ψ|) matrix Ψ(Q_k) (the fit's handle-basis design matrix);
         ``size``: |Ψ|; ``m``: number of training samples.
     """
     Psi = np.asarray(op.psi(np.asarray(Q_train, float)))
@@ -196,7 +196,7 @@ def fit_diagnostics(op, Q_train, X_train, Q_test, X_test):
 
 
 def subspace_floor(mesh, X, spatial="reduced", k=100):
-    """The error (8a)/n of the best deformation in span Φ: the M-orthogonal projection of each X onto Φ.
+    """The (8a)/n over N = len(X) samples of the best deformations in span Φ (M-orthogonal projections onto Φ).
 
     No handle basis Ψ can do better than this floor, so it bounds what a richer Ψ can gain over a poorer one
     for a reduced Φ (Fig. 2).
@@ -240,8 +240,8 @@ def grid_error(defop, truth, moving=0):
     Returns
     -------
     float
-        (8a)/n per configuration: :func:`defop.analysis.metrics.approximation_error` over the ny·nx grid
-        configurations, divided by their number (so grids of different sizes compare).
+        The mean (8a)/n per sample over the grid: :func:`defop.analysis.metrics.approximation_error` over the
+        N = ny·nx grid configurations, divided by N (so grids of different sizes compare).
 
     Raises
     ------
@@ -294,7 +294,7 @@ def grid_errors_over_draws(shape, truth, regions, ms, seeds, bases, energy="sara
     Returns
     -------
     errors : (len(ms), len(seeds), len(bases)) numpy array
-        (8a)/n per grid configuration.
+        The mean (8a)/n per sample over the grid configurations.
     """
     from ..training.bootstrap import train
     from ..training.sampling import sample_handles
@@ -357,7 +357,7 @@ def subset_fits(shape, samples, X, bases, counts, **kw):
 
 
 def subset_errors(operators, Q, X):
-    """Per-sample error (8a)/n of each operator on held-out configurations (NaN rows for a missing operator).
+    """Each held-out configuration's own (8a)/n (N = 1) for each operator (NaN rows for a missing operator).
 
     Parameters
     ----------
@@ -370,7 +370,8 @@ def subset_errors(operators, Q, X):
     Returns
     -------
     dict
-        ``key -> (k,) numpy array``; each sums to :func:`defop.analysis.metrics.approximation_error`.
+        ``key -> (k,) numpy array``; each sums to the (8a)/n over N = k of
+        :func:`defop.analysis.metrics.approximation_error`.
     """
     Q, X = np.asarray(Q, float), np.asarray(X, float)
     return {

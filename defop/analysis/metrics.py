@@ -1,5 +1,8 @@
 """Error metrics of a trained DefOp against the variational ground truth (Fig. 8) and its timings (Table 1).
 
+The error measures and their names (docs/glossary.md): "(8a)/n over N held-out samples" (:func:`approximation_error`)
+and "mean (8a)/n per sample" (that divided by N).
+
 The distortion of a deformation at its handles (the cusps of Fig. 6) is :mod:`defop.analysis.distortion`."""
 
 from __future__ import annotations
@@ -35,10 +38,11 @@ def _ground_truth(defop, samples, X_true):
 
 
 def approximation_error(defop, samples, X_true, per_sample=False):
-    """The paper's Fig. 8 metric: (8a) on test samples divided by the number of vertices.
+    """The paper's Fig. 8 metric, "(8a)/n over N held-out samples": (8a) summed over the N samples, divided by n.
 
-    E = (1 / n_vertices) Σ_k ‖D^E(·, Q_k) − D(·, Q_k)‖²_{L²(Ω)}, the L² norm with the lumped mass
-    matrix (Appendix A).
+    E_N = (1 / n_vertices) Σ_{k=1..N} ‖D^E(·, Q_k) − D(·, Q_k)‖²_{L²(Ω)}, the L² norm with the lumped mass
+    matrix (Appendix A). A sum over the N = k configurations given: it grows with N, so a label states N
+    ("(8a)/n over N = 100 held-out samples"). Divided by N it is the "mean (8a)/n per sample" (docs/glossary.md).
 
     Parameters
     ----------
@@ -53,7 +57,9 @@ def approximation_error(defop, samples, X_true, per_sample=False):
     Returns
     -------
     error : float
+        (8a)/n over N = k samples.
     terms : (k,) numpy array, only with ``per_sample``
+        Each configuration's own (8a)/n (N = 1); they sum to ``error``.
     """
     samples = _samples(defop, samples)
     X_true = _ground_truth(defop, samples, X_true)

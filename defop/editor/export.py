@@ -14,11 +14,32 @@ _PAGE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>
 <meta http-equiv="Content-Security-Policy"
  content="default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'">
-</head><body style="margin:12px">
+<style>
+body {{ margin: 12px; font: 13px system-ui, sans-serif; color: #222; }}
+h1 {{ font-size: 18px; margin: 0 0 2px; }}
+.defop-instruction {{ margin: 0 0 8px; }}
+.defop-legend {{ display: flex; flex-wrap: wrap; gap: 4px 16px; margin: 8px 0; font-size: 12px; color: #333; }}
+.defop-legend span {{ display: inline-flex; align-items: center; gap: 5px; }}
+.defop-swatch {{ display: inline-block; width: 12px; height: 12px; box-sizing: border-box; }}
+.defop-note {{ font-size: 12px; color: #555; }}
+</style>
+</head><body>
+<h1>{title}</h1>
+<p class="defop-instruction">Drag a red handle with the mouse: the shape follows, computed in this page.</p>
 <div id="defop-app"></div>
-<p style="font:12px system-ui;color:#555">Drag a red handle. D(x, Q) = &Sigma;<sub>ij</sub> C<sub>ij</sub>
-&phi;<sub>i</sub>(x) &psi;<sub>j</sub>(Q) (Eq. 3 of Poranne &amp; Lipman) is evaluated in this page;
-written by defop.</p>
+<div class="defop-legend" aria-label="legend">
+<span><i class="defop-swatch" style="border-radius:50%;background:#d62728;border:1px solid #000"></i>moving handle
+(drag it)</span>
+<span><i class="defop-swatch" style="border-radius:50%;background:#1f77b4;border:1px solid #000"></i>fixed
+handle</span>
+<span><i class="defop-swatch" style="background:rgba(255,127,14,0.10);border:1px solid rgba(255,127,14,0.7)"></i>
+sampling region of a handle (a disc around it, its Voronoi cell, or both): the positions it was trained on</span>
+<span><i class="defop-swatch" style="border-radius:50%;border:2px solid #b00"></i>handle outside its region: the
+operator extrapolates</span>
+<span><i class="defop-swatch" style="background:#e04040"></i>flipped triangle</span>
+</div>
+<p class="defop-note">D(x, Q) = &Sigma;<sub>ij</sub> C<sub>ij</sub> &phi;<sub>i</sub>(x) &psi;<sub>j</sub>(Q)
+(Eq. 3 of Poranne &amp; Lipman) is evaluated in this page, with no network access; written by defop.</p>
 <script type="module">
 {js}
 window.defopEditor = mountStandalone(document.getElementById("defop-app"), {meta}, "{data}");

@@ -1,10 +1,11 @@
-"""Pictures (layer 6): matplotlib plots (:mod:`.plot`, :mod:`.plot_peers`), headless PyVista rendering
-(:mod:`.render`) and image warping (:mod:`.warp`). Nothing below this layer imports a plotting library.
+"""Pictures (layer 6): matplotlib plots (:mod:`.plot`, :mod:`.plot_peers`; labels clear of each other,
+:mod:`.labels`), headless PyVista rendering (:mod:`.render`) and image warping (:mod:`.warp`).
+Nothing below this layer imports a plotting library.
 """
 
 from importlib import import_module
 
-_MODULES = ("plot", "plot_peers", "render", "warp")
+_MODULES = ("labels", "plot", "plot_peers", "render", "warp")
 _NAMES = {}
 
 

@@ -7,12 +7,16 @@ import numpy as np
 from matplotlib.collections import PolyCollection
 
 from ..analysis.compare import pareto_front
+from .plot import key_legend
 
 FILL, FLIP, HANDLE = "#9ecae1", "#e31a1c", "#d95f02"
 
 
-def pareto_plot(ax, scores, title=None, highlight="defop"):
-    """Error (8a)/n against median frame time on log axes, with the Pareto front.
+def pareto_plot(ax, scores, title=None, highlight="defop", n_samples=None):
+    """(8a)/n over N held-out samples against median frame time on log axes, with the Pareto front.
+
+    Each method is a point labelled with its name, placed clear of the other labels and points
+    (:func:`defop.view.labels.place_labels`, with a leader line where a label had to move away).
 
     Parameters
     ----------
@@ -20,26 +24,32 @@ def pareto_plot(ax, scores, title=None, highlight="defop"):
     scores : list of defop.analysis.compare.Score
     title : str, optional
     highlight : str
-        Methods whose name starts with this are drawn in red.
+        Methods whose name starts with this are drawn as red stars (DefOp), the others as blue dots.
+    n_samples : int, optional
+        N, the number of held-out samples the errors sum over (stated in the axis label).
     """
+    from .labels import place_labels
+
     t = np.array([s.frame_median for s in scores])
     e = np.array([s.error for s in scores])
+    ours = np.array([s.name.startswith(highlight) for s in scores])
     front = pareto_front(t, e)
     ax.step(t[front], e[front], where="post", color="0.6", lw=1, zorder=1, label="Pareto front")
-    for i in np.argsort(e):
-        ours = scores[i].name.startswith(highlight)
-        ax.scatter(t[i], e[i], s=40, zorder=3, color=FLIP if ours else "#3182bd", marker="*" if ours else "o")
-        # alternate the labels above and below their points: close errors do not overprint
-        dy = 4 if i % 2 else -9
-        ax.annotate(scores[i].name, (t[i], e[i]), textcoords="offset points", xytext=(5, dy), fontsize=7)
+    ax.scatter(t[~ours], e[~ours], s=40, zorder=3, color="#3182bd", marker="o", label="closed forms and ARAP")
+    ax.scatter(t[ours], e[ours], s=70, zorder=3, color=FLIP, marker="*", label="DefOp")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    # room for the labels: half a decade beyond the points on each side
+    ax.set_xlim(t.min() / 3.0, t.max() * 6.0)
+    ax.set_ylim(e.min() / 1.6, e.max() * 1.6)
     ax.set_xlabel("time per frame (s, median, 1 BLAS thread)")
-    ax.set_ylabel("error (8a)/n against S-ARAP")
+    n = "N" if n_samples is None else f"N = {n_samples}"
+    ax.set_ylabel(f"(8a)/n over {n} held-out samples\n(against S-ARAP)")
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
     if title:
         ax.set_title(title)
-    ax.legend(loc="upper right", fontsize=7)
+    legend = ax.legend(loc="best", fontsize=7)
+    place_labels(ax, t, e, [s.name for s in scores], fontsize=7, avoid=[legend])
 
 
 def draw_deformation(ax, mesh, X, handles=None, reference=None, title=None):
@@ -70,6 +80,25 @@ def draw_deformation(ax, mesh, X, handles=None, reference=None, title=None):
     ax.axis("off")
     if title:
         ax.set_title(title, fontsize=8)
+
+
+def deformation_key(fig, y=0.0):
+    """A key below a figure of :func:`draw_deformation` panels: fill, flips, ground-truth outline, handles.
+
+    Returns
+    -------
+    legend : matplotlib Legend
+    """
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    items = [
+        (Patch(color=FILL), "the method's deformation"),
+        (Patch(color=FLIP), "flipped triangle"),
+        (Line2D([], [], color="k", lw=0.8), "S-ARAP ground truth (outline)"),
+        (Line2D([], [], marker="o", color=HANDLE, ls="none", ms=5), "handle target"),
+    ]
+    return key_legend(fig, items, loc="upper center", bbox_to_anchor=(0.5, y), ncol=len(items))
 
 
 def coat_picture(mask, period=20.0):

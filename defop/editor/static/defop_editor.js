@@ -127,6 +127,7 @@ const STYLE = `
 .defop-editor .defop-side { display: flex; flex-direction: column; gap: 8px; width: 300px; }
 .defop-editor .defop-readout { font-family: ui-monospace, monospace; font-size: 12px; white-space: pre-wrap; }
 .defop-editor .defop-warn { color: #b00; font-weight: 600; min-height: 1.2em; }
+.defop-editor details summary { cursor: pointer; color: #555; }
 .defop-editor label { display: flex; gap: 6px; align-items: center; }
 `;
 
@@ -161,7 +162,14 @@ function buildLayout(root, opts) {
   const warn = el("div", { class: "defop-warn" });
   const readout = el("div", { class: "defop-readout" });
   const gtReadout = el("div", { class: "defop-readout defop-gt-readout" });
-  side.append(title, controls, gtLabel, warn, readout, gtReadout);
+  if (opts.standalone) { // the page states the title above the canvas; the numbers fold away behind a toggle
+    title.style.display = "none";
+    const details = el("details", { class: "defop-details" });
+    details.append(el("summary", {}, "details: frame rate, timings, handle positions"), readout);
+    side.append(title, controls, warn, details);
+  } else {
+    side.append(title, controls, gtLabel, warn, readout, gtReadout);
+  }
   if (!opts.kernel) { gtLabel.style.display = "none"; gtReadout.style.display = "none"; }
   box.append(stack, side);
   root.appendChild(box);
@@ -426,15 +434,24 @@ function fillSelect(select, values, current) {
   select.style.display = values.length > 1 ? "" : "none";
 }
 
-/** The readout: browser frame rate, per-frame evaluation and drawing times, Q, and the extrapolation warning. */
+/** Frames per second over a list of requestAnimationFrame timestamps (null below three). */
+function rate(f) {
+  return f.length > 2 ? (1000 * (f.length - 1)) / (f[f.length - 1] - f[0]) : null;
+}
+
+/**
+ * The readout: the rate of frames the browser rendered while dragging (every requestAnimationFrame callback, not
+ * the pointer events), how many of them showed a new deformation, per-frame evaluation and drawing times, Q, and
+ * the extrapolation warning.
+ */
 function readout(ui, st) {
-  const f = st.frames;
-  const fps = f.length > 2 ? (1000 * (f.length - 1)) / (f[f.length - 1] - f[0]) : null;
+  const fps = rate(st.frames);
   const median = (a) => [...a].sort((x, y) => x - y)[Math.floor(a.length / 2)];
   const fmt = (v, digits) => (v === undefined || v === null ? "–" : v.toFixed(digits));
   const q = Array.from({ length: st.p.n_moving }, (_, i) => `q${i} = (${st.Q[2 * i].toFixed(3)}, ${st.Q[2 * i + 1].toFixed(3)})`);
   ui.readout.textContent =
-    `${fmt(fps, 0)} fps (browser frames while dragging)\n` +
+    `${fmt(fps, 0)} fps (frames the browser rendered while dragging)\n` +
+    `${fmt(rate(st.updates), 0)} new deformations per second (one per pointer move)\n` +
     `evaluation ${fmt(median(st.evalMs), 2)} ms/frame in the page, drawing ${fmt(median(st.drawMs), 1)} ms\n` +
     `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices)\n` +
     (st.picture ? `picture ${st.picture.size[0]} × ${st.picture.size[1]} px: ${st.textured ? "textured (WebGL)" :
@@ -450,6 +467,7 @@ function wireControls(editor, ctx) {
   ui.reset.addEventListener("click", () => {
     st.Q = Float64Array.from(st.p.P);
     st.frames = [];
+    st.updates = [];
     editor.evaluate();
     if (hooks.onReset) hooks.onReset();
   });
@@ -468,11 +486,12 @@ function wireControls(editor, ctx) {
  * Returns the editor object (also stored as root.defopEditor) with Q, X, stats and the view.
  */
 export function createEditor(root, payload, hooks = {}, options = {}) {
-  const ui = buildLayout(root, { kernel: !!hooks.onGroundTruth });
+  const ui = buildLayout(root, { kernel: !!hooks.onGroundTruth, standalone: !!options.standalone });
   const width = options.width || 720;
   const dpr = (typeof window !== "undefined" && window.devicePixelRatio) || 1;
   const ctx = ui.canvas.getContext("2d");
-  const st = { width, height: 0, active: null, outside: [], gt: null, gtVisible: false, frames: [], evalMs: [], drawMs: [],
+  const st = { width, height: 0, active: null, outside: [], gt: null, gtVisible: false, frames: [], updates: [],
+    evalMs: [], drawMs: [],
     picture: null, textured: false };
   const editor = { ui, st, hooks };
   const resize = (height) => { // the canvas follows the shape's aspect, so controls and readout stay in view
@@ -556,24 +575,32 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
   return editor;
 }
 
-/** Pointer events: pick the nearest moving handle, evaluate once per animation frame, report on release. */
+/**
+ * Pointer events: pick the nearest moving handle, evaluate once per animation frame, report on release. While a
+ * handle is held, every animation frame is counted (st.frames: the rate the browser renders at), and those that
+ * showed a new deformation too (st.updates).
+ */
 function wirePointer(editor, canvas) {
   const st = editor.st;
   let pending = null, scheduled = false;
+  const keep = (list, t) => { list.push(t); if (list.length > 120) list.shift(); };
   const position = (ev) => {
     const r = canvas.getBoundingClientRect();
     return st.view.toData(ev.clientX - r.left, ev.clientY - r.top);
   };
   const frame = (t) => {
     scheduled = false;
-    if (pending === null || st.active === null) return;
+    if (st.active === null) return;
+    keep(st.frames, t);
+    scheduled = true;
+    requestAnimationFrame(frame); // the next frame, as long as the handle is held
+    if (pending === null) { editor.readout(); return; }
     st.Q[2 * st.active] = pending[0];
     st.Q[2 * st.active + 1] = pending[1];
     pending = null;
-    st.frames.push(t);
-    if (st.frames.length > 120) st.frames.shift();
+    keep(st.updates, t);
     editor.evaluate();
-    if (editor.onFrame) editor.onFrame(t); // benchmarks log every frame's rAF timestamp
+    if (editor.onFrame) editor.onFrame(t); // benchmarks log the rAF timestamp of every frame that evaluated
   };
   canvas.addEventListener("pointerdown", (ev) => {
     const [x, y] = position(ev);
@@ -583,7 +610,12 @@ function wirePointer(editor, canvas) {
       if (dd <= bestD) { best = i; bestD = dd; }
     }
     st.active = best;
-    if (best !== null) { canvas.setPointerCapture(ev.pointerId); st.frames = []; }
+    if (best !== null) {
+      canvas.setPointerCapture(ev.pointerId);
+      st.frames = [];
+      st.updates = [];
+      if (!scheduled) { scheduled = true; requestAnimationFrame(frame); }
+    }
   });
   canvas.addEventListener("pointermove", (ev) => {
     if (st.active === null) return;
@@ -604,9 +636,9 @@ function wirePointer(editor, canvas) {
   canvas.addEventListener("pointercancel", release);
 }
 
-/** The standalone page (defop.editor.export.to_html): no kernel, one operator. */
+/** The standalone page (defop.editor.export.to_html): no kernel, one operator; its readout folds away. */
 export function mountStandalone(root, meta, base64) {
-  return createEditor(root, decodePayload(meta, fromBase64(base64)));
+  return createEditor(root, decodePayload(meta, fromBase64(base64)), {}, { standalone: true });
 }
 
 /** The anywidget view (defop.editor.browser.BrowserEditor). */
