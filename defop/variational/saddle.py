@@ -12,7 +12,6 @@ import numpy as np
 import scipy.sparse.linalg as sla
 
 from .newton import newton, step_off
-from .verify import verify_point
 
 
 def negative_curvature(solver, X):
@@ -42,10 +41,9 @@ def escape(solver, log, X, T, tol, label, reason, ok, escapes):
 
     At a saddle, step off along the most negative curvature, both ways; at S-ARAP's kink (check "kink"),
     along the direction that pulls the overloaded triangles off it (:func:`defop.variational.verify.kink_pull`).
-    Returns (X, label, reason, ok, check) of the best end point (``check`` its
-    :func:`~defop.variational.verify.verify_point`).
+    Returns (X, label, reason, ok, check) of the best end point (``check`` its ``solver.verify``).
     """
-    check = verify_point(solver, X, T)
+    check = solver.verify(X, T)
     if check.failed not in ("saddle", "kink") or escapes == 0 or log.exhausted:
         log.candidates.append((label, check.energy, bool(ok and check.ok)))
         return X, label, reason, ok, check
