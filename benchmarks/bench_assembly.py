@@ -1,4 +1,4 @@
-"""Is numba worth it for the Hessian assembly (issue 15)? numpy (``_ReducedHessian.assemble``) against a numba loop.
+"""Is numba worth it for the Hessian assembly (issue 15)? numpy (``ReducedHessian.assemble``) against a numba loop.
 
 On aleph-like meshes of 3k, 10k and 30k vertices, one BLAS thread, median / best of 7: the assembly of the
 PSD-projected S-ARAP Hessian into the fixed CSC pattern from the per-triangle eigensystems, (1) as the solver
@@ -65,8 +65,8 @@ def one(n, kernel):
     Q = dop.training.sampling.sample_shape(shape, 1, np.random.default_rng(0))[0]
     X = solver.solve(shape.targets(Q)).X  # a solved configuration: realistic eigensystems
     with threadpool_limits(limits=1):
-        local = solver._grad_hess(X, 1e-5)[3]
-        H = solver._hess
+        local = solver.grad_hess(X, 1e-5)[3]
+        H = solver.hessian
         ref = H.assemble(local, True)
         np_ms = _times(lambda: H.assemble(local, True))
         K = H.matrix(ref, 1e-10)

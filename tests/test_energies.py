@@ -6,19 +6,20 @@ import numpy as np
 import pytest
 
 from defop.variational import energies as en
+from defop.variational import planar
 
 
 def _jacobians(rng, n=300, spread=0.3, min_det=0.3):
     J = np.eye(2) + spread * rng.normal(size=(n, 2, 2))
     J = J[np.linalg.det(J) > min_det]
-    _, S, _ = en.signed_svd(J)
+    _, S, _ = planar.signed_svd(J)
     return J[(S[:, 0] - S[:, 1]) > 1e-3]  # away from the Σ = σ kink of S-ARAP
 
 
 def test_signed_svd_reconstructs_with_rotations():
     rng = np.random.default_rng(0)
     J = rng.normal(size=(500, 2, 2))
-    U, S, V = en.signed_svd(J)
+    U, S, V = planar.signed_svd(J)
     assert np.allclose(U @ (S[:, :, None] * np.swapaxes(V, 1, 2)), J, atol=1e-12)
     assert np.allclose(np.linalg.det(U), 1) and np.allclose(np.linalg.det(V), 1)
     assert np.all(S[:, 0] >= np.abs(S[:, 1]))
@@ -34,8 +35,8 @@ def test_single_triangle_closed_forms():
     stretch = np.array([[[2.0, 0.0], [0.0, 0.5]]])  # Σ = 2, σ = 1/2: S-ARAP is symmetric in shrink/stretch
     assert en.density(stretch, "sarap") == pytest.approx([1.0 + 1.0])
     # the isometric family: p = 2 is the symmetric Dirichlet energy minus 4; large p tends to max(Σ, 1/σ)² − 1
-    assert en._psi_isometric_max(np.array([s]), np.array([s]), p=2)[0] == pytest.approx([2 * s**2 + 2 / s**2 - 4])
-    assert en._psi_isometric_max(np.array([2.0]), np.array([0.8]), p=400)[0] == pytest.approx([3.0], rel=1e-2)
+    assert planar._psi_isometric_max(np.array([s]), np.array([s]), p=2)[0] == pytest.approx([2 * s**2 + 2 / s**2 - 4])
+    assert planar._psi_isometric_max(np.array([2.0]), np.array([0.8]), p=400)[0] == pytest.approx([3.0], rel=1e-2)
     assert en.density(J, "isometric_exp") == pytest.approx([np.exp(en.EXP_SCALE * (2 * s**2 + 2 / s**2 - 4)) - 1])
     # max(Σ, 1/σ) does not see σ while Σ dominates: Σ = 2 costs the same with σ = 1 and σ = 1.9
     # (+0.16% at p = 64, +6.6% at p = 16; the symmetric Dirichlet energy, which sees each singular value
@@ -132,9 +133,9 @@ def test_kink_radius_is_the_slope_and_curvature_of_eq_11_off_a_conformal_jacobia
     """On J = s·R, Eq. (11) along a unit anti-conformal direction a (any mix of the reflection and flip modes)
     grows like r·a + κ·a²/2: one-sided finite differences of ψ against kink_radius."""
     rng = np.random.default_rng(int(10 * s))
-    R = en._rot(np.array(rng.uniform(0, 2 * np.pi)))
-    Z = en._rot(np.array(rng.uniform(0, 2 * np.pi))) @ np.diag([1.0, -1.0]) / np.sqrt(2)  # unit, anti-conformal
-    r, kappa = en.kink_radius(np.array([[s, s]]))
+    R = planar._rot(np.array(rng.uniform(0, 2 * np.pi)))
+    Z = planar._rot(np.array(rng.uniform(0, 2 * np.pi))) @ np.diag([1.0, -1.0]) / np.sqrt(2)  # unit, anti-conformal
+    r, kappa = planar.kink_radius(np.array([[s, s]]))
     h = 1e-5
     psi = en.density(np.stack([s * R + t * Z for t in (0.0, h, 2 * h)]), "sarap")
     slope = (-3 * psi[0] + 4 * psi[1] - psi[2]) / (2 * h)  # one-sided, second order

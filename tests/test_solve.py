@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import functools
 import pickle
 import warnings
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import defop as dop
-from defop.variational.solver import NotConvergedWarning, Solver, count_flips
+from defop.variational import NotConvergedWarning, Solver
+from defop.variational.problem import count_flips
 
 
 @pytest.fixture(scope="module")
@@ -23,9 +28,9 @@ def ginger():
 def test_arap_agrees_with_libigl(ginger):
     s, T = ginger
     solver = Solver(s.mesh, s.handles, "arap")
-    X0 = dop.variational.solver.start_for(solver, T)
+    X0 = dop.variational.start_for(solver, T)
     ours = solver.solve(T, X0=X0, tol=1e-12)
-    igl_ = dop.variational.solver.solve_libigl_arap(s.mesh, s.handles, T, X0=X0, iterations=3000)
+    igl_ = dop.variational.solve_libigl_arap(s.mesh, s.handles, T, X0=X0, iterations=3000)
     assert ours.converged
     assert abs(ours.energy - igl_.energy) <= 1e-6 * ours.energy
     assert np.abs(ours.X - igl_.X).max() <= 1e-5 * s.mesh.bbox_diagonal
@@ -85,7 +90,7 @@ def test_lbfgs_baseline_reaches_the_same_minimum(ginger):
     newton = dop.solve(s.mesh, s.handles, T, "arap", tol=1e-12)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        lbfgs = dop.variational.solver.solve_lbfgs(s.mesh, s.handles, T, "arap", tol=1e-15)
+        lbfgs = dop.variational.solve_lbfgs(s.mesh, s.handles, T, "arap", tol=1e-15)
     assert lbfgs.energy == pytest.approx(newton.energy, rel=1e-6)
 
 
@@ -136,3 +141,96 @@ def test_smoothing_schedule_reaches_eq11_minimum(ginger):
     assert np.abs(tight.X - default.X).max() <= 1e-4 * s.mesh.bbox_diagonal  # measured 5e-6
     with pytest.raises(ValueError, match="smoothing"):
         Solver(s.mesh, s.handles, "sarap", smoothing=())
+
+
+class _TetMesh:
+    """A structured tetrahedral mesh of the unit cube with the attributes the solver reads from a Mesh, computed
+    here for d = 3 (defop.geometry.mesh.Mesh is 2D until the volumetric meshes land): the reduced problem and
+    its assembly must read d from V and need nothing else."""
+
+    def __init__(self, k=2):
+        g = np.linspace(0.0, 1.0, k + 1)
+        self.V = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+        idx = np.arange((k + 1) ** 3).reshape(k + 1, k + 1, k + 1)
+        cube = [(0, 1, 3, 7), (0, 3, 2, 7), (0, 2, 6, 7), (0, 6, 4, 7), (0, 4, 5, 7), (0, 5, 1, 7)]  # Kuhn
+        F = []
+        for i, j, m in np.ndindex(k, k, k):
+            c = [idx[i + a, j + b, m + e] for a in (0, 1) for b in (0, 1) for e in (0, 1)]
+            F += [[c[v] for v in tet] for tet in cube]
+        self.F = np.array(F)
+        E = np.swapaxes(self.V[self.F[:, 1:]] - self.V[self.F[:, :1]], 1, 2)  # (m,3,3) edge columns
+        vol = np.linalg.det(E) / 6
+        self.F[vol < 0] = self.F[vol < 0][:, [0, 2, 1, 3]]
+        E = np.swapaxes(self.V[self.F[:, 1:]] - self.V[self.F[:, :1]], 1, 2)
+        self.areas = np.linalg.det(E) / 6
+        Einv = np.linalg.inv(E)
+        self.local_gradients = np.concatenate([-Einv.sum(axis=1, keepdims=True), Einv], axis=1)  # (m,4,3)
+        m, n = len(self.F), len(self.V)
+        t = np.arange(m)
+        rows = [9 * t + 3 * a + b for a in range(3) for b in range(3) for i in range(4)]
+        cols = [3 * self.F[:, i] + a for a in range(3) for b in range(3) for i in range(4)]
+        vals = [self.local_gradients[:, i, b] for a in range(3) for b in range(3) for i in range(4)]
+        self.jacobian_operator = sp.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(9 * m, 3 * n)
+        )
+        self.n_vertices = n
+        self.bbox_diagonal = float(np.sqrt(3.0))
+
+    def jacobians(self, X):
+        return (self.jacobian_operator @ np.asarray(X, float).ravel()).reshape(-1, 3, 3)
+
+
+@functools.cache
+def _bar_mesh():
+    return dop.shapes.load("bar").mesh
+
+
+def _dense_hessian(mesh, W, lamA):
+    """Σ_t W_t diag(A_t λ_t) W_tᵀ scattered into the (d·n, d·n) dense matrix, element by element."""
+    d = mesh.V.shape[1]
+    K = np.zeros((d * mesh.n_vertices,) * 2)
+    for t, f in enumerate(mesh.F):
+        dofs = (d * f[:, None] + np.arange(d)).ravel()
+        K[np.ix_(dofs, dofs)] += W[t] @ np.diag(lamA[t]) @ W[t].T
+    return K
+
+
+@settings(max_examples=10, deadline=None)
+@given(d=st.sampled_from([2, 3]), seed=st.integers(0, 2**16), n_handles=st.integers(1, 8))
+def test_reduced_hessian_assembles_the_dense_sum_in_any_dimension(d, seed, n_handles):
+    mesh = _bar_mesh() if d == 2 else _TetMesh()
+    rng = np.random.default_rng(seed)
+    handles = rng.choice(mesh.n_vertices, n_handles, replace=False)
+    problem = dop.variational.problem.ReducedProblem(mesh, handles, "arap")
+    assert problem.dim == d and len(problem.free) == d * (mesh.n_vertices - n_handles)
+    assert np.array_equal(problem.free.reshape(-1, d) // d, np.repeat(problem.free_vertices[:, None], d, 1))
+    m, k = len(mesh.F), (d + 1) * d
+    W, lamA = rng.normal(size=(m, k, d * d)), rng.normal(size=(m, d * d))
+    K = problem.hessian.full(problem.hessian.assemble((W, lamA), project=False)).toarray()
+    ref = _dense_hessian(mesh, W, lamA)[np.ix_(problem.free, problem.free)]
+    assert np.allclose(K, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+    Kp = problem.hessian.full(problem.hessian.assemble((W, lamA), project=True)).toarray()
+    assert np.allclose(Kp, _dense_hessian(mesh, W, np.maximum(lamA, 0))[np.ix_(problem.free, problem.free)])
+    p = rng.normal(size=len(problem.free))
+    P = problem.full(p)
+    assert (
+        P.shape == (mesh.n_vertices, d)
+        and np.all(P[problem.handles] == 0)
+        and np.array_equal(P.ravel()[problem.free], p)
+    )
+
+
+def test_3d_reaches_the_closed_forms_and_says_they_are_missing():
+    mesh = _TetMesh()
+    solver = Solver(mesh, [0, 5, 26], "sarap")
+    T = solver.targets_of(mesh.V[[0, 5, 26]] + 0.01)
+    assert T.shape == (3, 3)
+    with pytest.raises(ValueError, match=r"targets must have shape \(3, 3\)"):
+        solver.targets_of(np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="3×3 closed forms .* not available yet"):
+        solver.grad_hess(mesh.V)
+    J = mesh.jacobians(mesh.V)
+    with pytest.raises(ValueError, match="3×3 closed forms .* not available yet"):
+        dop.variational.energies.max_flip_free_step(J, J)
+    with pytest.raises(ValueError, match=r"J must be an \(m, d, d\) array .* got shape \(4, 2, 3\)"):
+        dop.variational.energies.density(np.zeros((4, 2, 3)), "arap")

@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import defop as dop
-from defop.variational.solver import NotConvergedWarning, Solver
+from defop.variational import NotConvergedWarning, Solver
 
 
 # ---------------------------------------------------------------- shapes
@@ -53,7 +53,7 @@ def _fd_hessian_of_gradient(solver, X):
     def grad(x):
         Y = X.ravel().copy()
         Y[free] = x
-        return solver._grad_hess(Y.reshape(-1, 2), 0.0)[1][free]
+        return solver.grad_hess(Y.reshape(-1, 2), 0.0)[1][free]
 
     x0 = X.ravel()[free]
     h = 1e-6 * solver.mesh.bbox_diagonal
@@ -243,7 +243,7 @@ def test_handle_order_star_with_hole(energy):
     res = dop.solve(shape.mesh, h, T, energy)
     assert res.converged
     assert np.abs(res.X[h] - T).max() <= 1e-12 * shape.mesh.bbox_diagonal
-    lb = dop.variational.solver.solve_lbfgs(shape.mesh, h, T, energy, tol=1e-14)
+    lb = dop.variational.solve_lbfgs(shape.mesh, h, T, energy, tol=1e-14)
     assert np.abs(lb.X[h] - T).max() <= 1e-12 * shape.mesh.bbox_diagonal
 
 
@@ -306,8 +306,8 @@ def test_uniform_scaling_holds_every_triangle_on_the_kink(s):
     T = s * mesh.V[b]
     check = solver.verify(s * mesh.V, solver.targets_of(T))
     assert check.ok
-    S = dop.variational.energies.svd_frame(mesh.jacobians(s * mesh.V))[0]
-    assert dop.variational.energies.on_kink(S, dop.variational.solver.KINK).all()
+    S = dop.variational.planar.svd_frame(mesh.jacobians(s * mesh.V))[0]
+    assert dop.variational.planar.on_kink(S, dop.variational.verify.KINK).all()
     res = solver.solve(T)
     assert res.converged and res.start == "rest"
     assert np.abs(res.X - s * mesh.V).max() <= 1e-6 * mesh.bbox_diagonal  # held triangles keep offsets (see Solver)

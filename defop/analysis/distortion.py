@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.mesh import signed_areas
-from ..variational.energies import svd_frame
-from ..variational.solver import check_handles
+from ..variational.planar import svd_frame
+from ..variational.problem import check_handles
 
 __all__ = ["corner_angles", "one_rings", "handle_distortion", "deformation_summary"]
 
@@ -65,7 +65,7 @@ def handle_distortion(mesh, X, vertices):
     X : (n,2) numpy array
         Deformed vertex positions.
     vertices : (h,) int numpy array
-        Handle vertices (or an (n,) boolean mask, as :func:`defop.variational.solver.check_handles` accepts).
+        Handle vertices (or an (n,) boolean mask, as :func:`defop.variational.problem.check_handles` accepts).
 
     Returns
     -------

@@ -1,11 +1,37 @@
 """The variational DefOp D^E (layer 3): deformation energies (Eqs. 10, 11) and problem (6).
 
-:mod:`.energies` evaluates ψ of a Jacobian's singular values with its projected Hessian; :mod:`.solver`
-minimises Σ_t A_t ψ(J_t) with the handles as hard constraints and verifies the minimum it returns.
-Never imports :mod:`defop.operator.defop` (an import-linter contract).
+The short face: :func:`solve`, :class:`Solver` (``solve``, ``solve_best``, ``verify``), :class:`SolveResult`,
+:class:`NotConvergedWarning`, and the baselines :func:`solve_lbfgs`, :func:`solve_libigl_arap`, :func:`start_for`.
+The modules, lowest first:
+
+- :mod:`.energies`: ψ of a Jacobian's singular values with its projected Hessian, one face over the closed forms
+  of :mod:`.planar` (2×2);
+- :mod:`.problem`: problem (6) reduced to the free vertices, the Hessian's sparsity pattern and its LDLᵀ;
+- :mod:`.verify`: the five checks behind ``converged``; :mod:`.newton`: stages, line search, continuation;
+  :mod:`.saddle`: negative curvature and escapes;
+- :mod:`.solver`: the :class:`Solver` facade; :mod:`.baselines`: L-BFGS and libigl's ARAP.
+
+Never imports :mod:`defop.operator` (an import-linter contract).
 """
 
-from . import energies, solver
-from .solver import NotConvergedWarning, Solver, solve
+from . import baselines, energies, newton, planar, problem, saddle, solver, verify
+from .baselines import solve_lbfgs, solve_libigl_arap, start_for
+from .solver import NotConvergedWarning, Solver, SolveResult, solve
 
-__all__ = ["NotConvergedWarning", "Solver", "energies", "solve", "solver"]
+__all__ = [
+    "NotConvergedWarning",
+    "SolveResult",
+    "Solver",
+    "baselines",
+    "energies",
+    "newton",
+    "planar",
+    "problem",
+    "saddle",
+    "solve",
+    "solve_lbfgs",
+    "solve_libigl_arap",
+    "solver",
+    "start_for",
+    "verify",
+]

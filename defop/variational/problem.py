@@ -1,0 +1,403 @@
+"""Problem (6) reduced to the free vertices: handles eliminated, targets, E, its gradient and Hessian.
+
+min_X E(X) = Σ_t A_t ψ(J_t(X)) subject to X[handles] = targets, over piecewise-linear maps X (n, d) on a mesh
+of elements of d + 1 vertices (triangles in 2D, tetrahedra in 3D): d is read from ``mesh.V``. The handles are
+hard constraints, eliminated from the system: only the d·n_free free dofs are unknowns. :class:`ReducedProblem`
+holds what depends only on the mesh, the handle set and the energy; :class:`ReducedHessian` the fixed sparsity
+pattern of the Hessian Σ_t A_t B_tᵀ H_t B_t and its factorisation (QDLDL: the AMD ordering and the symbolic
+analysis are computed once and reused by every ``update``; scipy's SuperLU is the fallback without qdldl).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from .. import options as opt
+from . import energies as en
+
+try:  # QDLDL reuses the symbolic factorisation (AMD ordering, elimination tree) across updates
+    import qdldl
+except ImportError:  # pragma: no cover - exercised only without the dependency
+    qdldl = None
+
+#: targets farther than this many bounding-box diagonals from the mesh are rejected (the energy overflows)
+MAX_TARGET_DISTANCE = 1e6
+
+
+def count_flips(mesh, X):
+    """Number of elements with det J ≤ 0 (flipped or collapsed).
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    X : (n, d) numpy array
+
+    Returns
+    -------
+    n : int
+    """
+    return int(np.count_nonzero(mesh.flipped(X)))
+
+
+def check_tol(tol, name="tol"):
+    """A tolerance: a finite float ≥ 0, else ValueError."""
+    try:
+        t = float(tol)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number >= 0, got {tol!r}") from None
+    if not (np.isfinite(t) and t >= 0):
+        raise ValueError(f"{name} must be a finite number >= 0, got {tol!r}")
+    return t
+
+
+def check_max_iter(max_iter):
+    """An iteration limit: an integer ≥ 1 (an integer-valued float is accepted), else ValueError."""
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer, float, np.floating)):
+        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+    if not (np.isfinite(max_iter) and max_iter >= 1 and float(max_iter) == int(max_iter)):
+        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+    return int(max_iter)
+
+
+def check_handles(mesh, handles):
+    """Validate point handles: vertex indices, or a boolean mask with one entry per vertex.
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    handles : (h,) int array-like or (n_vertices,) bool array-like
+        Integer-valued floats (``[3.0, 7.0]``) are accepted as indices; other floats are rejected.
+        Order is kept; duplicates are allowed (:meth:`ReducedProblem.targets_of` checks their targets agree).
+
+    Returns
+    -------
+    handles : (h,) int64 numpy array
+
+    Raises
+    ------
+    ValueError
+        Empty, not 1-d, non-integer, out of range, or a mask of the wrong length.
+    """
+    h = np.asarray(handles)
+    n = mesh.n_vertices
+    if h.dtype == bool:
+        if h.shape != (n,):
+            raise ValueError(f"a boolean handle mask needs one entry per vertex ({n}), got shape {h.shape}")
+        h = np.flatnonzero(h)
+    if h.ndim != 1 or len(h) == 0:
+        raise ValueError(f"handles must be a non-empty 1-d array of vertex indices, got shape {h.shape}")
+    if not np.issubdtype(h.dtype, np.integer):
+        if not np.issubdtype(h.dtype, np.floating):
+            raise ValueError(f"handles must be integer vertex indices, got dtype {h.dtype}")
+        bad = np.flatnonzero(~np.isfinite(h) | (np.mod(h, 1) != 0))
+        if len(bad):
+            k = int(bad[0])
+            raise ValueError(f"handles must be integer vertex indices; handle {k} is {float(h[k])!r}")
+    h = h.astype(np.int64)
+    bad = np.flatnonzero((h < 0) | (h >= n))
+    if len(bad):
+        raise ValueError(
+            f"handle {int(bad[0])} is vertex index {int(h[bad[0]])}, out of range for a mesh of {n} vertices"
+        )
+    return h
+
+
+def check_targets(targets, handles, mesh=None, dim=2):
+    """Validate targets: one finite row per handle, not absurdly far from the mesh.
+
+    Parameters
+    ----------
+    targets : (h, d) array-like
+    handles : (h,) int numpy array
+    mesh : defop.geometry.mesh.Mesh, optional
+        When given, d is ``mesh.V.shape[1]`` and targets farther than ``MAX_TARGET_DISTANCE`` bounding-box
+        diagonals from the mesh's centre are rejected (the energy would overflow to inf: e.g. a target at 1e300).
+    dim : int
+        d when no mesh is given.
+
+    Returns
+    -------
+    T : (h, d) float numpy array
+    """
+    d = dim if mesh is None else mesh.V.shape[1]
+    T = opt.real_array("targets", targets)
+    if T.shape != (len(handles), d):
+        raise ValueError(f"targets must have shape ({len(handles)}, {d}), one row per handle, got {T.shape}")
+    if not np.isfinite(T).all():
+        k = int(np.argwhere(~np.isfinite(T))[0, 0])
+        raise ValueError(f"target {k} of handle vertex {int(handles[k])} is not finite: {T[k]}")
+    if mesh is not None:
+        diag = mesh.bbox_diagonal
+        far = np.abs(T - mesh.V.mean(axis=0)).max(axis=1) / diag  # max-norm: no overflow at 1e300
+        if far.max() > MAX_TARGET_DISTANCE:
+            k = int(np.argmax(far))
+            raise ValueError(
+                f"target {k} of handle vertex {int(handles[k])} is {far[k]:.3g} bounding-box diagonals from the "
+                f"mesh (more than {MAX_TARGET_DISTANCE:g}): the energy would overflow"
+            )
+    return T
+
+
+def element_dofs(F, d):
+    """(m, (d+1)·d) global dof of every element's local dof: local (d·i + c) -> d·F[t, i] + c."""
+    return (d * F[:, :, None] + np.arange(d)).reshape(len(F), -1)
+
+
+class ReducedHessian:
+    """The Hessian on the free dofs: a fixed sparsity pattern, assembly, an LDLᵀ and its inertia.
+
+    The upper triangle of the free-free block is assembled in CSC order (QDLDL's input), so only its values
+    change between iterations; QDLDL computes the AMD ordering and the symbolic analysis once and reuses them
+    in every ``update``. Without qdldl, SuperLU (no inertia). The one interface to the factorisation: a
+    faster back end (the scale issue) replaces :meth:`solve` and :meth:`inertia`.
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+        V (n, d), F (m, d + 1).
+    free : (n_free·d,) int numpy array
+        The free dofs (d·vertex + coordinate), sorted.
+    """
+
+    def __init__(self, mesh, free):
+        F = mesh.F
+        d = mesh.V.shape[1]
+        k = F.shape[1] * d  # local dofs per element: (d+1)·d
+        dofs = element_dofs(F, d)
+        rows = np.repeat(dofs, k, axis=1).ravel()
+        cols = np.tile(dofs, (1, k)).ravel()
+        gmap = -np.ones(d * mesh.n_vertices, np.int64)
+        gmap[free] = np.arange(len(free))
+        r, c = gmap[rows], gmap[cols]
+        keep = (r >= 0) & (c >= 0) & (r <= c)  # upper triangle of the free-free block
+        self._keep = np.flatnonzero(keep)
+        self.dofs = dofs
+        nf = self.nf = len(free)
+        uniq, self._inv = np.unique(c[keep] * nf + r[keep], return_inverse=True)  # column-major = CSC
+        self._rows = (uniq % nf).astype(np.int32)
+        self._ptr = np.concatenate([[0], np.cumsum(np.bincount(uniq // nf, minlength=nf))]).astype(np.int32)
+        self._nnz = len(uniq)
+        self._diag = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
+        self._K = self._qdldl = None
+
+    def __getstate__(self):
+        return {**self.__dict__, "_K": None, "_qdldl": None}
+
+    def assemble(self, local, project=True):
+        """Values in the pattern from per-element modes W (m, (d+1)d, d²) and A_t·λ (m, d²); ``project`` clamps
+        the element eigenvalues at 0 (the PSD projection)."""
+        W, lamA = local
+        if project:
+            lamA = np.maximum(lamA, 0.0)
+        K_loc = np.matmul(W * lamA[:, None, :], np.swapaxes(W, 1, 2))  # (m, (d+1)d, (d+1)d)
+        return np.bincount(self._inv, weights=K_loc.reshape(-1)[self._keep], minlength=self._nnz)
+
+    def matrix(self, data, rel_shift=0.0):
+        """The upper-triangular CSC matrix with these values plus ``rel_shift`` · mean|diag| on the diagonal."""
+        if self._K is None:  # the pattern is fixed: build the matrix once, then only overwrite its values
+            self._K = sp.csc_matrix((data.copy(), self._rows, self._ptr), shape=(self.nf, self.nf))
+        self._K.data[:] = data
+        self._K.data[self._diag] += rel_shift * max(float(np.mean(np.abs(data[self._diag]))), 1e-300)
+        return self._K
+
+    def full(self, data):
+        """The symmetric matrix (both triangles), CSC."""
+        K = self.matrix(data).copy()
+        return (K + sp.triu(K, 1).T).tocsc()
+
+    def solve(self, data, b, rel_shift):
+        """K⁻¹ b with K = ``matrix(data, rel_shift)``; factorises."""
+        K = self.matrix(data, rel_shift)
+        if qdldl is None:  # pragma: no cover - exercised only without the dependency
+            self._qdldl = None
+            lu = sla.splu((K + sp.triu(K, 1).T).tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
+            return lu.solve(b)
+        if self._qdldl is None:
+            self._qdldl = qdldl.Solver(K, upper=True)
+        else:
+            self._qdldl.update(K, upper=True)
+        return self._qdldl.solve(b)
+
+    def inertia(self):
+        """Negative pivots of the last LDLᵀ (Sylvester: negative eigenvalues of the shifted K), None without qdldl."""
+        return None if self._qdldl is None else int(np.count_nonzero(self._qdldl.factors()[1] < 0))
+
+
+class ReducedProblem:
+    """Problem (6) on one mesh, one handle set and one energy, reduced to the free vertices.
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+        V (n, d), F (m, d + 1); d is read from V.
+    handles : (h,) int numpy array or (n_vertices,) bool numpy array
+        Constrained vertices (moving and fixed handles), in any order (see :func:`check_handles`).
+        Targets are always given in this order. A vertex listed twice must get the same target each time.
+    energy : str
+        One of :data:`defop.variational.energies.ENERGIES`.
+
+    Attributes
+    ----------
+    handles : (u,) int numpy array
+        The unique handle vertices, sorted. ``handles_given`` keeps the order of the constructor.
+    free_vertices : (n_free,) int numpy array
+    free : (n_free·d,) int numpy array
+        The free dofs d·v + c, the unknowns.
+    hessian : ReducedHessian
+    """
+
+    def __init__(self, mesh, handles, energy="sarap"):
+        self.mesh = mesh
+        self.energy = en.check_energy(energy)
+        self.barrier = en.is_barrier(energy)
+        self.handles_given = check_handles(mesh, handles)
+        #: unique sorted handle vertices; ``targets_given[k]`` belongs to ``handles[_slot[k]]``
+        self.handles, self._slot = np.unique(self.handles_given, return_inverse=True)
+        n, d = mesh.V.shape
+        if len(self.handles) == n:
+            raise ValueError(f"every one of the {n} vertices is a handle: there is nothing to solve for")
+        is_handle = np.zeros(n, bool)
+        is_handle[self.handles] = True
+        self.free_vertices = np.flatnonzero(~is_handle)
+        self.free = (d * self.free_vertices[:, None] + np.arange(d)).ravel()
+        self.hessian = ReducedHessian(mesh, self.free)
+        self._biharmonic = None
+        #: energies below this (1e-12 · area) count as zero in relative tests (ARAP and S-ARAP vanish at rest)
+        self._energy_floor = 1e-12 * float(mesh.areas.sum())
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_biharmonic"] = None
+        return state
+
+    @property
+    def dim(self) -> int:
+        """d: 2 for triangles, 3 for tetrahedra."""
+        return self.mesh.V.shape[1]
+
+    def scale(self, E):
+        """E as the scale of relative tests: at least 1e-12 · area (ARAP and S-ARAP vanish at rest)."""
+        return max(E, self._energy_floor)
+
+    def targets_of(self, targets):
+        """Validate targets given in the constructor's handle order; return them per unique handle.
+
+        Parameters
+        ----------
+        targets : (h, d) array-like
+            One row per entry of the ``handles`` given to the constructor.
+
+        Returns
+        -------
+        T : (u, d) numpy array
+            ``T[j]`` is the target of vertex ``self.handles[j]``.
+        """
+        Tg = check_targets(targets, self.handles_given, self.mesh)
+        T = np.empty((len(self.handles), self.dim))
+        T[self._slot] = Tg
+        bad = np.flatnonzero(np.abs(Tg - T[self._slot]).max(axis=1) > 1e-12 * self.mesh.bbox_diagonal)
+        if len(bad):
+            k = int(bad[0])
+            v = int(self.handles_given[k])
+            raise ValueError(
+                f"vertex {v} is given two different targets: {T[self._slot[k]].tolist()} and {Tg[k].tolist()}"
+            )
+        return T
+
+    # ------------------------------------------------------------------ energy pieces
+    def jacobians(self, X):
+        """(m, d, d) Jacobians of the map X (n, d), from the mesh's sparse operator."""
+        d = self.dim
+        return (self.mesh.jacobian_operator @ np.asarray(X, dtype=float).ravel()).reshape(-1, d, d)
+
+    def energy_of(self, X, mu=0.0):
+        """E(X) (+inf for a flipped element under a barrier energy); ``mu`` smooths S-ARAP's kink."""
+        return en.total_energy(self.mesh, X, self.energy, mu)
+
+    def energies(self, X, mu):
+        """(E_μ(X), E(X)): the smoothed energy Newton minimises and the true one, from one SVD."""
+        if not mu:
+            E = self.energy_of(X)
+            return E, E
+        smooth, exact = en.density(self.mesh.jacobians(X), self.energy, mu, both=True)
+        return float(self.mesh.areas @ smooth), float(self.mesh.areas @ exact)
+
+    def grad_hess(self, X, mu=0.0, project=True, kink=0.0):
+        """E, the gradient (d·n,) and the Hessian values in the fixed upper-triangular CSC pattern.
+
+        Per element, K_t = A_t Σ_k λ_k w_k w_kᵀ with w_k = B_tᵀ vec(M_k) for the eigenpairs (λ_k, M_k)
+        of :func:`defop.variational.energies.eigensystem`: no d²×d² Hessian is formed. Also returns ``local``,
+        with which :meth:`ReducedHessian.assemble` rebuilds the projected Hessian without a second eigensystem.
+        """
+        mesh = self.mesh
+        G = mesh.jacobian_operator
+        J = self.jacobians(X)
+        psi, grad, lam, modes = en.eigensystem(J, self.energy, project=False, mu=mu, kink=kink)
+        A = mesh.areas
+        E = float(A @ psi)
+        g = G.T @ (A[:, None] * grad).ravel()
+        D = mesh.local_gradients  # (m, d+1, d)
+        m, d, k = len(D), J.shape[-1], modes.shape[-1]
+        # w_k[d·i+a] = Σ_b ∇φ_i[b] M_k[a,b]: one (d+1, d) @ (d, d·k) product per element
+        Mb = np.ascontiguousarray(modes.reshape(m, d, d, k).transpose(0, 2, 1, 3)).reshape(m, d, d * k)
+        local = (np.matmul(D, Mb).reshape(m, (d + 1) * d, k), lam * A[:, None])
+        return E, g, self.hessian.assemble(local, project), local
+
+    def newton_direction(self, g_free, data, rel_shift=1e-10):
+        """−K⁻¹ g on the free dofs. A tiny relative diagonal shift keeps the projected (PSD) Hessian definite;
+        the exact Hessian may be indefinite: the caller checks that the direction descends."""
+        return -self.hessian.solve(data, g_free, rel_shift)
+
+    def full(self, p):
+        """(n, d) field from free-dof values ``p`` (zero at the handles)."""
+        P = np.zeros(self.dim * self.mesh.n_vertices)
+        P[self.free] = p
+        return P.reshape(-1, self.dim)
+
+    # ------------------------------------------------------------------ starts
+    def _biharmonic_solver(self):
+        if self._biharmonic is None:
+            L = self.mesh.cotmatrix
+            Minv = sp.diags(1.0 / self.mesh.mass_matrix.diagonal())
+            Q = (L.T @ Minv @ L).tocsc()
+            fv, hv = self.free_vertices, self.handles
+            self._biharmonic = (sla.splu(Q[fv][:, fv].tocsc()), Q[fv][:, hv].tocsc())
+        return self._biharmonic
+
+    def extend(self, displacement):
+        """Biharmonic extension of handle displacements to the whole mesh.
+
+        Parameters
+        ----------
+        displacement : (u, d) numpy array
+            Displacement of each unique handle vertex, in the order of ``self.handles`` (sorted).
+
+        Returns
+        -------
+        D : (n, d) numpy array
+            Zero-Laplacian-squared displacement field equal to ``displacement`` at the handles.
+        """
+        lu, Qfh = self._biharmonic_solver()
+        D = np.zeros((self.mesh.n_vertices, self.dim))
+        D[self.handles] = displacement
+        D[self.free_vertices] = -lu.solve(np.asarray(Qfh @ displacement))
+        return D
+
+    def check_start(self, X0):
+        """A copy of the start X0 (n, d), or of the rest pose when None; ValueError if it is not a valid start."""
+        if X0 is None:
+            return self.mesh.V.copy()
+        X = opt.real_array("X0", X0).copy()
+        if X.shape != self.mesh.V.shape:
+            raise ValueError(f"X0 must have shape {self.mesh.V.shape}, got {X.shape}")
+        if not np.isfinite(X).all():
+            raise ValueError("X0 has NaN or infinite entries")
+        if self.barrier and np.any(self.mesh.flipped(X)):
+            bad = np.flatnonzero(self.mesh.flipped(X))
+            raise ValueError(
+                f"X0 has {len(bad)} flipped triangle(s) (first: triangle {int(bad[0])}); "
+                f"the {self.energy} energy is a barrier and needs a flip-free start"
+            )
+        return X

@@ -1,0 +1,136 @@
+"""The five checks behind ``converged``: a verified local minimum of problem (6).
+
+At the returned X, with the handles written onto their targets: (1) the energy is finite; (2) every handle sits
+on its target to ``HANDLE_TOL`` of the bounding-box diagonal; (3) for barrier energies, no element is flipped or
+collapsed; (4) the Newton decrement of the true energy (Eq. 10 / 11, μ = 0; at S-ARAP's kink, its conformal
+part) is small, and no S-ARAP triangle held on the kink is pulled off it harder than its cone bears
+(:func:`kink_pull`, :func:`defop.variational.planar.kink_radius`); (5) the exact reduced Hessian has no negative
+eigenvalue (beyond an ``INERTIA_SHIFT`` relative shift), read from the inertia of its LDLᵀ factorisation
+(Sylvester's law: the signs of D). :class:`Verification` names the check that failed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from . import planar
+from .problem import count_flips
+
+#: handles must sit on their targets to this fraction of the bounding-box diagonal (check 2)
+HANDLE_TOL = 1e-12
+#: relative diagonal shift under which a negative Hessian eigenvalue counts as round-off (check 5)
+INERTIA_SHIFT = 1e-8
+#: S-ARAP triangles with Σ − σ ≤ KINK · Σ sit on Eq. (11)'s kink for check 4
+#: (:func:`defop.variational.planar.eigensystem`)
+KINK = 1e-4
+
+
+@dataclasses.dataclass
+class Verification:
+    """Outcome of :func:`verify_point`: ``ok``, the first failed check (``failed``, "" if none) and why."""
+
+    ok: bool
+    failed: str
+    reason: str
+    energy: float
+    decrement: float = np.nan
+    negative: int = 0
+    #: check "kink" only: the (n, d) direction that pulls the overloaded triangles off Eq. (11)'s kink
+    kink: np.ndarray | None = dataclasses.field(default=None, repr=False)
+
+
+def verify_point(solver, X, T, tol=None):
+    """The five checks behind ``converged``, at X (handles already on their targets).
+
+    Parameters
+    ----------
+    solver : defop.variational.solver.Solver
+    X : (n, d) numpy array
+    T : (u, d) numpy array
+        Targets per unique handle (:meth:`~defop.variational.problem.ReducedProblem.targets_of`).
+    tol : float, optional
+        Check 4's tolerance (default ``solver.verify_tol``).
+
+    Returns
+    -------
+    check : Verification
+        ``failed`` is one of "energy", "handles", "flips", "saddle", "decrement", "kink" (or "").
+    """
+    tol = solver.verify_tol if tol is None else tol
+    mesh = solver.mesh
+    E = solver.energy_of(X)
+    flips = count_flips(mesh, X)
+    if not np.isfinite(E):
+        return Verification(False, "energy", f"energy is not finite (E = {E}, {flips} flipped/collapsed triangles)", E)
+    err = float(np.abs(X[solver.handles] - T).max()) / mesh.bbox_diagonal
+    if not err <= HANDLE_TOL:
+        return Verification(False, "handles", f"a handle is {err:.2e} of the diagonal off its target", E)
+    if solver.barrier and flips:
+        return Verification(False, "flips", f"{flips} flipped or collapsed triangle(s)", E)
+    E, g, data, local = solver.grad_hess(X, 0.0, project=False, kink=solver._kink)  # true energy, exact Hessian
+    gf = g[solver.free]
+    p = solver.newton_direction(gf, data, rel_shift=INERTIA_SHIFT)
+    negative = solver.hessian.inertia()
+    dec = -float(gf @ p) / 2
+    if negative:
+        why = f"saddle point: the reduced Hessian has {negative} negative eigenvalue(s)"
+        return Verification(False, "saddle", why, E, dec, negative)
+    if not (np.isfinite(dec) and dec <= tol * solver.scale(E)):
+        why = f"the true energy's Newton decrement λ²/2 = {dec:.2e} > {tol:g}·E"
+        return Verification(False, "decrement", why, E, dec)
+    if solver.energy == "sarap":
+        gain, worst, D, _ = kink_pull(solver, X, local, p, solver._kink)
+        if gain > tol * solver.scale(E):
+            why = (
+                f"not a minimum at Eq. (11)'s kink: triangle {worst[0]} is pulled off it by {worst[1]:.4g} times "
+                f"the force its cone bears; moving off lowers E by up to {gain:.2e} > {tol:g}·E"
+            )
+            return Verification(False, "kink", why, E, dec, 0, D)
+    return Verification(True, "", "", E, dec, 0)
+
+
+def kink_pull(solver, X, local, p, hold):
+    """S-ARAP triangles held on Eq. (11)'s kink (check 4) that the rest of the mesh pulls off it.
+
+    Check 4 holds a triangle on the kink (:func:`defop.variational.planar.on_kink`): its anti-conformal modes
+    are stiff, so in
+    the Newton system K p = −g their amplitudes times their stiffness are the force F_t the rest of the mesh
+    puts on them. There ψ is a cone (:func:`defop.variational.planar.kink_radius`): the triangle is in equilibrium
+    only if ‖F_t‖ ≤ A_t r_t. A triangle pulled harder moves off the kink, and the quadratic model with its
+    own branch curvature κ_t bounds the gain by (‖F_t‖ − A_t r_t)² / (2 A_t κ_t) when the rest is convex.
+
+    Returns
+    -------
+    gain : float
+        Σ_t of that bound over the overloaded triangles (0 if none).
+    worst : tuple
+        (triangle, ‖F_t‖ / (A_t r_t)) of the largest bound.
+    D : (n,2) numpy array or None
+        Descent direction: each overloaded triangle's anti-conformal modes moved along its force, by the
+        model's amplitude (‖F_t‖ − A_t r_t)/(A_t κ_t); zero at the handles.
+    pulled : (k,) int numpy array
+        The overloaded triangles.
+    """
+    S = planar.svd_frame(solver.mesh.jacobians(X))[0]
+    on = np.flatnonzero(planar.on_kink(S, hold))
+    none = 0.0, None, None, on[:0]
+    if not len(on):
+        return none
+    W, lamA = local[0][on][:, :, [1, 3]], local[1][on][:, [1, 3]]
+    dofs = solver.hessian.dofs[on]
+    amp = np.einsum("tdk,td->tk", W, solver.full(p).ravel()[dofs])  # stiff-mode amplitudes of the step
+    force = np.hypot(*(lamA * amp).T)
+    A = solver.mesh.areas[on]
+    r, kappa = planar.kink_radius(S[on])
+    excess = np.maximum(force - A * r, 0.0)
+    gains = excess**2 / (2 * A * kappa)
+    if not gains.any():
+        return none
+    k = int(np.argmax(gains))
+    u = amp * (excess / (A * kappa) / np.maximum(np.hypot(*amp.T), 1e-300))[:, None]
+    D = np.bincount(dofs.ravel(), np.einsum("tdk,tk->td", W, u).ravel(), minlength=2 * solver.mesh.n_vertices)
+    D = D.reshape(-1, 2)
+    D[solver.handles] = 0.0
+    return float(gains.sum()), (int(on[k]), float(force[k] / (A[k] * r[k]))), D, on[gains > 0]
