@@ -245,10 +245,14 @@ def test_star_3273_without_releases_escapes_the_kink_from_check_4(monkeypatch):
     mesh, h, T = _star_3273()
     monkeypatch.setattr(dop.variational.newton, "MAX_RELEASES", 0)
     solver = dop.variational.Solver(mesh, h, "sarap")
+    smoothed = solver.solve(T)  # the smoothing continuation (the held point's Fenchel gap is large) gets there first
+    assert smoothed.converged and smoothed.start == "rest" and "smoothing continued" in smoothed.reason
+    monkeypatch.setattr(dop.variational.newton, "KINK_TARGET", np.inf)  # no continuation either
     a = solver.solve(T)
     assert a.converged and a.start == "rest > off kink"
     assert [c[2] for c in a.candidates] == [False, True]
     assert a.energy < a.candidates[0][1] * (1 - 1.5e-5)
+    assert smoothed.energy == pytest.approx(a.energy, rel=1e-7)
 
 
 def test_the_old_check_4_passed_star_3273_and_verify_now_rejects_that_point(monkeypatch):
@@ -256,7 +260,8 @@ def test_the_old_check_4_passed_star_3273_and_verify_now_rejects_that_point(monk
     converged; :meth:`Solver.verify` rejects that point with "kink" and names the triangle and its pull."""
     mesh, h, T = _star_3273()
     solver = dop.variational.Solver(mesh, h, "sarap")
-    monkeypatch.setattr(dop.variational.verify, "kink_pull", lambda solver, X, local, p, hold: (0.0, None, None, []))
+    no_pull = lambda solver, X, local, p, hold: (0.0, None, None, [], 0.0)  # noqa: E731
+    monkeypatch.setattr(dop.variational.verify, "kink_pull", no_pull)
     old = solver.solve(T)
     assert old.converged and old.start == "rest"
     monkeypatch.undo()

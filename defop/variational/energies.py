@@ -31,26 +31,24 @@ from __future__ import annotations
 
 import numpy as np
 
-ENERGIES = ("arap", "sarap", "isometric", "isometric_max", "isometric_exp")
-BARRIER = {"arap": False, "sarap": True, "isometric": True, "isometric_max": True, "isometric_exp": True}
-#: value of ψ at rotations (the rest pose), per energy
-REST_VALUE = {"arap": 0.0, "sarap": 0.0, "isometric": 4.0, "isometric_max": 0.0, "isometric_exp": 0.0}
-#: the p of ``"isometric_max"``'s p-norm: ψ + 4^(2/p) lies between max(Σ, 1/σ)² and 4^(2/p) = 1.044 times it
-MAX_POWER = 64.0
-#: the s of ``"isometric_exp"``
-EXP_SCALE = 0.25
+from .definitions import BARRIER, ENERGIES, EXP_SCALE, MAX_POWER, REST_VALUE, check_energy, is_barrier
 
-
-def check_energy(energy):
-    """Validate an energy name; raise ValueError listing the known ones."""
-    if energy not in ENERGIES:
-        raise ValueError(f"unknown energy {energy!r}; known energies: {', '.join(ENERGIES)}")
-    return energy
-
-
-def is_barrier(energy) -> bool:
-    """Whether the energy is +inf on flipped triangles (S-ARAP and the isometric energies)."""
-    return BARRIER[check_energy(energy)]
+__all__ = [
+    "BARRIER",
+    "ENERGIES",
+    "EXP_SCALE",
+    "MAX_POWER",
+    "REST_VALUE",
+    "check_energy",
+    "closed_forms",
+    "density",
+    "eigensystem",
+    "gradient",
+    "hessian",
+    "is_barrier",
+    "max_flip_free_step",
+    "total_energy",
+]
 
 
 def closed_forms(J):
@@ -63,23 +61,22 @@ def closed_forms(J):
     Returns
     -------
     module
-        :mod:`defop.variational.planar` for d = 2. Its functions (``density``, ``gradient``, ``eigensystem``,
-        ``max_flip_free_step``) take and return arrays of the shapes documented here with d = 2.
+        :mod:`defop.variational.planar` for d = 2, :mod:`defop.variational.volumetric` for d = 3. Their functions
+        (``density``, ``gradient``, ``eigensystem``, ``max_flip_free_step``) take and return arrays of the shapes
+        documented here.
 
     Raises
     ------
     ValueError
-        J is not an (m, d, d) stack, or d = 3, whose closed forms are not available yet.
+        J is not an (m, d, d) stack with d = 2 or 3.
     """
     shape = np.shape(J)
     if len(shape) != 3 or shape[1] != shape[2] or shape[-1] not in (2, 3):
         raise ValueError(f"J must be an (m, d, d) array of Jacobians with d = 2 or 3, got shape {shape}")
     if shape[-1] == 3:
-        raise ValueError(
-            "the 3×3 closed forms (3D energies on tetrahedra, issue 27) are not available yet: "
-            f"J has shape {shape}; only d = 2 (triangles) is supported"
-        )
-    # imported here: the closed-form modules import this module's definitions (MAX_POWER, EXP_SCALE)
+        from . import volumetric
+
+        return volumetric
     from . import planar
 
     return planar

@@ -24,10 +24,13 @@ import time
 import numpy as np
 
 from . import energies as en
-from . import verify
+from . import kink, verify
 
 #: at most this many triangles are released from the kink in one Newton solve (:func:`kink_active_set`)
 MAX_RELEASES = 64
+#: S-ARAP: the smoothing continues (μ / 100, :func:`defop.variational.kink.refine`) while the held point's Fenchel gap
+#: (:func:`defop.variational.kink.fenchel_gap`) exceeds this fraction of ``verify_tol`` · E
+KINK_TARGET = 0.1
 #: ``"isometric_exp"`` only: a continuation stage whose start raises the largest log(1 + ψ) over the triangles by
 #: more than this is halved like one that flips. Newton on ψ = exp(s·x) − 1 lowers the exponent by about one per
 #: iteration, so a start at ψ ~ 1e259 (a full stage after a converged half stage, bar of 43 vertices) spent the whole
@@ -156,7 +159,15 @@ def newton(solver, log, X, tol):
     for i, mu in enumerate(solver.mu_schedule):
         last = i == len(solver.mu_schedule) - 1
         if last and solver.energy == "sarap":
-            return kink_active_set(solver, log, X, tol)
+            return kink.refine(
+                lambda Y, m: newton_stage(solver, log, Y, max(tol, solver.stage_tol), m),
+                lambda Y: kink_active_set(solver, log, Y, tol),
+                lambda Y: verify.kink_gap(solver, Y, KINK_TARGET * solver.verify_tol),
+                X,
+                solver.mu_schedule[i - 1] if i else 0.0,
+                KINK_TARGET * solver.verify_tol,
+                kink.certificate_mu(solver.energy_of(X), solver.mesh.areas.sum(), solver.verify_tol),
+            )
         X, converged, reason = newton_stage(solver, log, X, tol if last else max(tol, solver.stage_tol), mu)
         if log.exhausted:
             break
@@ -179,7 +190,7 @@ def kink_active_set(solver, log, X, tol):
             return X, converged, reason
         E, g, data, local = solver.grad_hess(X, 0.0, project=False, kink=hold)
         p = solver.newton_direction(g[solver.free], data, rel_shift=verify.INERTIA_SHIFT)
-        gain, _, D, pulled = verify.kink_pull(solver, X, local, p, hold)
+        gain, _, D, pulled, _ = verify.kink_pull(solver, X, local, p, hold)
         Xs = None if gain <= tol * solver.scale(E) else step_off(solver, X, D)
         if Xs is None:
             return X, converged, reason + (f" ({released} triangle(s) released from the kink)" if released else "")

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .energies import EXP_SCALE, MAX_POWER
+from .definitions import EXP_SCALE, MAX_POWER
 
 
 def _rot(angle):

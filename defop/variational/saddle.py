@@ -53,7 +53,8 @@ def escape(solver, log, X, T, tol, label, reason, ok, escapes):
         ways = ((D, "escape +"), (-D, "escape -"))
         left = f"a saddle with {check.negative} negative eigenvalue(s)"
     else:
-        ways, left = ((check.kink, "off kink"),), "Eq. (11)'s kink, pulled off it"
+        ways = () if check.kink is None else ((check.kink, "off kink"),)
+        left = "Eq. (11)'s kink, pulled off it"
     best = (X, label, reason, ok, check)
     best_key = (True, check.energy)
     for D, tag in ways:

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from defop.variational.energies import EXP_SCALE, MAX_POWER, check_energy
+from .definitions import EXP_SCALE, MAX_POWER, check_energy
 
 #: value of ψ at rotations, per energy (3D)
 REST_VALUE = {"arap": 0.0, "sarap": 0.0, "isometric": 6.0, "isometric_max": 0.0, "isometric_exp": 0.0}
@@ -208,11 +208,14 @@ def psi_value(energy, s1, s2, s3, mu=0.0, both=False):
     return (smooth, exact) if both else smooth
 
 
-def density(J, energy, mu=0.0):
-    """ψ(J_t) (m,) per tetrahedron for J (m,3,3); +inf on inverted ones for the barrier energies."""
+def density(J, energy, mu=0.0, both=False):
+    """ψ(J_t) (m,) per tetrahedron for J (m,3,3); +inf on inverted ones for the barrier energies.
+
+    ``both=True`` returns (ψ_μ, ψ): the μ-smoothed S-ARAP and the energy itself, from one SVD.
+    """
     check_energy(energy)
     S = signed_svd(J)[1]
-    return psi_value(energy, *S.T, mu=mu)
+    return psi_value(energy, *S.T, mu=mu, both=both)
 
 
 def gradient(J, energy, mu=0.0):
