@@ -220,17 +220,19 @@ def test_reduced_hessian_assembles_the_dense_sum_in_any_dimension(d, seed, n_han
     )
 
 
-def test_3d_reaches_the_closed_forms_and_says_they_are_missing():
+def test_3d_reaches_the_volumetric_closed_forms():
+    """The same solver on tets: targets (h, 3), the 3×3 closed forms behind the one face (energies.closed_forms)."""
     mesh = _TetMesh()
     solver = Solver(mesh, [0, 5, 26], "sarap")
     T = solver.targets_of(mesh.V[[0, 5, 26]] + 0.01)
     assert T.shape == (3, 3)
     with pytest.raises(ValueError, match=r"targets must have shape \(3, 3\)"):
         solver.targets_of(np.zeros((3, 2)))
-    with pytest.raises(ValueError, match="3×3 closed forms .* not available yet"):
-        solver.grad_hess(mesh.V)
+    E, g, _, _ = solver.grad_hess(mesh.V)
+    assert E == 0.0 and np.abs(g).max() < 1e-12  # the rest pose is a minimum of S-ARAP
     J = mesh.jacobians(mesh.V)
-    with pytest.raises(ValueError, match="3×3 closed forms .* not available yet"):
-        dop.variational.energies.max_flip_free_step(J, J)
+    assert dop.variational.energies.closed_forms(J) is dop.variational.volumetric
+    # det(J(1 − 2t)) = (1 − 2t)³: a triple root at ½, found from below (5e-6 short), times the safety 0.9
+    assert dop.variational.energies.max_flip_free_step(J, -2 * J) == pytest.approx(0.45, rel=1e-5)
     with pytest.raises(ValueError, match=r"J must be an \(m, d, d\) array .* got shape \(4, 2, 3\)"):
         dop.variational.energies.density(np.zeros((4, 2, 3)), "arap")

@@ -356,7 +356,7 @@ def test_frozen_offsets_are_not_certified_and_the_continuation_slides_them(monke
     change) to a point lower by more than verify_tol · E, which check 4 accepts."""
     mesh, b, T = _pinned_near_conformal(5, 0.7, 1e-6)
     solver = Solver(mesh, b, "sarap")
-    monkeypatch.setattr(dop.variational.solver, "KINK_TARGET", np.inf)
+    monkeypatch.setattr(dop.variational.newton, "KINK_TARGET", np.inf)
     with pytest.warns(NotConvergedWarning, match="kink"):
         old = solver.solve(T)
     monkeypatch.undo()

@@ -182,8 +182,12 @@ def test_deformation_summary_of_a_collapsed_map_is_not_nan():
 @pytest.mark.parametrize("energy", ["isometric_max", "isometric_exp", "sarap"])
 def test_energies_reject_jacobians_that_are_not_m_by_2_by_2(energy):
     """A (1,3,3) array gave ψ = 0 from its top-left 2×2 without a word; a single (2,2) matrix an IndexError.
-    Now the face reads d from J: (m,3,3) is 3D, whose closed forms are named as missing, not computed wrongly."""
-    cases = ((np.eye(3)[None], "3×3 closed forms"), (np.eye(2), r"\(m, d, d\)"), (np.ones((1, 4)), r"\(m, d, d\)"))
+    Now the face reads d from J: (m,3,3) is 3D (the 3×3 closed forms: ψ(I) = 0 for these energies), anything else
+    is named."""
+    for f in (dop.variational.energies.density, dop.variational.energies.gradient):
+        out = f(np.eye(3)[None], energy)
+        assert (out if f is dop.variational.energies.density else out[0]) == pytest.approx([0.0])
+    cases = ((np.eye(2), r"\(m, d, d\)"), (np.ones((1, 4)), r"\(m, d, d\)"), (np.ones((1, 4, 4)), r"\(m, d, d\)"))
     for J, match in cases:
         en = dop.variational.energies
         for f in (en.density, en.gradient, en.hessian):
