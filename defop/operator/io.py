@@ -163,7 +163,7 @@ def load(path, cls):
                 headers = _member_headers(path, zf)
                 header = _json_header(path, zf, headers)
                 fmt = header.get("format") if isinstance(header, dict) else None
-                if fmt not in READS:
+                if not isinstance(fmt, str) or fmt not in READS:
                     known = ", ".join(repr(f) for f in READS)
                     raise OperatorFileError(f"{path} has format {fmt!r}; this defop reads {known}")
                 _check_declared(path, header, headers, READS[fmt])
@@ -173,7 +173,9 @@ def load(path, cls):
     except OSError as exc:
         raise OperatorFileError(f"{path} cannot be read: {exc}") from exc
     except (*_DAMAGED, ValueError, RecursionError, MemoryError) as exc:
-        raise OperatorFileError(f"{path} is not a readable defop operator file ({type(exc).__name__}: {exc})") from exc
+        raise OperatorFileError(
+            f"{path} is not a readable defop operator file: damaged or truncated ({type(exc).__name__}: {exc})"
+        ) from exc
     try:
         return _build(cls, header, data, READS[fmt])
     except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
