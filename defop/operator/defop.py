@@ -161,21 +161,6 @@ class DefOp:
         )
 
     # ------------------------------------------------------------------ evaluation
-    def _check_extrapolation(self, Q):
-        if self._reach is None:
-            return
-        dist = np.linalg.norm(Q - self.P, axis=-1)
-        far = dist > 1.5 * self._reach + 1e-12
-        if np.any(far):
-            idx = np.argwhere(far)[0]
-            j = int(idx[-1])
-            warnings.warn(
-                f"moving handle {j} is {dist[tuple(idx)]:.3g} from rest, beyond 1.5x the farthest training sample "
-                f"({self._reach[j]:.3g}): the operator extrapolates",
-                ExtrapolationWarning,
-                stacklevel=3,
-            )
-
     def psi(self, Q):
         """Ψ(Q): (|Ψ|,) or (k,|Ψ|) for Q (n_moving,d) or (k,n_moving,d)."""
         return self.handle_basis(Q)
@@ -187,33 +172,9 @@ class DefOp:
             self._fast["xh"] = self._x[self._hcols].copy()
         return self._fast
 
-    def _workspace(self, rows, M):
-        """The kept (≥ rows, M's columns) workspace of the last product, of M's dtype."""
-        if self._work is None or self._work.shape[0] < rows or self._work.dtype != M.dtype:
-            self._work = np.empty((rows, M.shape[1]), M.dtype)
-        return self._work[:rows]
-
-    def _free(self, dpsi, fast, out=None):
-        """x + δψ W_F for δψ (k,|Ψ|−1), in float64: float64 W_F, or the fast paths' matrices (``fast``)."""
-        if self.factors is None and not fast:
-            return np.add(self._x, dpsi @ self._WF, out=out)
-        mats = self._fast_state()["mats"]
-        dpsi = dpsi / self.handle_basis.raw_scale  # the fast matrices multiply the raw values
-        # float32: rows of δψ beyond float32's range (only far-away Q) are scaled into it and back
-        s = np.abs(dpsi).max(axis=1, initial=0.0)
-        far = s > _F32_SAFE
-        if far.any():
-            s = np.where(far, s, 1.0)[:, None]
-            dpsi = dpsi / s
-        y = dpsi.astype(mats[0].dtype)
-        for M in mats[:-1]:
-            y = y @ M
-        # the last product goes into a kept workspace: a fresh (k, d n_vertices) temporary per call costs
-        # page faults comparable to the product itself
-        y = np.matmul(y, mats[-1], out=self._workspace(len(y), mats[-1]))
-        if far.any():
-            y = y * s
-        return np.add(self._x, y, out=out, dtype=np.float64)
+    def check_mesh(self, mesh):
+        """Raise ValueError unless ``mesh`` is the mesh this operator was trained on (dimension, sizes, arrays)."""
+        check_mesh(self, mesh)
 
     def _evaluate(self, Q, fast, out=None):
         """(★) for Q (n,d) or (k,n,d), validated; ``out`` (k, d n_vertices) float64 receives the result."""
@@ -226,8 +187,8 @@ class DefOp:
         finite = np.isfinite(dpsi).all(axis=1)
         if not finite.all():
             raise not_finite_error(self, Q2[~finite])
-        self._check_extrapolation(Q)
-        out = self._free(dpsi, fast, out)
+        check_extrapolation(self, Q)
+        out = free_part(self, dpsi, fast, out)
         out[:, self._hcols] += (Q2 - self.P).reshape(len(Q2), self._hcols.size)  # δψ W_H = Q − P (Prop. 2)
         big = np.abs(dpsi).max(axis=1, initial=0.0) > 1e280  # only rows this far from rest can overflow
         if big.any() and not np.isfinite(out[big]).all():
@@ -284,35 +245,9 @@ class DefOp:
         if len(Qs) == 0:  # no frame: an empty batch, like numpy
             return np.empty(shape) if out is None else out
         flat = np.empty((len(Qs), self.d * self.n_vertices)) if out is None else out.reshape(len(Qs), -1)
-        if not self._batch_fast(Qs, flat):  # NaN, or a row far enough to overflow float32: the checked path
+        if not batch_fast(self, Qs, flat):  # NaN, or a row far enough to overflow float32: the checked path
             self._evaluate(Qs, fast=True, out=flat)
         return flat.reshape(shape) if out is None else out
-
-    def _batch_fast(self, Qs, out):
-        """(★) for k rows of Qs (k,n,d) into out (k, d n_vertices), when every |Q − P|² < R2 (else False).
-
-        ψ of the k rows vectorised (:meth:`HandleBasis.delta_raw`), then one product per factor (the
-        last into the kept workspace), x added in float64 and the handles' exact part written.
-        """
-        f = self._fast_state()
-        dz = (Qs - self.P).reshape(len(Qs), -1)
-        zz = np.einsum("ij,ij->i", dz, dz)
-        if not np.all(zz < f["R2"]):
-            return False
-        self._check_extrapolation(Qs)
-        mats = f["mats"]
-        c = self.BATCH_CHUNK if sum(M.nbytes for M in mats) <= self.BATCH_CHUNK_BYTES else len(Qs)
-        self._workspace(min(c, len(Qs)), mats[-1])
-        for i in range(0, len(Qs), c):  # chunks of rows: ψ's temporaries and the product's output stay in cache
-            rows = slice(i, i + c)
-            y = self.handle_basis.delta_raw(dz[rows], zz[rows], np.empty((len(dz[rows]), self._q), f["dtype"]))
-            for M in mats[:-1]:
-                y = y @ M
-            y = np.matmul(y, mats[-1], out=self._work[: len(y)])
-            np.copyto(out[rows], y)  # cast, then x added in place: faster than a mixed float64 + float32 sum
-            out[rows] += self._x
-        out[:, self._hcols] = f["xh"] + dz  # δψ W_H = Q − P, exactly (Prop. 2); B and W_F are 0 there
-        return True
 
     def evaluate_fast(self, Q):
         """D(·, Q) for one configuration, the interactive path: (★) with float32 W_F or the factors.
@@ -349,25 +284,11 @@ class DefOp:
 
     # ------------------------------------------------------------------ compression
     def compress(self, rank=None, tol=1e-3, dtype=np.float32):
-        """Replace W_F by a rank-r factor W_F ≈ A B; the guarantees stay exact (:func:`compress.factorise`).
+        """Replace W_F by a rank-r factor W_F ≈ A B; the guarantees stay exact.
 
-        Parameters
-        ----------
-        rank : int, optional
-            Keep this many directions (1 ≤ rank; at most the numerical rank).
-        tol : float
-            Without ``rank``: the fewest directions whose discarded part is at most ``tol`` (relative, [0, 1)).
-        dtype : numpy dtype
-            float32 (default) or float64.
-
-        Returns
-        -------
-        self : DefOp
-
-        Raises
-        ------
-        ValueError
-            A rank that is not a positive integer, a tol outside [0, 1), or another dtype.
+        ``rank`` (a positive integer), or else the fewest directions whose discarded part is at most ``tol``
+        (relative, in [0, 1)); ``dtype`` float32 (default) or float64. See :func:`compress.factorise`, which
+        raises a ValueError naming a bad option. Returns ``self``.
         """
         self.factors = compress_mod.factorise(self, rank, tol, dtype)
         self.meta["rank"] = self.factors[0].shape[1]
@@ -380,42 +301,105 @@ class DefOp:
         return self
 
     # ------------------------------------------------------------------ checks and files
-    def check_mesh(self, mesh):
-        """Raise ValueError unless ``mesh`` is the mesh this operator was trained on."""
-        if np.shape(mesh.V)[1] != self.d:
-            raise ValueError(f"this operator was trained on a {self.d}D mesh, not a {np.shape(mesh.V)[1]}D one")
-        if mesh.n_vertices != self.mesh.n_vertices or mesh.n_faces != self.mesh.n_faces:
-            raise ValueError(
-                f"this operator was trained on a mesh with {self.mesh.n_vertices} vertices and {self.mesh.n_faces} "
-                f"{'triangles' if self.d == 2 else 'tetrahedra'}, not {mesh.n_vertices} and {mesh.n_faces}"
-            )
-        if not (np.array_equal(mesh.F, self.mesh.F) and np.allclose(mesh.V, self.mesh.V, rtol=0, atol=1e-12)):
-            raise ValueError(
-                "this operator was trained on a different mesh (same size, different vertices or elements)"
-            )
-
     def save(self, path):
-        """Save as .npz (:func:`defop.operator.io.save`: arrays plus a JSON header; atomic; exact round trip).
-
-        Parameters
-        ----------
-        path : str or pathlib.Path
-        """
+        """Save to ``path`` (str or pathlib.Path) as .npz: :func:`defop.operator.io.save` (atomic, exact round trip)."""
         io_mod.save(self, path)
 
     @classmethod
     def load(cls, path):
         """Load an operator written by :meth:`save` (or by an older defop), checked before any work.
 
-        See :func:`defop.operator.io.load` for the limits and the checks.
-
-        Raises
-        ------
-        ValueError
-            A missing, corrupt, truncated, malformed, oversized or incompatible file; the message names the
-            file and what is wrong.
+        A missing, corrupt, truncated, oversized or incompatible file raises a ValueError naming the file and
+        what is wrong (:func:`defop.operator.io.load`: the limits and the checks).
         """
         return io_mod.load(path, cls)
+
+
+def check_extrapolation(op, Q):
+    """Warn (:class:`ExtrapolationWarning`) when a moving handle of Q is beyond 1.5x its farthest training sample."""
+    if op._reach is None:
+        return
+    dist = np.linalg.norm(Q - op.P, axis=-1)
+    far = dist > 1.5 * op._reach + 1e-12
+    if np.any(far):
+        idx = np.argwhere(far)[0]
+        j = int(idx[-1])
+        warnings.warn(
+            f"moving handle {j} is {dist[tuple(idx)]:.3g} from rest, beyond 1.5x the farthest training sample "
+            f"({op._reach[j]:.3g}): the operator extrapolates",
+            ExtrapolationWarning,
+            stacklevel=3,
+        )
+
+
+def workspace(op, rows, M):
+    """The kept (≥ rows, M's columns) workspace of the last product, of M's dtype."""
+    if op._work is None or op._work.shape[0] < rows or op._work.dtype != M.dtype:
+        op._work = np.empty((rows, M.shape[1]), M.dtype)
+    return op._work[:rows]
+
+
+def free_part(op, dpsi, fast, out=None):
+    """x + δψ W_F for δψ (k,|Ψ|−1), in float64: float64 W_F, or the fast paths' matrices (``fast``)."""
+    if op.factors is None and not fast:
+        return np.add(op._x, dpsi @ op._WF, out=out)
+    mats = op._fast_state()["mats"]
+    dpsi = dpsi / op.handle_basis.raw_scale  # the fast matrices multiply the raw values
+    # float32: rows of δψ beyond float32's range (only far-away Q) are scaled into it and back
+    s = np.abs(dpsi).max(axis=1, initial=0.0)
+    far = s > _F32_SAFE
+    if far.any():
+        s = np.where(far, s, 1.0)[:, None]
+        dpsi = dpsi / s
+    y = dpsi.astype(mats[0].dtype)
+    for M in mats[:-1]:
+        y = y @ M
+    # the last product goes into a kept workspace: a fresh (k, d n_vertices) temporary per call costs
+    # page faults comparable to the product itself
+    y = np.matmul(y, mats[-1], out=workspace(op, len(y), mats[-1]))
+    if far.any():
+        y = y * s
+    return np.add(op._x, y, out=out, dtype=np.float64)
+
+
+def batch_fast(op, Qs, out):
+    """(★) for k rows of Qs (k,n,d) into out (k, d n_vertices), when every |Q − P|² < R2 (else False).
+
+    ψ of the k rows vectorised (:meth:`HandleBasis.delta_raw`), then one product per factor (the
+    last into the kept workspace), x added in float64 and the handles' exact part written.
+    """
+    f = op._fast_state()
+    dz = (Qs - op.P).reshape(len(Qs), -1)
+    zz = np.einsum("ij,ij->i", dz, dz)
+    if not np.all(zz < f["R2"]):
+        return False
+    check_extrapolation(op, Qs)
+    mats = f["mats"]
+    c = op.BATCH_CHUNK if sum(M.nbytes for M in mats) <= op.BATCH_CHUNK_BYTES else len(Qs)
+    workspace(op, min(c, len(Qs)), mats[-1])
+    for i in range(0, len(Qs), c):  # chunks of rows: ψ's temporaries and the product's output stay in cache
+        rows = slice(i, i + c)
+        y = op.handle_basis.delta_raw(dz[rows], zz[rows], np.empty((len(dz[rows]), op._q), f["dtype"]))
+        for M in mats[:-1]:
+            y = y @ M
+        y = np.matmul(y, mats[-1], out=op._work[: len(y)])
+        np.copyto(out[rows], y)  # cast, then x added in place: faster than a mixed float64 + float32 sum
+        out[rows] += op._x
+    out[:, op._hcols] = f["xh"] + dz  # δψ W_H = Q − P, exactly (Prop. 2); B and W_F are 0 there
+    return True
+
+
+def check_mesh(op, mesh):
+    """Raise ValueError unless ``mesh`` is the mesh ``op`` was trained on."""
+    if np.shape(mesh.V)[1] != op.d:
+        raise ValueError(f"this operator was trained on a {op.d}D mesh, not a {np.shape(mesh.V)[1]}D one")
+    if mesh.n_vertices != op.mesh.n_vertices or mesh.n_faces != op.mesh.n_faces:
+        raise ValueError(
+            f"this operator was trained on a mesh with {op.mesh.n_vertices} vertices and {op.mesh.n_faces} "
+            f"{'triangles' if op.d == 2 else 'tetrahedra'}, not {mesh.n_vertices} and {mesh.n_faces}"
+        )
+    if not (np.array_equal(mesh.F, op.mesh.F) and np.allclose(mesh.V, op.mesh.V, rtol=0, atol=1e-12)):
+        raise ValueError("this operator was trained on a different mesh (same size, different vertices or elements)")
 
 
 def not_finite_error(op, Q, what="Ψ(Q)"):

@@ -223,6 +223,37 @@ def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, sc
 
     handles = np.asarray(handles, dtype=np.int64)
     moving = np.asarray(moving, dtype=bool)
+    Qs, Xs = _with_rest_pose(mesh, handles, moving, samples, X, basis)
+    psi = _handle_basis(basis, Qs, scale)
+    if isinstance(spatial, str):
+        spatial = spatial_mod.make_spatial(mesh, spatial, k)
+
+    t0 = time.perf_counter()
+    S = psi.evaluate_z(psi.z(Qs))  # (m, q)
+    A = np.vstack([S[:1], psi.side_conditions()])
+    fast = None
+    if psi.kind == "tps" and S.shape[1] == 1 + psi.dim + len(S):  # interpolation: the symmetric TPS system
+        fast = solve_structure_tps(S, psi.dim)
+    G, beta, rank = fast if fast is not None else solve_structure(S, A)
+    if rank < A.shape[1] - A.shape[0]:
+        raise ValueError(
+            f"the samples do not determine the {psi.kind} basis (rank {rank} < {A.shape[1] - A.shape[0]}): "
+            f"too few or degenerate samples; it needs at least {psi.min_samples() - 1} distinct ones"
+        )
+    fit_time = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    Wf = fold(mesh, handles, moving, psi, spatial, G, beta, Xs)
+    fold_time = time.perf_counter() - t1
+    meta = dict(meta or {})
+    meta.update(basis=psi.kind, spatial=spatial.kind, spatial_size=spatial.size, n_samples=len(Qs) - 1)
+    op = DefOp(mesh, handles, moving, psi, Wf.reshape(psi.size, -1), meta=meta, train_samples=Qs)
+    op.fit_time, op.fold_time = fit_time, fold_time
+    return op
+
+
+def _with_rest_pose(mesh, handles, moving, samples, X, basis):
+    """(Qs (m,n,d), Xs (m,n_vertices,d)): the checked samples and deformations, the rest pose first (once)."""
     P = mesh.V[handles[moving]]
     n, d = P.shape
     samples = np.asarray(samples, dtype=float)
@@ -239,9 +270,13 @@ def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, sc
         check_distinct(samples)
     # the rest pose is always a training sample: D^E(·, P) = identity
     at_rest = np.abs(samples - P).reshape(len(samples), -1).max(axis=1) <= 1e-14
-    Qs = np.concatenate([P[None], samples[~at_rest]])
-    Xs = np.concatenate([mesh.V[None], X[~at_rest]])
-    m = len(Qs)
+    return np.concatenate([P[None], samples[~at_rest]]), np.concatenate([mesh.V[None], X[~at_rest]])
+
+
+def _handle_basis(basis, Qs, scale):
+    """Ψ by name (or as given) for the samples Qs (rest pose first), with enough samples for it."""
+    P, m = Qs[0], len(Qs)
+    n, d = P.shape
     if scale is None:
         disp = np.sqrt(np.mean(np.sum((Qs[1:] - P) ** 2, axis=-1))) if m > 1 else 1.0
         scale = float(disp) if disp > 0 else 1.0
@@ -264,25 +299,24 @@ def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, sc
             f"the {psi.kind} basis (|Ψ| = {psi.size}) needs at least {need} samples with the rest "
             f"pose ({need - 1} besides it) for {n} moving handles, got {m - 1}"
         )
-    if isinstance(spatial, str):
-        spatial = spatial_mod.make_spatial(mesh, spatial, k)
+    return psi
 
-    t0 = time.perf_counter()
-    S = psi.evaluate_z(psi.z(Qs))  # (m, q)
-    A = np.vstack([S[:1], psi.side_conditions()])
-    fast = None
-    if psi.kind == "tps" and S.shape[1] == 1 + psi.dim + len(S):  # interpolation: the symmetric TPS system
-        fast = solve_structure_tps(S, psi.dim)
-    G, beta, rank = fast if fast is not None else solve_structure(S, A)
-    if rank < A.shape[1] - A.shape[0]:
-        raise ValueError(
-            f"the samples do not determine the {psi.kind} basis (rank {rank} < {A.shape[1] - A.shape[0]}): "
-            f"too few or degenerate samples; it needs at least {psi.min_samples() - 1} distinct ones"
-        )
-    fit_time = time.perf_counter() - t0
 
-    t1 = time.perf_counter()
-    q = psi.size
+def fold(mesh, handles, moving, psi, spatial, G, beta, Xs):
+    """The folded coefficients W (|Ψ|, n_vertices, d): Φ folded in, the handle rows fixed by Prop. 2 / (8c).
+
+    Parameters
+    ----------
+    G, beta : (q,m) and (q,) numpy arrays
+        From :func:`solve_structure` (or :func:`solve_structure_tps`).
+    Xs : (m,n_vertices,d) numpy array
+        The deformations, the rest pose first.
+
+    Returns
+    -------
+    W : (q,n_vertices,d) numpy array
+    """
+    q, d = psi.size, psi.d
     # coefficients of the handles' linear motion, per handle vertex and coordinate: (h, q, d)
     L = np.zeros((len(handles), q, d))
     mv = np.flatnonzero(moving)
@@ -294,21 +328,15 @@ def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, sc
         # W_c = X_c Gᵀ + V_c βᵀ, handle rows replaced by L (exact interpolation, Prop. 2)
         Wf = (G @ Xs.reshape(len(Xs), -1) + np.outer(beta, mesh.V.ravel())).reshape(q, -1, d)  # BLAS, not einsum
         Wf[:, handles, :] = np.transpose(L, (1, 0, 2))
-    else:
-        U = spatial.U
-        B = spatial.coefficients(Xs)  # (m, p, d)
-        a = spatial.coefficients(mesh.V)  # (p, d)
-        Chat = np.stack([B[:, :, c].T @ G.T + np.outer(a[:, c], beta) for c in range(d)], axis=-1)  # (p, q, d)
-        Wh = U[handles]  # (h, p)
-        Wp = np.linalg.pinv(Wh)  # (p, h)
-        C = Chat + np.einsum("ph,hqc->pqc", Wp, L - np.einsum("hp,pqc->hqc", Wh, Chat))
-        Wf = np.stack([(U @ C[:, :, c]).T for c in range(d)], axis=-1)  # (q, v, d), by BLAS
-    fold_time = time.perf_counter() - t1
-    meta = dict(meta or {})
-    meta.update(basis=psi.kind, spatial=spatial.kind, spatial_size=spatial.size, n_samples=m - 1)
-    op = DefOp(mesh, handles, moving, psi, Wf.reshape(q, -1), meta=meta, train_samples=Qs)
-    op.fit_time, op.fold_time = fit_time, fold_time
-    return op
+        return Wf
+    U = spatial.U
+    B = spatial.coefficients(Xs)  # (m, p, d)
+    a = spatial.coefficients(mesh.V)  # (p, d)
+    Chat = np.stack([B[:, :, c].T @ G.T + np.outer(a[:, c], beta) for c in range(d)], axis=-1)  # (p, q, d)
+    Wh = U[handles]  # (h, p)
+    Wp = np.linalg.pinv(Wh)  # (p, h)
+    C = Chat + np.einsum("ph,hqc->pqc", Wp, L - np.einsum("hp,pqc->hqc", Wh, Chat))
+    return np.stack([(U @ C[:, :, c]).T for c in range(d)], axis=-1)  # (q, v, d), by BLAS
 
 
 def fit_shape(shape, samples, X, basis="tps", spatial="hat", k=100, **kw):
