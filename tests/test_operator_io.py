@@ -302,3 +302,9 @@ def test_mutated_json_headers(op_file, tmp_path, value, key):
     members["header.npy"] = _npy(np.array(json.dumps(header)))
     bad = _zip(tmp_path / "json.npz", members)
     _check_load(bad)
+
+
+def test_path_as_bytes_and_str(op_file):
+    op, path, Q = op_file
+    for p in (bytes(path), str(path)):
+        assert np.array_equal(DefOp.load(p)(Q), op(Q))

@@ -333,6 +333,26 @@ def radial_kernel(d):
     return {"r2logr": tps_kernel, "r3": cubic_kernel}[KERNELS[d]]
 
 
+def _first_duplicate(cz, tol):
+    """The first pair (i, j), i < j in row-major order, of rows of cz (m, k) within ``tol``, or None.
+
+    In blocks of rows, so the memory is about 4M numbers whatever m is (an (m, m, k) array would not fit for
+    large m)."""
+    m, k = cz.shape
+    step = max(1, 2**22 // max(1, m * k))
+    for i0 in range(0, m, step):
+        d2 = np.sum((cz[i0 : i0 + step, None] - cz[None]) ** 2, axis=-1)
+        dup = np.argwhere((d2 <= tol**2) & _upper(i0, d2.shape))
+        if len(dup):
+            return int(dup[0][0]) + i0, int(dup[0][1])
+    return None
+
+
+def _upper(i0, shape):
+    """Mask of the entries (r, j) with j > i0 + r: the strict upper triangle of the block's rows."""
+    return np.arange(shape[1])[None, :] > (i0 + np.arange(shape[0]))[:, None]
+
+
 class TPSBasis(HandleBasis):
     """Radial basis on R^{dn}: 1, z, and φ(‖z − c_k‖) at each centre c_k.
 
@@ -363,10 +383,9 @@ class TPSBasis(HandleBasis):
             raise ValueError(f"centers must have shape (m, {self.n_handles}, {self.d}), got {C.shape}")
         self.centers = C
         self._cz = self.z(C)  # (m, dn)
-        d2 = np.sum((self._cz[:, None] - self._cz[None]) ** 2, axis=-1)
-        dup = np.argwhere(np.triu(d2 <= (1e-12) ** 2, 1))
-        if len(dup):
-            i, j = dup[0]
+        dup = _first_duplicate(self._cz, 1e-12)
+        if dup is not None:
+            i, j = dup
             raise ValueError(
                 f"duplicate TPS centres {i} and {j} (0-based): the same handle configuration; in a fit, centre 0 "
                 f"is the rest pose P and centre c is the sample Q_k with k = c - 1 (0-based)"

@@ -178,8 +178,8 @@ def load(path, cls):
         ) from exc
     try:
         return _build(cls, header, data, READS[fmt])
-    except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
-        what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc)
+    except (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError) as exc:
+        what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or type(exc).__name__
         raise OperatorFileError(f"{path} is not a valid defop operator file: {what}") from exc
 
 
