@@ -131,6 +131,7 @@ def test_save_is_atomic(op_file, tmp_path, monkeypatch):
     monkeypatch.undo()
     op.save(tmp_path / "new.npz")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.npz", "new.npz"]
+    assert (tmp_path / "new.npz").stat().st_mode & 0o777 == 0o644
 
 
 # ---------------------------------------------------------------- hostile files, one class each

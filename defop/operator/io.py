@@ -120,6 +120,7 @@ def save(op, path):
             np.savez(fh, **arrays)
             fh.flush()
             os.fsync(fh.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a saved operator is as readable as np.savez made it
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
