@@ -157,3 +157,18 @@ def test_every_region_validates_samples_and_outlines_itself(spec):
 def test_bad_regions_are_named(spec, match):
     with pytest.raises(ValueError, match=match):
         dop.scene.regions.as_region(spec)
+
+
+def test_sample_handles_reads_d_from_P():
+    P = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    Q = sample_handles(P, [{"kind": "ball", "radius": 0.2}, {"kind": "gaussian", "sigma": 0.1}], 30, 4)
+    assert Q.shape == (30, 2, 3) and np.linalg.norm(Q[:, 0] - P[0], axis=1).max() <= 0.2
+    # the same seed gives the same 2D samples for a disc and a ball (a ball in 2D is a disc)
+    P2 = P[:, :2]
+    a = sample_handles(P2, [{"kind": "disc", "radius": 0.2}] * 2, 10, 7)
+    b = sample_handles(P2, [{"kind": "ball", "radius": 0.2}] * 2, 10, 7)
+    assert np.array_equal(a, b)
+    with pytest.raises(ValueError, match=r"P must have shape \(n, d\) with d = 2 or 3, got \(2, 4\)"):
+        sample_handles(np.zeros((2, 4)), [{"kind": "ball", "radius": 1}] * 2, 3, 0)
+    with pytest.raises(ValueError, match="a disc region is defined in 2D, not 3D"):
+        sample_handles(P, [{"kind": "disc", "radius": 0.2}] * 2, 3, 0)

@@ -189,3 +189,15 @@ def test_equal_given_samples_are_refused_before_any_solve(monkeypatch):
     monkeypatch.setattr(dop.training.bootstrap, "solve_samples", no_solve)
     with pytest.raises(ValueError, match="samples 1 and 4 are the same handle configuration"):
         dop.train(bar, "sarap", "tps", samples=samples, progress=False)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+@pytest.mark.parametrize("n", [1, 2, 4])
+def test_min_samples_reads_the_dimension(n, d):
+    # |Ψ| - 1 for the polynomial bases (the rest pose is added by the fit); dn + 1 for TPS (|Ψ| = 1 + dn + m, side
+    # conditions 1 + dn: the fit needs dn + 2 configurations with the rest pose)
+    assert dop.training.min_samples("linear", n, d) == d * n
+    assert dop.training.min_samples("quadratic", n, d) == (d * n + 2) * (d * n + 1) // 2 - 1
+    assert dop.training.min_samples("tps", n, d) == d * n + 1
+    if d == 2:
+        assert dop.training.min_samples("quadratic", n) == 3 * n + 2 * n * n  # the 2D default, as before

@@ -1,10 +1,11 @@
-"""The closed-form DefOp (layer 3): D(x, Q) = Σ_ij C_ij φ_i(x) ψ_j(Q) (Eq. 3).
+"""The closed-form DefOp (layer 3): D(x, Q) = Σ_ij C_ij φ_i(x) ψ_j(Q) (Eq. 3), in 2D and 3D.
 
-:mod:`.spatial` is Φ (§3.1), :mod:`.handle_bases` Ψ (Appendix A), :mod:`.fit` problem (8) and
-:mod:`.defop` the trained operator :class:`DefOp`. Never imports :mod:`defop.variational`.
+:mod:`.spatial` is Φ (§3.1), :mod:`.handle_bases` Ψ (Appendix A), :mod:`.fit` problem (8),
+:mod:`.defop` the trained operator :class:`DefOp` and its evaluation paths, :mod:`.compress` its
+compression and :mod:`.io` its files. Never imports :mod:`defop.variational`.
 """
 
-from . import defop, fit, handle_bases, spatial
+from . import compress, defop, fit, handle_bases, io, spatial
 from .defop import DefOp, ExtrapolationWarning
 
-__all__ = ["DefOp", "ExtrapolationWarning", "defop", "fit", "handle_bases", "spatial"]
+__all__ = ["DefOp", "ExtrapolationWarning", "compress", "defop", "fit", "handle_bases", "io", "spatial"]

@@ -1,8 +1,9 @@
 """The trained deformation operator DefOp: D(x, Q) = Σ_ij C_ij φ_i(x) ψ_j(Q) (Eq. 3).
 
 After fitting, the spatial basis is folded into the coefficients: D(·, Q) as row-major vertex positions
-is ``Ψ(Q) @ W`` with W (|Ψ| × 2n_vertices). Every evaluation path (exact, float32, compressed; one frame
-or a batch) uses the same form, which keeps the paper's two guarantees by construction:
+is ``Ψ(Q) @ W`` with W (|Ψ| × d·n_vertices), d = 2 (triangles) or 3 (tetrahedra), read from the mesh's V.
+Every evaluation path (exact, float32, compressed; one frame or a batch) uses the same form, which keeps the
+paper's two guarantees by construction:
 
     D(·, Q) = x + δψ(Q) W_F + δψ(Q) W_H,        δψ(Q) = Ψ(Q)[1:] − Ψ(P)[1:]            (★)
 
@@ -10,7 +11,7 @@ or a batch) uses the same form, which keeps the paper's two guarantees by constr
   drops out of the difference). At Q = P, δψ is computed from the same bits as Ψ(P) and is exactly
   zero, so D(·, P) = x holds to the last bit on every path, whatever precision or rank W_F is stored in.
 * W_H are the columns of the handle vertices. Prop. 2 / (8c) fix them to the coefficients of the handles'
-  own linear motion (the first 1 + 2n functions of Ψ are 1 and z = (Q − P)/scale), so δψ(Q) W_H =
+  own linear motion (the first 1 + dn functions of Ψ are 1 and z = (Q − P)/scale), so δψ(Q) W_H =
   scale·z = Q − P for a moving handle and 0 for a fixed one. This part is evaluated in float64 from z,
   never compressed: the handles are interpolated to round-off at every Q where Ψ(Q) is finite.
 * W_F are the other columns, zero on the handles. Only W_F is stored in float32 or compressed. The
@@ -18,30 +19,27 @@ or a batch) uses the same form, which keeps the paper's two guarantees by constr
   displacements, mass-weighted: with S = δψ(Q_k) over the training samples, Y = S W_F M^{1/2} ≈ U Σ V_rᵀ,
   B = V_rᵀ M^{−1/2} and A = W_F M^{1/2} V_r. This is the rank-r projection that is optimal for the
   (8a) norm of Appendix A on the training set (the TPS operator reproduces it, Prop. 1); B is zero on
-  the handle columns and A multiplies δψ, so neither guarantee depends on the truncation.
+  the handle columns and A multiplies δψ, so neither guarantee depends on the truncation
+  (:mod:`defop.operator.compress`).
 
 The fast paths (:meth:`DefOp.evaluate_fast`, :meth:`DefOp.evaluate_batch`) multiply the basis' raw values
-(:meth:`HandleBasis.delta_raw`: Q − P and, for TPS, ℓ − ℓ(0) with ℓ = r² log r²) by diag(raw_scale) W_F or
+(:meth:`HandleBasis.delta_raw`: Q − P and, for TPS, ℓ − ℓ(0) with ℓ = r² log r², or r³ in 3D) by diag(raw_scale) W_F or
 diag(raw_scale) A, folded once, so a frame is one gemv for the distances, four ufuncs and one product per
 matrix. They are taken while |Q − P|² < R² (every float32 product provably finite); beyond, or at NaN, a frame
 takes the checked path, which raises a clear ValueError where Ψ(Q) is not finite.
+
+Files: :meth:`DefOp.save` and :meth:`DefOp.load` (:mod:`defop.operator.io`: format, limits, old files).
 """
 
 from __future__ import annotations
 
-import json
-import numbers
 import warnings
-import zipfile
-from pathlib import Path
 
 import numpy as np
 
-from ..geometry.mesh import Mesh
-from . import handle_bases as hb
+from . import compress as compress_mod
+from . import io as io_mod
 
-FORMAT = "defop-operator-2"
-READS = ("defop-operator-1", FORMAT)  # format 1: W only (its factors predate (★) and are dropped)
 _F32_SAFE = 1e28  # bound on |δψ A|² (single frame) and |δψ| (batch): float32 products stay finite (|B| << 1e9)
 
 
@@ -55,23 +53,26 @@ class DefOp:
     Parameters
     ----------
     mesh : defop.geometry.mesh.Mesh
+        Triangles (V (n_vertices, 2)) or tetrahedra (V (n_vertices, 3)); d is read from V.
     handles : (h,) int numpy array
         Vertex indices of all handles.
     moving : (h,) bool numpy array
     handle_basis : defop.operator.handle_bases.HandleBasis
-        Ψ, a function of the moving handles.
-    W : (|Ψ|, 2 n_vertices) numpy array
+        Ψ, a function of the moving handles (n_moving, d).
+    W : (|Ψ|, d n_vertices) numpy array
         Folded coefficients: D(·, Q).ravel() = Ψ(Q) @ W.
     meta : dict, optional
         Shape, energy, bases, number of samples, library version.
-    train_samples : (m,n,2) numpy array, optional
+    train_samples : (m,n_moving,d) numpy array, optional
         The training configurations (for the extrapolation warning and :meth:`compress`).
 
     Attributes
     ----------
-    P : (n,2) numpy array
+    P : (n_moving,d) numpy array
         Rest positions of the moving handles.
-    factors : tuple of (|Ψ|−1,r) and (r,2 n_vertices) numpy arrays, or None
+    d : int
+        Dimension (2 or 3).
+    factors : tuple of (|Ψ|−1,r) and (r,d n_vertices) numpy arrays, or None
         A and B of the compressed W_F ≈ A B (after :meth:`compress`).
     """
 
@@ -83,6 +84,9 @@ class DefOp:
 
     def __init__(self, mesh, handles, moving, handle_basis, W, meta=None, train_samples=None):
         self.mesh = mesh
+        self.d = int(np.shape(mesh.V)[1])
+        if handle_basis.P.shape[1] != self.d:
+            raise ValueError(f"the handle basis is in {handle_basis.P.shape[1]}D, the mesh in {self.d}D")
         self.handles = np.asarray(handles, dtype=np.int64)
         self.moving = np.asarray(moving, dtype=bool)
         self.handle_basis = handle_basis
@@ -94,13 +98,12 @@ class DefOp:
         self.train_samples = None if train_samples is None else np.asarray(train_samples, float)
         self._reach = None
         if self.train_samples is not None and len(self.train_samples) > 1:
-            d = np.linalg.norm(self.train_samples - self.P, axis=-1)  # (m, n)
-            self._reach = d.max(axis=0)
+            self._reach = np.linalg.norm(self.train_samples - self.P, axis=-1).max(axis=0)  # (n,)
         self.fit_time = self.fold_time = None
         # (★): x, the moving handles' coordinate columns, and W_F = W[1:] without the handle columns
         self._x = np.ascontiguousarray(mesh.V, dtype=float).ravel()
-        self._hcols = (2 * self.handles[self.moving][:, None] + np.arange(2)).ravel()
-        self._all_hcols = (2 * self.handles[:, None] + np.arange(2)).ravel()
+        self._hcols = self.columns(self.handles[self.moving])
+        self._all_hcols = self.columns(self.handles)
         self._WF = self.W[1:].copy()
         self._WF[:, self._all_hcols] = 0.0
         self._fast = None  # matrices of evaluate_fast / evaluate_batch (see _fast_state), made on first use
@@ -108,10 +111,19 @@ class DefOp:
         self._q = handle_basis.size - 1  # length of δψ
 
     # ------------------------------------------------------------------ properties
+    def columns(self, vertices):
+        """Columns of W (row-major x, y[, z] per vertex) of ``vertices`` (k,): (k d,) int array."""
+        return (self.d * np.asarray(vertices, np.int64)[:, None] + np.arange(self.d)).ravel()
+
     @property
     def P(self):
-        """(n,2) rest positions of the moving handles."""
+        """(n_moving,d) rest positions of the moving handles."""
         return self.handle_basis.P
+
+    @property
+    def WF(self):
+        """W_F of (★): W[1:] with the handle columns zeroed, (|Ψ|−1, d n_vertices) float64 (read only)."""
+        return self._WF
 
     @property
     def n_moving(self) -> int:
@@ -149,34 +161,8 @@ class DefOp:
         )
 
     # ------------------------------------------------------------------ evaluation
-    def _check_extrapolation(self, Q):
-        if self._reach is None:
-            return
-        d = np.linalg.norm(Q - self.P, axis=-1)
-        far = d > 1.5 * self._reach + 1e-12
-        if np.any(far):
-            idx = np.argwhere(far)[0]
-            j = int(idx[-1])
-            warnings.warn(
-                f"moving handle {j} is {d[tuple(idx)]:.3g} from rest, beyond 1.5x the farthest training sample "
-                f"({self._reach[j]:.3g}): the operator extrapolates",
-                ExtrapolationWarning,
-                stacklevel=3,
-            )
-
-    def _not_finite(self, Q, what="Ψ(Q)"):
-        Q = np.asarray(Q, dtype=float).reshape(-1, self.n_moving, 2)
-        bad = Q[0]
-        dist = np.max(np.abs(Q - self.P))  # the largest coordinate offset: squaring it would overflow to inf
-        return ValueError(
-            f"{what} is not finite at Q = {np.array2string(bad, precision=4, threshold=20)}"
-            f"{' (first of the batch)' if len(Q) > 1 else ''}: a handle coordinate is {dist:.3g} from rest, beyond "
-            f"what the {self.handle_basis.kind} basis can evaluate in float64 (the bounding-box diagonal is "
-            f"{self.mesh.bbox_diagonal:.3g})"
-        )
-
     def psi(self, Q):
-        """Ψ(Q): (|Ψ|,) or (k,|Ψ|)."""
+        """Ψ(Q): (|Ψ|,) or (k,|Ψ|) for Q (n_moving,d) or (k,n_moving,d)."""
         return self.handle_basis(Q)
 
     def _fast_state(self):
@@ -186,61 +172,40 @@ class DefOp:
             self._fast["xh"] = self._x[self._hcols].copy()
         return self._fast
 
-    def _free(self, d, fast, out=None):
-        """x + δψ W_F for δψ (k,|Ψ|−1), in float64: float64 W_F, or the fast paths' matrices (``fast``)."""
-        if self.factors is None and not fast:
-            return np.add(self._x, d @ self._WF, out=out)
-        mats = self._fast_state()["mats"]
-        d = d / self.handle_basis.raw_scale  # the fast matrices multiply the raw values
-        # float32: rows of δψ beyond float32's range (only far-away Q) are scaled into it and back
-        s = np.abs(d).max(axis=1)
-        far = s > _F32_SAFE
-        if far.any():
-            s = np.where(far, s, 1.0)[:, None]
-            d = d / s
-        y = d.astype(mats[0].dtype)
-        for M in mats[:-1]:
-            y = y @ M
-        M = mats[-1]
-        # the last product goes into a kept workspace: a fresh (k, 2 n_vertices) temporary per call costs
-        # page faults comparable to the product itself
-        if self._work is None or self._work.shape[0] < len(y) or self._work.dtype != M.dtype:
-            self._work = np.empty((len(y), M.shape[1]), M.dtype)
-        y = np.matmul(y, M, out=self._work[: len(y)])
-        if far.any():
-            y = y * s
-        return np.add(self._x, y, out=out, dtype=np.float64)
+    def check_mesh(self, mesh):
+        """Raise ValueError unless ``mesh`` is the mesh this operator was trained on (dimension, sizes, arrays)."""
+        check_mesh(self, mesh)
 
     def _evaluate(self, Q, fast, out=None):
-        """(★) for Q (n,2) or (k,n,2), validated; ``out`` (k, 2 n_vertices) float64 receives the result."""
+        """(★) for Q (n,d) or (k,n,d), validated; ``out`` (k, d n_vertices) float64 receives the result."""
         if np.iscomplexobj(Q):  # float() would drop the imaginary part with only a ComplexWarning
             raise ValueError("Q must be real; got a complex array")
         Q = np.asarray(Q, dtype=float)
         z = self.handle_basis.z(Q)  # validates shape and NaN
-        Q2 = Q.reshape(-1, self.n_moving, 2)
-        d = self.handle_basis.delta_z(np.atleast_2d(z))
-        finite = np.isfinite(d).all(axis=1)
+        Q2 = Q.reshape(-1, self.n_moving, self.d)
+        dpsi = self.handle_basis.delta_z(np.atleast_2d(z))
+        finite = np.isfinite(dpsi).all(axis=1)
         if not finite.all():
-            raise self._not_finite(Q2[~finite])
-        self._check_extrapolation(Q)
-        out = self._free(d, fast, out)
-        out[:, self._hcols] += (Q2 - self.P).reshape(len(Q2), -1)  # δψ W_H = Q − P, exactly (Prop. 2)
-        big = np.abs(d).max(axis=1) > 1e280  # only rows this far from rest can overflow in the product
+            raise not_finite_error(self, Q2[~finite])
+        check_extrapolation(self, Q)
+        out = free_part(self, dpsi, fast, out)
+        out[:, self._hcols] += (Q2 - self.P).reshape(len(Q2), self._hcols.size)  # δψ W_H = Q − P (Prop. 2)
+        big = np.abs(dpsi).max(axis=1, initial=0.0) > 1e280  # only rows this far from rest can overflow
         if big.any() and not np.isfinite(out[big]).all():
-            raise self._not_finite(Q2[big], "D(·, Q)")
-        return out.reshape(*Q.shape[:-2], self.n_vertices, 2)
+            raise not_finite_error(self, Q2[big], "D(·, Q)")
+        return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
 
     def __call__(self, Q):
         """D(·, Q): the deformed vertex positions, (★) with float64 W or the compressed factors.
 
         Parameters
         ----------
-        Q : (n,2) or (k,n,2) numpy array
-            Positions of the moving handles.
+        Q : (n_moving,d) or (k,n_moving,d) numpy array
+            Positions of the moving handles; k = 0 (an empty batch) gives an empty result.
 
         Returns
         -------
-        X : (n_vertices,2) or (k,n_vertices,2) numpy array
+        X : (n_vertices,d) or (k,n_vertices,d) numpy array
 
         Raises
         ------
@@ -258,58 +223,31 @@ class DefOp:
 
         Parameters
         ----------
-        Qs : (k,n,2) numpy array
-        out : (k,n_vertices,2) float64 numpy array, optional
+        Qs : (k,n_moving,d) numpy array
+            k = 0 gives an empty (0, n_vertices, d) result.
+        out : (k,n_vertices,d) float64 numpy array, optional
             Written in place and returned (an animation loop reuses it: no fresh pages per batch).
 
         Returns
         -------
-        X : (k,n_vertices,2) numpy array
+        X : (k,n_vertices,d) numpy array
         """
         if np.iscomplexobj(Qs):
             raise ValueError("Q must be real; got a complex array")
         Qs = np.asarray(Qs, dtype=float)
         if Qs.ndim != 3:
-            raise ValueError(f"Qs must have shape (k, {self.n_moving}, 2), got {Qs.shape}")
-        if len(Qs) == 0:  # no frame: an empty batch, like numpy
-            return np.empty((0, self.n_vertices, 2)) if out is None else out
+            raise ValueError(f"Qs must have shape (k, {self.n_moving}, {self.d}), got {Qs.shape}")
         if Qs.shape[1:] != self.P.shape:
             self.handle_basis.z(Qs)  # raises the shape error
-        if out is not None and (
-            out.shape != (len(Qs), self.n_vertices, 2) or out.dtype != np.float64 or not out.flags.c_contiguous
-        ):
-            raise ValueError(f"out must be a C-contiguous float64 array of shape {(len(Qs), self.n_vertices, 2)}")
-        flat = np.empty((len(Qs), 2 * self.n_vertices)) if out is None else out.reshape(len(Qs), -1)
-        if not self._batch_fast(Qs, flat):  # NaN, or a row far enough to overflow float32: the checked path
+        shape = (len(Qs), self.n_vertices, self.d)
+        if out is not None and (out.shape != shape or out.dtype != np.float64 or not out.flags.c_contiguous):
+            raise ValueError(f"out must be a C-contiguous float64 array of shape {shape}")
+        if len(Qs) == 0:  # no frame: an empty batch, like numpy
+            return np.empty(shape) if out is None else out
+        flat = np.empty((len(Qs), self.d * self.n_vertices)) if out is None else out.reshape(len(Qs), -1)
+        if not batch_fast(self, Qs, flat):  # NaN, or a row far enough to overflow float32: the checked path
             self._evaluate(Qs, fast=True, out=flat)
-        return flat.reshape(len(Qs), self.n_vertices, 2) if out is None else out
-
-    def _batch_fast(self, Qs, out):
-        """(★) for k rows of Qs (k,n,2) into out (k, 2 n_vertices), when every |Q − P|² < R2 (else False).
-
-        ψ of the k rows vectorised (:meth:`HandleBasis.delta_raw`), then one product per factor (the
-        last into the kept workspace), x added in float64 and the handles' exact part written.
-        """
-        f = self._fast_state()
-        dz = (Qs - self.P).reshape(len(Qs), -1)
-        zz = np.einsum("ij,ij->i", dz, dz)
-        if not np.all(zz < f["R2"]):
-            return False
-        self._check_extrapolation(Qs)
-        mats = f["mats"]
-        c = self.BATCH_CHUNK if sum(M.nbytes for M in mats) <= self.BATCH_CHUNK_BYTES else len(Qs)
-        if self._work is None or self._work.shape[0] < min(c, len(Qs)) or self._work.dtype != mats[-1].dtype:
-            self._work = np.empty((min(c, len(Qs)), mats[-1].shape[1]), mats[-1].dtype)
-        for i in range(0, len(Qs), c):  # chunks of rows: ψ's temporaries and the product's output stay in cache
-            rows = slice(i, i + c)
-            y = self.handle_basis.delta_raw(dz[rows], zz[rows], np.empty((len(dz[rows]), self._q), f["dtype"]))
-            for M in mats[:-1]:
-                y = y @ M
-            y = np.matmul(y, mats[-1], out=self._work[: len(y)])
-            np.copyto(out[rows], y)  # cast, then x added in place: faster than a mixed float64 + float32 sum
-            out[rows] += self._x
-        out[:, self._hcols] = f["xh"] + dz  # δψ W_H = Q − P, exactly (Prop. 2); B and W_F are 0 there
-        return True
+        return flat.reshape(shape) if out is None else out
 
     def evaluate_fast(self, Q):
         """D(·, Q) for one configuration, the interactive path: (★) with float32 W_F or the factors.
@@ -323,11 +261,11 @@ class DefOp:
 
         Parameters
         ----------
-        Q : (n,2) numpy array
+        Q : (n_moving,d) numpy array
 
         Returns
         -------
-        X : (n_vertices,2) numpy array
+        X : (n_vertices,d) numpy array
         """
         if np.shape(Q) != self.handle_basis.P.shape:  # broadcasting would move every handle to one point
             raise ValueError(f"Q must have shape {self.handle_basis.P.shape} (the moving handles), got {np.shape(Q)}")
@@ -342,55 +280,18 @@ class DefOp:
         out = y.astype(np.float64)  # then x added in place: faster than a mixed float64 + float32 sum
         out += self._x
         out[self._hcols] = f["xh"] + dz  # δψ W_H = Q − P (Prop. 2); the matrices are 0 on these columns
-        return out.reshape(-1, 2)
+        return out.reshape(-1, self.d)
 
     # ------------------------------------------------------------------ compression
     def compress(self, rank=None, tol=1e-3, dtype=np.float32):
-        """Replace W_F by a rank-r factor W_F ≈ A B (module docstring, (★)); the guarantees stay exact.
+        """Replace W_F by a rank-r factor W_F ≈ A B; the guarantees stay exact.
 
-        B spans the leading mass-weighted principal directions of the training displacements
-        δψ(Q_k) W_F (Y = S W_F M^{1/2} ≈ U Σ V_rᵀ; B = V_rᵀ M^{−1/2}, A = W_F M^{1/2} V_r), so the
-        truncation is the best rank-r one in the (8a) norm on the training set. Without training
-        samples, Y = W_F M^{1/2}. B is zero on the handle columns and A multiplies δψ(Q), which is zero
-        at Q = P: neither Prop. 2 nor (8b) depends on r or on the precision.
-
-        Parameters
-        ----------
-        rank : int, optional
-            Keep this many directions (1 ≤ rank; at most the numerical rank of Y).
-        tol : float
-            Without ``rank``: keep the fewest directions whose discarded part of Y is at most ``tol``
-            times ‖Y‖_F (relative, 0 ≤ tol < 1).
-        dtype : numpy dtype
-            float32 (default: a frame is a memory-bound product over B, so half the bytes is half the
-            time; the rounding, ~1e-7 relative, is far below the truncation) or float64.
-
-        Returns
-        -------
-        self : DefOp
-
-        Raises
-        ------
-        ValueError
-            A rank that is not a positive integer, a tol outside [0, 1), or another dtype.
+        ``rank`` (a positive integer), or else the fewest directions whose discarded part is at most ``tol``
+        (relative, in [0, 1)); ``dtype`` float32 (default) or float64. See :func:`compress.factorise`, which
+        raises a ValueError naming a bad option. Returns ``self``.
         """
-        dtype = np.dtype(dtype)
-        if dtype not in (np.float32, np.float64):
-            raise ValueError(f"dtype must be float32 or float64, got {dtype}")
-        if rank is not None and (isinstance(rank, bool) or not isinstance(rank, numbers.Integral) or rank < 1):
-            raise ValueError(f"rank must be a positive integer, got {rank!r}")
-        if rank is None and not (isinstance(tol, numbers.Real) and 0 <= tol < 1):
-            raise ValueError(f"tol must be a relative tolerance in [0, 1), got {tol!r}")
-        free = np.setdiff1d(np.arange(self._x.size), self._all_hcols)
-        S = None
-        if self.train_samples is not None and len(self.train_samples) > 1:
-            S = self.handle_basis.delta_z(self.handle_basis.z(self.train_samples))
-        mass = np.repeat(self.mesh.mass_matrix.diagonal(), 2)
-        A, Bf = principal_factors(self._WF[:, free], mass[free], S, rank, tol)
-        B = np.zeros((A.shape[1], self._x.size))
-        B[:, free] = Bf
-        self.factors = (np.ascontiguousarray(A, dtype=dtype), np.ascontiguousarray(B, dtype=dtype))
-        self.meta["rank"] = A.shape[1]
+        self.factors = compress_mod.factorise(self, rank, tol, dtype)
+        self.meta["rank"] = self.factors[0].shape[1]
         return self
 
     def decompress(self):
@@ -399,77 +300,118 @@ class DefOp:
         self.meta.pop("rank", None)
         return self
 
-    # ------------------------------------------------------------------ checks
-    def check_mesh(self, mesh):
-        """Raise ValueError unless ``mesh`` is the mesh this operator was trained on."""
-        if mesh.n_vertices != self.mesh.n_vertices or mesh.n_faces != self.mesh.n_faces:
-            raise ValueError(
-                f"this operator was trained on a mesh with {self.mesh.n_vertices} vertices and {self.mesh.n_faces} "
-                f"triangles, not {mesh.n_vertices} and {mesh.n_faces}"
-            )
-        if not (np.array_equal(mesh.F, self.mesh.F) and np.allclose(mesh.V, self.mesh.V, rtol=0, atol=1e-12)):
-            raise ValueError(
-                "this operator was trained on a different mesh (same size, different vertices or triangles)"
-            )
-
-    # ------------------------------------------------------------------ I/O
+    # ------------------------------------------------------------------ checks and files
     def save(self, path):
-        """Save as .npz: arrays plus JSON metadata (exact round trip).
-
-        Parameters
-        ----------
-        path : str or pathlib.Path
-        """
-        params = self.handle_basis.params()
-        arrays = {
-            "V": self.mesh.V,
-            "F": self.mesh.F,
-            "handles": self.handles,
-            "moving": self.moving,
-            "W": self.W,
-            "basis_P": params["P"],
-        }
-        if "centers" in params:
-            arrays["basis_centers"] = params["centers"]
-        if self.train_samples is not None:
-            arrays["train_samples"] = self.train_samples
-        if self.factors is not None:
-            arrays["factor_A"], arrays["factor_B"] = self.factors
-        header = {
-            "format": FORMAT,
-            "meta": self.meta,
-            "basis": {"kind": params["kind"], "scale": params["scale"], "degree": params.get("degree")},
-        }
-        arrays["header"] = np.array(json.dumps(header))
-        with open(path, "wb") as fh:
-            np.savez(fh, **arrays)
+        """Save to ``path`` (str or pathlib.Path) as .npz: :func:`defop.operator.io.save` (atomic, exact round trip)."""
+        io_mod.save(self, path)
 
     @classmethod
     def load(cls, path):
-        """Load an operator written by :meth:`save`, checking every array (finite values, shapes).
+        """Load an operator written by :meth:`save` (or by an older defop), checked before any work.
 
-        Raises
-        ------
-        ValueError
-            A missing, corrupt, malformed or incompatible file (the message says what is wrong).
+        A missing, corrupt, truncated, oversized or incompatible file raises a ValueError naming the file and
+        what is wrong (:func:`defop.operator.io.load`: the limits and the checks).
         """
-        path = Path(path)
-        if not path.exists():
-            raise ValueError(f"no such operator file: {path}")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-            header = json.loads(str(data["header"]))
-        except (zipfile.BadZipFile, OSError, EOFError, KeyError, json.JSONDecodeError, ValueError) as exc:
-            raise ValueError(f"{path} is not a readable defop operator file ({type(exc).__name__}: {exc})") from exc
-        fmt = header.get("format") if isinstance(header, dict) else None
-        if fmt not in READS:
-            raise ValueError(f"{path} has format {fmt!r}; this defop reads {FORMAT!r}")
-        try:
-            return _build(cls, header, data, fmt)
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc)
-            raise ValueError(f"{path} is not a valid defop operator file: {what}") from exc
+        return io_mod.load(path, cls)
+
+
+def check_extrapolation(op, Q):
+    """Warn (:class:`ExtrapolationWarning`) when a moving handle of Q is beyond 1.5x its farthest training sample."""
+    if op._reach is None:
+        return
+    dist = np.linalg.norm(Q - op.P, axis=-1)
+    far = dist > 1.5 * op._reach + 1e-12
+    if np.any(far):
+        idx = np.argwhere(far)[0]
+        j = int(idx[-1])
+        warnings.warn(
+            f"moving handle {j} is {dist[tuple(idx)]:.3g} from rest, beyond 1.5x the farthest training sample "
+            f"({op._reach[j]:.3g}): the operator extrapolates",
+            ExtrapolationWarning,
+            stacklevel=3,
+        )
+
+
+def workspace(op, rows, M):
+    """The kept (≥ rows, M's columns) workspace of the last product, of M's dtype."""
+    if op._work is None or op._work.shape[0] < rows or op._work.dtype != M.dtype:
+        op._work = np.empty((rows, M.shape[1]), M.dtype)
+    return op._work[:rows]
+
+
+def free_part(op, dpsi, fast, out=None):
+    """x + δψ W_F for δψ (k,|Ψ|−1), in float64: float64 W_F, or the fast paths' matrices (``fast``)."""
+    if op.factors is None and not fast:
+        return np.add(op._x, dpsi @ op._WF, out=out)
+    mats = op._fast_state()["mats"]
+    dpsi = dpsi / op.handle_basis.raw_scale  # the fast matrices multiply the raw values
+    # float32: rows of δψ beyond float32's range (only far-away Q) are scaled into it and back
+    s = np.abs(dpsi).max(axis=1, initial=0.0)
+    far = s > _F32_SAFE
+    if far.any():
+        s = np.where(far, s, 1.0)[:, None]
+        dpsi = dpsi / s
+    y = dpsi.astype(mats[0].dtype)
+    for M in mats[:-1]:
+        y = y @ M
+    # the last product goes into a kept workspace: a fresh (k, d n_vertices) temporary per call costs
+    # page faults comparable to the product itself
+    y = np.matmul(y, mats[-1], out=workspace(op, len(y), mats[-1]))
+    if far.any():
+        y = y * s
+    return np.add(op._x, y, out=out, dtype=np.float64)
+
+
+def batch_fast(op, Qs, out):
+    """(★) for k rows of Qs (k,n,d) into out (k, d n_vertices), when every |Q − P|² < R2 (else False).
+
+    ψ of the k rows vectorised (:meth:`HandleBasis.delta_raw`), then one product per factor (the
+    last into the kept workspace), x added in float64 and the handles' exact part written.
+    """
+    f = op._fast_state()
+    dz = (Qs - op.P).reshape(len(Qs), -1)
+    zz = np.einsum("ij,ij->i", dz, dz)
+    if not np.all(zz < f["R2"]):
+        return False
+    check_extrapolation(op, Qs)
+    mats = f["mats"]
+    c = op.BATCH_CHUNK if sum(M.nbytes for M in mats) <= op.BATCH_CHUNK_BYTES else len(Qs)
+    workspace(op, min(c, len(Qs)), mats[-1])
+    for i in range(0, len(Qs), c):  # chunks of rows: ψ's temporaries and the product's output stay in cache
+        rows = slice(i, i + c)
+        y = op.handle_basis.delta_raw(dz[rows], zz[rows], np.empty((len(dz[rows]), op._q), f["dtype"]))
+        for M in mats[:-1]:
+            y = y @ M
+        y = np.matmul(y, mats[-1], out=op._work[: len(y)])
+        np.copyto(out[rows], y)  # cast, then x added in place: faster than a mixed float64 + float32 sum
+        out[rows] += op._x
+    out[:, op._hcols] = f["xh"] + dz  # δψ W_H = Q − P, exactly (Prop. 2); B and W_F are 0 there
+    return True
+
+
+def check_mesh(op, mesh):
+    """Raise ValueError unless ``mesh`` is the mesh ``op`` was trained on."""
+    if np.shape(mesh.V)[1] != op.d:
+        raise ValueError(f"this operator was trained on a {op.d}D mesh, not a {np.shape(mesh.V)[1]}D one")
+    if mesh.n_vertices != op.mesh.n_vertices or mesh.n_faces != op.mesh.n_faces:
+        raise ValueError(
+            f"this operator was trained on a mesh with {op.mesh.n_vertices} vertices and {op.mesh.n_faces} "
+            f"{'triangles' if op.d == 2 else 'tetrahedra'}, not {mesh.n_vertices} and {mesh.n_faces}"
+        )
+    if not (np.array_equal(mesh.F, op.mesh.F) and np.allclose(mesh.V, op.mesh.V, rtol=0, atol=1e-12)):
+        raise ValueError("this operator was trained on a different mesh (same size, different vertices or elements)")
+
+
+def not_finite_error(op, Q, what="Ψ(Q)"):
+    """The ValueError of a Q (k,n,d) whose Ψ(Q) (or D(·, Q)) is not finite, naming Q (the first row)."""
+    Q = np.asarray(Q, dtype=float).reshape(-1, op.n_moving, op.d)
+    dist = np.max(np.abs(Q - op.P))  # the largest coordinate offset: squaring it would overflow to inf
+    return ValueError(
+        f"{what} is not finite at Q = {np.array2string(Q[0], precision=4, threshold=20)}"
+        f"{' (first of the batch)' if len(Q) > 1 else ''}: a handle coordinate is {dist:.3g} from rest, beyond "
+        f"what the {op.handle_basis.kind} basis can evaluate in float64 (the bounding-box diagonal is "
+        f"{op.mesh.bbox_diagonal:.3g})"
+    )
 
 
 def fast_matrices(basis, WF, factors=None):
@@ -484,9 +426,9 @@ def fast_matrices(basis, WF, factors=None):
     Parameters
     ----------
     basis : defop.operator.handle_bases.HandleBasis
-    WF : (|Ψ|−1, 2 n_vertices) numpy array
+    WF : (|Ψ|−1, d n_vertices) numpy array
         W_F, zero on the handle columns.
-    factors : tuple of (|Ψ|−1,r) and (r,2 n_vertices) numpy arrays, optional
+    factors : tuple of (|Ψ|−1,r) and (r,d n_vertices) numpy arrays, optional
         A and B of the compressed W_F ≈ A B.
 
     Returns
@@ -500,7 +442,7 @@ def fast_matrices(basis, WF, factors=None):
     else:
         A, B = factors
         mats = (np.asfortranarray((A.astype(float) * scale).astype(A.dtype)), B)  # gemv on columns: faster
-    gain = float(np.prod([max(np.abs(M).sum(axis=0, dtype=float).max(), 1.0) for M in mats]))
+    gain = float(np.prod([max(np.abs(M).sum(axis=0, dtype=float).max(initial=0.0), 1.0) for M in mats]))
     lo, hi = -30.0, 30.0  # bisection on log10 R; raw_bound grows with R
     if basis.raw_bound(10.0**lo) * gain > 1e30:
         hi = lo = -np.inf
@@ -508,97 +450,3 @@ def fast_matrices(basis, WF, factors=None):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if basis.raw_bound(10.0**mid) * gain <= 1e30 else (lo, mid)
     return {"key": factors, "mats": mats, "R2": 10.0 ** (2 * lo), "dtype": mats[0].dtype}
-
-
-def principal_factors(WF, mass, S=None, rank=None, tol=1e-3):
-    """W_F ≈ A B projected onto the leading mass-weighted principal directions of S W_F.
-
-    With Y = S W_F M^{1/2} ≈ U Σ V_rᵀ (right singular vectors from the small Gram matrix Y Yᵀ, then
-    re-orthonormalised): A = W_F M^{1/2} V_r and B = V_rᵀ M^{−1/2}, so A B = W_F M^{1/2} V_r V_rᵀ M^{−1/2}
-    and the discarded part of Y is at most ``tol`` ‖Y‖_F.
-
-    Parameters
-    ----------
-    WF : (q,c) numpy array
-        The free columns of W_F.
-    mass : (c,) numpy array
-        Lumped mass of each column's vertex.
-    S : (m,q) numpy array, optional
-        δψ at the training samples (default: the identity, Y = W_F M^{1/2}).
-    rank : int, optional
-    tol : float
-
-    Returns
-    -------
-    A : (q,r) numpy array
-    B : (r,c) numpy array
-    """
-    mh = np.sqrt(mass)
-    WF = WF * mh
-    Y = WF if S is None else S @ WF
-    lam, U = np.linalg.eigh(Y @ Y.T)
-    lam, U = np.clip(lam[::-1], 0.0, None), U[:, ::-1]
-    positive = max(1, int(np.sum(lam > lam[0] * 1e-24))) if lam[0] > 0 else 1
-    if rank is None:
-        tail = np.sqrt(np.concatenate([np.cumsum(lam[::-1])[::-1][1:], [0.0]]))
-        rank = int(np.argmax(tail <= tol * np.sqrt(lam.sum()))) + 1
-    rank = min(int(rank), positive)
-    Vr = (U[:, :rank] / np.sqrt(np.maximum(lam[:rank], 1e-300))).T @ Y  # (r, c), orthonormal rows
-    Vr, _ = np.linalg.qr(Vr.T)  # re-orthonormalise (the Gram matrix squares the condition number)
-    return WF @ Vr, Vr.T / mh
-
-
-def _array(data, name, ndim, dtype_kind, shape=None):
-    """data[name] checked: dimension, kind (f/i/b), finite values, and ``shape`` (None = any)."""
-    if name not in data:
-        raise KeyError(f"array {name!r}")
-    a = data[name]
-    if a.ndim != ndim or a.dtype.kind not in dtype_kind:
-        raise ValueError(f"array {name!r} must be {ndim}-D of kind {dtype_kind!r}, got {a.dtype} {a.shape}")
-    if shape is not None and any(s is not None and s != t for s, t in zip(shape, a.shape)):
-        raise ValueError(f"array {name!r} has shape {a.shape}, expected {tuple(shape)}")
-    if a.dtype.kind == "f" and not np.isfinite(a).all():
-        raise ValueError(f"array {name!r} has NaN or infinite values")
-    return a
-
-
-def _build(cls, header, data, fmt):
-    """The operator from a loaded header and arrays, validating both (raises KeyError/TypeError/ValueError)."""
-    b, meta = header["basis"], header["meta"]
-    if not isinstance(meta, dict) or not isinstance(b, dict):
-        raise TypeError("header 'meta' and 'basis' must be objects")
-    V = _array(data, "V", 2, "f", (None, 2))
-    F = _array(data, "F", 2, "iu", (None, 3))
-    handles = _array(data, "handles", 1, "iu")
-    moving = _array(data, "moving", 1, "b", handles.shape)
-    mesh = Mesh(V, F)
-    if handles.size and (handles.min() < 0 or handles.max() >= len(V)):
-        raise ValueError(f"handle indices must lie in [0, {len(V)})")
-    n = int(moving.sum())
-    P = _array(data, "basis_P", 2, "f", (n, 2))
-    if not np.array_equal(P, V[handles[moving]]):
-        raise ValueError("basis_P is not the rest position of the moving handles")
-    kind, scale = b["kind"], float(b["scale"])
-    if kind == "tps":
-        psi = hb.TPSBasis(P, _array(data, "basis_centers", 3, "f", (None, n, 2)), scale)
-    elif kind == "linear":
-        psi = hb.LinearBasis(P, scale)
-    elif kind in hb.KINDS or str(kind).startswith("degree"):
-        psi = hb.PolynomialBasis(P, int(b["degree"]), scale)
-    else:
-        raise ValueError(f"unknown handle basis {kind!r}")
-    W = _array(data, "W", 2, "f", (psi.size, 2 * len(V)))
-    samples = _array(data, "train_samples", 3, "f", (None, n, 2)) if "train_samples" in data else None
-    op = cls(mesh, handles, moving, psi, W, meta, samples)
-    op.meta = meta
-    if fmt != FORMAT:  # format 1 factors compressed Ψ W without (★): recompute them
-        if "factor_A" in data:
-            op.compress(rank=int(meta.get("rank", 1)))
-        return op
-    if "factor_A" in data:
-        A = _array(data, "factor_A", 2, "f", (psi.size - 1, None))
-        B = _array(data, "factor_B", 2, "f", (A.shape[1], 2 * len(V)))
-        if A.dtype != B.dtype or np.any(B[:, op._all_hcols] != 0):
-            raise ValueError("factor_B must be zero on the handle columns, in the dtype of factor_A")
-        op.factors = (A, B)
-    return op

@@ -103,8 +103,9 @@ def solve_structure_tps(S, d):
 
     With as many centres as samples the fit interpolates: K w + P p = y, Pᵀ w = 0, where K is the
     (symmetric) kernel matrix φ(‖z_k − z_j‖) and P = [1, z_k]. With a Householder QR P = [Qp Qn][R; 0],
-    w = Qn v and H v = Qnᵀ y for H = Qnᵀ K Qn, which is positive definite because r² log r is
-    conditionally positive definite of order 2 (in any dimension). So: a Cholesky factorisation and
+    w = Qn v and H v = Qnᵀ y for H = Qnᵀ K Qn, which is positive definite because the kernel (r² log r in
+    2D, r³ in 3D, :mod:`defop.operator.handle_bases`) is conditionally positive definite of order 2 (in any
+    dimension of the handle space). So: a Cholesky factorisation and
     inverse of H (LAPACK potrf/potri, about a third of the work of the general LU-and-solve); the 1 + d
     Householder reflectors enter in compact WY form, as rank-(1 + d) updates; and R p = Qpᵀ (y − K w).
 
@@ -113,7 +114,7 @@ def solve_structure_tps(S, d):
     S : (m,q) numpy array
         Ψ at the samples, q = 1 + d + m: columns 1, z (d), then φ at the m centres (the samples, same order).
     d : int
-        Dimension of z (2 × moving handles).
+        Dimension of z (d × moving handles, for handles in R^d).
 
     Returns
     -------
@@ -167,7 +168,7 @@ def check_distinct(samples):
 
     Parameters
     ----------
-    samples : (m,n,2) numpy array
+    samples : (m,n,d) numpy array
     """
     rows = np.asarray(samples).reshape(len(samples), -1)
     _, first, inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
@@ -186,13 +187,15 @@ def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, sc
     Parameters
     ----------
     mesh : defop.geometry.mesh.Mesh
+        Triangles (V (n_vertices, 2)) or tetrahedra (V (n_vertices, 3)); d is read from V. Its lumped
+        ``mass_matrix`` (areas, or volumes) is the M of (8a).
     handles : (h,) int numpy array
         Vertex indices of all handles.
     moving : (h,) bool numpy array
         Which handles move (the variables of Ψ).
-    samples : (m,n,2) numpy array
+    samples : (m,n,d) numpy array
         Q_k, positions of the moving handles (n = moving.sum()).
-    X : (m,n_vertices,2) numpy array
+    X : (m,n_vertices,d) numpy array
         D^E(·, Q_k), the variational deformations at the samples.
     basis : str or defop.operator.handle_bases.HandleBasis
         ``"linear"``, ``"quadratic"``, ``"cubic"`` or ``"tps"`` (centred at the samples and the rest pose).
@@ -220,47 +223,8 @@ def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, sc
 
     handles = np.asarray(handles, dtype=np.int64)
     moving = np.asarray(moving, dtype=bool)
-    P = mesh.V[handles[moving]]
-    n = len(P)
-    samples = np.asarray(samples, dtype=float)
-    X = np.asarray(X, dtype=float)
-    if samples.ndim != 3 or samples.shape[1:] != (n, 2):
-        raise ValueError(f"samples must have shape (m, {n}, 2) for {n} moving handles, got {samples.shape}")
-    if X.shape != (len(samples), mesh.n_vertices, 2):
-        raise ValueError(
-            f"X must have shape ({len(samples)}, {mesh.n_vertices}, 2), one deformation per sample, got {X.shape}"
-        )
-    if not (np.isfinite(samples).all() and np.isfinite(X).all()):
-        raise ValueError("samples or X contain NaN or infinite values")
-    if isinstance(basis, str) and basis == "tps":
-        check_distinct(samples)
-    # the rest pose is always a training sample: D^E(·, P) = identity
-    at_rest = np.abs(samples - P).reshape(len(samples), -1).max(axis=1) <= 1e-14
-    Qs = np.concatenate([P[None], samples[~at_rest]])
-    Xs = np.concatenate([mesh.V[None], X[~at_rest]])
-    m = len(Qs)
-    if scale is None:
-        disp = np.sqrt(np.mean(np.sum((Qs[1:] - P) ** 2, axis=-1))) if m > 1 else 1.0
-        scale = float(disp) if disp > 0 else 1.0
-    if isinstance(basis, str):
-        if basis not in hb.KINDS:
-            raise ValueError(f"unknown handle basis {basis!r}; known: {', '.join(hb.KINDS)}")
-        if basis == "tps":
-            need = 2 * n + 2
-            if m < need:
-                raise ValueError(
-                    f"the tps basis needs at least {need} samples with the rest pose ({need - 1} "
-                    f"besides it) for {n} moving handles, got {m - 1}"
-                )
-        psi = hb.make_basis(basis, P, centers=Qs if basis == "tps" else None, scale=scale)
-    else:
-        psi = basis
-    if m < psi.min_samples():
-        need = psi.min_samples()
-        raise ValueError(
-            f"the {psi.kind} basis (|Ψ| = {psi.size}) needs at least {need} samples with the rest "
-            f"pose ({need - 1} besides it) for {n} moving handles, got {m - 1}"
-        )
+    Qs, Xs = _with_rest_pose(mesh, handles, moving, samples, X, basis)
+    psi = _handle_basis(basis, Qs, scale)
     if isinstance(spatial, str):
         spatial = spatial_mod.make_spatial(mesh, spatial, k)
 
@@ -279,33 +243,100 @@ def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, sc
     fit_time = time.perf_counter() - t0
 
     t1 = time.perf_counter()
-    q = psi.size
-    # coefficients of the handles' linear motion, per handle vertex and coordinate: (h, q, 2)
-    L = np.zeros((len(handles), q, 2))
+    Wf = fold(mesh, handles, moving, psi, spatial, G, beta, Xs)
+    fold_time = time.perf_counter() - t1
+    meta = dict(meta or {})
+    meta.update(basis=psi.kind, spatial=spatial.kind, spatial_size=spatial.size, n_samples=len(Qs) - 1)
+    op = DefOp(mesh, handles, moving, psi, Wf.reshape(psi.size, -1), meta=meta, train_samples=Qs)
+    op.fit_time, op.fold_time = fit_time, fold_time
+    return op
+
+
+def _with_rest_pose(mesh, handles, moving, samples, X, basis):
+    """(Qs (m,n,d), Xs (m,n_vertices,d)): the checked samples and deformations, the rest pose first (once)."""
+    P = mesh.V[handles[moving]]
+    n, d = P.shape
+    samples = np.asarray(samples, dtype=float)
+    X = np.asarray(X, dtype=float)
+    if samples.ndim != 3 or samples.shape[1:] != (n, d):
+        raise ValueError(f"samples must have shape (m, {n}, {d}) for {n} moving handles, got {samples.shape}")
+    if X.shape != (len(samples), mesh.n_vertices, d):
+        raise ValueError(
+            f"X must have shape ({len(samples)}, {mesh.n_vertices}, {d}), one deformation per sample, got {X.shape}"
+        )
+    if not (np.isfinite(samples).all() and np.isfinite(X).all()):
+        raise ValueError("samples or X contain NaN or infinite values")
+    if isinstance(basis, str) and basis == "tps":
+        check_distinct(samples)
+    # the rest pose is always a training sample: D^E(·, P) = identity
+    at_rest = np.abs(samples - P).reshape(len(samples), -1).max(axis=1) <= 1e-14
+    return np.concatenate([P[None], samples[~at_rest]]), np.concatenate([mesh.V[None], X[~at_rest]])
+
+
+def _handle_basis(basis, Qs, scale):
+    """Ψ by name (or as given) for the samples Qs (rest pose first), with enough samples for it."""
+    P, m = Qs[0], len(Qs)
+    n, d = P.shape
+    if scale is None:
+        disp = np.sqrt(np.mean(np.sum((Qs[1:] - P) ** 2, axis=-1))) if m > 1 else 1.0
+        scale = float(disp) if disp > 0 else 1.0
+    if isinstance(basis, str):
+        if basis not in hb.KINDS:
+            raise ValueError(f"unknown handle basis {basis!r}; known: {', '.join(hb.KINDS)}")
+        if basis == "tps":
+            need = d * n + 2
+            if m < need:
+                raise ValueError(
+                    f"the tps basis needs at least {need} samples with the rest pose ({need - 1} "
+                    f"besides it) for {n} moving handles, got {m - 1}"
+                )
+        psi = hb.make_basis(basis, P, centers=Qs if basis == "tps" else None, scale=scale)
+    else:
+        psi = basis
+    if m < psi.min_samples():
+        need = psi.min_samples()
+        raise ValueError(
+            f"the {psi.kind} basis (|Ψ| = {psi.size}) needs at least {need} samples with the rest "
+            f"pose ({need - 1} besides it) for {n} moving handles, got {m - 1}"
+        )
+    return psi
+
+
+def fold(mesh, handles, moving, psi, spatial, G, beta, Xs):
+    """The folded coefficients W (|Ψ|, n_vertices, d): Φ folded in, the handle rows fixed by Prop. 2 / (8c).
+
+    Parameters
+    ----------
+    G, beta : (q,m) and (q,) numpy arrays
+        From :func:`solve_structure` (or :func:`solve_structure_tps`).
+    Xs : (m,n_vertices,d) numpy array
+        The deformations, the rest pose first.
+
+    Returns
+    -------
+    W : (q,n_vertices,d) numpy array
+    """
+    q, d = psi.size, psi.d
+    # coefficients of the handles' linear motion, per handle vertex and coordinate: (h, q, d)
+    L = np.zeros((len(handles), q, d))
     mv = np.flatnonzero(moving)
-    for c in range(2):
+    for c in range(d):
         L[~moving, 0, c] = mesh.V[handles[~moving], c]
         for j, h in enumerate(mv):
             L[h, :, c] = psi.linear_coefficients(j, c)
     if spatial.kind == "hat":
         # W_c = X_c Gᵀ + V_c βᵀ, handle rows replaced by L (exact interpolation, Prop. 2)
-        Wf = (G @ Xs.reshape(len(Xs), -1) + np.outer(beta, mesh.V.ravel())).reshape(q, -1, 2)  # BLAS, not einsum
+        Wf = (G @ Xs.reshape(len(Xs), -1) + np.outer(beta, mesh.V.ravel())).reshape(q, -1, d)  # BLAS, not einsum
         Wf[:, handles, :] = np.transpose(L, (1, 0, 2))
-    else:
-        U = spatial.U
-        B = spatial.coefficients(Xs)  # (m, p, 2)
-        a = spatial.coefficients(mesh.V)  # (p, 2)
-        Chat = np.stack([B[:, :, c].T @ G.T + np.outer(a[:, c], beta) for c in range(2)], axis=-1)  # (p, q, 2)
-        Wh = U[handles]  # (h, p)
-        Wp = np.linalg.pinv(Wh)  # (p, h)
-        C = Chat + np.einsum("ph,hqc->pqc", Wp, L - np.einsum("hp,pqc->hqc", Wh, Chat))
-        Wf = np.stack([(U @ C[:, :, c]).T for c in range(2)], axis=-1)  # (q, v, 2), by BLAS
-    fold_time = time.perf_counter() - t1
-    meta = dict(meta or {})
-    meta.update(basis=psi.kind, spatial=spatial.kind, spatial_size=spatial.size, n_samples=m - 1)
-    op = DefOp(mesh, handles, moving, psi, Wf.reshape(q, -1), meta=meta, train_samples=Qs)
-    op.fit_time, op.fold_time = fit_time, fold_time
-    return op
+        return Wf
+    U = spatial.U
+    B = spatial.coefficients(Xs)  # (m, p, d)
+    a = spatial.coefficients(mesh.V)  # (p, d)
+    Chat = np.stack([B[:, :, c].T @ G.T + np.outer(a[:, c], beta) for c in range(d)], axis=-1)  # (p, q, d)
+    Wh = U[handles]  # (h, p)
+    Wp = np.linalg.pinv(Wh)  # (p, h)
+    C = Chat + np.einsum("ph,hqc->pqc", Wp, L - np.einsum("hp,pqc->hqc", Wh, Chat))
+    return np.stack([(U @ C[:, :, c]).T for c in range(d)], axis=-1)  # (q, v, d), by BLAS
 
 
 def fit_shape(shape, samples, X, basis="tps", spatial="hat", k=100, **kw):

@@ -1,38 +1,59 @@
-"""Handle bases Ψ (§3.1): functions on R^{2n} of the moving handles' positions Q (n,2).
+"""Handle bases Ψ (§3.1): functions on R^{dn} of the moving handles' positions Q (n,d), d = 2 or 3.
 
 Fixed handles are not variables. Every basis is evaluated on the normalised displacement
-z = (Q − P).ravel() / scale ∈ R^{2n} (P the rest positions of the moving handles), which keeps the
-small systems of the fit well conditioned. Its first 1 + 2n functions are always 1, z_1, ..., z_2n,
-so an operator can reproduce the handles' own (linear) motion exactly (Proposition 2).
+z = (Q − P).ravel() / scale ∈ R^{dn} (P the rest positions of the moving handles), which keeps the
+small systems of the fit well conditioned. Its first 1 + dn functions are always 1, z_1, ..., z_dn,
+so an operator can reproduce the handles' own (linear) motion exactly (Proposition 2). The dimension d
+is read from P (``P.shape[1]``).
 
-| basis | size |
-|---|---|
-| linear | 2n + 1 |
-| quadratic | 1 + 3n + 2n² |
-| cubic | C(2n+3, 3) |
-| thin-plate spline (TPS) | 1 + 2n + m |
+| basis | size (d = 2) | size (any d) |
+|---|---|---|
+| linear | 2n + 1 | dn + 1 |
+| quadratic | 1 + 3n + 2n² | C(dn + 2, 2) |
+| cubic | C(2n+3, 3) | C(dn + 3, 3) |
+| radial (``"tps"``) | 1 + 2n + m | 1 + dn + m |
 
-The TPS basis adds r² log r centred at each training sample Q_k (m centres); with more functions than
-samples, the fit adds the usual side conditions: the RBF weights sum to zero and are orthogonal to the
-linear part (:meth:`TPSBasis.side_conditions`).
+The radial basis adds φ(‖z − c_k‖) centred at each training sample Q_k (m centres); with more functions
+than samples, the fit adds the usual side conditions: the RBF weights sum to zero and are orthogonal to
+the linear part (:meth:`TPSBasis.side_conditions`). The kernel φ depends on d (:data:`KERNELS`):
+
+* d = 2: the paper's thin-plate spline φ(r) = r² log r on R^{2n}, exactly as before.
+* d = 3: the polyharmonic spline φ(r) = r³ on R^{3n}. r² log r is the natural (polyharmonic) kernel of
+  *even*-dimensional spaces; for odd dimension the polyharmonic splines are the odd powers r^{2k−1}, and
+  R^{3n} is odd for every odd n. r³ is conditionally positive definite of order 2 in every dimension
+  (Wendland, *Scattered Data Approximation*, Thm. 8.16: (−1)^⌈β/2⌉ r^β is CPD of order ⌈β/2⌉, here β = 3,
+  sign +1, order 2), the same order as r² log r. So the linear side conditions of :meth:`side_conditions`
+  still make the interpolation system uniquely solvable whenever the centres are unisolvent for affine
+  functions, and the TPS operator reproduces every training deformation (Prop. 1); the reduced kernel
+  matrix Qnᵀ K Qn is positive definite, so the fit's Cholesky path (:func:`defop.operator.fit.solve_structure_tps`)
+  applies unchanged. φ(r) = r (CPD of order 1, but with sign −1: its reduced matrix is negative definite)
+  would also interpolate, but it is not differentiable at the centres; r³ is C².
 """
 
 from __future__ import annotations
 
 import itertools
+import numbers
 from math import comb
 
 import numpy as np
 
 KINDS = ("linear", "quadratic", "cubic", "tps")
+#: the radial kernel of the ``"tps"`` basis for each dimension d of the handles (module docstring)
+KERNELS = {2: "r2logr", 3: "r3"}
+DIMS = (2, 3)
+#: limits of the polynomial bases (checked before the monomials are built: a file or a caller asking for more
+#: gets a ValueError, not a MemoryError)
+MAX_DEGREE = 8
+MAX_SIZE = 250_000
 
 
-def _check_Q(Q, n):
+def _check_Q(Q, n, d=2):
     if np.iscomplexobj(Q):  # float() would drop the imaginary part with only a ComplexWarning
         raise ValueError("Q must be real; got a complex array")
     Q = np.asarray(Q, dtype=float)
-    if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, 2):
-        raise ValueError(f"Q must have shape ({n}, 2) or (k, {n}, 2) for {n} moving handles, got {Q.shape}")
+    if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, d):
+        raise ValueError(f"Q must have shape ({n}, {d}) or (k, {n}, {d}) for {n} moving handles, got {Q.shape}")
     if not np.isfinite(Q).all():
         where = np.argwhere(~np.isfinite(Q))[0].tolist()
         raise ValueError(f"Q has NaN or infinite entries (first at {where}): {np.array2string(Q, threshold=20)}")
@@ -44,8 +65,8 @@ class HandleBasis:
 
     Parameters
     ----------
-    P : (n,2) numpy array
-        Rest positions of the moving handles.
+    P : (n,d) numpy array
+        Rest positions of the moving handles, d = 2 or 3.
     scale : float
         Length that normalises displacements (default 1).
     """
@@ -54,8 +75,8 @@ class HandleBasis:
 
     def __init__(self, P, scale=1.0):
         P = np.asarray(P, dtype=float)
-        if P.ndim != 2 or P.shape[1] != 2 or len(P) == 0:
-            raise ValueError(f"P must have shape (n,2) with n >= 1, got {P.shape}")
+        if P.ndim != 2 or P.shape[1] not in DIMS or len(P) == 0:
+            raise ValueError(f"P must have shape (n,d) with n >= 1 and d = 2 or 3, got {P.shape}")
         if not np.isfinite(P).all():
             raise ValueError("P has NaN or infinite entries")
         if not np.isfinite(scale) or scale <= 0:
@@ -68,13 +89,18 @@ class HandleBasis:
         return len(self.P)
 
     @property
+    def d(self) -> int:
+        """Dimension of the space the handles move in (2 or 3)."""
+        return self.P.shape[1]
+
+    @property
     def dim(self) -> int:
-        """2n, the dimension of the handle space."""
-        return 2 * len(self.P)
+        """dn, the dimension of the handle space."""
+        return self.P.size
 
     def z(self, Q):
-        """Normalised displacements (…, 2n) of Q (n,2) or (k,n,2)."""
-        Q = _check_Q(Q, self.n_handles)
+        """Normalised displacements (…, dn) of Q (n,d) or (k,n,d)."""
+        Q = _check_Q(Q, self.n_handles, self.d)
         return ((Q - self.P) / self.scale).reshape(*Q.shape[:-2], self.dim)
 
     def __call__(self, Q):
@@ -82,7 +108,7 @@ class HandleBasis:
 
         Parameters
         ----------
-        Q : (n,2) or (k,n,2) numpy array
+        Q : (n,d) or (k,n,d) numpy array
 
         Returns
         -------
@@ -93,7 +119,7 @@ class HandleBasis:
         return out[0] if z.ndim == 1 else out
 
     def evaluate_one(self, z):
-        """Ψ at one normalised configuration z (2n,), without validation: the interactive fast path.
+        """Ψ at one normalised configuration z (dn,), without validation: the interactive fast path.
 
         Returns
         -------
@@ -110,7 +136,7 @@ class HandleBasis:
 
         Parameters
         ----------
-        z : (k,2n) numpy array
+        z : (k,dn) numpy array
 
         Returns
         -------
@@ -121,7 +147,7 @@ class HandleBasis:
         return out
 
     def delta_one(self, z):
-        """:meth:`delta_z` at one configuration z (2n,), without validation. Returns (|Ψ|−1,)."""
+        """:meth:`delta_z` at one configuration z (dn,), without validation. Returns (|Ψ|−1,)."""
         out = self.evaluate_one(z)[1:]
         out -= self._rest()
         return out
@@ -135,7 +161,7 @@ class HandleBasis:
 
         Parameters
         ----------
-        dz : (2n,) or (k,2n) numpy array
+        dz : (dn,) or (k,dn) numpy array
         zz : float or (k,) numpy array
             |dz|² (row-wise).
         out : (|Ψ|−1,) or (k,|Ψ|−1) numpy array
@@ -187,7 +213,7 @@ class HandleBasis:
         handle : int
             Moving-handle index.
         coord : int
-            0 for x, 1 for y.
+            0 for x, 1 for y, 2 for z (d = 3).
 
         Returns
         -------
@@ -195,7 +221,7 @@ class HandleBasis:
         """
         c = np.zeros(self.size)
         c[0] = self.P[handle, coord]
-        c[1 + 2 * handle + coord] = self.scale
+        c[1 + self.d * handle + coord] = self.scale
         return c
 
     def min_samples(self) -> int:
@@ -212,16 +238,22 @@ class PolynomialBasis(HandleBasis):
 
     Parameters
     ----------
-    P : (n,2) numpy array
+    P : (n,d) numpy array
     degree : int
-        1, 2 or 3 (any positive integer works).
+        1, 2 or 3 (any positive integer up to :data:`MAX_DEGREE`, with at most :data:`MAX_SIZE` monomials).
     scale : float
     """
 
     def __init__(self, P, degree=1, scale=1.0):
         super().__init__(P, scale)
-        if int(degree) != degree or degree < 1:
+        ok = isinstance(degree, numbers.Real) and not isinstance(degree, bool) and np.isfinite(degree)
+        if not ok or int(degree) != degree or degree < 1:
             raise ValueError(f"degree must be a positive integer, got {degree!r}")
+        if degree > MAX_DEGREE:
+            raise ValueError(f"degree must be at most {MAX_DEGREE}, got {degree!r}")
+        if comb(self.dim + int(degree), int(degree)) > MAX_SIZE:
+            size = comb(self.dim + int(degree), int(degree))
+            raise ValueError(f"degree {degree} on R^{self.dim} has {size} monomials, limit |Ψ| <= {MAX_SIZE}")
         self.degree = int(degree)
         d = self.dim
         self.monomials = [()] + [
@@ -260,7 +292,7 @@ class PolynomialBasis(HandleBasis):
 
 
 class LinearBasis(PolynomialBasis):
-    """1, z (size 2n + 1)."""
+    """1, z (size dn + 1)."""
 
     def __init__(self, P, scale=1.0):
         super().__init__(P, 1, scale)
@@ -277,19 +309,60 @@ def _tps_phi(r2, out):
     out *= 0.5
 
 
+def _cubic_phi(r2, out):
+    """φ = r³ = r² √r² from squared distances ``r2`` (overwritten), written into ``out``."""
+    r2[r2 <= 0] = 0.0  # at a centre (or rounded below 0): φ(0) = 0
+    np.sqrt(r2, out=out)
+    out *= r2
+
+
 def tps_kernel(r):
-    """φ(r) = r² log r with φ(0) = 0."""
+    """φ(r) = r² log r with φ(0) = 0 (the d = 2 kernel)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(r > 0, r * r * np.log(np.where(r > 0, r, 1.0)), 0.0)
 
 
+def cubic_kernel(r):
+    """φ(r) = r³ (the d = 3 kernel, see the module docstring)."""
+    r = np.asarray(r, float)
+    return r * r * r
+
+
+def radial_kernel(d):
+    """φ of the ``"tps"`` basis for handles in R^d: :func:`tps_kernel` (d = 2) or :func:`cubic_kernel` (d = 3)."""
+    return {"r2logr": tps_kernel, "r3": cubic_kernel}[KERNELS[d]]
+
+
+def _first_duplicate(cz, tol):
+    """The first pair (i, j), i < j in row-major order, of rows of cz (m, k) within ``tol``, or None.
+
+    In blocks of rows, so the memory is about 4M numbers whatever m is (an (m, m, k) array would not fit for
+    large m)."""
+    m, k = cz.shape
+    step = max(1, 2**22 // max(1, m * k))
+    for i0 in range(0, m, step):
+        d2 = np.sum((cz[i0 : i0 + step, None] - cz[None]) ** 2, axis=-1)
+        dup = np.argwhere((d2 <= tol**2) & _upper(i0, d2.shape))
+        if len(dup):
+            return int(dup[0][0]) + i0, int(dup[0][1])
+    return None
+
+
+def _upper(i0, shape):
+    """Mask of the entries (r, j) with j > i0 + r: the strict upper triangle of the block's rows."""
+    return np.arange(shape[1])[None, :] > (i0 + np.arange(shape[0]))[:, None]
+
+
 class TPSBasis(HandleBasis):
-    """Thin-plate splines on R^{2n}: 1, z, and φ(‖z − c_k‖) with φ(r) = r² log r at each centre c_k.
+    """Radial basis on R^{dn}: 1, z, and φ(‖z − c_k‖) at each centre c_k.
+
+    φ(r) = r² log r (thin-plate spline) for d = 2, φ(r) = r³ (polyharmonic, conditionally positive
+    definite of order 2) for d = 3: see the module docstring and :data:`KERNELS`.
 
     Parameters
     ----------
-    P : (n,2) numpy array
-    centers : (m,n,2) numpy array
+    P : (n,d) numpy array
+    centers : (m,n,d) numpy array
         The training samples Q_k (the rest pose P included, as the fit does).
     scale : float
 
@@ -303,25 +376,27 @@ class TPSBasis(HandleBasis):
 
     def __init__(self, P, centers, scale=1.0):
         super().__init__(P, scale)
-        C = _check_Q(centers, self.n_handles)
+        self.kernel = KERNELS[self.d]
+        self._phi = _tps_phi if self.kernel == "r2logr" else _cubic_phi
+        C = _check_Q(centers, self.n_handles, self.d)
         if C.ndim != 3:
-            raise ValueError(f"centers must have shape (m, {self.n_handles}, 2), got {C.shape}")
+            raise ValueError(f"centers must have shape (m, {self.n_handles}, {self.d}), got {C.shape}")
         self.centers = C
-        self._cz = self.z(C)  # (m, 2n)
-        d2 = np.sum((self._cz[:, None] - self._cz[None]) ** 2, axis=-1)
-        dup = np.argwhere(np.triu(d2 <= (1e-12) ** 2, 1))
-        if len(dup):
-            i, j = dup[0]
+        self._cz = self.z(C)  # (m, dn)
+        dup = _first_duplicate(self._cz, 1e-12)
+        if dup is not None:
+            i, j = dup
             raise ValueError(
                 f"duplicate TPS centres {i} and {j} (0-based): the same handle configuration; in a fit, centre 0 "
                 f"is the rest pose P and centre c is the sample Q_k with k = c - 1 (0-based)"
             )
         self._cz_sq = np.sum(self._cz**2, axis=1)
         self._cz_m2 = -2.0 * self._cz
-        # delta_raw: −2c/scale as (2n, m), 1/scale², |c|² + ε, and ℓ(0) by the same code as every frame. ε keeps
+        # delta_raw: −2c/scale as (dn, m), 1/scale², |c|² + ε, and ℓ(0) by the same code as every frame. ε keeps
         # r² = |c|² − 2c·z + |z|² + ε positive: its rounding error is about 1e-15 (|z| + |c|)², which can reach
         # |z − c|² only for z within 1e-7 |c| of a centre, where ε = 1e-12 max(1, max|c|²) exceeds it 100-fold;
-        # φ moves by ½ ε |log r²| ≲ 1e-10 (far below the float32 rounding of the fast paths)
+        # φ moves by ½ ε |log r²| ≲ 1e-10 (r² log r), or by 1.5 ε r ≲ 1e-11 (r³), far below the float32
+        # rounding of the fast paths
         self._cz_sq_eps = self._cz_sq + 1e-12 * max(1.0, float(self._cz_sq.max()))
         self._cm = np.ascontiguousarray(self._cz_m2.T / self.scale)
         self._inv_s2 = 1.0 / (self.scale * self.scale)
@@ -340,7 +415,7 @@ class TPSBasis(HandleBasis):
         r2 = z @ self._cz_m2.T  # −2 z·c, then + |z|² + |c|²
         r2 += np.einsum("ij,ij->i", z, z)[:, None]
         r2 += self._cz_sq
-        _tps_phi(r2, out[:, 1 + d :])
+        self._phi(r2, out[:, 1 + d :])
         return out
 
     def evaluate_one(self, z):
@@ -351,7 +426,7 @@ class TPSBasis(HandleBasis):
         r2 = self._cz_m2 @ z
         r2 += self._cz_sq
         r2 += z @ z
-        _tps_phi(r2, out[1 + self.dim :])
+        self._phi(r2, out[1 + self.dim :])
         return out
 
     def delta_one(self, z):
@@ -362,22 +437,23 @@ class TPSBasis(HandleBasis):
         r2 += self._cz_sq
         r2 += z @ z
         phi = out[self.dim :]
-        _tps_phi(r2, phi)
+        self._phi(r2, phi)
         phi -= self._rest()[self.dim :]
         return out
 
     def delta_raw(self, dz, zz, out):
-        """[dz, ℓ − ℓ(0)] with ℓ = r² log r² = 2φ(r), r² = |z − c_k|²: δψ = [dz/scale, ½(ℓ − ℓ(0))] (raw_scale).
+        """[dz, ℓ − ℓ(0)], r² = |z − c_k|²: δψ = [dz/scale, s(ℓ − ℓ(0))] with s the :attr:`raw_scale`.
 
+        d = 2: ℓ = r² log r² = 2φ(r), s = ½ (exact). d = 3: ℓ = r² √r² = φ(r), s = 1.
         r² = |c|² − 2c·z + |z|² from one gemv (gemm for k rows) on dz with −2c/scale kept; at dz = 0
         every term but |c|² is an exact zero, so ℓ(0) (computed here at init) comes out of the same bits
-        as a frame at rest and δψ(0) = 0 exactly. Four ufuncs after the product; ×½ is exact. r² carries
-        the ε of ``_cz_sq_eps`` (see ``__init__``), so it is positive without a clamp.
+        as a frame at rest and δψ(0) = 0 exactly. Four ufuncs after the product. r² carries the ε of
+        ``_cz_sq_eps`` (see ``__init__``), so it is positive without a clamp.
         """
         r2 = np.dot(dz, self._cm)  # np.dot: less call overhead than @ for a vector
         r2 += self._cz_sq_eps
         r2 += (zz[:, None] if type(zz) is np.ndarray else zz) * self._inv_s2
-        ell = np.log(r2)
+        ell = np.log(r2) if self.kernel == "r2logr" else np.sqrt(r2)
         ell *= r2
         d = self.dim
         np.subtract(ell, self._ell0, out=out[..., d:])
@@ -386,12 +462,17 @@ class TPSBasis(HandleBasis):
 
     @property
     def raw_scale(self):
-        return np.concatenate([np.full(self.dim, 1.0 / self.scale), np.full(len(self._cz), 0.5)])
+        half = 0.5 if self.kernel == "r2logr" else 1.0
+        return np.concatenate([np.full(self.dim, 1.0 / self.scale), np.full(len(self._cz), half)])
 
     def raw_bound(self, R):
-        """|dz| ≤ R: |dz_i| ≤ R, r² ≤ (R/scale + max|c|)², |ℓ| ≤ max(r² |log r²|, 1/e), plus |ℓ(0)|."""
+        """|dz| ≤ R: |dz_i| ≤ R, r² ≤ (R/scale + max|c|)², |ℓ| ≤ max(r² |log r²|, 1/e) (d = 2) or r³ (d = 3),
+        plus |ℓ(0)|."""
         r2 = (R / self.scale + np.sqrt(self._cz_sq.max())) ** 2 + float(self._cz_sq_eps.max())
-        ell = max(r2 * abs(np.log(max(r2, 1e-300))), 1 / np.e)
+        if self.kernel == "r2logr":
+            ell = max(r2 * abs(np.log(max(r2, 1e-300))), 1 / np.e)
+        else:
+            ell = r2 * np.sqrt(r2)
         return max(R, ell + float(np.abs(self._ell0).max()))
 
     def side_conditions(self):
@@ -399,7 +480,7 @@ class TPSBasis(HandleBasis):
 
         Returns
         -------
-        T : (1+2n, |Ψ|) numpy array
+        T : (1+dn, |Ψ|) numpy array
         """
         m = len(self.centers)
         T = np.zeros((1 + self.dim, self.size))
@@ -410,7 +491,7 @@ class TPSBasis(HandleBasis):
         return self.dim + 2
 
     def params(self):
-        return {**super().params(), "centers": self.centers}
+        return {**super().params(), "centers": self.centers, "kernel": self.kernel}
 
 
 def make_basis(kind, P, centers=None, scale=1.0):
@@ -420,9 +501,9 @@ def make_basis(kind, P, centers=None, scale=1.0):
     ----------
     kind : str
         ``"linear"``, ``"quadratic"``, ``"cubic"`` or ``"tps"``.
-    P : (n,2) numpy array
+    P : (n,d) numpy array
         Rest positions of the moving handles.
-    centers : (m,n,2) numpy array
+    centers : (m,n,d) numpy array
         TPS centres (the training samples); required for ``"tps"``.
     scale : float
 
@@ -438,24 +519,26 @@ def make_basis(kind, P, centers=None, scale=1.0):
         return PolynomialBasis(P, 3, scale)
     if kind == "tps":
         if centers is None:
-            raise ValueError("the TPS basis needs centers: the training samples Q_k, shape (m, n, 2)")
+            raise ValueError("the TPS basis needs centers: the training samples Q_k, shape (m, n, d)")
         return TPSBasis(P, centers, scale)
     raise ValueError(f"unknown handle basis {kind!r}; known: {', '.join(KINDS)}")
 
 
-def basis_size(kind, n, m=None):
-    """|Ψ| for n moving handles (and m TPS centres).
+def basis_size(kind, n, m=None, d=2):
+    """|Ψ| for n moving handles in R^d (and m TPS centres).
 
     Returns
     -------
     size : int
+        dn + 1 (linear), C(dn + 2, 2) (quadratic; 1 + 3n + 2n² for d = 2), C(dn + 3, 3) (cubic),
+        1 + dn + m (tps).
     """
     if kind == "linear":
-        return 2 * n + 1
+        return d * n + 1
     if kind == "quadratic":
-        return 1 + 3 * n + 2 * n * n
+        return comb(d * n + 2, 2)
     if kind == "cubic":
-        return comb(2 * n + 3, 3)
+        return comb(d * n + 3, 3)
     if kind == "tps":
-        return 1 + 2 * n + m
+        return 1 + d * n + m
     raise ValueError(f"unknown handle basis {kind!r}; known: {', '.join(KINDS)}")

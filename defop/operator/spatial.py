@@ -15,6 +15,11 @@ The operator's spatial part is then D(·, Q) = U C Ψ(Q) (Eq. 3).
   null space on a flat domain is exactly {1, x, y}. This is tested, and the three affine functions are
   put first, exactly, so the span reproduces x and y to round-off. libigl's ``biharmonic_coordinates``
   would use a Crouzeix–Raviart construction instead.
+
+Dimension: d is read from the mesh (``V.shape[1]``). Hat functions and the mass matrix (lumped areas, or
+volumes on tetrahedra) work for d = 2 and 3. The reduced basis' energy is libigl's mixed-FEM Hessian energy on
+triangles; on tetrahedra libigl has no Hessian energy, so it is the affine-residual energy uᵀRᵀRu alone
+(:func:`affine_residual_operator`), which is linearly precise too: its null space is exactly {1, x, y, z}.
 """
 
 from __future__ import annotations
@@ -114,10 +119,13 @@ def hessian_energy(mesh):
     Returns
     -------
     Q : (n,n) scipy.sparse.csc_matrix
-        Symmetric positive semi-definite; Q @ [1, x, y] = 0.
+        Symmetric positive semi-definite; Q @ [1, x, y] = 0 (Q @ [1, x, y, z] = 0 on tetrahedra, where Q is RᵀR).
     """
     import igl
 
+    if mesh.V.shape[1] != 2:  # libigl's Hessian energy is for triangle meshes
+        R = affine_residual_operator(mesh)
+        return (R.T @ R).tocsc()
     Q = igl.hessian_energy(np.ascontiguousarray(mesh.V), np.ascontiguousarray(mesh.F, dtype=np.int64))
     Q = ((Q + Q.T) / 2).tocsr()
     R = affine_residual_operator(mesh)
@@ -144,13 +152,15 @@ def affine_residual_operator(mesh):
     R : (n,n) scipy.sparse.csr_matrix
     """
     n = mesh.n_vertices
-    E = np.concatenate([mesh.F[:, [0, 1]], mesh.F[:, [1, 2]], mesh.F[:, [2, 0]]])
+    k = mesh.F.shape[1]  # vertices per element: 3 (triangles) or 4 (tetrahedra)
+    pairs = [(i, (i + 1) % k) for i in range(k)] + [(i, i + 2) for i in range(k - 2) if k > 3]  # every edge
+    E = np.concatenate([mesh.F[:, list(p)] for p in pairs])
     A = sp.csr_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n))
     A = ((A + A.T) > 0).tocsr()
     rows, cols, vals = [], [], []
     for i in range(n):
         nb = A.indices[A.indptr[i] : A.indptr[i + 1]]
-        B = np.vstack([np.ones(len(nb)), mesh.V[nb].T])  # (3, k)
+        B = np.vstack([np.ones(len(nb)), mesh.V[nb].T])  # (1 + d, k)
         if np.linalg.cond(B @ B.T) > 1e10:  # collinear 1-ring (a corner): use the 2-ring
             nb = np.setdiff1d(np.unique(np.concatenate([A.indices[A.indptr[j] : A.indptr[j + 1]] for j in nb])), [i])
             B = np.vstack([np.ones(len(nb)), mesh.V[nb].T])
@@ -173,7 +183,7 @@ def reduced_basis(mesh, k=100):
     Returns
     -------
     basis : SpatialBasis
-        ``U[:, :3]`` spans {1, x, y} exactly.
+        ``U[:, :d+1]`` spans {1, x, y} ({1, x, y, z} in 3D) exactly.
 
     Raises
     ------
@@ -182,8 +192,9 @@ def reduced_basis(mesh, k=100):
         belongs to a single triangle, which the Hessian energy does not constrain).
     """
     n = mesh.n_vertices
-    if int(k) != k or k < 3 or k > n - 4:  # ARPACK finds at most n - 1 eigenpairs, and k + 3 are needed
-        raise ValueError(f"k must be an integer with 3 <= k <= n_vertices - 4 = {n - 4}, got {k!r}")
+    a = mesh.V.shape[1] + 1  # the affine functions: 3 in 2D, 4 in 3D
+    if int(k) != k or k < a or k > n - a - 1:  # ARPACK finds at most n - 1 eigenpairs, and k + a are needed
+        raise ValueError(f"k must be an integer with {a} <= k <= n_vertices - {a + 1} = {n - a - 1}, got {k!r}")
     k = int(k)
     M = mesh.mass_matrix.tocsc()
     m = M.diagonal()
@@ -193,22 +204,22 @@ def reduced_basis(mesh, k=100):
     A = _m_orthonormalize(A, m)
     # a seeded start vector: ARPACK's default is random, which made the basis differ run to run
     v0 = np.random.default_rng(0).standard_normal(n)
-    lam, vecs = sla.eigsh(Q, k=k + 3, M=M, sigma=-1e-2, which="LM", v0=v0)
+    lam, vecs = sla.eigsh(Q, k=k + a, M=M, sigma=-1e-2, which="LM", v0=v0)
     order = np.argsort(lam)
     lam, vecs = lam[order], vecs[:, order]
-    if lam[3] < 1e4 * np.abs(lam[:3]).max():
+    if lam[a] < 1e4 * np.abs(lam[:a]).max():
         lone = np.flatnonzero(np.bincount(mesh.F.ravel(), minlength=n) == 1)
         raise ValueError(
             f"the Hessian energy's null space is larger than {{1, x, y}} on this mesh (lowest eigenvalues "
             f"{np.array2string(lam[:5], precision=2)}); {len(lone)} vertices belong to a single triangle"
             + (f" (first: vertex {lone[0]})" if len(lone) else "; is the mesh connected?")
         )
-    # remove the affine span from the other eigenvectors (M-orthogonally), keep k - 3 of them
-    rest = vecs[:, 3:]
+    # remove the affine span from the other eigenvectors (M-orthogonally), keep k - a of them
+    rest = vecs[:, a:]
     rest = rest - A @ (A.T @ (m[:, None] * rest))
     rest = _m_orthonormalize(rest, m)
-    U = np.column_stack([A, rest[:, : k - 3]])
-    return SpatialBasis("reduced", U, mesh.mass_matrix, np.concatenate([[0.0, 0.0, 0.0], lam[3:k]]))
+    U = np.column_stack([A, rest[:, : k - a]])
+    return SpatialBasis("reduced", U, mesh.mass_matrix, np.concatenate([np.zeros(a), lam[a:k]]))
 
 
 def _m_orthonormalize(A, m):

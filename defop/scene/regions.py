@@ -5,15 +5,20 @@ validate its parameters (on construction), ``sample`` m points with an explicit 
 its ``outlines`` for drawing. :func:`as_region` turns the dict form used in older code and notebooks
 (``{"kind": "disc", "radius": 0.2}``) into a region; ``region["kind"]`` still works on a region.
 
+The dimension d is read from the centre (2 or 3). ``ball``, ``gaussian``, ``voronoi`` and ``mixture`` work
+in any dimension; ``disc``, ``ellipse`` and ``circle`` are 2D names (a ball in 2D is a disc, and draws the
+same points).
+
 ========  ==========================================  ============================================
 kind      class                                        sample
 ========  ==========================================  ============================================
-disc      :class:`Disc` (radius)                       uniform in a disc
+ball      :class:`Ball` (radius)                       uniform in a ball of R^d
+disc      :class:`Disc` (radius)                       uniform in a disc (2D)
 ellipse   :class:`Ellipse` (axes a_x, a_y)             uniform in an axis-aligned ellipse
 circle    :class:`Circle` (radius)                     uniform on a circle
 gaussian  :class:`Gaussian` (sigma)                    isotropic normal
 voronoi   :class:`Voronoi` (radius)                    uniform in p_l's Voronoi cell among the moving
-                                                       handles, clipped to a disc (Fig. 1)
+                                                       handles, clipped to a ball (Fig. 1)
 mixture   :class:`Mixture` (components, weights)       each point from a component drawn by weight
 ========  ==========================================  ============================================
 """
@@ -26,7 +31,7 @@ import numpy as np
 
 from .. import options as opt
 
-REGION_KINDS = ("disc", "ellipse", "circle", "gaussian", "voronoi", "mixture")
+REGION_KINDS = ("disc", "ball", "ellipse", "circle", "gaussian", "voronoi", "mixture")
 
 
 def _positive(value, what):
@@ -47,10 +52,21 @@ def _disc(rng, k, radius):
     return np.column_stack([r * np.cos(t), r * np.sin(t)])
 
 
+def _ball(rng, k, radius, d):
+    """k points uniform in the ball of ``radius`` in R^d: in 2D the disc's draws (:func:`_disc`); else a normal
+    direction and a radius r·u^{1/d}."""
+    if d == 2:
+        return _disc(rng, k, radius)
+    u = rng.normal(size=(k, d))
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    return u * (radius * rng.uniform(size=k) ** (1.0 / d))[:, None]
+
+
 class Region:
     """Base class: a sampling region around one moving handle."""
 
     kind = ""
+    dims = (2, 3)  # the dimensions the region is defined in
 
     def sample(self, rng, center, m, P=None, index=None):
         """m points of the region around ``center``.
@@ -58,19 +74,32 @@ class Region:
         Parameters
         ----------
         rng : numpy.random.Generator
-        center : (2,) numpy array
-            The handle's rest position p_l.
+        center : (d,) numpy array
+            The handle's rest position p_l; d = 2 or 3.
         m : int
-        P : (n,2) numpy array, optional
+        P : (n,d) numpy array, optional
             All moving handles' rest positions (used by :class:`Voronoi`).
         index : int, optional
             Row of this handle in ``P``.
 
         Returns
         -------
-        points : (m,2) numpy array
+        points : (m,d) numpy array
+
+        Raises
+        ------
+        ValueError
+            A centre of another dimension than the region's (``disc`` in 3D: use ``ball``).
         """
-        return np.asarray(center, float) + self._offsets(rng, int(m), np.asarray(center, float), P, index)
+        c = np.asarray(center, float)
+        self.check_dim(c.shape[-1] if c.ndim == 1 else -1)
+        return c + self._offsets(rng, int(m), c, P, index)
+
+    def check_dim(self, d):
+        """Raise ValueError unless the region is defined in dimension d."""
+        if d not in self.dims:
+            hint = "; use {'kind': 'ball', 'radius': r} in 3D" if self.dims == (2,) else ""
+            raise ValueError(f"a {self.kind} region is defined in {' or '.join(map(str, self.dims))}D, not {d}D{hint}")
 
     def outlines(self, center, P=None, index=None, n=96):
         """Closed outlines for drawing: list of ((k,2) numpy array, line style ``"-"``, ``"--"`` or ``":"``)."""
@@ -90,20 +119,35 @@ class Region:
 
 
 @dataclasses.dataclass(frozen=True)
-class Disc(Region):
-    """Uniform in a disc of ``radius`` around p_l."""
+class Ball(Region):
+    """Uniform in a ball of ``radius`` around p_l, in any dimension (in 2D the same points as :class:`Disc`)."""
 
     radius: float
-    kind = "disc"
+    kind = "ball"
 
     def __post_init__(self):
-        object.__setattr__(self, "radius", _positive(self.radius, "disc needs a positive 'radius', got {value!r}"))
+        what = f"{self.kind} needs a positive 'radius', got {{value!r}}"
+        object.__setattr__(self, "radius", _positive(self.radius, what))
 
     def _offsets(self, rng, m, c, P, index):
-        return _disc(rng, m, self.radius)
+        return _ball(rng, m, self.radius, len(c))
 
     def outlines(self, center, P=None, index=None, n=96):
-        return [(np.asarray(center, float) + self.radius * _unit_circle(n), "-")]
+        """The circle in 2D; in 3D the ball's three great circles in the coordinate planes, (n,3) each."""
+        c = np.asarray(center, float)
+        if len(c) == 2:
+            return [(c + self.radius * _unit_circle(n), "-")]
+        circle = self.radius * _unit_circle(n)
+        planes = [(0, 1), (1, 2), (0, 2)]
+        return [(c + np.insert(circle, 3 - sum(p), 0.0, axis=1), "-") for p in planes]
+
+
+@dataclasses.dataclass(frozen=True)
+class Disc(Ball):
+    """Uniform in a disc of ``radius`` around p_l (the 2D name of :class:`Ball`)."""
+
+    kind = "disc"
+    dims = (2,)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,6 +156,7 @@ class Ellipse(Region):
 
     axes: tuple
     kind = "ellipse"
+    dims = (2,)
 
     def __post_init__(self):
         try:
@@ -135,6 +180,7 @@ class Circle(Region):
 
     radius: float
     kind = "circle"
+    dims = (2,)
 
     def __post_init__(self):
         object.__setattr__(self, "radius", _positive(self.radius, "circle needs a positive 'radius', got {value!r}"))
@@ -158,7 +204,7 @@ class Gaussian(Region):
         object.__setattr__(self, "sigma", _positive(self.sigma, "gaussian needs a positive 'sigma', got {value!r}"))
 
     def _offsets(self, rng, m, c, P, index):
-        return rng.normal(scale=self.sigma, size=(m, 2))
+        return rng.normal(scale=self.sigma, size=(m, len(c)))
 
     def outlines(self, center, P=None, index=None, n=96):
         c = np.asarray(center, float)
@@ -176,10 +222,10 @@ class Voronoi(Region):
         object.__setattr__(self, "radius", _positive(self.radius, "voronoi needs a positive 'radius', got {value!r}"))
 
     def _offsets(self, rng, m, c, P, index):
-        others = np.delete(np.asarray(P, float), index, axis=0) if P is not None else np.zeros((0, 2))
-        out = np.empty((0, 2))
-        for _ in range(1000):  # rejection sampling from the disc
-            cand = _disc(rng, max(2 * (m - len(out)), 16), self.radius)
+        others = np.delete(np.asarray(P, float), index, axis=0) if P is not None else np.zeros((0, len(c)))
+        out = np.empty((0, len(c)))
+        for _ in range(1000):  # rejection sampling from the ball
+            cand = _ball(rng, max(2 * (m - len(out)), 16), self.radius, len(c))
             if len(others):
                 pts = c + cand  # the test on absolute positions, as the samples are returned
                 d_own = np.sum((pts - c) ** 2, axis=1)
@@ -221,8 +267,10 @@ class Mixture(Region):
 
     def _offsets(self, rng, m, c, P, index):
         w = np.asarray(self.weights)
+        for sub in self.components:
+            sub.check_dim(len(c))
         comp = rng.choice(len(w), size=m, p=w / w.sum())
-        out = np.empty((m, 2))
+        out = np.empty((m, len(c)))
         for j, sub in enumerate(self.components):
             sel = np.flatnonzero(comp == j)
             if len(sel):
@@ -233,7 +281,7 @@ class Mixture(Region):
         return [o for comp in self.components for o in comp.outlines(center, P, index, n)]
 
 
-_CLASSES = {cls.kind: cls for cls in (Disc, Ellipse, Circle, Gaussian, Voronoi, Mixture)}
+_CLASSES = {cls.kind: cls for cls in (Disc, Ball, Ellipse, Circle, Gaussian, Voronoi, Mixture)}
 
 
 def as_region(spec, name="region"):

@@ -2,7 +2,7 @@
 
 Stages, each timed in the :class:`TrainingRecord`:
 
-1. **bootstrap**: the first 2n + 1 samples (n moving handles) are solved from the rest pose and a
+1. **bootstrap**: the first dn + 1 samples (n moving handles in R^d) are solved from the rest pose and a
    *linear* operator is fitted to them;
 2. **solve**: every other sample is solved globally (:meth:`defop.variational.solver.Solver.solve_best`): from the
    rest pose and from that linear operator's prediction (skipped when it flips a triangle under a
@@ -46,9 +46,9 @@ class TrainingRecord:
 
     Attributes
     ----------
-    samples : (m,n,2) numpy array
+    samples : (m,n,d) numpy array
         The training configurations Q_k (rest pose excluded).
-    X : (m,n_vertices,2) numpy array or None
+    X : (m,n_vertices,d) numpy array or None
         Their ground-truth deformations.
     converged : (m,) bool numpy array or None
     stage_times : dict of str -> float
@@ -71,17 +71,17 @@ class TrainingRecord:
 
 
 def _check_samples(shape, samples, name="samples"):
-    """(m,n,2) float array of configurations of the shape's n moving handles, finite, m >= 1."""
+    """(m,n,d) float array of configurations of the shape's n moving handles, finite, m >= 1 (d from the mesh)."""
     samples = np.asarray(samples, float)
-    n = shape.n_moving
-    if samples.ndim != 3 or samples.shape[1:] != (n, 2) or len(samples) == 0:
-        raise ValueError(f"{name} must have shape (m, {n}, 2), m >= 1, for {n} moving handles, got {samples.shape}")
+    n, d = shape.n_moving, shape.mesh.V.shape[1]
+    if samples.ndim != 3 or samples.shape[1:] != (n, d) or len(samples) == 0:
+        raise ValueError(f"{name} must have shape (m, {n}, {d}), m >= 1, for {n} moving handles, got {samples.shape}")
     if not np.isfinite(samples).all():
         raise ValueError(f"{name} has NaN or infinite entries")
     return samples
 
 
-def min_samples(basis, n):
+def min_samples(basis, n, d=2):
     """The fewest samples Q_k (besides the rest pose) :func:`train` needs for a handle basis.
 
     Parameters
@@ -90,14 +90,16 @@ def min_samples(basis, n):
         ``"linear"``, ``"quadratic"``, ``"cubic"`` or ``"tps"``.
     n : int
         Number of moving handles.
+    d : int
+        Dimension (2 or 3).
 
     Returns
     -------
     int
-        |Ψ| - 1 for the polynomial bases (``fit`` adds the rest pose), 2n + 1 for TPS.
+        |Ψ| - 1 for the polynomial bases (``fit`` adds the rest pose), dn + 1 for TPS.
     """
     opt.choice("handle basis", basis, hb.KINDS)
-    return 2 * n + 1 if basis == "tps" else hb.basis_size(basis, n) - 1
+    return d * n + 1 if basis == "tps" else hb.basis_size(basis, n, d=d) - 1
 
 
 def _check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds):
@@ -115,7 +117,7 @@ def _check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rou
     else:
         m = opt.integer("m", DEFAULT_M if m is None else m, minimum=1)
         given = f"m = {m}"
-    need = min_samples(basis, shape.n_moving)
+    need = min_samples(basis, shape.n_moving, shape.mesh.V.shape[1])
     if m < need:
         raise ValueError(
             f"the {basis} handle basis needs at least {need} samples Q_k besides the rest pose for "
@@ -136,13 +138,13 @@ def _solver_key(shape, energy):
     return cache_mod.solver_settings(Solver(tiny, np.array([0]), energy))
 
 
-def _gt_expect(m, n_vertices):
-    return {"X": ((m, n_vertices, 2), "f"), "converged": ((m,), "b")}
+def _gt_expect(m, n_vertices, d=2):
+    return {"X": ((m, n_vertices, d), "f"), "converged": ((m,), "b")}
 
 
-def _load_gt(store, key, m, n_vertices):
+def _load_gt(store, key, m, n_vertices, d=2):
     """(X, converged, meta) of a cached ground truth, or None."""
-    entry = None if store is None else store.load("gt", key, _gt_expect(m, n_vertices))
+    entry = None if store is None else store.load("gt", key, _gt_expect(m, n_vertices, d))
     return None if entry is None else (entry[0]["X"], entry[0]["converged"], entry[1])
 
 
@@ -186,10 +188,10 @@ def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress
     Parameters
     ----------
     shape : defop.scene.shapes.Shape
-    samples : (m,n,2) numpy array
+    samples : (m,n,d) numpy array
     energy : str
-    X0 : (m,n_vertices,2) numpy array or list, optional
-        Extra starts per sample: None, one (n_vertices,2) map, or a list of maps.
+    X0 : (m,n_vertices,d) numpy array or list, optional
+        Extra starts per sample: None, one (n_vertices,d) map, or a list of maps.
     n_jobs : int, optional
         Workers (default ``dop.config.n_jobs()``: all cores); 1 solves in this process.
     progress : bool
@@ -199,7 +201,7 @@ def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress
 
     Returns
     -------
-    X : (m,n_vertices,2) numpy array
+    X : (m,n_vertices,d) numpy array
     converged : (m,) bool numpy array
         Verified local minimum (see :meth:`defop.variational.solver.Solver.verify`).
     """
@@ -228,7 +230,7 @@ def sample_ground_truth(shape, samples, energy="sarap", X0=None, n_jobs=None, pr
 
     Returns
     -------
-    X : (m,n_vertices,2) numpy array
+    X : (m,n_vertices,d) numpy array
     converged : (m,) bool numpy array
     """
     en.check_energy(energy)
@@ -245,7 +247,8 @@ def sample_ground_truth(shape, samples, energy="sarap", X0=None, n_jobs=None, pr
         X, conv = solve_samples(shape, samples, energy, X0, n_jobs, progress)
         return {"X": X, "converged": conv}
 
-    gt = batch.load_or_compute(store, "gt", key, _gt_expect(len(samples), mesh.n_vertices), compute)
+    expect = _gt_expect(len(samples), mesh.n_vertices, mesh.V.shape[1])
+    gt = batch.load_or_compute(store, "gt", key, expect, compute)
     return gt["X"], gt["converged"]
 
 
@@ -269,8 +272,8 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
 
     Returns
     -------
-    Q : (m,n,2) numpy array
-    X : (m,n_vertices,2) numpy array
+    Q : (m,n,d) numpy array
+    X : (m,n_vertices,d) numpy array
     converged : (m,) bool numpy array
 
     Raises
@@ -339,7 +342,7 @@ def train(
         Size of the reduced Φ.
     seed : int
         Seeds the sampling of Q_k.
-    samples : (m,n,2) numpy array, optional
+    samples : (m,n,d) numpy array, optional
         Use these configurations instead of sampling.
     n_jobs : int, optional
         Parallel solves (default: every core).
@@ -394,12 +397,12 @@ def train(
     op = None if store is None else store.load_with("op", op_key, _operator_reader(shape, basis, spatial, m))
     if op is not None:
         times["load"] = time.perf_counter() - t0
-        gt = _load_gt(store, gt_key, m, mesh.n_vertices)
+        gt = _load_gt(store, gt_key, m, mesh.n_vertices, mesh.V.shape[1])
         X, conv = (None, None) if gt is None else gt[:2]
         return op, TrainingRecord(samples, X, conv, times, "operator", params)
 
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
-    gt = _load_gt(store, gt_key, m, mesh.n_vertices)
+    gt = _load_gt(store, gt_key, m, mesh.n_vertices, mesh.V.shape[1])
     if gt is not None:
         X, conv = gt[0], gt[1]
         times.update(gt[2].get("times", {}))  # how long the cached solves took when they ran
@@ -407,7 +410,7 @@ def train(
     else:
         cache_state = "none"
         n = shape.n_moving
-        nb = min(m, 2 * n + 1)
+        nb = min(m, min_samples("linear", n, mesh.V.shape[1]) + 1)  # dn + 1: the linear bootstrap fit
         t0 = time.perf_counter()
         Xb, cb = solve_samples(shape, samples[:nb], energy, None, n_jobs, progress, desc="bootstrap solves")
         lin = fit(shape.mesh, shape.handles, shape.moving, samples[:nb], Xb, "linear", "hat", meta=meta)
@@ -420,7 +423,7 @@ def train(
             X, conv = np.concatenate([Xb, Xr]), np.concatenate([cb, cr])
         for _ in range(rounds - 1):
             # a smooth predictor (not an interpolant, which would reproduce a bad local minimum)
-            smooth = "quadratic" if m + 1 >= 1 + 3 * n + 2 * n * n else "linear"
+            smooth = "quadratic" if m + 1 >= hb.basis_size("quadratic", n, d=mesh.V.shape[1]) else "linear"
             inter = fit(shape.mesh, shape.handles, shape.moving, samples, X, smooth, "hat", meta=meta)
             # the current solutions and the smooth fit's predictions: the lower verified minimum of the two
             starts = [[x, w] for x, w in zip(X, _warm_starts(inter, samples, shape.mesh, energy))]

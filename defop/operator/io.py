@@ -1,0 +1,385 @@
+"""Operator files: :meth:`DefOp.save` and :meth:`DefOp.load`, with the checks an untrusted file needs.
+
+**Format** (``.npz``, a zip of ``.npy`` arrays, read without pickle): the arrays ``V`` (n, d), ``F`` (m, d+1),
+``handles``, ``moving``, ``W`` (|Ψ|, d n), ``basis_P`` (n_moving, d), ``basis_centers`` (TPS), ``train_samples``
+and, when compressed, ``factor_A`` and ``factor_B``; plus ``header``, a JSON object
+``{"format": "defop-operator-3", "format_version": 3, "dim": d, "meta": {...}, "basis": {...}}``.
+
+| format | written by | d | read as |
+|---|---|---|---|
+| ``defop-operator-1`` | before (★) | 2 | W only; old factors are recomputed |
+| ``defop-operator-2`` | 7c4dc5f and before this change | 2 | as saved (d = 2 is implied) |
+| ``defop-operator-3`` | this version | 2 or 3 (``dim``) | as saved |
+
+**Checks before work** (:func:`load`). Every error is a ``ValueError`` that names the file and what is wrong:
+
+1. the file's first bytes: a zip archive (a ``.npy`` array, or anything else, is "not a defop operator file");
+2. the zip directory: at most :data:`MAX_MEMBERS` members, known names only, stored or deflated, unencrypted,
+   and the *declared* (uncompressed) size of each member at most :data:`MAX_ARRAY_BYTES` (a zip bomb is
+   rejected here, before any byte is inflated);
+3. each member's ``.npy`` header (read from the first bytes of the stream): at most 3 dimensions, a plain
+   numeric, bool or string dtype (never Python objects, so no pickle), and a shape whose byte count is at
+   most :data:`MAX_ARRAY_BYTES` and equals what the member declares ("declares a 60000×60000 float64 matrix,
+   limit ...");
+4. the JSON header: at most :data:`MAX_HEADER_CHARS` characters and :data:`MAX_JSON_DEPTH` levels of nesting,
+   counted before it is parsed;
+5. the declared shapes against each other and against :data:`MAX_CENTERS` and the polynomial degree limit
+   (:data:`defop.operator.handle_bases.MAX_DEGREE`), before an array is read;
+6. then the data, streamed into arrays of the declared size: decompression never produces more than the
+   member declares, and a damaged stream (bad CRC, truncated) is "damaged or truncated";
+7. finally every array's values (finite, indices in range, the rest pose, the handle columns).
+
+:func:`save` writes a temporary file in the target's folder and renames it into place (atomic).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+import os
+import re
+import struct
+import tempfile
+import zipfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from ..geometry.mesh import Mesh
+from . import handle_bases as hb
+
+FORMAT = "defop-operator-3"
+FORMAT_VERSION = 3
+#: formats this version reads, with their version numbers (1 and 2 are 2D only)
+READS = {"defop-operator-1": 1, "defop-operator-2": 2, FORMAT: FORMAT_VERSION}
+#: the largest array a file may declare, in bytes (uncompressed)
+MAX_ARRAY_BYTES = 2 * 2**30
+#: the most bytes all arrays together may declare
+MAX_TOTAL_BYTES = 4 * 2**30
+#: the most members (arrays) an archive may hold
+MAX_MEMBERS = 16
+#: the longest JSON header, in characters, and its deepest nesting of objects and lists
+MAX_HEADER_CHARS = 1_000_000
+MAX_JSON_DEPTH = 32
+#: the most TPS centres (training samples plus the rest pose) an operator file may declare
+MAX_CENTERS = 20_000
+MEMBERS = (
+    "header",
+    "V",
+    "F",
+    "handles",
+    "moving",
+    "W",
+    "basis_P",
+    "basis_centers",
+    "train_samples",
+    "factor_A",
+    "factor_B",
+)
+_NPY_HEADER_MAX = 65_536 + 16  # numpy's own limit on a .npy header
+#: what a damaged archive can make zipfile, zlib or numpy's header parser raise while we read it
+_DAMAGED = (zipfile.BadZipFile, zlib.error, EOFError, struct.error, NotImplementedError, SyntaxError, UnicodeError)
+
+
+class OperatorFileError(ValueError):
+    """An operator file that cannot be used; the message names the file and what is wrong with it."""
+
+
+def save(op, path):
+    """Write ``op`` to ``path`` as .npz: arrays plus the JSON header (exact round trip), atomically.
+
+    The archive goes to a temporary file in the same folder, which is renamed into place only when it is
+    complete: a reader sees the old file or the new one, never a partial one, and a failed save leaves no file.
+
+    Parameters
+    ----------
+    op : defop.operator.defop.DefOp
+    path : str or pathlib.Path
+    """
+    path = Path(path)
+    params = op.handle_basis.params()
+    arrays = {"V": op.mesh.V, "F": op.mesh.F, "handles": op.handles, "moving": op.moving, "W": op.W}
+    arrays["basis_P"] = params["P"]
+    if "centers" in params:
+        arrays["basis_centers"] = params["centers"]
+    if op.train_samples is not None:
+        arrays["train_samples"] = op.train_samples
+    if op.factors is not None:
+        arrays["factor_A"], arrays["factor_B"] = op.factors
+    basis = {"kind": params["kind"], "scale": params["scale"], "degree": params.get("degree")}
+    if "kernel" in params:
+        basis["kernel"] = params["kernel"]
+    header = {"format": FORMAT, "format_version": FORMAT_VERSION, "dim": op.d, "meta": op.meta, "basis": basis}
+    arrays["header"] = np.array(json.dumps(header))
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a saved operator is as readable as np.savez made it
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def load(path, cls):
+    """Read an operator file, checking it before any work (module docstring), and build a ``cls``.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+    cls : type
+        :class:`defop.operator.defop.DefOp`.
+
+    Returns
+    -------
+    op : cls
+
+    Raises
+    ------
+    ValueError
+        (:class:`OperatorFileError`) naming the file and the problem: missing, not a defop operator,
+        damaged or truncated, beyond a limit, of an unknown format, or with arrays that do not fit together.
+    """
+    if isinstance(path, bytes):
+        path = os.fsdecode(path)
+    path = Path(path)
+    if not path.is_file():
+        raise OperatorFileError(f"no such operator file: {path}")
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(6)
+            if magic.startswith(b"\x93NUMPY"):
+                raise OperatorFileError(f"{path} is a single .npy array, not a defop operator file (an .npz archive)")
+            if not magic.startswith((b"PK\x03\x04", b"PK\x05\x06")):
+                raise OperatorFileError(f"{path} is not a defop operator file (not a zip archive)")
+            fh.seek(0)
+            with zipfile.ZipFile(fh) as zf:
+                headers = _member_headers(path, zf)
+                header = _json_header(path, zf, headers)
+                fmt = header.get("format") if isinstance(header, dict) else None
+                if not isinstance(fmt, str) or fmt not in READS:
+                    known = ", ".join(repr(f) for f in READS)
+                    raise OperatorFileError(f"{path} has format {fmt!r}; this defop reads {known}")
+                _check_declared(path, header, headers, READS[fmt])
+                data = {name: _read_array(path, zf, name, h) for name, h in headers.items() if name != "header"}
+    except OperatorFileError:
+        raise
+    except OSError as exc:
+        raise OperatorFileError(f"{path} cannot be read: {exc}") from exc
+    except (*_DAMAGED, ValueError, RecursionError, MemoryError) as exc:
+        raise OperatorFileError(
+            f"{path} is not a readable defop operator file: damaged or truncated ({type(exc).__name__}: {exc})"
+        ) from exc
+    try:
+        return _build(cls, header, data, READS[fmt])
+    except (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError) as exc:
+        what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or type(exc).__name__
+        raise OperatorFileError(f"{path} is not a valid defop operator file: {what}") from exc
+
+
+def _member_headers(path, zf):
+    """{name: (shape, dtype, fortran, data_offset, info)} from the zip directory and each .npy header."""
+    infos = zf.infolist()
+    if len(infos) > MAX_MEMBERS:
+        raise OperatorFileError(f"{path} holds {len(infos)} archive members, limit {MAX_MEMBERS}")
+    out, total = {}, 0
+    for info in infos:
+        name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+        if name not in MEMBERS or name in out:
+            raise OperatorFileError(f"{path} is not a defop operator file: unexpected member {info.filename!r}")
+        if info.flag_bits & 0x1 or info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+            raise OperatorFileError(f"{path}: member {info.filename!r} is encrypted or uses an unknown compression")
+        if info.file_size > MAX_ARRAY_BYTES + _NPY_HEADER_MAX:
+            raise OperatorFileError(
+                f"{path}: member {info.filename!r} declares {_size(info.file_size)} uncompressed, limit "
+                f"{_size(MAX_ARRAY_BYTES)} per array (not inflated)"
+            )
+        total += info.file_size
+        if total > MAX_TOTAL_BYTES:
+            raise OperatorFileError(f"{path} declares more than {_size(MAX_TOTAL_BYTES)} of arrays in total")
+        out[name] = _npy_header(path, zf, info, name)
+    if "header" not in out:
+        raise OperatorFileError(f"{path} is not a defop operator file: no 'header' member")
+    return out
+
+
+def _npy_header(path, zf, info, name):
+    """(shape, dtype, fortran, offset, info) of one member, from its first bytes; checked against the limits."""
+    with zf.open(info) as fh:
+        head = fh.read(_NPY_HEADER_MAX)
+    buf = io.BytesIO(head)
+    try:
+        version = np.lib.format.read_magic(buf)
+        reader = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, fortran, dtype = reader(buf)
+    except ValueError as exc:
+        raise OperatorFileError(f"{path}: array {name!r} has a damaged .npy header ({exc})") from exc
+    if dtype.hasobject or dtype.kind not in "biufU" or len(shape) > 3:
+        raise OperatorFileError(
+            f"{path}: array {name!r} is {dtype} with {len(shape)} dimensions; an operator file holds plain numbers "
+            "(never Python objects or pickles) in at most 3 dimensions"
+        )
+    nbytes = math.prod(shape) * dtype.itemsize
+    if nbytes > MAX_ARRAY_BYTES:
+        raise OperatorFileError(
+            f"{path}: array {name!r} declares a {'×'.join(map(str, shape))} {dtype} array ({_size(nbytes)}), "
+            f"limit {_size(MAX_ARRAY_BYTES)} per array"
+        )
+    offset = buf.tell()
+    if offset + nbytes != info.file_size:
+        raise OperatorFileError(
+            f"{path}: array {name!r} declares {'×'.join(map(str, shape))} {dtype} ({_size(nbytes)}), but its archive "
+            f"member holds {_size(max(info.file_size - offset, 0))}: damaged or truncated"
+        )
+    return shape, dtype, fortran, offset, info
+
+
+def _read_array(path, zf, name, head):
+    """The member's data, streamed into an array of the declared (checked) size; never more is inflated."""
+    shape, dtype, fortran, offset, info = head
+    out = np.empty(shape, dtype=dtype, order="F" if fortran else "C")
+    view = memoryview(out.reshape(-1, order="A").view(np.uint8)) if out.size else memoryview(b"")
+    with zf.open(info) as fh:
+        fh.read(offset)
+        got = 0
+        while got < len(view):
+            chunk = fh.read(min(1 << 22, len(view) - got))
+            if not chunk:
+                raise OperatorFileError(f"{path}: array {name!r} is truncated ({got} of {len(view)} bytes)")
+            view[got : got + len(chunk)] = chunk
+            got += len(chunk)
+        fh.read(1)  # the end of the member: zipfile checks its CRC here (BadZipFile if damaged)
+    return out
+
+
+def _json_header(path, zf, headers):
+    """The JSON header, its size and nesting depth checked before it is parsed."""
+    shape, dtype, _, _, _ = headers["header"]
+    if shape != () or dtype.kind != "U" or dtype.itemsize // 4 > MAX_HEADER_CHARS:
+        raise OperatorFileError(
+            f"{path}: the header must be one JSON string of at most {MAX_HEADER_CHARS} characters, got a {dtype} "
+            f"array of shape {shape}"
+        )
+    text = str(_read_array(path, zf, "header", headers["header"]))
+    depth = json_depth(text)
+    if depth > MAX_JSON_DEPTH:
+        raise OperatorFileError(f"{path}: the JSON header is nested {depth} levels deep, limit {MAX_JSON_DEPTH}")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise OperatorFileError(f"{path}: the header is not valid JSON ({exc})") from exc
+
+
+def json_depth(text):
+    """The deepest nesting of objects and lists in a JSON text, counted without parsing it (strings skipped)."""
+    bare = re.sub(r'"(?:[^"\\]|\\.)*"', "", text)
+    steps = np.frombuffer(bare.encode("utf-8", "replace"), np.uint8)
+    level = np.cumsum(np.isin(steps, (ord("["), ord("{"))).astype(np.int64) - np.isin(steps, (ord("]"), ord("}"))))
+    return int(level.max(initial=0))
+
+
+def _check_declared(path, header, headers, version):
+    """The declared shapes against each other and the limits, before any array is read."""
+
+    def shape(name):
+        return headers[name][0] if name in headers else None
+
+    V, W, C = shape("V"), shape("W"), shape("basis_centers")
+    if V is None or W is None or len(V) != 2 or len(W) != 2:
+        return  # _build names what is missing or malformed (nothing large is read for it)
+    d = V[1]
+    if version >= 3 and isinstance(header, dict) and header.get("dim") != d:
+        raise OperatorFileError(f"{path}: the header says dim = {header.get('dim')!r}, but V is {V[0]}×{V[1]}")
+    if version < 3 and d != 2:
+        raise OperatorFileError(f"{path}: a format-{version} operator file holds 2D meshes, but V is {V[0]}×{V[1]}")
+    if C is not None and len(C) >= 1 and C[0] > MAX_CENTERS:
+        raise OperatorFileError(f"{path} declares {C[0]} TPS centres, limit {MAX_CENTERS}")
+    basis = header.get("basis") if isinstance(header, dict) else None
+    degree = basis.get("degree") if isinstance(basis, dict) else None
+    if isinstance(degree, (int, float)) and not isinstance(degree, bool) and degree > hb.MAX_DEGREE:
+        raise OperatorFileError(f"{path} declares a handle basis of degree {degree}, limit {hb.MAX_DEGREE}")
+
+
+def _size(n):
+    for unit, factor in (("GiB", 2**30), ("MiB", 2**20), ("kiB", 2**10)):
+        if n >= factor:
+            return f"{n / factor:.3g} {unit}"
+    return f"{n} bytes"
+
+
+def _array(data, name, ndim, dtype_kind, shape=None):
+    """data[name] checked: dimension, kind (f/i/b), finite values, and ``shape`` (None = any)."""
+    if name not in data:
+        raise KeyError(f"array {name!r}")
+    a = data[name]
+    if a.ndim != ndim or a.dtype.kind not in dtype_kind:
+        raise ValueError(f"array {name!r} must be {ndim}-D of kind {dtype_kind!r}, got {a.dtype} {a.shape}")
+    if shape is not None and any(s is not None and s != t for s, t in zip(shape, a.shape)):
+        raise ValueError(f"array {name!r} has shape {a.shape}, expected {tuple(shape)}")
+    if a.dtype.kind == "f" and not np.isfinite(a).all():
+        raise ValueError(f"array {name!r} has NaN or infinite values")
+    return a
+
+
+def _basis(header, data, P, version):
+    """Ψ from the header's basis entry and the arrays (the kind, scale, degree and kernel checked)."""
+    b = header["basis"]
+    if not isinstance(b, dict):
+        raise TypeError("header 'basis' must be an object")
+    kind, scale = b["kind"], float(b["scale"])
+    n, d = P.shape
+    if kind == "tps":
+        if version >= 3 and b.get("kernel", hb.KERNELS[d]) != hb.KERNELS[d]:
+            raise ValueError(f"the {d}D TPS basis uses the kernel {hb.KERNELS[d]!r}, the file says {b.get('kernel')!r}")
+        return hb.TPSBasis(P, _array(data, "basis_centers", 3, "f", (None, n, d)), scale)
+    if kind == "linear":
+        return hb.LinearBasis(P, scale)
+    if kind in hb.KINDS or str(kind).startswith("degree"):
+        return hb.PolynomialBasis(P, b["degree"], scale)
+    raise ValueError(f"unknown handle basis {kind!r}")
+
+
+def _build(cls, header, data, version):
+    """The operator from a loaded header and arrays, validating both (raises KeyError/TypeError/ValueError)."""
+    if not isinstance(header, dict):
+        raise TypeError("the header must be a JSON object")
+    meta = header["meta"]
+    if not isinstance(meta, dict) or not isinstance(header["basis"], dict):
+        raise TypeError("header 'meta' and 'basis' must be objects")
+    V = _array(data, "V", 2, "f", (None, 2) if version < 3 else (None, None))
+    d = V.shape[1]
+    if d not in hb.DIMS:
+        raise ValueError(f"V must have 2 or 3 columns (the dimension), got {V.shape}")
+    F = _array(data, "F", 2, "iu", (None, d + 1))
+    handles = _array(data, "handles", 1, "iu")
+    moving = _array(data, "moving", 1, "b", handles.shape)
+    mesh = Mesh(V, F)
+    if handles.size and (handles.min() < 0 or handles.max() >= len(V)):
+        raise ValueError(f"handle indices must lie in [0, {len(V)})")
+    n = int(moving.sum())
+    P = _array(data, "basis_P", 2, "f", (n, d))
+    if not np.array_equal(P, V[handles[moving]]):
+        raise ValueError("basis_P is not the rest position of the moving handles")
+    psi = _basis(header, data, P, version)
+    W = _array(data, "W", 2, "f", (psi.size, d * len(V)))
+    samples = _array(data, "train_samples", 3, "f", (None, n, d)) if "train_samples" in data else None
+    op = cls(mesh, handles, moving, psi, W, meta, samples)
+    op.meta = meta
+    if version == 1:  # format 1 factors compressed Ψ W without (★): recompute them
+        if "factor_A" in data:
+            op.compress(rank=int(meta.get("rank", 1)))
+        return op
+    if "factor_A" in data:
+        A = _array(data, "factor_A", 2, "f", (psi.size - 1, None))
+        B = _array(data, "factor_B", 2, "f", (A.shape[1], d * len(V)))
+        if A.dtype != B.dtype or np.any(B[:, op.columns(op.handles)] != 0):
+            raise ValueError("factor_B must be zero on the handle columns, in the dtype of factor_A")
+        op.factors = (A, B)
+    return op
