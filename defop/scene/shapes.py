@@ -29,6 +29,7 @@ from ..geometry.mesh import Mesh
 from ..geometry.planar.meshing import MAX_VERTICES, check_n_vertices, triangulate
 from ..geometry.planar.outlines import image_outline
 from ..geometry.planar.polygon import (
+    SCALE_RANGE,
     distance_to_outline,
     points_in_polygon,
     validate_polygon,
@@ -294,6 +295,11 @@ def from_image(
     shape : Shape
     """
     size = opt.positive("size", size)  # a negative size mirrored the silhouette
+    if not SCALE_RANGE[0] <= size <= SCALE_RANGE[1]:  # 1e300 overflowed into "too thin to place handles"
+        raise ValueError(f"size must be a positive number in [{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}] (the "
+                         f"coordinate range meshing supports), got {size!r}")
+    if handles is None:
+        n_auto_handles = opt.integer("n_auto_handles", n_auto_handles, minimum=1)  # 0 gave one handle
     outer, holes = image_outline(image, threshold, foreground_mode=foreground)
     lo = outer.min(axis=0)
     ext = outer.max(axis=0) - lo

@@ -9,6 +9,9 @@ Triangle mesh, is the same on every CPU (issue #13).
 from __future__ import annotations
 
 import math
+import os
+import re
+import struct
 import warnings
 from pathlib import Path
 
@@ -195,28 +198,89 @@ def subtract(f, g):
 
 
 # ----------------------------------------------------------------------------------- images
+def image_path(path, name="image"):
+    """``path`` (str, bytes or os.PathLike) as a :class:`pathlib.Path` of an existing file.
+
+    Raises
+    ------
+    ValueError
+        No such file, a directory, or a path that is not a str, bytes or os.PathLike (naming ``name``).
+    """
+    if isinstance(path, bytes):
+        path = os.fsdecode(path)  # bytes name a file, as they do for open()
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"{name} must be a path (str, bytes or pathlib.Path) or an array, got "
+                         f"{type(path).__name__}")
+    try:
+        path = Path(path)
+        exists, is_dir = path.exists(), path.is_dir()
+    except (ValueError, OSError) as exc:  # an embedded NUL, a name too long
+        raise ValueError(f"{name}: cannot use {str(path)!r:.200} as a file name ({exc})") from None
+    if not exists:
+        raise ValueError(f"no such image file: {path}")
+    if is_dir:
+        raise ValueError(f"image file {path} is a directory")
+    return path
+
+
 def read_image(path):
     """The pixels of an image file, as matplotlib's ``imread`` gives them (Pillow does the reading).
 
     8-bit PNGs become float32 in [0, 1] (the value / 255, palettes and grey + alpha as RGBA); other formats
     keep Pillow's integer pixels, which :func:`load_image` scales.
 
+    Parameters
+    ----------
+    path : str, bytes or os.PathLike
+
     Returns
     -------
     (H,W), (H,W,3) or (H,W,4) numpy array
-    """
-    from PIL import Image, PngImagePlugin
 
-    with Image.open(path) as image:
-        image.load()
-        if not isinstance(image, PngImagePlugin.PngImageFile):
-            return np.asarray(image)
-        if image.mode in ("P", "LA"):
-            image = image.convert("RGBA")
-        if image.mode == "1":
-            return np.asarray(image, np.float32)
-        top = 2**16 - 1 if image.mode.startswith("I") else 2**8 - 1
-        return np.divide(image, top, dtype=np.float32)
+    Raises
+    ------
+    ValueError
+        Naming the file: missing, not an image Pillow reads, truncated or corrupt, or declaring more pixels
+        than Pillow's decompression-bomb limit ``PIL.Image.MAX_IMAGE_PIXELS`` (checked from the header,
+        before the pixels are decoded).
+    """
+    from PIL import Image
+
+    path = image_path(path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with Image.open(path) as image:
+                return _pixels(image)
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        found = re.search(r"\((\d+) pixels\)", str(exc))  # Pillow: "Image size (3600000000 pixels) exceeds ..."
+        size = f"{int(found.group(1)):,} pixels" if found else "too many pixels"
+        raise ValueError(f"image file {path} declares {size}, more than Pillow's decompression-bomb limit "
+                         f"PIL.Image.MAX_IMAGE_PIXELS = {Image.MAX_IMAGE_PIXELS:,}; raise it to read a file you "
+                         f"trust") from None
+    except Image.UnidentifiedImageError:
+        raise ValueError(f"image file {path} is not an image Pillow can read") from None
+    except PermissionError:
+        raise  # an OSError that already names the file
+    except MemoryError:
+        raise ValueError(f"image file {path} is too large to decode in the memory available") from None
+    except (OSError, SyntaxError, EOFError, ValueError, IndexError, TypeError, struct.error) as exc:
+        why = str(exc) or type(exc).__name__  # Pillow: "image file is truncated (3 bytes not processed)", ...
+        raise ValueError(f"image file {path} is truncated or corrupt: {why}") from None
+
+
+def _pixels(image):
+    from PIL import PngImagePlugin
+
+    image.load()
+    if not isinstance(image, PngImagePlugin.PngImageFile):
+        return np.asarray(image)
+    if image.mode in ("P", "LA"):
+        image = image.convert("RGBA")
+    if image.mode == "1":
+        return np.asarray(image, np.float32)
+    top = 2**16 - 1 if image.mode.startswith("I") else 2**8 - 1
+    return np.divide(image, top, dtype=np.float32)
 
 
 def load_image(image):
@@ -224,17 +288,18 @@ def load_image(image):
 
     Integer images are scaled by their type's maximum (255 for uint8), boolean ones map to 0/1.
 
+    Parameters
+    ----------
+    image : numpy array, or a path (str, bytes or os.PathLike) read by :func:`read_image`
+
     Raises
     ------
     ValueError
-        A missing file, a complex or non-numeric dtype, NaN, a layout other than (H,W), (H,W,3),
-        (H,W,4), or floats outside [0,1].
+        A missing, unreadable, truncated or too large file (naming it), a complex or non-numeric dtype, NaN,
+        a layout other than (H,W), (H,W,3), (H,W,4), or floats outside [0,1].
     """
-    if isinstance(image, (str, Path)):
-        path = Path(image)
-        if not path.exists():
-            raise ValueError(f"no such image file: {path}")
-        image = read_image(path)
+    if isinstance(image, (str, bytes, os.PathLike)):
+        image = read_image(image)
     img = np.asarray(image)
     if img.dtype == bool:
         img = img.astype(float)
