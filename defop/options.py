@@ -157,7 +157,7 @@ def point(name, value, d=2):
         got = f"the scalar {value!r}" if arr.ndim == 0 else f"shape {arr.shape}"
         raise ValueError(f"{name} must be a point of {d} coordinates, got {got}")
     if not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be a point of {d} finite coordinates, got {arr.tolist()}")
+        raise ValueError(f"{name} must be a point of {d} finite coordinates, got NaN or infinite ones: {arr.tolist()}")
     return np.array(arr, dtype=float)
 
 
@@ -176,14 +176,15 @@ def text(name, value):
 
 
 def write_atomic(path, data, name="path"):
-    """Write ``data`` (bytes) to ``path`` atomically: a temporary file in the same directory, then a rename.
+    """Write ``data`` to ``path`` atomically: a temporary file in the same directory, then a rename.
 
     On any failure the temporary file is removed and ``path`` is left as it was (no empty or partial file).
 
     Parameters
     ----------
     path : str or os.PathLike
-    data : bytes
+    data : bytes or callable
+        The bytes, or ``data(tmp)`` that writes the file ``tmp`` (a str path, for writers that take a name).
     name : str
         The argument's name in error messages.
 
@@ -205,9 +206,12 @@ def write_atomic(path, data, name="path"):
         raise ValueError(f"{name} {str(path)!r} is a directory, not a file")
     tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            if not callable(data):
+                fh.write(data)
+        if callable(data):
+            data(tmp)
         os.chmod(tmp, 0o644)  # mkstemp creates 0600; the file is as readable as one written by open()
         os.replace(tmp, path)
     except BaseException as exc:

@@ -282,7 +282,7 @@ class EditorState:
     def _check_index(self, i):
         i = opt.integer("handle index", i)  # 1.5 was truncated to 1
         if not 0 <= i < len(self.P):
-            raise ValueError(f"handle index must be an integer in 0..{len(self.P) - 1}, got {i}")
+            raise ValueError(f"handle index {i} is out of range 0..{len(self.P) - 1}")
         return i
 
     def set_handle(self, i, q):
