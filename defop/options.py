@@ -20,11 +20,13 @@ def integer(name, value, minimum=None, maximum=None):
     Raises
     ------
     ValueError
-        ``"{name} must be an integer >= {minimum}, got {value!r}"`` (bools, fractions, NaN, strings).
+        ``"{name} must be an integer >= {minimum}, got {value!r}"`` (bools, fractions, NaN, strings, floats
+        beyond 2**53).
     """
     ok = isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
     if not ok and isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
-        ok = bool(np.isfinite(value)) and float(value).is_integer()
+        # an integral float, exactly: 1e300 is "integral" but no count or seed (it overflowed numpy, igl)
+        ok = bool(np.isfinite(value)) and float(value).is_integer() and abs(float(value)) <= 2**53
     if ok:
         value_int = int(value)
         if (minimum is None or value_int >= minimum) and (maximum is None or value_int <= maximum):

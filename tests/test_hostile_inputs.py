@@ -152,7 +152,7 @@ def blob():
 @pytest.mark.parametrize("count", [0, -1, 2.5, "2"])
 def test_an_automatic_handle_count_of_0_is_an_error(blob, count):
     """n_auto_handles=0 gave one handle."""
-    with pytest.raises(ValueError, match=r"^n_auto_handles must be an integer >= 1, got "):
+    with pytest.raises(ValueError, match=r"^n_auto_handles must be an integer >= 1 and <= 100, got "):
         dop.shapes.from_image(blob, n_auto_handles=count, n_vertices=100)
     assert len(dop.shapes.from_image(blob, n_auto_handles=3, n_vertices=100).handles) == 3
 

@@ -25,6 +25,7 @@ import numpy as np
 from .. import options as opt
 from ..operator.defop import ExtrapolationWarning
 from ..operator.handle_bases import KINDS
+from ..scene.shapes import Shape
 from ..scene.shapes import load as load_shape
 from ..training.bootstrap import DEFAULT_M, min_samples, train
 from ..variational.solver import NotConvergedWarning, Solver
@@ -179,6 +180,9 @@ class EditorState:
                  solver=None, pick_radius=0.05, train_kw=None):
         if isinstance(shape, str):
             shape = load_shape(shape)
+        elif not isinstance(shape, Shape):
+            raise ValueError(f"shape must be a Shape or the name of one (dop.shapes.names()), got "
+                             f"{type(shape).__name__} {shape!r:.80}")
         self.kinds = tuple(kinds)
         for kind in [basis, *(operators or {})]:
             if kind not in self.kinds:

@@ -383,11 +383,11 @@ def read_mesh(path):
     if not isinstance(path, (str, os.PathLike)):
         raise ValueError(f"path must be a str or pathlib.Path, got {type(path).__name__}")
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"no such mesh file: {path}" if not path.exists() else f"mesh file {path} is not a file")
     ext = path.suffix.lower()
     if ext not in (".npz", ".obj", ".off"):
-        raise ValueError(f"unknown mesh format {ext!r}; use .npz, .obj or .off")
+        raise ValueError(f"mesh file {path}: unknown mesh format {ext!r}; use .npz, .obj or .off")
+    if not path.is_file():
+        raise ValueError(f"no such mesh file: {path}" if not path.exists() else f"mesh file {path} is not a file")
     V, F = _read_npz(path) if ext == ".npz" else _read_igl(path, ext)
     try:
         return Mesh(V, F)

@@ -9,6 +9,7 @@ Triangle mesh, is the same on every CPU (issue #13).
 from __future__ import annotations
 
 import math
+import numbers
 import os
 import re
 import struct
@@ -399,7 +400,8 @@ def image_outline(image, threshold=0.5, smooth=1.0, foreground_mode="auto"):
         A bad image, or one with no foreground or only foreground (the message says which
         foreground was assumed).
     """
-    if not (np.isscalar(threshold) and np.isfinite(threshold) and 0 < threshold < 1):
+    real = isinstance(threshold, numbers.Real) and not isinstance(threshold, (bool, np.bool_))
+    if not (real and np.isfinite(threshold) and 0 < threshold < 1):
         raise ValueError(f"threshold must lie strictly between 0 and 1, got {threshold!r}")
     fg, assumed = foreground(load_image(image), foreground_mode)
     mask = fg > threshold
