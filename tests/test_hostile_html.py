@@ -12,14 +12,13 @@ import html.parser
 import json
 import os
 import re
-import warnings
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_hostile_editor import setup  # noqa: F401 - the shared fixture
 
-import defop as dop
 from defop.editor import export
 
 HOSTILE = [
@@ -38,15 +37,9 @@ HOSTILE = [
 
 
 @pytest.fixture(scope="module")
-def op(tmp_path_factory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("DEFOP_CACHE", str(tmp_path_factory.mktemp("cache")))
-    shape = dop.shapes.load("bar", n_vertices=150)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        operator, _ = dop.train(shape, basis="tps", m=12, seed=0, progress=False, n_jobs=1)
-    yield operator
-    mp.undo()
+def op(setup):  # noqa: F811 - the fixture imported above
+    """The bar's TPS DefOp, trained once (the fixture of test_hostile_editor)."""
+    return setup[1]["tps"]
 
 
 class _Page(html.parser.HTMLParser):

@@ -11,6 +11,7 @@ import warnings
 
 import numpy as np
 import pytest
+from test_hostile_editor import setup  # noqa: F401 - the shared fixture (the bar and its DefOps)
 
 import defop as dop
 from defop.analysis import peers as pe
@@ -25,18 +26,13 @@ HOSTILE = [None, 0.5, -1, 0, np.nan, np.inf, 1e300, "x", b"x", 1j, [], [[]], {},
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("DEFOP_CACHE", str(tmp_path_factory.mktemp("cache")))
-    shape = dop.shapes.load("bar", n_vertices=150)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        op, _ = dop.train(shape, basis="tps", m=12, seed=0, progress=False, n_jobs=1)
+def world(setup, tmp_path_factory):  # noqa: F811 - the fixture imported above
+    shape, ops = setup
+    op = ops["tps"]
     state = EditorState(shape, {"tps": op}, kinds=("tps",))
     img = np.zeros((30, 40))
     img[8:22, 8:32] = 1.0
-    yield {"shape": shape, "op": op, "state": state, "img": img, "tmp": tmp_path_factory.mktemp("files")}
-    mp.undo()
+    return {"shape": shape, "op": op, "state": state, "img": img, "tmp": tmp_path_factory.mktemp("files")}
 
 
 def _entries(w):
