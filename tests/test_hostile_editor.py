@@ -218,3 +218,16 @@ def test_wrong_length_handles_from_the_page_are_undone_in_the_page(setup):
     with pytest.raises(ValueError, match=r"^Q must have shape \(1, 2\)"):
         editor.set_Q(np.zeros((2, 2)))
     assert editor.q == q0 == editor.state.Q.ravel().tolist()
+
+
+def test_a_control_the_state_rejects_shows_the_state_again(setup):
+    from defop.editor.widgets import Controls
+
+    s = _state(setup)
+    s.set_handle(0, s.P[0] + [0.0, 0.1])  # the faulty linear operator returns NaN here
+    controls = Controls(s)
+    before = _snapshot(s)
+    with pytest.raises(ValueError, match="invalid deformation"):
+        controls.basis.value = "linear"
+    assert controls.basis.value == "tps" == s.kind
+    _same(before, _snapshot(s))

@@ -386,3 +386,22 @@ def test_random_damage_to_a_mesh_file_is_a_value_error_naming_it(npz, tmp_path_f
         assert str(path) in str(exc)
     else:
         assert mesh.n_vertices <= MAX_FILE_ELEMENTS and np.isfinite(mesh.V).all()
+
+
+# ------------------------------------------------------------------------------------------------ compare
+def test_score_all_refuses_per_method_lists_of_another_length(bar):
+    """names or precompute shorter than methods silently dropped methods (zip); precompute=0 used the defaults."""
+    from defop.analysis import compare
+
+    peer = pe.make_peer(bar, "tps")
+    Q = bar.P_moving[None] + [[[0.0, 0.05]]]
+    X = peer(Q)
+    scores, _ = compare.score_all([peer, peer], bar, Q, X, names=["a", "b"], precompute=[1.0, None])
+    assert [s.name for s in scores] == ["a", "b"] and scores[0].precompute == 1.0
+    for kw, match in [({"names": ["a"]}, r"^names must be None or a list of one entry per method \(2\), got 1"),
+                      ({"precompute": 0}, r"^precompute must be None or a list .* got 0"),
+                      ({"precompute": [-1.0, None]}, r"^precompute must be None or seconds, .* got -1.0")]:
+        with pytest.raises(ValueError, match=match):
+            compare.score_all([peer, peer], bar, Q, X, **kw)
+    with pytest.raises(ValueError, match=r"^Q must be a batch of shape \(k, 1, 2\)"):
+        compare.score(peer, bar, 0.5, X)
