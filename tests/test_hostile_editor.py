@@ -231,3 +231,12 @@ def test_a_control_the_state_rejects_shows_the_state_again(setup):
         controls.basis.value = "linear"
     assert controls.basis.value == "tps" == s.kind
     _same(before, _snapshot(s))
+
+
+def test_the_browser_editor_checks_the_shape_menu_first(setup):
+    pytest.importorskip("anywidget")
+    from defop.editor.browser import BrowserEditor
+
+    shape, ops = setup
+    with pytest.raises(ValueError, match=r"^shapes must be names of built-in shapes \(bar, .*\), got 'nope'"):
+        BrowserEditor(shape, {"tps": ops["tps"]}, kinds=("tps",), shapes=["bar", "nope"])

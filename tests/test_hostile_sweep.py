@@ -80,6 +80,9 @@ def _entries(w):
         ("EditorState set_ground_truth", lambda v: st.set_ground_truth(v), "enabled"),
         ("to_html title", lambda v: export.to_html(op, tmp / "p.html", title=v), "title"),
         ("to_html path", lambda v: export.to_html(op, v, title="t"), "path"),
+        ("to_html op", lambda v: export.to_html(v, tmp / "p.html"), r"\bop\b"),
+        ("to_html shape", lambda v: export.to_html(op, tmp / "p.html", shape=v), "shape"),
+        ("outside_regions Q", lambda v: st.outside_regions(v), "Q"),
         ("read_mesh path", lambda v: read_mesh(v), "path|mesh file"),
         ("write_mesh mesh", lambda v: write_mesh(tmp / "m.npz", v), "mesh"),
         ("load_image image", lambda v: load_image(v), "image"),
@@ -141,5 +144,6 @@ _ACCEPTED = [
     "EditorState set_ground_truth(True)", "EditorState set_handle i(0)", "from_image size(0.5)",
     "from_image threshold(0.5)", "from_polygon n_vertices(None)", "make_peer alpha(0.5)",
     "shapes.load n_vertices(None)", "to_html path('x')", "to_html title('x')", "to_html title(None)",
+    "to_html shape(None)", "outside_regions Q(None)",
     "train m(None)", "train n_jobs(-1)", "train n_jobs(None)", "train seed(0)", "warp_image shape(None)",
 ]

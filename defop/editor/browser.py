@@ -31,6 +31,7 @@ import numpy as np
 import traitlets
 
 from .. import options as opt
+from ..scene.shapes import names as shape_names
 from .payload import JS_PATH, defop_to_payload, encode_payload, image_for
 from .state import EditorState, ground_truth_text
 
@@ -80,6 +81,10 @@ class BrowserEditor(anywidget.AnyWidget):
             raise ValueError("a picture belongs to one shape's mesh: pass either image or shapes, not both")
         self._state_kw = state_kw
         self._shapes = list(shapes or [])
+        unknown = [name for name in self._shapes if not isinstance(name, str) or name not in shape_names()]
+        if unknown:  # the page would offer them, and fail only when one is picked
+            known = ", ".join(shape_names())
+            raise ValueError(f"shapes must be names of built-in shapes ({known}), got {unknown[0]!r}")
         self._syncing = False
         self.state = EditorState(shape, operators, **state_kw)
         if image is not None or image_frame is not None:

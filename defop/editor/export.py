@@ -7,6 +7,8 @@ import html
 import json
 
 from .. import options as opt
+from ..operator.defop import DefOp
+from ..scene.shapes import Shape
 from .payload import JS_PATH, defop_to_payload, encode_payload, image_for
 from .state import region_polygons
 
@@ -54,8 +56,12 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     Raises
     ------
     ValueError
-        ``title`` is not a string, ``path`` is not a path.
+        ``op`` is not a DefOp, ``shape`` not a Shape, ``title`` not a string, ``path`` not a path.
     """
+    if not isinstance(op, DefOp):
+        raise ValueError(f"op must be a trained DefOp, got {type(op).__name__}")
+    if shape is not None and not isinstance(shape, Shape):
+        raise ValueError(f"shape must be a Shape (dop.shapes.load(...)) or None, got {type(shape).__name__}")
     if title is not None:
         title = opt.text("title", title)
     regions = None

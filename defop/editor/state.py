@@ -91,7 +91,8 @@ def inside_polygon(q, poly):
     -------
     bool
     """
-    x, y = float(q[0]), float(q[1])
+    x, y = opt.point("q", q)
+    poly = opt.points("poly", poly)
     xi, yi = poly[:, 0], poly[:, 1]
     xj, yj = np.roll(xi, 1), np.roll(yi, 1)
     crosses = (yi > y) != (yj > y)
