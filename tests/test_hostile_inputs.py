@@ -405,3 +405,10 @@ def test_score_all_refuses_per_method_lists_of_another_length(bar):
             compare.score_all([peer, peer], bar, Q, X, **kw)
     with pytest.raises(ValueError, match=r"^Q must be a batch of shape \(k, 1, 2\)"):
         compare.score(peer, bar, 0.5, X)
+
+
+@pytest.mark.parametrize("its", [(), 10, "10", (0,), (10, -1)])
+def test_make_peers_needs_arap_iteration_counts(bar, its):
+    """() silently made no ARAP peer; 10 raised 'int object is not iterable'."""
+    with pytest.raises(ValueError, match=r"^arap_iterations must be "):
+        pe.make_peers(bar, kinds=("tps", "arap"), arap_iterations=its)

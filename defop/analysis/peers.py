@@ -503,6 +503,10 @@ def make_peers(shape, kinds=KINDS, arap_iterations=(10,)):
     -------
     peers : list of Peer
     """
+    if isinstance(arap_iterations, (str, bytes)) or not hasattr(arap_iterations, "__len__") or not len(
+            arap_iterations):
+        raise ValueError(f"arap_iterations must be a non-empty list of iteration counts, got {arap_iterations!r}")
+    arap_iterations = [opt.integer("arap_iterations", k, minimum=1) for k in arap_iterations]
     out = []
     for kind in kinds:
         its = arap_iterations if kind == "arap" else (10,)
