@@ -316,12 +316,23 @@ def test_a_failed_mesh_write_leaves_the_old_file(bar, tmp_path, monkeypatch):
      r"V must hold numbers, got dtype object"),
     (lambda good: _npz_with({"V.npy": _npy_header((4, 2)) + b"\0" * 10, "F.npy": b""}), r"V is truncated"),
     (lambda good: _npz_with({"X.npy": b""}), r"holds no mesh \(arrays V and F are missing\)"),
+    (lambda good: _npz_with({"V.npy": _raw_header("(" * 3000), "F.npy": b""}), r"member V is not a numpy array"),
+    (lambda good: _npz_with({"V.npy": _raw_header("[" * 3000), "F.npy": b""}), r"member V is not a numpy array"),
+    (lambda good: _npz_with({"V.npy": _raw_header("(" * 2400 + ")" * 2400), "F.npy": b""}),
+     r"member V is not a numpy array"),
 ])
 def test_corrupt_npz_mesh_files_name_the_file(tmp_path, npz, make, match):
     path = tmp_path / "m.npz"
     path.write_bytes(make(npz))
     with pytest.raises(ValueError, match=rf"^mesh file {path}.*{match}"):
         read_mesh(path)
+
+
+def _raw_header(shape_text):
+    """An npy v1 header whose shape is ``shape_text`` (unbalanced or deeply nested: tokenize's TokenError before)."""
+    hdr = ("{'descr': '<f8', 'fortran_order': False, 'shape': " + shape_text + "}").encode()
+    hdr += b" " * (-(len(hdr) + 11) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + len(hdr).to_bytes(2, "little") + hdr
 
 
 def _npy_bytes():

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import os
+import tokenize
 import zlib
 from functools import cached_property
 from pathlib import Path
@@ -421,7 +422,8 @@ def _read_member(fh, path, key):
         version = fmt.read_magic(fh)
         read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
         shape, fortran, dtype = read_header(fh, max_header_size=10_000)  # a huge or nested header is refused
-    except (ValueError, SyntaxError, TypeError) as exc:
+    except (ValueError, SyntaxError, TypeError, tokenize.TokenError, RecursionError, MemoryError) as exc:
+        # numpy tokenizes the header: "((((" raised tokenize's TokenError, deep nesting a RecursionError
         raise ValueError(f"mesh file {path}: member {key} is not a numpy array ({exc})") from None
     if dtype.hasobject or dtype.kind not in "iuf":
         raise ValueError(f"mesh file {path}: {key} must hold numbers, got dtype {dtype}")
