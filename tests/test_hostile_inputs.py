@@ -423,3 +423,43 @@ def test_make_peers_needs_arap_iteration_counts(bar, its):
     """() silently made no ARAP peer; 10 raised 'int object is not iterable'."""
     with pytest.raises(ValueError, match=r"^arap_iterations must be "):
         pe.make_peers(bar, kinds=("tps", "arap"), arap_iterations=its)
+
+
+@pytest.fixture(scope="module")
+def pictures():
+    """One small picture in each format Pillow writes without extra libraries."""
+    rgb = (np.arange(24 * 32 * 3).reshape(24, 32, 3) % 253).astype(np.uint8)
+    out = {}
+    for fmt, ext in (("PNG", "png"), ("JPEG", "jpg"), ("BMP", "bmp"), ("GIF", "gif"), ("TIFF", "tif")):
+        buf = io.BytesIO()
+        Image.fromarray(rgb).save(buf, format=fmt)
+        out[ext] = buf.getvalue()
+    return out
+
+
+@pytest.mark.filterwarnings("ignore:Tag data larger than file:UserWarning", "ignore:Corrupt EXIF data:UserWarning",
+                            "ignore::UserWarning:PIL")
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_random_damage_to_an_image_file_is_a_value_error_naming_it(pictures, tmp_path_factory, data):
+    """Random bytes, truncations and mutated bytes (headers first): pixels in [0, 1] or a ValueError naming the file."""
+    ext = data.draw(st.sampled_from(sorted(pictures)))
+    good = pictures[ext]
+    how = data.draw(st.sampled_from(["random", "truncate", "mutate"]))
+    if how == "random":
+        raw = data.draw(st.binary(max_size=3000))
+    elif how == "truncate":
+        raw = good[: data.draw(st.integers(0, len(good) - 1))]
+    else:
+        raw = bytearray(good)
+        for _ in range(data.draw(st.integers(1, 6))):
+            raw[data.draw(st.integers(0, min(len(raw), 200) - 1))] = data.draw(st.integers(0, 255))
+        raw = bytes(raw)
+    path = tmp_path_factory.mktemp("damaged") / f"p.{ext}"
+    path.write_bytes(raw)
+    try:
+        img = load_image(path)
+    except ValueError as exc:
+        assert str(path) in str(exc)
+    else:
+        assert np.isfinite(img).all() and img.min() >= 0 and img.max() <= 1

@@ -300,7 +300,18 @@ def load_image(image):
         a layout other than (H,W), (H,W,3), (H,W,4), or floats outside [0,1].
     """
     if isinstance(image, (str, bytes, os.PathLike)):
-        image = read_image(image)
+        path = image_path(image)
+        try:
+            return _unit_image(read_image(path))
+        except ValueError as exc:
+            if str(path) in str(exc):
+                raise
+            raise ValueError(f"image file {path}: {exc}") from None  # decoded, but not a picture we can use
+    return _unit_image(image)
+
+
+def _unit_image(image):
+    """The array checks and scaling of :func:`load_image`."""
     img = np.asarray(image)
     if img.dtype == bool:
         img = img.astype(float)
