@@ -375,20 +375,24 @@ def test_an_invalid_mesh_in_a_file_names_the_file(tmp_path):
         read_mesh(path)
 
 
+def _damaged(data, good, head):
+    """Random bytes, a truncation of ``good``, or ``good`` with up to 8 bytes among its first ``head`` changed."""
+    how = data.draw(st.sampled_from(["random", "truncate", "mutate"]))
+    if how == "random":
+        return data.draw(st.binary(max_size=3000))
+    if how == "truncate":
+        return good[: data.draw(st.integers(0, len(good) - 1))]
+    raw = bytearray(good)
+    for _ in range(data.draw(st.integers(1, 8))):
+        raw[data.draw(st.integers(0, min(len(raw), head) - 1))] = data.draw(st.integers(0, 255))
+    return bytes(raw)
+
+
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_random_damage_to_a_mesh_file_is_a_value_error_naming_it(npz, tmp_path_factory, data):
     """Random bytes, truncations and mutated bytes (headers included): a Mesh or a ValueError naming the file."""
-    how = data.draw(st.sampled_from(["random", "truncate", "mutate"]))
-    if how == "random":
-        raw = data.draw(st.binary(max_size=2000))
-    elif how == "truncate":
-        raw = npz[: data.draw(st.integers(0, len(npz) - 1))]
-    else:
-        raw = bytearray(npz)
-        for _ in range(data.draw(st.integers(1, 8))):
-            raw[data.draw(st.integers(0, len(raw) - 1))] = data.draw(st.integers(0, 255))
-        raw = bytes(raw)
+    raw = _damaged(data, npz, head=len(npz))
     path = tmp_path_factory.mktemp("damaged") / data.draw(st.sampled_from(["m.npz", "m.off", "m.obj"]))
     path.write_bytes(raw)
     try:
@@ -444,17 +448,7 @@ def pictures():
 def test_random_damage_to_an_image_file_is_a_value_error_naming_it(pictures, tmp_path_factory, data):
     """Random bytes, truncations and mutated bytes (headers first): pixels in [0, 1] or a ValueError naming the file."""
     ext = data.draw(st.sampled_from(sorted(pictures)))
-    good = pictures[ext]
-    how = data.draw(st.sampled_from(["random", "truncate", "mutate"]))
-    if how == "random":
-        raw = data.draw(st.binary(max_size=3000))
-    elif how == "truncate":
-        raw = good[: data.draw(st.integers(0, len(good) - 1))]
-    else:
-        raw = bytearray(good)
-        for _ in range(data.draw(st.integers(1, 6))):
-            raw[data.draw(st.integers(0, min(len(raw), 200) - 1))] = data.draw(st.integers(0, 255))
-        raw = bytes(raw)
+    raw = _damaged(data, pictures[ext], head=200)
     path = tmp_path_factory.mktemp("damaged") / f"p.{ext}"
     path.write_bytes(raw)
     try:
