@@ -51,9 +51,12 @@ def cache_dir() -> Path | None:
     value = os.environ.get("DEFOP_CACHE", "").strip()
     if value.lower() in _OFF:
         return None
-    path = Path(value).expanduser() if value else Path.home() / ".cache" / "defop"
     source = f"DEFOP_CACHE={value!r}" if value else "the default DEFOP_CACHE"
     hint = "set DEFOP_CACHE to a writable directory, or DEFOP_CACHE=off to disable the cache"
+    try:  # ~nosuchuser, or no home directory at all: pathlib raises RuntimeError
+        path = Path(value).expanduser() if value else Path.home() / ".cache" / "defop"
+    except (RuntimeError, KeyError, OSError) as exc:
+        raise ValueError(f"{source}: cannot expand the home directory in it ({exc}); {hint}") from None
     if path.exists() and not path.is_dir():
         raise ValueError(f"{source}: {path} is not a directory; {hint}")
     try:

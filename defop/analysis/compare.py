@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from .. import options as opt
 from . import metrics
 
 COLUMNS = ("method", "(8a)/n", "worst/diag", "flips/frame", "frames flipped", "handle err", "precompute",
@@ -101,7 +102,7 @@ def run_frames(method, Q):
     """
     from threadpoolctl import threadpool_limits
 
-    Q = np.asarray(Q, dtype=float)
+    Q = opt.real_array("Q", Q)
     if Q.ndim != 3 or Q.shape[-1] != 2 or len(Q) == 0:
         raise ValueError(f"Q must be a batch of shape (k, n_moving, 2) with k >= 1, got {Q.shape}")
     out, seconds = [], np.empty(len(Q))
@@ -150,8 +151,14 @@ def score(method, shape, Q, X_true, name=None, precompute=None):
     X : (k,n_vertices,2) numpy array
         The method's frames.
     """
-    Q = np.asarray(Q, dtype=float)
-    X_true = np.asarray(X_true, dtype=float)
+    Q = opt.real_array("Q", Q)
+    n = shape.n_moving
+    if Q.ndim != 3 or Q.shape[1:] != (n, 2) or len(Q) == 0:
+        raise ValueError(f"Q must be a batch of shape (k, {n}, 2) with k >= 1 (the moving handles), got {Q.shape}")
+    X_true = opt.real_array("X_true", X_true)
+    if precompute is not None and not (isinstance(precompute, (int, float, np.number)) and np.isfinite(precompute)
+                                       and precompute >= 0 and not isinstance(precompute, (bool, np.bool_))):
+        raise ValueError(f"precompute must be None or seconds, a finite number >= 0, got {precompute!r}")
     if X_true.shape != (len(Q), shape.mesh.n_vertices, 2):
         raise ValueError(f"X_true must have shape ({len(Q)}, {shape.mesh.n_vertices}, 2), got {X_true.shape}")
     X, seconds = run_frames(method, Q)
@@ -213,6 +220,16 @@ def markdown_table(scores):
     return "\n".join(lines)
 
 
+def _per_method(name, values, n):
+    """None (the defaults) or a list of one entry per method: a shorter list silently dropped methods."""
+    if values is None:
+        return [None] * n
+    if isinstance(values, (str, bytes)) or not hasattr(values, "__len__") or len(values) != n:
+        got = f"{len(values)} entries" if hasattr(values, "__len__") else repr(values)
+        raise ValueError(f"{name} must be None or a list of one entry per method ({n}), got {got}")
+    return list(values)
+
+
 def score_all(methods, shape, Q, X_true, names=None, precompute=None):
     """:func:`score` for several methods on the same frames.
 
@@ -231,10 +248,11 @@ def score_all(methods, shape, Q, X_true, names=None, precompute=None):
     frames : dict of str -> (k,n_vertices,2) numpy array
         Each method's frames, by name.
     """
-    names = names or [None] * len(methods)
-    precompute = precompute or [None] * len(methods)
+    methods = list(methods)
+    names = _per_method("names", names, len(methods))
+    precompute = _per_method("precompute", precompute, len(methods))
     scores, frames = [], {}
-    for method, name, pre in zip(methods, names, precompute):
+    for method, name, pre in zip(methods, names, precompute, strict=True):
         s, X = score(method, shape, Q, X_true, name=name, precompute=pre)
         scores.append(s)
         frames[s.name] = X

@@ -21,20 +21,20 @@ import time
 
 import numpy as np
 
+from .. import options as opt
+
 KINDS = ("mls-similarity", "mls-rigid", "tps", "bbw-lbs", "biharmonic", "arap")
 
 
 # ----------------------------------------------------------------------------------------------
 # input checks
 # ----------------------------------------------------------------------------------------------
+#: the largest MLS weight exponent α: w = |p − v|^{-2α} overflows float64 beyond it for distances of 1e-3 to 1e3
+MAX_ALPHA = 50.0
+
+
 def _check_points(A, name, n=None):
-    A = np.asarray(A, dtype=float)
-    if A.ndim != 2 or A.shape[1] != 2 or (n is not None and len(A) != n):
-        want = f"({n}, 2)" if n is not None else "(n, 2)"
-        raise ValueError(f"{name} must have shape {want}, got {A.shape}")
-    if not np.isfinite(A).all():
-        raise ValueError(f"{name} has NaN or infinite entries")
-    return A
+    return opt.points(name, A, n=n)
 
 
 def _check_handles(P, min_count=1, method="this method"):
@@ -49,7 +49,7 @@ def _check_handles(P, min_count=1, method="this method"):
 
 
 def _check_Q(Q, h):
-    Q = np.asarray(Q, dtype=float)
+    Q = opt.real_array("Q", Q)
     if Q.shape != (h, 2):
         raise ValueError(f"Q must have shape ({h}, 2) for the {h} handles, got {Q.shape}")
     if not np.isfinite(Q).all():
@@ -103,25 +103,31 @@ def mls_precompute(V, P, kind="rigid", alpha=1.0):
     kind : str
         ``"similarity"`` or ``"rigid"``.
     alpha : float
-        The weight exponent α > 0.
+        The weight exponent, 0 < α <= :data:`MAX_ALPHA`.
 
     Returns
     -------
     pre : MLSPrecomputed
+
+    Raises
+    ------
+    ValueError
+        ``alpha`` out of range, or so large for these distances that the weights overflow (never NaN).
     """
     if kind not in ("similarity", "rigid"):
         raise ValueError(f"kind must be 'similarity' or 'rigid', got {kind!r}")
-    if not alpha > 0:
-        raise ValueError(f"alpha must be positive, got {alpha!r}")
+    alpha = opt.positive("alpha", alpha, maximum=MAX_ALPHA)
     V = _check_points(V, "V")
     P = _check_handles(P, 2, "MLS")
     diff = P[None] - V[:, None]  # (n,h,2)
     r2 = np.einsum("nhc,nhc->nh", diff, diff)
     at = r2 <= 1e-24 * max(1.0, np.abs(P).max()) ** 2
     at_handle = np.where(at.any(axis=1), np.argmax(at, axis=1), -1)
-    w = 1.0 / np.where(at, 1.0, r2) ** alpha
+    with np.errstate(over="ignore", divide="ignore", under="ignore"):
+        w = 1.0 / np.where(at, 1.0, r2) ** alpha
     w[at_handle >= 0] = 0.0
     w[at_handle >= 0, at_handle[at_handle >= 0]] = 1.0  # any finite rows: these vertices are overwritten
+    _check_weights(w, alpha)
     Wn = w / w.sum(axis=1, keepdims=True)
     p_star = Wn @ P
     ph = P[None] - p_star[:, None]  # p̂_i (n,h,2)
@@ -138,6 +144,14 @@ def mls_precompute(V, P, kind="rigid", alpha=1.0):
     M[:, 0, :, 0], M[:, 0, :, 1] = a, -c
     M[:, 1, :, 0], M[:, 1, :, 1] = c, a
     return MLSPrecomputed(kind, M.reshape(2 * n, 2 * h), Wn, np.linalg.norm(d, axis=1), at_handle)
+
+
+def _check_weights(w, alpha):
+    """MLS weights must be finite with a positive sum per point: else α is too large for the distances."""
+    sums = w.sum(axis=1)
+    if not (np.isfinite(w).all() and np.isfinite(sums).all() and (sums > 0).all()):
+        raise ValueError(f"alpha = {alpha!r} is too large for these handle distances: the MLS weights "
+                         f"|p - v|^(-2 alpha) overflow or vanish in float64; use a smaller alpha (1 is usual)")
 
 
 def mls_evaluate(pre, Q):
@@ -252,9 +266,10 @@ def bbw_precompute(mesh, handles, max_iter=100):
     """
     import igl
 
+    max_iter = opt.integer("max_iter", max_iter, minimum=1)  # libigl took 0 or -1 as its own default
     V, F, b = _mesh_arrays(mesh, handles)
     bc = np.eye(len(b))
-    W = np.asarray(igl.bbw(V, F, b, bc, max_iter=int(max_iter)))
+    W = np.asarray(igl.bbw(V, F, b, bc, max_iter=max_iter))
     return W / W.sum(axis=1, keepdims=True)
 
 
@@ -286,21 +301,43 @@ def biharmonic_precompute(mesh, handles, k=2):
     handles : (h,) int numpy array
         Vertex indices, at least 3 (libigl returns an empty matrix for fewer).
     k : int
-        2 for biharmonic, 3 for triharmonic.
+        2 for biharmonic (1 harmonic, 4 tetraharmonic). libigl 2.6.3 returns an empty matrix for k = 3
+        (triharmonic) on every mesh and handle set tried (3 to 40 handles on the bar): refused with a message.
 
     Returns
     -------
     W : (n,h) numpy array
+
+    Raises
+    ------
+    ValueError
+        Fewer than 3 handles, handles all on one line (no linear precision: W P = V has no solution), k = 3
+        or k not a positive integer, or libigl returning no coordinates.
     """
     import igl
 
+    k = opt.integer("k", k, minimum=1)
+    if k == 3:
+        raise ValueError("k = 3 (triharmonic) is not available: libigl's biharmonic_coordinates returns an empty "
+                         "matrix for k = 3; use k = 2 (biharmonic)")
     V, F, b = _mesh_arrays(mesh, handles)
     if len(b) < 3:
         raise ValueError(f"biharmonic coordinates need at least 3 point handles (linear precision), got {len(b)}")
+    _check_not_collinear(V[b])
     W = np.asarray(igl.biharmonic_coordinates(V, F, [[int(i)] for i in b], int(k)))
     if W.shape != (len(V), len(b)) or not np.isfinite(W).all():
         raise ValueError(f"libigl biharmonic_coordinates failed (returned shape {W.shape})")
     return W
+
+
+def _check_not_collinear(P):
+    """Linear precision (W P = V) needs handles that span the plane: not all on one line."""
+    centred = P - P.mean(axis=0)
+    sv = np.linalg.svd(centred, compute_uv=False)
+    if sv[1] <= 1e-9 * max(sv[0], np.finfo(float).tiny):
+        raise ValueError(f"biharmonic coordinates need handles that are not all on one line (linear precision); "
+                         f"the {len(P)} handles are collinear (spread across the line {sv[1]:.2g}, along it "
+                         f"{sv[0]:.2g}); move one off the line")
 
 
 class ARAPIterations:
@@ -321,7 +358,7 @@ class ARAPIterations:
 
         self._V, F, self._b = _mesh_arrays(mesh, handles)
         self._F = F  # libigl keeps references: hold the arrays
-        self.iterations = int(iterations)
+        self.iterations = opt.integer("iterations", iterations, minimum=1)
         self.data = igl.ARAPData()
         self.data.energy = igl.ARAP_ENERGY_TYPE_ELEMENTS
         self.data.max_iter = self.iterations
@@ -402,7 +439,7 @@ class Peer:
         -------
         X : (n_vertices,2) or (k,n_vertices,2) numpy array
         """
-        Q = np.asarray(Q, dtype=float)
+        Q = opt.real_array("Q", Q)
         if Q.ndim == 3:
             return np.stack([self(q) for q in Q])
         if Q.shape != (self.n_moving, 2):
@@ -466,6 +503,10 @@ def make_peers(shape, kinds=KINDS, arap_iterations=(10,)):
     -------
     peers : list of Peer
     """
+    if isinstance(arap_iterations, (str, bytes)) or not hasattr(arap_iterations, "__len__") or not len(
+            arap_iterations):
+        raise ValueError(f"arap_iterations must be a non-empty list of iteration counts, got {arap_iterations!r}")
+    arap_iterations = [opt.integer("arap_iterations", k, minimum=1) for k in arap_iterations]
     out = []
     for kind in kinds:
         its = arap_iterations if kind == "arap" else (10,)

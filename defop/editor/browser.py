@@ -30,6 +30,8 @@ import anywidget
 import numpy as np
 import traitlets
 
+from .. import options as opt
+from ..scene.shapes import names as shape_names
 from .payload import JS_PATH, defop_to_payload, encode_payload, image_for
 from .state import EditorState, ground_truth_text
 
@@ -79,6 +81,10 @@ class BrowserEditor(anywidget.AnyWidget):
             raise ValueError("a picture belongs to one shape's mesh: pass either image or shapes, not both")
         self._state_kw = state_kw
         self._shapes = list(shapes or [])
+        unknown = [name for name in self._shapes if not isinstance(name, str) or name not in shape_names()]
+        if unknown:  # the page would offer them, and fail only when one is picked
+            known = ", ".join(shape_names())
+            raise ValueError(f"shapes must be names of built-in shapes ({known}), got {unknown[0]!r}")
         self._syncing = False
         self.state = EditorState(shape, operators, **state_kw)
         if image is not None or image_frame is not None:
@@ -96,7 +102,7 @@ class BrowserEditor(anywidget.AnyWidget):
         return self.state.Q.copy()
 
     def set_Q(self, Q):
-        """Move the handles from Python; the page follows."""
+        """Move the handles from Python; the page follows (a rejected Q changes neither)."""
         self.state.set_Q(Q)
         self._sync(q=self.state.Q.ravel().tolist())
         self._send_ground_truth()
@@ -139,23 +145,50 @@ class BrowserEditor(anywidget.AnyWidget):
         else:
             self._sync(gt_meta={"text": ""}, gt_data=b"")
 
-    def _on_q(self, change):
+    def _resync(self):
+        """The synced traits back to what the state holds (after a value the state rejected)."""
+        s = self.state
+        self._sync(q=s.Q.ravel().tolist(), basis=s.kind, shape_name=s.shape.name, ground_truth=bool(s.gt_enabled))
+
+    def _apply(self, change, action):
+        """Run ``action(new value)`` for a trait the page (or the user) set; a rejected value is undone in the
+        traits too, so the page and the state never disagree, and the error is raised."""
         if self._syncing:
             return
-        self.state.set_Q(np.reshape(change["new"], (-1, 2)))
+        try:
+            action(change["new"])
+        except Exception:
+            self._resync()
+            raise
+
+    def _set_q(self, q):
+        q = opt.real_array("q", q)
+        n = 2 * len(self.state.P)
+        if q.shape != (n,):
+            raise ValueError(f"q must be a flat list of {n} coordinates (x0, y0, x1, ...), got shape {q.shape}")
+        self.state.set_Q(q.reshape(-1, 2))
         self._send_ground_truth()
 
+    def _set_basis(self, kind):
+        self.state.set_basis(kind)
+        self._send_operator()
+
+    def _set_shape(self, name):
+        self.state = EditorState(name, **self._state_kw)
+        self._send_operator()
+
+    def _set_ground_truth(self, enabled):
+        self.state.set_ground_truth(enabled)
+        self._send_ground_truth()
+
+    def _on_q(self, change):
+        self._apply(change, self._set_q)
+
     def _on_basis(self, change):
-        if not self._syncing:
-            self.state.set_basis(change["new"])
-            self._send_operator()
+        self._apply(change, self._set_basis)
 
     def _on_shape(self, change):
-        if not self._syncing:
-            self.state = EditorState(change["new"], **self._state_kw)
-            self._send_operator()
+        self._apply(change, self._set_shape)
 
     def _on_ground_truth(self, change):
-        if not self._syncing:
-            self.state.set_ground_truth(change["new"])
-            self._send_ground_truth()
+        self._apply(change, self._set_ground_truth)

@@ -15,6 +15,8 @@ Example
 
 from __future__ import annotations
 
+import contextlib
+import numbers
 import time
 import warnings
 
@@ -23,6 +25,7 @@ import numpy as np
 from .. import options as opt
 from ..operator.defop import ExtrapolationWarning
 from ..operator.handle_bases import KINDS
+from ..scene.shapes import Shape
 from ..scene.shapes import load as load_shape
 from ..training.bootstrap import DEFAULT_M, min_samples, train
 from ..variational.solver import NotConvergedWarning, Solver
@@ -88,7 +91,8 @@ def inside_polygon(q, poly):
     -------
     bool
     """
-    x, y = float(q[0]), float(q[1])
+    x, y = opt.point("q", q)
+    poly = opt.points("poly", poly)
     xi, yi = poly[:, 0], poly[:, 1]
     xj, yj = np.roll(xi, 1), np.roll(yi, 1)
     crosses = (yi > y) != (yj > y)
@@ -177,12 +181,16 @@ class EditorState:
                  solver=None, pick_radius=0.05, train_kw=None):
         if isinstance(shape, str):
             shape = load_shape(shape)
+        elif not isinstance(shape, Shape):
+            raise ValueError(f"shape must be a Shape or the name of one (dop.shapes.names()), got "
+                             f"{type(shape).__name__} {shape!r:.80}")
         self.kinds = tuple(kinds)
         for kind in [basis, *(operators or {})]:
             if kind not in self.kinds:
                 raise ValueError(f"basis {kind!r} is not offered; choose one of {self.kinds}")
-        if not pick_radius > 0:
-            raise ValueError(f"pick_radius must be positive, got {pick_radius}")
+        pick_radius = opt.positive("pick_radius", pick_radius)
+        if m is not None:
+            m = opt.integer("m", m, minimum=1)
         if shape.n_moving == 0:
             raise ValueError(f"shape {shape.name!r} has no moving handle to drag")
         self.shape, self.mesh, self.energy, self.m = shape, shape.mesh, energy, m
@@ -230,48 +238,75 @@ class EditorState:
         """The DefOp of the current basis."""
         return self.get_operator(self.kind)
 
+    # every setter below runs inside _atomic: it validates first, and whatever fails later (an operator that
+    # returns NaN, a solver error) restores the state as it was, so a rejected call changes nothing
+    _STATE = ("Q", "X", "flipped", "eval_time", "kind", "gt_enabled", "X_gt", "Q_gt", "gt_result", "gt_error",
+              "gt_time", "active")
+
+    @contextlib.contextmanager
+    def _atomic(self):
+        saved = {name: getattr(self, name, None) for name in self._STATE}
+        try:
+            yield
+        except BaseException:
+            for name, value in saved.items():
+                setattr(self, name, value)
+            raise
+
     def set_basis(self, kind):
         """Switch the handle basis Ψ (training it on first use) and re-evaluate at the same Q."""
         self.get_operator(kind)
-        self.kind = kind
-        self._evaluate()
-        if self.gt_enabled:
-            self.update_ground_truth()
+        with self._atomic():
+            self.kind = kind
+            self._evaluate()
+            if self.gt_enabled:
+                self.update_ground_truth()
 
     # ------------------------------------------------------------------ handles
     def set_Q(self, Q):
         """Move all moving handles to ``Q (n,2)`` and re-evaluate (the ground truth too, when on)."""
-        self._move(Q)
-        if self.gt_enabled:
-            self.update_ground_truth()
+        Q = self._check_Q(Q)
+        with self._atomic():
+            self._move(Q)
+            if self.gt_enabled:
+                self.update_ground_truth()
 
-    def _move(self, Q):
-        Q = opt.real_array("Q", Q).copy()
+    def _check_Q(self, Q):
+        Q = opt.real_array("Q", Q)
         if Q.shape != self.P.shape:
             raise ValueError(f"Q must have shape {self.P.shape} (the moving handles), got {Q.shape}")
         bad = ~np.isfinite(Q).all(axis=1)
         if bad.any():
             raise ValueError(f"handle {int(np.flatnonzero(bad)[0])} has a NaN or infinite position")
-        self.Q = Q
+        return np.array(Q, dtype=float)
+
+    def _move(self, Q):
+        self.Q = self._check_Q(Q)
         self._evaluate()
 
-    def set_handle(self, i, q):
-        """Move moving handle ``i`` to ``q (2,)`` and re-evaluate."""
+    def _check_index(self, i):
         i = opt.integer("handle index", i)  # 1.5 was truncated to 1
         if not 0 <= i < len(self.P):
             raise ValueError(f"handle index {i} is out of range 0..{len(self.P) - 1}")
+        return i
+
+    def set_handle(self, i, q):
+        """Move moving handle ``i`` to ``q (2,)`` and re-evaluate (a scalar ``q`` is refused, not broadcast)."""
+        i = self._check_index(i)
         Q = self.Q.copy()
-        Q[i] = opt.real_array("q", q)
+        Q[i] = opt.point("q", q)
         self.set_Q(Q)
 
     def reset(self):
         """Back to the rest pose Q = P; forgets the ground truth's warm start."""
-        self.X_gt = self.Q_gt = self.gt_result = self.gt_error = self.gt_time = None
-        self.active = None
-        self.set_Q(self.P)
+        with self._atomic():
+            self.X_gt = self.Q_gt = self.gt_result = self.gt_error = self.gt_time = None
+            self.active = None
+            self.set_Q(self.P)
 
     def pick(self, x, y):
         """The moving handle nearest to (x, y) within ``pick_radius`` × diagonal, else None."""
+        x, y = opt.point("(x, y)", (x, y))
         d = np.hypot(self.Q[:, 0] - x, self.Q[:, 1] - y)
         i = int(np.argmin(d))
         return i if d[i] <= self.pick_radius * self.diag else None
@@ -290,22 +325,28 @@ class EditorState:
         bool
             False when no handle is being dragged.
         """
+        xy = opt.point("(x, y)", (x, y))
         if self.active is None:
             return False
         Q = self.Q.copy()
-        Q[self.active] = (x, y)
-        self._move(Q)
+        Q[self.active] = xy
+        with self._atomic():
+            self._move(Q)
         return True
 
     def release(self, x=None, y=None):
         """End the drag (at (x, y) when given) and refresh the ground truth when it is on."""
+        if (x is None) != (y is None):
+            raise ValueError(f"x and y go together: both or neither, got x={x!r}, y={y!r}")
+        xy = None if x is None else opt.point("(x, y)", (x, y))
         if self.active is None:
             return False
-        i, self.active = self.active, None
         Q = self.Q.copy()
-        if x is not None and y is not None:
-            Q[i] = (x, y)
-        self.set_Q(Q)
+        if xy is not None:
+            Q[self.active] = xy
+        with self._atomic():
+            self.active = None
+            self.set_Q(Q)
         return True
 
     def outside_regions(self, Q=None):
@@ -320,7 +361,7 @@ class EditorState:
         -------
         list of int
         """
-        Q = self.Q if Q is None else np.asarray(Q, float)
+        Q = self.Q if Q is None else opt.points("Q", Q, n=len(self.P))
         return [i for i, polys in enumerate(self.regions) if polys and not any(inside_polygon(Q[i], p) for p in polys)]
 
     def _evaluate(self):
@@ -343,12 +384,16 @@ class EditorState:
         return self._solver
 
     def set_ground_truth(self, enabled):
-        """Turn the ground truth on (solving it at the current Q) or off."""
-        self.gt_enabled = bool(enabled)
-        if self.gt_enabled:
-            self.update_ground_truth()
-        else:
-            self.gt_error = None
+        """Turn the ground truth on (solving it at the current Q) or off (``enabled``: True or False)."""
+        if not isinstance(enabled, (bool, np.bool_)) and not (
+                isinstance(enabled, numbers.Integral) and enabled in (0, 1)):
+            raise ValueError(f"enabled must be True or False, got {enabled!r}")  # bool("off") is True
+        with self._atomic():
+            self.gt_enabled = bool(enabled)
+            if self.gt_enabled:
+                self.update_ground_truth()
+            else:
+                self.gt_error = None
 
     def update_ground_truth(self):
         """Solve the variational DefOp (problem 6) at Q, warm-started, and measure the approximation's error.
@@ -364,6 +409,10 @@ class EditorState:
         -------
         X_gt : (n_vertices,2) numpy array
         """
+        with self._atomic():
+            return self._solve_ground_truth()
+
+    def _solve_ground_truth(self):
         starts = []
         if self.X_gt is not None:
             with warnings.catch_warnings():

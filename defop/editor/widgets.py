@@ -218,7 +218,11 @@ class Controls:
     def _act(self, method):
         def callback(change):
             if not self._syncing:
-                method(change["new"])
+                try:
+                    method(change["new"])
+                except Exception:
+                    self.refresh()  # the control shows the state again: a rejected value changes nothing
+                    raise
                 self.refresh()
                 if self.on_change is not None:
                     self.on_change()

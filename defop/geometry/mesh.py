@@ -10,6 +10,10 @@ determinant and the element's facets are written per dimension.
 
 from __future__ import annotations
 
+import io
+import os
+import tokenize
+import zlib
 from functools import cached_property
 from pathlib import Path
 
@@ -576,42 +580,158 @@ class Mesh:
 
 
 def write_mesh(path, mesh):
-    """Write a mesh.
+    """Write a mesh, atomically (a temporary file in the same directory, then a rename).
 
     ``.npz`` is exact. ``.obj``/``.off`` go through libigl with z = 0 and
     17 significant digits, so the round trip is exact for float64 too.
+
+    Raises
+    ------
+    ValueError
+        ``mesh`` is not a :class:`Mesh`, or an unknown extension (nothing is written).
+    OSError
+        The file cannot be written (the message names it; a previous file is left as it was).
     """
+    from .. import options as opt
+
+    if not isinstance(mesh, Mesh):
+        raise ValueError(f"mesh must be a defop Mesh, got {type(mesh).__name__}")
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"path must be a str or pathlib.Path, got {type(path).__name__}")
     path = Path(path)
     ext = path.suffix.lower()
     if ext == ".npz":
-        with open(path, "wb") as f:  # np.savez(path) would append ".npz" to "m.NPZ"
-            np.savez(f, V=mesh.V, F=mesh.F)
+        buf = io.BytesIO()  # np.savez(path) would append ".npz" to "m.NPZ"
+        np.savez(buf, V=mesh.V, F=mesh.F)
+        opt.write_atomic(path, buf.getvalue())
     elif ext in (".obj", ".off") and mesh.dim == 3:
         raise ValueError(f"a tetrahedral mesh is written as .npz ({ext} holds triangle surfaces)")
     elif ext in (".obj", ".off"):
         V3 = np.hstack([mesh.V, np.zeros((mesh.n_vertices, 1))])
-        igl.write_triangle_mesh(str(path), V3, mesh.F.astype(np.int64), igl.FileEncoding.Ascii)
+        F = mesh.F.astype(np.int64)
+        opt.write_atomic(path, lambda tmp: _igl_write(tmp, V3, F))
     else:
         raise ValueError(f"unknown mesh format {ext!r}; use .npz, .obj or .off")
 
 
+#: the most vertices or triangles a mesh file may declare (checked before anything is allocated)
+MAX_FILE_ELEMENTS = 10_000_000
+
+
 def read_mesh(path):
-    """Read a mesh written by :func:`write_mesh` (or any planar OBJ/OFF)."""
+    """Read a mesh written by :func:`write_mesh` (or any planar OBJ/OFF).
+
+    Untrusted files are checked before work: the sizes an ``.npz`` member or an OFF header declares
+    (at most :data:`MAX_FILE_ELEMENTS` rows, and no more than the file can hold), the archive's layout, no
+    pickles; every error names the file.
+
+    Raises
+    ------
+    ValueError
+        A missing, truncated or corrupt file, one that is not a mesh, declares too many elements, or holds an
+        invalid mesh (the message names the file and what is wrong).
+    """
+    if isinstance(path, bytes):
+        path = os.fsdecode(path)
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"path must be a str or pathlib.Path, got {type(path).__name__}")
     path = Path(path)
-    if not path.exists():
-        raise ValueError(f"no such mesh file: {path}")
     ext = path.suffix.lower()
-    if ext == ".npz":
-        with np.load(path) as d:
-            if "V" not in d or "F" not in d:
-                raise ValueError(f"{path} holds no mesh (arrays V and F are missing)")
-            return Mesh(d["V"], d["F"])
-    if ext in (".obj", ".off"):
-        V, F = igl.read_triangle_mesh(str(path))
-        V = np.asarray(V, dtype=float)
-        if V.shape[1] == 3:
-            if np.abs(V[:, 2]).max(initial=0) > 0:
-                raise ValueError(f"{path} is not planar (z is not 0)")
-            V = V[:, :2]
+    if ext not in (".npz", ".obj", ".off"):
+        raise ValueError(f"mesh file {path}: unknown mesh format {ext!r}; use .npz, .obj or .off")
+    if not path.is_file():
+        raise ValueError(f"no such mesh file: {path}" if not path.exists() else f"mesh file {path} is not a file")
+    V, F = _read_npz(path) if ext == ".npz" else _read_igl(path, ext)
+    try:
         return Mesh(V, F)
-    raise ValueError(f"unknown mesh format {ext!r}; use .npz, .obj or .off")
+    except ValueError as exc:
+        raise ValueError(f"mesh file {path} holds an invalid mesh: {exc}") from None
+
+
+def _read_npz(path):
+    """V and F of an .npz, each member's header checked before its data is inflated (reads stop at its size)."""
+    import zipfile
+
+    if not zipfile.is_zipfile(path):
+        raise ValueError(f"mesh file {path} is not an .npz archive (not a zip file: truncated, or another format)")
+    arrays = {}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+            if not {"V.npy", "F.npy"} <= names:
+                raise ValueError(f"mesh file {path} holds no mesh (arrays V and F are missing)")
+            for key in ("V", "F"):
+                with zf.open(f"{key}.npy") as fh:
+                    arrays[key] = _read_member(fh, path, key)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, zlib.error, NotImplementedError) as exc:
+        raise ValueError(f"mesh file {path} is truncated or corrupt ({exc})") from None
+    return arrays["V"], arrays["F"]
+
+
+def _read_member(fh, path, key):
+    fmt = np.lib.format
+    try:
+        version = fmt.read_magic(fh)
+        read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+        shape, fortran, dtype = read_header(fh, max_header_size=10_000)  # a huge or nested header is refused
+    except (ValueError, SyntaxError, TypeError, tokenize.TokenError, RecursionError, MemoryError) as exc:
+        # numpy tokenizes the header: "((((" raised tokenize's TokenError, deep nesting a RecursionError
+        raise ValueError(f"mesh file {path}: member {key} is not a numpy array ({exc})") from None
+    if dtype.hasobject or dtype.kind not in "iuf":
+        raise ValueError(f"mesh file {path}: {key} must hold numbers, got dtype {dtype}")
+    cols = (2, 3) if key == "V" else (3, 4)  # Mesh itself checks that they fit together
+    if len(shape) != 2 or shape[1] not in cols:
+        raise ValueError(f"mesh file {path}: {key} must be an (n, {' or '.join(map(str, cols))}) array, "
+                         f"got shape {shape}")
+    if shape[0] > MAX_FILE_ELEMENTS:
+        raise ValueError(f"mesh file {path} declares {shape[0]:,} rows of {key}, limit {MAX_FILE_ELEMENTS:,} "
+                         f"(defop.geometry.mesh.MAX_FILE_ELEMENTS)")
+    count = int(np.prod(shape))
+    data = fh.read(count * dtype.itemsize)  # stops at the declared size: a bomb cannot inflate further
+    if len(data) != count * dtype.itemsize:
+        raise ValueError(f"mesh file {path}: {key} is truncated ({len(data)} of {count * dtype.itemsize} bytes)")
+    arr = np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
+    return np.array(arr)
+
+
+def _read_igl(path, ext):
+    """V and F of an OBJ/OFF by libigl, after the OFF header's counts are checked against the file's size."""
+    size = path.stat().st_size
+    if ext == ".off":
+        _check_off_header(path, size)
+    try:
+        V, F = igl.read_triangle_mesh(str(path))
+    except (RuntimeError, ValueError, TypeError, MemoryError) as exc:
+        raise ValueError(f"mesh file {path} could not be read as {ext} ({type(exc).__name__}: {exc})") from None
+    V, F = np.asarray(V, dtype=float), np.asarray(F)
+    if V.ndim != 2 or F.ndim != 2 or len(V) == 0 or len(F) == 0:
+        raise ValueError(f"mesh file {path} holds no triangle mesh ({ext} read as {V.shape} vertices, "
+                         f"{F.shape} faces)")
+    if V.shape[1] == 3:
+        if np.abs(V[:, 2]).max(initial=0) > 0:
+            raise ValueError(f"{path} is not planar (z is not 0)")
+        V = V[:, :2]
+    return V, F
+
+
+def _check_off_header(path, size):
+    with open(path, "rb") as fh:
+        head = fh.read(4096).decode("ascii", "replace").split("\n")
+    words = []
+    for line in head:
+        words += line.split("#")[0].split()
+        if len(words) >= 4:
+            break
+    if not words or not words[0].upper().endswith("OFF"):
+        raise ValueError(f"mesh file {path} is not an OFF file (no OFF header)")
+    try:
+        n_v, n_f = int(words[1]), int(words[2])
+    except (IndexError, ValueError):
+        raise ValueError(f"mesh file {path}: the OFF header has no vertex and face counts") from None
+    if min(n_v, n_f) < 0 or max(n_v, n_f) > MAX_FILE_ELEMENTS or 2 * (n_v + n_f) > size:
+        raise ValueError(f"mesh file {path} declares {n_v:,} vertices and {n_f:,} faces in {size:,} bytes "
+                         f"(limit {MAX_FILE_ELEMENTS:,} each, and at least 2 bytes per entry)")
+
+
+def _igl_write(path, V3, F):
+    igl.write_triangle_mesh(str(path), V3, F, igl.FileEncoding.Ascii)

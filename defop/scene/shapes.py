@@ -30,6 +30,7 @@ from ..geometry.mesh import Mesh
 from ..geometry.planar.meshing import MAX_VERTICES, check_n_vertices, triangulate
 from ..geometry.planar.outlines import image_outline
 from ..geometry.planar.polygon import (
+    SCALE_RANGE,
     distance_to_outline,
     points_in_polygon,
     validate_polygon,
@@ -303,7 +304,7 @@ def from_polygon(
     """
     if handles is None:
         raise ValueError("from_polygon needs handles: an (h,2) array of handle positions")
-    H = np.atleast_2d(np.asarray(handles, dtype=float))
+    H = np.atleast_2d(opt.real_array("handles", handles))
     if H.ndim != 2 or H.shape[1] != 2 or len(H) == 0:
         raise ValueError(f"handles must have shape (h,2), got {np.shape(handles)}")
     if n_vertices is None and max_area is None:
@@ -364,6 +365,12 @@ def from_image(
     shape : Shape
     """
     size = opt.positive("size", size)  # a negative size mirrored the silhouette
+    if not SCALE_RANGE[0] <= size <= SCALE_RANGE[1]:  # 1e300 overflowed into "too thin to place handles"
+        raise ValueError(f"size must be a positive number in [{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}] (the "
+                         f"coordinate range meshing supports), got {size!r}")
+    if handles is None:
+        # 0 gave one handle; the candidates are a 60 x 60 grid
+        n_auto_handles = opt.integer("n_auto_handles", n_auto_handles, minimum=1, maximum=MAX_AUTO_HANDLES)
     outer, holes = image_outline(image, threshold, foreground_mode=foreground)
     lo = outer.min(axis=0)
     ext = outer.max(axis=0) - lo
@@ -375,6 +382,10 @@ def from_image(
     return from_polygon(
         outer, holes, handles, moving, regions, n_vertices=n_vertices, name=name, description="silhouette of an image"
     )
+
+
+#: most handles ``from_image`` places by itself (farthest-point picks on a 60 x 60 grid)
+MAX_AUTO_HANDLES = 100
 
 
 def _auto_handles(outer, holes, k):

@@ -50,8 +50,9 @@ def _check_shape(shape):
 def _candidates(T, shape):
     """All (triangle, pixel) pairs with the pixel centre in the triangle's bounding box, clipped to the image."""
     h, w = shape
-    lo = np.ceil(T.min(axis=1)).astype(np.int64)
-    hi = np.floor(T.max(axis=1)).astype(np.int64)
+    # clip before the integer cast: a vertex at 1e20 pixels overflowed int64 and the triangle drew nothing
+    lo = np.ceil(np.clip(T.min(axis=1), -1.0, [w, h])).astype(np.int64)
+    hi = np.floor(np.clip(T.max(axis=1), -1.0, [w, h])).astype(np.int64)
     lo = np.maximum(lo, 0)
     hi = np.minimum(hi, [w - 1, h - 1])
     nx, ny = np.maximum(hi[:, 0] - lo[:, 0] + 1, 0), np.maximum(hi[:, 1] - lo[:, 1] + 1, 0)
@@ -147,6 +148,22 @@ def warp_image(image, V, X, F, shape=None, background=1.0):
     return out[..., 0] if image.ndim == 2 else out
 
 
+def _check_mask(mask):
+    """An (H,W) boolean mask with at least one True pixel (0/1 numbers are accepted as booleans)."""
+    arr = np.asarray(mask)
+    if arr.ndim != 2:
+        hint = "; for a picture, pass the silhouette, e.g. image.mean(axis=2) < 0.5" if arr.ndim == 3 else ""
+        raise ValueError(f"mask must be an (H, W) array of booleans, got shape {arr.shape}{hint}")
+    if arr.dtype != bool:
+        if arr.dtype.kind not in "iuf" or not np.isin(arr, (0, 1)).all():
+            raise ValueError(f"mask must be an (H, W) array of booleans (or 0/1), got dtype {arr.dtype} with "
+                             f"values other than 0 and 1")
+        arr = arr.astype(bool)
+    if not arr.any():
+        raise ValueError(f"mask has no True pixel: the shape is empty ({arr.shape[0]} x {arr.shape[1]} all False)")
+    return arr
+
+
 def image_to_mesh_frame(mask, mesh=None, size=1.0):
     """The similarity that takes pixels to the units of a mesh made by ``dop.shapes.from_image(mask)``.
 
@@ -170,13 +187,19 @@ def image_to_mesh_frame(mask, mesh=None, size=1.0):
         (k,2) pixels (x = column, y = row) → (k,2) mesh coordinates.
     to_pixels : callable
         The inverse.
+
+    Raises
+    ------
+    ValueError
+        ``mask`` not a 2D array of booleans (or 0/1), or with no True pixel; ``size`` not a positive number.
     """
-    mask = np.asarray(mask, dtype=bool)
+    mask = _check_mask(mask)
     rows, cols = np.nonzero(mask)
     H = mask.shape[0]
     lo = np.array([cols.min() - 0.5, (H - 1) - rows.max() - 0.5])  # bottom-left pixel edge, y up
     size_px = np.array([cols.max() - cols.min() + 1.0, rows.max() - rows.min() + 1.0])
     if mesh is None:
+        size = opt.positive("size", size)
         scale, mesh_lo = size / np.linalg.norm(size_px), np.zeros(2)
     else:
         scale, mesh_lo = np.linalg.norm(np.ptp(mesh.V, axis=0)) / np.linalg.norm(size_px), mesh.V.min(axis=0)

@@ -97,8 +97,8 @@ def check_max_area(max_area, area):
 
 
 def _check_points(points, loops):
-    """Handle points strictly inside the shape (Triangle crashed on points on the boundary)."""
-    points = np.zeros((0, 2)) if points is None else np.atleast_2d(np.asarray(points, float))
+    """Handle points strictly inside the shape (Triangle crashed on points on the boundary), pairwise apart."""
+    points = np.zeros((0, 2)) if points is None else np.atleast_2d(opt.real_array("handles", points))
     if points.ndim != 2 or points.shape[1] != 2:
         raise ValueError(f"points must have shape (k,2), got {points.shape}")
     if not len(points):
@@ -116,7 +116,29 @@ def _check_points(points, loops):
             f"the shape (nearest boundary point is {d[k]:.3g} away)"
             + (f"; handles must lie at least {tol:.3g} inside" if on else "")
         )
+    _check_apart(points, tol)
     return points
+
+
+def _check_apart(points, tol):
+    """Handles closer than ``tol`` are named (Triangle made slivers of them: "150 degenerate triangles")."""
+    if len(points) < 2:
+        return
+    from scipy.spatial import cKDTree
+
+    dist, _ = cKDTree(points).query(points, k=2)
+    close = np.flatnonzero(dist[:, 1] <= tol)
+    if len(close):
+        i = int(close[0])
+        diff = points - points[i]
+        d_i = np.sqrt(diff[:, 0] ** 2 + diff[:, 1] ** 2)
+        d_i[i] = np.inf
+        j = int(np.argmin(d_i))  # the kd-tree may list a coincident point before the point itself
+        d = float(d_i[j])
+        i, j = min(i, j), max(i, j)
+        apart = "coincide" if d == 0 else f"are {d:.2g} apart"
+        raise ValueError(f"handles {i} and {j} {apart}; merge them or move one (handles must be more than "
+                         f"{tol:.3g} apart, 1e-6 of the shape's diagonal)")
 
 
 def _resampled(loops, h):

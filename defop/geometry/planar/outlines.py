@@ -9,6 +9,10 @@ Triangle mesh, is the same on every CPU (issue #13).
 from __future__ import annotations
 
 import math
+import numbers
+import os
+import re
+import struct
 import warnings
 from pathlib import Path
 
@@ -143,28 +147,89 @@ def ellipse(c, rx, ry, angle=0.0):
 
 
 # ----------------------------------------------------------------------------------- images
+def image_path(path, name="image"):
+    """``path`` (str, bytes or os.PathLike) as a :class:`pathlib.Path` of an existing file.
+
+    Raises
+    ------
+    ValueError
+        No such file, a directory, or a path that is not a str, bytes or os.PathLike (naming ``name``).
+    """
+    if isinstance(path, bytes):
+        path = os.fsdecode(path)  # bytes name a file, as they do for open()
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"{name} must be a path (str, bytes or pathlib.Path) or an array, got "
+                         f"{type(path).__name__}")
+    try:
+        path = Path(path)
+        exists, is_dir = path.exists(), path.is_dir()
+    except (ValueError, OSError) as exc:  # an embedded NUL, a name too long
+        raise ValueError(f"{name}: cannot use {str(path)!r:.200} as a file name ({exc})") from None
+    if not exists:
+        raise ValueError(f"no such image file: {path}")
+    if is_dir:
+        raise ValueError(f"image file {path} is a directory")
+    return path
+
+
 def read_image(path):
     """The pixels of an image file, as matplotlib's ``imread`` gives them (Pillow does the reading).
 
     8-bit PNGs become float32 in [0, 1] (the value / 255, palettes and grey + alpha as RGBA); other formats
     keep Pillow's integer pixels, which :func:`load_image` scales.
 
+    Parameters
+    ----------
+    path : str, bytes or os.PathLike
+
     Returns
     -------
     (H,W), (H,W,3) or (H,W,4) numpy array
-    """
-    from PIL import Image, PngImagePlugin
 
-    with Image.open(path) as image:
-        image.load()
-        if not isinstance(image, PngImagePlugin.PngImageFile):
-            return np.asarray(image)
-        if image.mode in ("P", "LA"):
-            image = image.convert("RGBA")
-        if image.mode == "1":
-            return np.asarray(image, np.float32)
-        top = 2**16 - 1 if image.mode.startswith("I") else 2**8 - 1
-        return np.divide(image, top, dtype=np.float32)
+    Raises
+    ------
+    ValueError
+        Naming the file: missing, not an image Pillow reads, truncated or corrupt, or declaring more pixels
+        than Pillow's decompression-bomb limit ``PIL.Image.MAX_IMAGE_PIXELS`` (checked from the header,
+        before the pixels are decoded).
+    """
+    from PIL import Image
+
+    path = image_path(path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with Image.open(path) as image:
+                return _pixels(image)
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        found = re.search(r"\((\d+) pixels\)", str(exc))  # Pillow: "Image size (3600000000 pixels) exceeds ..."
+        size = f"{int(found.group(1)):,} pixels" if found else "too many pixels"
+        raise ValueError(f"image file {path} declares {size}, more than Pillow's decompression-bomb limit "
+                         f"PIL.Image.MAX_IMAGE_PIXELS = {Image.MAX_IMAGE_PIXELS:,}; raise it to read a file you "
+                         f"trust") from None
+    except Image.UnidentifiedImageError:
+        raise ValueError(f"image file {path} is not an image Pillow can read") from None
+    except PermissionError:
+        raise  # an OSError that already names the file
+    except MemoryError:
+        raise ValueError(f"image file {path} is too large to decode in the memory available") from None
+    except (OSError, SyntaxError, EOFError, ValueError, IndexError, TypeError, struct.error) as exc:
+        why = str(exc) or type(exc).__name__  # Pillow: "image file is truncated (3 bytes not processed)", ...
+        raise ValueError(f"image file {path} is truncated or corrupt: {why}") from None
+
+
+def _pixels(image):
+    from PIL import PngImagePlugin
+
+    image.load()
+    if not isinstance(image, PngImagePlugin.PngImageFile):
+        return np.asarray(image)
+    if image.mode in ("P", "LA"):
+        image = image.convert("RGBA")
+    if image.mode == "1":
+        return np.asarray(image, np.float32)
+    top = 2**16 - 1 if image.mode.startswith("I") else 2**8 - 1
+    return np.divide(image, top, dtype=np.float32)
 
 
 def load_image(image):
@@ -172,17 +237,29 @@ def load_image(image):
 
     Integer images are scaled by their type's maximum (255 for uint8), boolean ones map to 0/1.
 
+    Parameters
+    ----------
+    image : numpy array, or a path (str, bytes or os.PathLike) read by :func:`read_image`
+
     Raises
     ------
     ValueError
-        A missing file, a complex or non-numeric dtype, NaN, a layout other than (H,W), (H,W,3),
-        (H,W,4), or floats outside [0,1].
+        A missing, unreadable, truncated or too large file (naming it), a complex or non-numeric dtype, NaN,
+        a layout other than (H,W), (H,W,3), (H,W,4), or floats outside [0,1].
     """
-    if isinstance(image, (str, Path)):
-        path = Path(image)
-        if not path.exists():
-            raise ValueError(f"no such image file: {path}")
-        image = read_image(path)
+    if isinstance(image, (str, bytes, os.PathLike)):
+        path = image_path(image)
+        try:
+            return _unit_image(read_image(path))
+        except ValueError as exc:
+            if str(path) in str(exc):
+                raise
+            raise ValueError(f"image file {path}: {exc}") from None  # decoded, but not a picture we can use
+    return _unit_image(image)
+
+
+def _unit_image(image):
+    """The array checks and scaling of :func:`load_image`."""
     img = np.asarray(image)
     if img.dtype == bool:
         img = img.astype(float)
@@ -282,7 +359,8 @@ def image_outline(image, threshold=0.5, smooth=1.0, foreground_mode="auto"):
         A bad image, or one with no foreground or only foreground (the message says which
         foreground was assumed).
     """
-    if not (np.isscalar(threshold) and np.isfinite(threshold) and 0 < threshold < 1):
+    real = isinstance(threshold, numbers.Real) and not isinstance(threshold, (bool, np.bool_))
+    if not (real and np.isfinite(threshold) and 0 < threshold < 1):
         raise ValueError(f"threshold must lie strictly between 0 and 1, got {threshold!r}")
     fg, assumed = foreground(load_image(image), foreground_mode)
     mask = fg > threshold
