@@ -180,6 +180,8 @@ def text(name, value):
 def write_atomic(path, data, name="path"):
     """Write ``data`` to ``path`` atomically: a temporary file in the same directory, then a rename.
 
+    The one atomic-write policy of the package: operator files, meshes, cache entries and HTML pages use it.
+
     On any failure the temporary file is removed and ``path`` is left as it was (no empty or partial file).
 
     Parameters
@@ -214,6 +216,8 @@ def write_atomic(path, data, name="path"):
                 fh.write(data)
         if callable(data):
             data(tmp)
+        with open(tmp, "rb") as fh:  # on disk before it is renamed into place
+            os.fsync(fh.fileno())
         os.chmod(tmp, 0o644)  # mkstemp creates 0600; the file is as readable as one written by open()
         os.replace(tmp, path)
     except BaseException as exc:

@@ -303,7 +303,7 @@ def batch_floor(defop, k, peak, bandwidth, psi_seconds):
     floor : dict
         ``seconds`` per frame, ``flops`` and ``bytes`` per frame, and which bound dominates (``bound``).
     """
-    mats = defop.factors if defop.factors is not None else (defop._WF,)
+    mats = defop.factors if defop.factors is not None else (defop.WF,)
     flops = float(sum(2 * M.shape[0] * M.shape[1] for M in mats))
     nbytes = 16.0 * defop.n_vertices + defop.factor_bytes(fast=True) / k
     compute, memory = flops / peak, nbytes / bandwidth

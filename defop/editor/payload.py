@@ -91,7 +91,7 @@ def defop_to_payload(op, regions=None):
         p["A"], p["B"] = (np.asarray(f, np.float32) for f in op.factors)
         p["rank"] = int(p["A"].shape[1])
     else:
-        p["A"] = np.asarray(op._WF, np.float32)  # W[1:] with the handle columns zeroed
+        p["A"] = np.asarray(op.WF, np.float32)  # W[1:] with the handle columns zeroed
     return p
 
 

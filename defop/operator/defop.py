@@ -37,6 +37,7 @@ import warnings
 
 import numpy as np
 
+from .. import options as opt
 from . import compress as compress_mod
 from . import io as io_mod
 
@@ -178,9 +179,7 @@ class DefOp:
 
     def _evaluate(self, Q, fast, out=None):
         """(★) for Q (n,d) or (k,n,d), validated; ``out`` (k, d n_vertices) float64 receives the result."""
-        if np.iscomplexobj(Q):  # float() would drop the imaginary part with only a ComplexWarning
-            raise ValueError("Q must be real; got a complex array")
-        Q = np.asarray(Q, dtype=float)
+        Q = opt.real_array("Q", Q)  # complex, bool, strings, objects: named, not cast
         z = self.handle_basis.z(Q)  # validates shape and NaN
         Q2 = Q.reshape(-1, self.n_moving, self.d)
         dpsi = self.handle_basis.delta_z(np.atleast_2d(z))

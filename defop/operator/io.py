@@ -34,20 +34,19 @@ and, when compressed, ``factor_A`` and ``factor_B``; plus ``header``, a JSON obj
 
 from __future__ import annotations
 
-import contextlib
 import io
 import json
 import math
 import os
 import re
 import struct
-import tempfile
 import zipfile
 import zlib
 from pathlib import Path
 
 import numpy as np
 
+from .. import options as opt
 from ..geometry.mesh import Mesh
 from . import handle_bases as hb
 
@@ -114,18 +113,12 @@ def save(op, path):
         basis["kernel"] = params["kernel"]
     header = {"format": FORMAT, "format_version": FORMAT_VERSION, "dim": op.d, "meta": op.meta, "basis": basis}
     arrays["header"] = np.array(json.dumps(header))
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:  # a handle: np.savez(name) would append ".npz" to another suffix
             np.savez(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a saved operator is as readable as np.savez made it
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+
+    opt.write_atomic(path, write)
 
 
 def load(path, cls):

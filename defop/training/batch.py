@@ -13,6 +13,7 @@ import os
 import numpy as np
 
 from .. import config
+from .. import options as opt
 
 __all__ = ["load_or_compute", "parallel_map", "progress"]
 
@@ -72,7 +73,7 @@ def parallel_map(fn, items, n_jobs=None, show=False, desc="solving"):
 
     items = list(items)
     m = len(items)
-    n_jobs = config.n_jobs() if n_jobs is None else n_jobs
+    n_jobs = opt.n_jobs(config.n_jobs() if n_jobs is None else n_jobs)  # more than the cores: capped, warned
     bar = progress(m, desc, show)
     results = []
     try:

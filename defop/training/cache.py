@@ -33,9 +33,7 @@ import contextlib
 import dataclasses
 import hashlib
 import json
-import os
 import stat
-import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -43,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__, config
+from .. import options as opt
 from ..variational.solver import VERSION as _solve_version
 
 __all__ = ["Cache", "CacheWarning", "CorruptEntry", "FORMAT", "SOLVER_SALT", "key", "open_cache", "solver_settings"]
@@ -286,26 +285,9 @@ class Cache:
             None when the entry could not be written.
         """
         path = self.path(kind, key)
-        tmp = None
         try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.npz", dir=path.parent)
-            os.close(fd)
-            write(tmp)
-            with open(tmp, "rb") as fh:  # on disk before it is renamed into place
-                os.fsync(fh.fileno())
-            os.chmod(tmp, 0o644)  # mkstemp creates 0600; entries are as readable as before
-            os.replace(tmp, path)
+            opt.write_atomic(path, write)
         except OSError as exc:
-            _remove(tmp)
             warnings.warn(f"could not write the cache entry {path} ({exc}); the result is not cached", CacheWarning, 2)
             return None
-        except BaseException:
-            _remove(tmp)
-            raise
         return path
-
-
-def _remove(tmp):
-    if tmp is not None:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
