@@ -13,7 +13,12 @@ def main(argv=None):
     fig.add_argument("--only", nargs="*", help="notebook name patterns, e.g. 00_shapes or '0[12]_*'")
     fig.add_argument("--fast", action="store_true", help="CI-sized runs (DEFOP_FAST=1); outputs are not stored")
     fig.add_argument("--no-store", action="store_true", help="do not write outputs back into the notebooks")
-    fig.add_argument("--clean", action="store_true", help="a clean run: delete the figures and the cache first")
+    fig.add_argument(
+        "--clean",
+        action="store_true",
+        help="a clean run: delete the figures and the cache first; each notebook starts from an empty cache of its "
+        "own, and its time is recorded as the one from an empty cache",
+    )
     fig.add_argument(
         "--timeout", type=float, default=None, help="per-cell timeout in seconds (default: defop.figures.CELL_TIMEOUT)"
     )
