@@ -56,7 +56,8 @@ def fenchel_gap(S, on, areas, pull):
     S : (k,d) numpy array
         Singular values of the held elements; the offset a from the kink and its cone cost φ(a) are the closed
         forms' ``kink_offset`` (2D: a = (Σ − σ)/√2 on the anti-conformal mode U Z Vᵀ/√2 of
-        :func:`defop.variational.planar.eigensystem`; 3D: per kink set, :func:`defop.variational.volumetric.kink_offset`).
+        :func:`defop.variational.planar.eigensystem`; 3D: per kink set,
+        :func:`defop.variational.volumetric.kink_offset`).
     on : (k,) or (k,2) bool numpy array
         Which kink set(s) each element is held on (the closed forms' ``on_kink``).
     areas : (k,) numpy array
