@@ -206,3 +206,42 @@ def test_handles_on_one_line_are_refused_in_3d():
     solver = Solver(mesh, [0, 5, 26, 5])
     with pytest.raises(ValueError):  # a repeated handle with two different targets
         solver.targets_of(np.array([V[0], V[5], V[26], V[5] + 0.1]))
+
+
+@pytest.mark.parametrize("pair", [0, 1])
+def test_kink_offset_is_the_energy_above_the_kink_and_the_fenchel_gap_vanishes_at_equilibrium(pair):
+    """volumetric.kink_offset's cone cost φ(a) = r a + κ a²/2 is ψ(σ) − ψ(on the kink) to O(a³) (ψ from
+    psi_value, independently), and fenchel_gap is 0 on the cone (pull inside it) and off it at equilibrium."""
+    from defop.variational import kink
+
+    rng = np.random.default_rng(pair)
+    for _ in range(10):
+        s, t, a = rng.uniform(0.6, 1.8), rng.uniform(0.5, 2.0), 1e-3 * rng.uniform(0.5, 1.0)
+        if pair == 0:
+            t = min(t, 0.9 * s)
+            S, K = np.array([[s + a / np.sqrt(2), s - a / np.sqrt(2), t]]), np.array([[s, s, t]])
+        else:
+            t = max(t, 1.1 * s)
+            S, K = np.array([[t, s + a / np.sqrt(2), s - a / np.sqrt(2)]]), np.array([[t, s, s]])
+        on = np.array([[pair == 0, pair == 1]])
+        off, phi = volumetric.kink_offset(S, on)
+        exact = volumetric.psi_value("sarap", *S.T) - volumetric.psi_value("sarap", *K.T)
+        assert abs(phi[0] - exact[0]) <= 10 * a**3  # measured ≤ 1.1e-10 at a ≤ 1e-3
+        assert off[0, 2] == pytest.approx(a) and np.count_nonzero(off) == 1
+        r, kappa = volumetric.kink_cone(S, on)
+        F = np.zeros((1, 9))
+        F[0, 2] = r[0] + kappa[0] * a  # the pull that holds the offset: equilibrium on the branch
+        offset, excess = kink.fenchel_gap(S, on, np.ones(1), F)
+        assert abs(offset[0] + excess[0]) < 1e-12
+        F[0, 6 + 2 * pair] = 0.3 * r[0]  # a sideways pull: the gap opens
+        assert sum(kink.fenchel_gap(S, on, np.ones(1), F))[0] > 0
+    S = np.array([[0.7, 0.7, 0.7]])  # the triple point: a pull inside the nuclear-norm cone costs nothing
+    on = np.array([[True, True]])
+    r = volumetric.kink_cone(S, on)[0]
+    F = np.zeros((1, 9))
+    F[0, [1, 2, 6]] = 0.4 * r[0], -0.3 * r[0], 0.2 * r[0]
+    assert volumetric.kink_force(on, F)[0] < r[0]
+    offset, excess = kink.fenchel_gap(S, on, np.ones(1), F)
+    assert offset[0] == 0.0 and excess[0] == 0.0
+    F *= 4
+    assert kink.fenchel_gap(S, on, np.ones(1), F)[1][0] > 0
