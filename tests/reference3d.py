@@ -27,12 +27,26 @@ def grid_tets(k=2, size=1.0):
         n = (k+1)³ vertices in [0, size]³.
     T : (6k³,4) int numpy array
     """
-    g = np.arange(k + 1)
-    ix = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-    V = ix * (size / k)
+    return box_tets((k, k, k), (size, size, size))
+
+
+def box_tets(cells, size):
+    """A box [0, size₀]×[0, size₁]×[0, size₂] of cells₀×cells₁×cells₂ boxes, six tetrahedra each (Kuhn).
+
+    Returns
+    -------
+    V : (n,3) numpy array
+        n = Π (cellsᵢ + 1), numbered with the last axis fastest.
+    T : (6 Π cellsᵢ,4) int numpy array
+        Positively oriented.
+    """
+    cells = np.asarray(cells)
+    axes = [np.arange(c + 1) for c in cells]
+    ix = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    V = ix * (np.asarray(size, dtype=float) / cells)
     index = {tuple(p): i for i, p in enumerate(ix)}
     T = []
-    for c in ix[(ix < k).all(axis=1)]:
+    for c in ix[(ix < cells).all(axis=1)]:
         corner = [index[tuple(c + [(b >> 0) & 1, (b >> 1) & 1, (b >> 2) & 1])] for b in range(8)]
         T += [[corner[i] for i in tet] for tet in _KUHN]
     T = np.array(T)

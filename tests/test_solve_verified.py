@@ -406,7 +406,7 @@ def test_fenchel_gap_is_zero_exactly_at_equilibrium_on_the_cone():
         a = abs(rng.normal()) * 1e-2 * rng.integers(0, 2)
         P = rng.normal(size=2) * A * r[0] * rng.uniform(0.2, 2.0)
         S = np.array([[s + a / np.sqrt(2), s - a / np.sqrt(2)]])
-        offset, excess = kink.fenchel_gap(S, np.array([A]), P[None])
+        offset, excess = kink.fenchel_gap(S, np.array([True]), np.array([A]), _on_modes(P[None]))
         nb = np.linspace(0.0, 3.0, 300001)  # the conjugate's maximiser lies along P: a fine search over its length
         r_s, k_s = en.kink_radius(np.array([[(S[0, 0] + S[0, 1]) / 2] * 2]))
         conj = np.max(nb * np.hypot(*P) - A * (r_s[0] * nb + k_s[0] * nb**2 / 2))
@@ -419,10 +419,18 @@ def test_fenchel_gap_is_zero_exactly_at_equilibrium_on_the_cone():
     r, kappa = en.kink_radius(S)
     a = np.sqrt(2) * 1e-3
     P = np.array([[0.5 * r[0], 0.3 * r[0]], [r[1] + kappa[1] * a, 0.0]])
-    offset, excess = kink.fenchel_gap(S, np.ones(2), P)
+    on = np.ones(2, dtype=bool)
+    offset, excess = kink.fenchel_gap(S, on, np.ones(2), _on_modes(P))
     assert np.allclose(offset + excess, 0.0, atol=1e-15)
     P[1, 1] = 0.1  # a sideways pull off equilibrium: the gap opens
-    assert (kink.fenchel_gap(S, np.ones(2), P)[0] + kink.fenchel_gap(S, np.ones(2), P)[1])[1] > 0
+    assert sum(kink.fenchel_gap(S, on, np.ones(2), _on_modes(P)))[1] > 0
+
+
+def _on_modes(P):
+    """A force (k,2) on the two anti-conformal modes as a force on all four modes of planar.eigensystem."""
+    F = np.zeros((len(P), 4))
+    F[:, [1, 3]] = P
+    return F
 
 
 def _interior_bump(solver, size):

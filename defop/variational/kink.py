@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import planar as en  # the 2×2 closed forms: Eq. (11)'s kink is planar (3D: not yet)
+from . import energies as en
 
 #: the smallest μ of the continuation (:func:`refine`) and of :func:`smoothing_certificate`
 MU_MIN = 1e-13
@@ -42,60 +42,71 @@ MU_FACTOR = 100.0
 CERTIFICATE_SHARE = 0.3
 
 
-def fenchel_gap(S, areas, pull):
-    """Per held triangle, the Fenchel–Young gap A φ(a) − P·a + (A φ)*(P) ≥ 0 of its frozen offset.
+def _forms(S):
+    """The closed-form module (:func:`defop.variational.energies.closed_forms`) for singular values S (k, d)."""
+    d = np.shape(S)[-1]
+    return en.closed_forms(np.empty((0, d, d)))
+
+
+def fenchel_gap(S, on, areas, pull):
+    """Per held element, the Fenchel–Young gap A φ(a) − P·a + (A φ)*(P) ≥ 0 of its frozen offset.
 
     Parameters
     ----------
-    S : (k,2) numpy array
-        Singular values Σ ≥ σ > 0 of the held triangles; the offset is a = ((Σ − σ)/√2, 0) in the frame of the
-        anti-conformal modes (U Z Vᵀ/√2, the flip) of :func:`defop.variational.planar.eigensystem`.
+    S : (k,d) numpy array
+        Singular values of the held elements; the offset a from the kink and its cone cost φ(a) are the closed
+        forms' ``kink_offset`` (2D: a = (Σ − σ)/√2 on the anti-conformal mode U Z Vᵀ/√2 of
+        :func:`defop.variational.planar.eigensystem`; 3D: per kink set,
+        :func:`defop.variational.volumetric.kink_offset`).
+    on : (k,) or (k,2) bool numpy array
+        Which kink set(s) each element is held on (the closed forms' ``on_kink``).
     areas : (k,) numpy array
-    pull : (k,2) numpy array
-        The force P the rest of the mesh puts on those two modes (the multiplier of the frozen offset).
+        Areas (2D) or volumes (3D).
+    pull : (k,d²) numpy array
+        The force P the rest of the mesh puts on each mode of the eigensystem (the multiplier of the frozen offset;
+        only the held modes, ``kink_stiff_modes``, are read).
 
     Returns
     -------
     offset : (k,) numpy array
         A φ(a) − P·a, the part from the offset (can be negative; offset + excess ≥ 0).
     excess : (k,) numpy array
-        (‖P‖ − A r)₊² / (2 A κ), the gain bound of a pull beyond the cone.
+        (‖P‖ − A r)₊² / (2 A κ), the gain bound of a pull beyond the cone (‖·‖: the closed forms' ``kink_force``).
     """
-    r, kappa = en.kink_radius(S)
-    a = (S[:, 0] - S[:, 1]) / np.sqrt(2.0)
-    offset = areas * (r * a + kappa * a * a / 2) - pull[:, 0] * a
-    excess = np.maximum(np.hypot(pull[:, 0], pull[:, 1]) - areas * r, 0.0) ** 2 / (2 * areas * kappa)
+    cf = _forms(S)
+    a, phi = cf.kink_offset(S, on)
+    r, kappa = cf.kink_cone(S, on)
+    offset = areas * phi - (pull * a).sum(axis=1)
+    excess = np.maximum(cf.kink_force(on, pull) - areas * r, 0.0) ** 2 / (2 * areas * kappa)
     return offset, excess
 
 
-def offset_cost(S, areas):
-    """Σ_t A_t φ_t(a_t): what the offsets of the given near-kink triangles cost on their cones (no multipliers).
+def offset_cost(S, on, areas):
+    """Σ_t A_t φ_t(a_t): what the offsets of the given near-kink elements cost on their cones (no multipliers).
 
     With ‖P_t‖ ≤ A_t r_t (the pull check), the Fenchel gap of :func:`fenchel_gap` is at most twice this: a cheap
     screen before the Newton system that gives the multipliers.
 
     Parameters
     ----------
-    S : (k,2) numpy array
-        Σ ≥ σ > 0.
+    S : (k,d) numpy array
+    on : (k,) or (k,2) bool numpy array
     areas : (k,) numpy array
 
     Returns
     -------
     cost : float
     """
-    r, kappa = en.kink_radius(S)
-    a = (S[:, 0] - S[:, 1]) / np.sqrt(2.0)
-    return float(areas @ (r * a + kappa * a * a / 2))
+    return float(areas @ _forms(S).kink_offset(S, on)[1])
 
 
 def smoothing_gap(S, areas, mu):
-    """E(X) − E_μ(X) = Σ_t A_t (ψ − ψ_μ)(J_t) ≥ 0 for S-ARAP (at most μ Σ A_t; only near-kink triangles count).
+    """E(X) − E_μ(X) = Σ_t A_t (ψ − ψ_μ)(J_t) ≥ 0 for S-ARAP (at most μ Σ A_t; only near-kink elements count).
 
     Parameters
     ----------
-    S : (m,2) numpy array
-        Signed singular values, Σ ≥ |σ|.
+    S : (m,d) numpy array
+        Signed singular values, descending.
     areas : (m,) numpy array
     mu : float
 
@@ -103,7 +114,7 @@ def smoothing_gap(S, areas, mu):
     -------
     gap : float
     """
-    smooth, exact = en.psi_value("sarap", S[:, 0], S[:, 1], mu, both=True)
+    smooth, exact = _forms(S).psi_value("sarap", *S.T, mu=mu, both=True)
     ok = np.isfinite(exact)
     return float(areas[ok] @ (exact[ok] - smooth[ok]))
 
@@ -143,7 +154,7 @@ def smoothing_certificate(stage, decrement, X, E, mu, tol):
     decrement : callable
         ``decrement(X, mu) -> (E_mu, half_decrement, negative)``: E_μ(X), λ²/2 of its exact Hessian, and that
         Hessian's number of negative pivots (:func:`newton_decrement`).
-    X : (n,2) numpy array
+    X : (n,d) numpy array
     E : float
         E(X).
     mu : float
@@ -171,7 +182,7 @@ def newton_decrement(solver, X, mu, shift):
     ----------
     solver : defop.variational.solver.Solver
         Its ``_grad_hess``, ``_newton_direction``, ``free`` and ``_hess.inertia()``.
-    X : (n,2) numpy array
+    X : (n,d) numpy array
     mu : float
     shift : float
         Relative diagonal shift of the factorisation (the solver's ``INERTIA_SHIFT``).
@@ -199,7 +210,7 @@ def refine(stage, held, certificate, X, mu, target, mu_min):
         ``held(X) -> (X, converged, reason)``: the μ = 0 stage with the held set (and its releases).
     certificate : callable
         ``certificate(X) -> float``: the bound on (E(X) − min E) / E at a held point (:func:`fenchel_gap` summed).
-    X : (n,2) numpy array
+    X : (n,d) numpy array
         The converged point of the last smoothing stage.
     mu : float
         Its μ (0 when there was none: no continuation).

@@ -177,10 +177,11 @@ def newton(solver, log, X, tol):
 def kink_active_set(solver, log, X, tol):
     """Newton on Eq. (11) (μ = 0) with an active set of triangles held on its kink.
 
-    Triangles on the kink (:func:`defop.variational.planar.on_kink`) are held there; once Newton has converged, a
-    held triangle that the mesh pulls off harder than its cone bears (:func:`~defop.variational.verify.kink_pull`)
-    is released: the solve steps along the pull (a line search on the true energy) and Newton continues without
-    holding it. Returns (X, converged, reason) like :func:`newton_stage`.
+    Elements on the kink (the closed forms' ``on_kink``: :func:`defop.variational.planar.on_kink`, in 3D either of
+    :func:`defop.variational.volumetric.on_kink`'s two sets) are held there; once Newton has converged, a
+    held element that the mesh pulls off harder than its cone bears (:func:`~defop.variational.verify.kink_pull`)
+    is released (from both sets): the solve steps along the pull (a line search on the true energy) and Newton
+    continues without holding it. Returns (X, converged, reason) like :func:`newton_stage`.
     """
     hold = np.full(len(solver.mesh.F), solver._kink)
     released = 0

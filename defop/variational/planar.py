@@ -330,6 +330,72 @@ def on_kink(S, kink):
     return ok & (gap <= kink * S[:, 0]) & (kappa * gap / np.sqrt(2.0) < r)
 
 
+def kink_stiff_modes(on):
+    """Which of the 4 modes of :func:`eigensystem` are held stiff on the kink: the anti-conformal ones, 1 and 3.
+
+    Parameters
+    ----------
+    on : (m,) bool numpy array
+        :func:`on_kink`.
+
+    Returns
+    -------
+    stiff : (m,4) bool numpy array
+    """
+    on = np.asarray(on, dtype=bool)
+    z = np.zeros_like(on)
+    return np.stack([z, on, z, on], axis=-1)
+
+
+def kink_force(on, F):
+    """The size ‖F‖ of the force on the two held modes (:func:`kink_stiff_modes`): equilibrium ⇔ ‖F‖ ≤ A r.
+
+    Parameters
+    ----------
+    on : (m,) bool numpy array
+    F : (m,4) numpy array
+        Force on each mode of :func:`eigensystem`.
+
+    Returns
+    -------
+    norm : (m,) numpy array
+        0 where the triangle is not held.
+    """
+    return np.where(on, np.hypot(F[:, 1], F[:, 3]), 0.0)
+
+
+def kink_cone(S, on):
+    """Slope r and curvature κ of the cone of each held triangle (:func:`kink_radius`; ``on`` is for 3D's sake).
+
+    Returns
+    -------
+    r, kappa : (m,) numpy arrays
+    """
+    return kink_radius(S)
+
+
+def kink_offset(S, on):
+    """The offset of held triangles from the kink, a = ((Σ − σ)/√2 on mode 1), and its cone cost φ(a) = r a + κ a²/2.
+
+    Parameters
+    ----------
+    S : (m,2) numpy array
+        Σ ≥ σ > 0.
+    on : (m,) bool numpy array
+
+    Returns
+    -------
+    a : (m,4) numpy array
+        Coordinates on the modes of :func:`eigensystem` (held basis; zero on the soft modes).
+    phi : (m,) numpy array
+    """
+    r, kappa = kink_radius(S)
+    n = (S[:, 0] - S[:, 1]) / np.sqrt(2.0)
+    a = np.zeros((len(S), 4))
+    a[:, 1] = n
+    return a, r * n + kappa * n * n / 2
+
+
 def eigensystem(J, energy, project=True, mu=0.0, kink=0.0):
     """ψ, ∂ψ/∂J and the analytic eigensystem of the Hessian ∂²ψ/∂vec(J)² per triangle.
 

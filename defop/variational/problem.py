@@ -104,6 +104,41 @@ def check_handles(mesh, handles):
     return h
 
 
+def check_handle_span(mesh, handles):
+    """In 3D, refuse handles that all lie on one line: a rotation about it costs nothing (singular Hessian).
+
+    The rotations of R^d that fix every handle form a group of dimension (d − k)(d − k − 1)/2, with k the dimension
+    of the handles' affine hull (at rest). In 3D that is 1 for handles on one line (two handles, say) and 3 for one
+    point: problem (6) then has a circle (or sphere) of minima and its reduced Hessian a null space. In 2D the
+    group is the rotations about a single handle, whose problem keeps its old treatment: its minimum is the rest
+    pose moved rigidly (E = 0), which the solver starts from.
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    handles : (h,) int numpy array
+        Valid vertex indices (fixed and moving handles together).
+
+    Raises
+    ------
+    ValueError
+        d ≥ 3 and the handles' rest positions span less than a plane (to 1e-9 of the bounding-box diagonal).
+    """
+    d = mesh.V.shape[1]
+    if d < 3:
+        return
+    P = mesh.V[np.unique(handles)]
+    sv = np.linalg.svd(P - P.mean(axis=0), compute_uv=False)
+    k = int(np.count_nonzero(sv > 1e-9 * mesh.bbox_diagonal))
+    if k < d - 1:
+        where = "one point" if k == 0 else "one line"
+        raise ValueError(
+            f"handles must not all lie on one line in {d}D (a rotation about it is free and the Hessian singular): "
+            f"the {len(P)} distinct handle vertices lie on {where}; add a handle off it (at least three "
+            "non-collinear handles, or a small handle patch)"
+        )
+
+
 def check_targets(targets, handles, mesh=None, dim=2):
     """Validate targets: one finite row per handle, not absurdly far from the mesh.
 

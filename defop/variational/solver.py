@@ -27,7 +27,7 @@ import warnings
 import numpy as np
 
 from .newton import Log, continuation
-from .problem import ReducedProblem, check_max_iter, check_tol, count_flips
+from .problem import ReducedProblem, check_handle_span, check_handles, check_max_iter, check_tol, count_flips
 from .saddle import escape
 from .verify import KINK, verify_point
 
@@ -95,7 +95,8 @@ class Solver(ReducedProblem):
     handles : (h,) int numpy array or (n_vertices,) bool numpy array
         Constrained vertices (moving and fixed handles), in any order
         (:func:`defop.variational.problem.check_handles`). Targets are always given in this order. A vertex
-        listed twice must get the same target each time.
+        listed twice must get the same target each time. In 3D the handles must not all lie on one line
+        (:func:`defop.variational.problem.check_handle_span`: a rotation about it would be free).
     energy : str
         ``"arap"`` (Eq. 10), ``"sarap"`` (Eq. 11), ``"isometric"`` (symmetric Dirichlet), ``"isometric_max"``
         or ``"isometric_exp"`` (see :data:`defop.variational.energies.ENERGIES`).
@@ -145,6 +146,7 @@ class Solver(ReducedProblem):
     """
 
     def __init__(self, mesh, handles, energy="sarap", tol=1e-9, max_iter=300, smoothing=None):
+        check_handle_span(mesh, check_handles(mesh, handles))
         super().__init__(mesh, handles, energy)
         self.tol = check_tol(tol)
         self.max_iter = check_max_iter(max_iter)

@@ -17,7 +17,8 @@ import dataclasses
 
 import numpy as np
 
-from . import kink, planar
+from . import energies as en
+from . import kink
 from .problem import count_flips
 
 #: handles must sit on their targets to this fraction of the bounding-box diagonal (check 2)
@@ -119,16 +120,15 @@ def _certificate_stage(solver, X, tol, mu):
 
 
 def kink_gap(solver, X, target):
-    """Check 4's bound on (E(X) − min E) / E from the triangles held on Eq. (11)'s kink
+    """Check 4's bound on (E(X) − min E) / E from the elements held on S-ARAP's kink
     (:func:`kink_pull`, :func:`defop.variational.kink.fenchel_gap`).
 
     Offsets too small to matter (A φ(a) − P·a ≤ 2 A φ(a) while ‖P‖ ≤ A r, which the releases of
     :func:`defop.variational.newton.kink_active_set` ensure; :func:`verify_point` checks the pull itself) are screened
     without a Newton system: below ``target`` the screen is returned.
     """
-    S = planar.svd_frame(solver.mesh.jacobians(X))[0]
-    on = planar.on_kink(S, solver._kink)
-    screen = 2 * kink.offset_cost(S[on], solver.mesh.areas[on]) / solver.scale(solver.energy_of(X))
+    _, S, on, held = held_on_kink(solver, X, solver._kink)
+    screen = 2 * kink.offset_cost(S[held], on[held], solver.mesh.areas[held]) / solver.scale(solver.energy_of(X))
     if screen <= target:
         return screen
     E, g, data, local = solver.grad_hess(X, 0.0, project=False, kink=solver._kink)
@@ -137,49 +137,75 @@ def kink_gap(solver, X, target):
     return (gain + offset) / solver.scale(E)
 
 
-def kink_pull(solver, X, local, p, hold):
-    """S-ARAP triangles held on Eq. (11)'s kink (check 4) that the rest of the mesh pulls off it.
+def held_on_kink(solver, X, hold):
+    """Singular values, kink sets and held elements of S-ARAP at X (the closed forms' ``svd_frame``, ``on_kink``).
 
-    Check 4 holds a triangle on the kink (:func:`defop.variational.planar.on_kink`): its anti-conformal modes
-    are stiff, so in
+    Returns
+    -------
+    cf : module
+        :func:`defop.variational.energies.closed_forms` of the Jacobians.
+    S : (m,d) numpy array
+    on : (m,) or (m,2) bool numpy array
+        2D: on Eq. (11)'s kink Σ = σ; 3D: on σ₁ = σ₂ and on σ₂ = σ₃ (:func:`defop.variational.volumetric.on_kink`).
+    held : (m,) bool numpy array
+        On any kink set.
+    """
+    J = solver.mesh.jacobians(X)
+    cf = en.closed_forms(J)
+    S = cf.svd_frame(J)[0]
+    on = cf.on_kink(S, hold)
+    return cf, S, on, on.reshape(len(S), -1).any(axis=1)
+
+
+def kink_pull(solver, X, local, p, hold):
+    """S-ARAP elements held on a kink (check 4) that the rest of the mesh pulls off it.
+
+    Check 4 holds an element on a kink set (the closed forms' ``on_kink``): its anti-conformal modes there
+    (``kink_stiff_modes``; 2D: modes 1 and 3 of :func:`defop.variational.planar.eigensystem`) are stiff, so in
     the Newton system K p = −g their amplitudes times their stiffness are the force F_t the rest of the mesh
-    puts on them. There ψ is a cone (:func:`defop.variational.planar.kink_radius`): the triangle is in equilibrium
-    only if ‖F_t‖ ≤ A_t r_t. A triangle pulled harder moves off the kink, and the quadratic model with its
-    own branch curvature κ_t bounds the gain by (‖F_t‖ − A_t r_t)² / (2 A_t κ_t) when the rest is convex.
+    puts on them. There ψ is a cone (``kink_cone``, :func:`defop.variational.planar.kink_radius`): the element is in
+    equilibrium only if ‖F_t‖ ≤ A_t r_t (‖·‖: ``kink_force``; 2D the Euclidean norm, 3D at σ₁ = σ₂ = σ₃ a dual
+    norm, :func:`defop.variational.volumetric.kink_force`). An element pulled harder moves off the kink, and the
+    quadratic model with its own branch curvature κ_t bounds the gain by (‖F_t‖ − A_t r_t)² / (2 A_t κ_t) when the
+    rest is convex.
 
     Returns
     -------
     gain : float
-        Σ_t of that bound over the overloaded triangles (0 if none).
+        Σ_t of that bound over the overloaded elements (0 if none).
     worst : tuple
-        (triangle, ‖F_t‖ / (A_t r_t)) of the largest bound.
-    D : (n,2) numpy array or None
-        Descent direction: each overloaded triangle's anti-conformal modes moved along its force, by the
+        (element, ‖F_t‖ / (A_t r_t)) of the largest bound.
+    D : (n,d) numpy array or None
+        Descent direction: each overloaded element's held modes moved along its force, by the
         model's amplitude (‖F_t‖ − A_t r_t)/(A_t κ_t); zero at the handles.
     pulled : (k,) int numpy array
-        The overloaded triangles.
+        The overloaded elements.
     offset : float
-        Σ_t A_t φ_t(a_t) − P_t·a_t over the held triangles (at least 0): what their offsets cost
+        Σ_t A_t φ_t(a_t) − P_t·a_t over the held elements (at least 0): what their offsets cost
         (:func:`defop.variational.kink.fenchel_gap`); ``gain + offset`` bounds E(X) − min E.
     """
-    S = planar.svd_frame(solver.mesh.jacobians(X))[0]
-    on = np.flatnonzero(planar.on_kink(S, hold))
-    if not len(on):
-        return 0.0, None, None, on, 0.0
-    W, lamA = local[0][on][:, :, [1, 3]], local[1][on][:, [1, 3]]
-    dofs = solver.hessian.dofs[on]
-    amp = np.einsum("tdk,td->tk", W, solver.full(p).ravel()[dofs])  # stiff-mode amplitudes of the step
-    force = np.hypot(*(lamA * amp).T)
-    A = solver.mesh.areas[on]
-    r, kappa = planar.kink_radius(S[on])
-    offset, gains = kink.fenchel_gap(S[on], A, lamA * amp)
+    cf, S, on, held = held_on_kink(solver, X, hold)
+    idx = np.flatnonzero(held)
+    if not len(idx):
+        return 0.0, None, None, idx, 0.0
+    S, on = S[idx], on[idx]
+    stiff = cf.kink_stiff_modes(on)
+    W, lamA = local[0][idx], local[1][idx]
+    dofs = solver.hessian.dofs[idx]
+    amp = np.einsum("tdk,td->tk", W, solver.full(p).ravel()[dofs]) * stiff  # held-mode amplitudes of the step
+    pull = lamA * amp
+    force = cf.kink_force(on, pull)
+    A = solver.mesh.areas[idx]
+    r, kappa = cf.kink_cone(S, on)
+    offset, gains = kink.fenchel_gap(S, on, A, pull)
     offset = max(float(offset.sum()), 0.0)
     excess = np.maximum(force - A * r, 0.0)
     if not gains.any():
-        return 0.0, None, None, on[:0], offset
+        return 0.0, None, None, idx[:0], offset
     k = int(np.argmax(gains))
-    u = amp * (excess / (A * kappa) / np.maximum(np.hypot(*amp.T), 1e-300))[:, None]
-    D = np.bincount(dofs.ravel(), np.einsum("tdk,tk->td", W, u).ravel(), minlength=2 * solver.mesh.n_vertices)
-    D = D.reshape(-1, 2)
+    u = amp * (excess / (A * kappa) / np.maximum(cf.kink_force(on, amp), 1e-300))[:, None]
+    d = X.shape[1]
+    D = np.bincount(dofs.ravel(), np.einsum("tdk,tk->td", W, u).ravel(), minlength=d * solver.mesh.n_vertices)
+    D = D.reshape(-1, d)
     D[solver.handles] = 0.0
-    return float(gains.sum()), (int(on[k]), float(force[k] / (A[k] * r[k]))), D, on[gains > 0], offset
+    return float(gains.sum()), (int(idx[k]), float(force[k] / (A[k] * r[k]))), D, idx[gains > 0], offset

@@ -1,7 +1,8 @@
 """The energies of :mod:`defop.variational.energies` on tetrahedra: closed forms for 3×3 Jacobians J (m,3,3).
 
 Same names and signatures as the 2×2 functions (``signed_svd``, ``svd_frame``, ``psi_value``, ``psi_derivatives``,
-``density``, ``gradient``, ``eigensystem``, ``hessian``, ``kink_radius``, ``on_kink``, ``max_flip_free_step``), so
+``density``, ``gradient``, ``eigensystem``, ``hessian``, ``kink_radius``, ``on_kink``, ``kink_stiff_modes``,
+``kink_force``, ``kink_cone``, ``kink_offset``, ``max_flip_free_step``), so
 one small face can dispatch on ``J.shape[-1]``. Each energy is E(X) = Σ_t vol_t ψ(J_t), an isotropic ψ of the
 *signed* singular values σ₁ ≥ σ₂ ≥ |σ₃| (σ₃ < 0 exactly when det J < 0; Irving et al. 2004, Smith et al. 2019):
 
@@ -352,6 +353,63 @@ def kink_force(on, F):
         ev = np.linalg.eigvalsh(G)
         norm[both] = np.maximum(ev, 0.0).sum(axis=1) / _R2
     return norm
+
+
+def kink_cone(S, on):
+    """Slope r and curvature κ of the cone of each held tetrahedron, for :func:`kink_force`'s test ‖F‖ ≤ vol · r.
+
+    Held on one set: that set's (r, κ) of :func:`kink_radius`. Held on both (σ₁ = σ₂ = σ₃): the mean r of the two
+    sets (equal at the triple point) and the smaller κ (the larger gain bound (‖F‖ − vol r)² / (2 vol κ)).
+
+    Parameters
+    ----------
+    S : (m,3) numpy array
+    on : (m,2) bool numpy array
+        :func:`on_kink`.
+
+    Returns
+    -------
+    r, kappa : (m,) numpy arrays
+    """
+    r, kappa = kink_radius(S)
+    a, b = np.asarray(on[:, 0], dtype=bool), np.asarray(on[:, 1], dtype=bool)
+    pick = np.where(a & ~b, 0, 1)[:, None]
+    r1, k1 = np.take_along_axis(r, pick, 1)[:, 0], np.take_along_axis(kappa, pick, 1)[:, 0]
+    return np.where(a & b, r.mean(axis=1), r1), np.where(a & b, kappa.min(axis=1), k1)
+
+
+def kink_offset(S, on):
+    """The offset a of held tetrahedra from their kink set on the stiff modes, and its cone cost φ(a).
+
+    Held on σᵢ = σⱼ: a = (σᵢ − σⱼ)/√2 on scaling mode 2 (U(Eᵢᵢ − Eⱼⱼ)Vᵀ/√2), φ = r a + κ a²/2 (:func:`kink_cone`).
+    Held on both: a = ((σ₁ − σ₂)/√2, (σ₁ + σ₂ − 2σ₃)/√6) on scaling modes 1 and 2 (the held basis of
+    :func:`eigensystem`), φ = √2 r (σ₁ − σ₃) + κ‖a‖²/2 with the larger κ of the two sets: the cone
+    √2 r (λ_max − λ_min) of :func:`kink_force`'s dual norm, its curvature bounded from above.
+
+    Parameters
+    ----------
+    S : (m,3) numpy array
+        σ₁ ≥ σ₂ ≥ σ₃ > 0.
+    on : (m,2) bool numpy array
+
+    Returns
+    -------
+    a : (m,9) numpy array
+        Coordinates on the modes of :func:`eigensystem` (zero on the soft modes).
+    phi : (m,) numpy array
+    """
+    S = np.asarray(S, dtype=float)
+    on = np.asarray(on, dtype=bool)
+    both = on[:, 0] & on[:, 1]
+    r, kappa = kink_cone(S, on)
+    one = np.where(on[:, 0], S[:, 0] - S[:, 1], S[:, 1] - S[:, 2]) / _R2
+    a = np.zeros((len(S), 9))
+    a[:, 1] = np.where(both, (S[:, 0] - S[:, 1]) / _R2, 0.0)
+    a[:, 2] = np.where(both, (S[:, 0] + S[:, 1] - 2 * S[:, 2]) / np.sqrt(6.0), one)
+    k_hi = kink_radius(S)[1].max(axis=1)
+    n2 = a[:, 1] ** 2 + a[:, 2] ** 2
+    phi = np.where(both, _R2 * r * (S[:, 0] - S[:, 2]) + k_hi * n2 / 2, r * one + kappa * one * one / 2)
+    return a, np.where(on.any(axis=1), phi, 0.0)
 
 
 def _hold(on, d1, d2, flip):
