@@ -70,9 +70,10 @@ def server(book):
         httpd.server_close()
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def browser():
-    """Headless Debian Chromium through Playwright (skips when either is missing)."""
+    """Headless Debian Chromium through Playwright (skips when either is missing); module-scoped: a sync Playwright
+    left running would make every later ``sync_playwright()`` of the session fail ("inside the asyncio loop")."""
     sync_api = pytest.importorskip("playwright.sync_api", reason="the Python package playwright is not installed")
     from test_browser import CHROMIUM, CHROMIUM_ARGS
 

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import defop as dop
+from defop import options
 from defop.analysis import trajectories as tr
 from defop.training import cache as cm
 
@@ -115,7 +116,7 @@ def test_a_cache_that_becomes_unwritable_warns_and_keeps_the_result(bar, folder,
     def no_space(*a, **k):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(cm.os, "replace", no_space)
+    monkeypatch.setattr(options.os, "replace", no_space)  # the one atomic write (options.write_atomic)
     with pytest.warns(cm.CacheWarning, match=r"could not write the cache entry .*No space left") as rec:
         op, r = dop.train(bar, **TRAIN)
     assert r.cache == "none" and np.abs(op(r.samples) - r.X).max() < 1e-8

@@ -40,7 +40,7 @@ ELEMENT = {2: "triangle", 3: "tetrahedron"}
 _ELEMENTS = {2: "triangles", 3: "tetrahedra"}
 
 #: facet j of an element is the one opposite its vertex j, ordered so that it faces outward:
-#: for a positive element, the simplex (p, *facet) is positive exactly when p is on the element's side
+#: for a positive element, the simplex ``(p, *facet)`` is positive exactly when p is on the element's side
 FACETS = {
     2: np.array([[1, 2], [2, 0], [0, 1]]),
     3: np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]),

@@ -285,6 +285,10 @@ class Cache:
             None when the entry could not be written.
         """
         path = self.path(kind, key)
+        if path.is_dir():  # not ours to replace (see load)
+            warnings.warn(f"could not write the cache entry {path} (a directory is in its place); the result is not "
+                          "cached", CacheWarning, 2)
+            return None
         try:
             opt.write_atomic(path, write)
         except OSError as exc:
