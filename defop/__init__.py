@@ -13,8 +13,9 @@ checks it): ``geometry`` < ``scene`` < {``variational``, ``operator``} < ``train
 library; ``view`` and ``editor`` are imported on first attribute access.
 """
 
-from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
+
+from .lazy import attach
 
 try:
     __version__ = version("defop")
@@ -34,30 +35,16 @@ _SUBPACKAGES = (
     "editor",
     "figures",
 )
-#: the public face: name -> (subpackage, attribute)
+#: the public face: name -> the subpackage it comes from
 _FACE = {
-    "Mesh": ("geometry", "Mesh"),
-    "Shape": ("scene", "Shape"),
-    "shapes": ("scene", "shapes"),
-    "solve": ("variational", "solve"),
-    "DefOp": ("operator", "DefOp"),
-    "train": ("training", "train"),
+    "Mesh": "geometry",
+    "Shape": "scene",
+    "shapes": "scene",
+    "solve": "variational",
+    "DefOp": "operator",
+    "train": "training",
 }
 
 __all__ = sorted(_FACE) + ["__version__"]
 
-
-def __getattr__(name):
-    if name in _SUBPACKAGES:
-        value = import_module(f".{name}", __name__)
-    elif name in _FACE:
-        package, attribute = _FACE[name]
-        value = getattr(import_module(f".{package}", __name__), attribute)
-    else:
-        raise AttributeError(f"module 'defop' has no attribute {name!r}")
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(list(globals()) + list(_SUBPACKAGES) + list(_FACE))
+__getattr__, __dir__ = attach(__name__, _SUBPACKAGES, _FACE)

@@ -2,7 +2,7 @@
 the peers (MLS, TPS warps, BBW + LBS, biharmonic coordinates, ARAP iterations) and figure data.
 """
 
-from importlib import import_module
+from ..lazy import attach
 
 _MODULES = ("compare", "distortion", "figure_data", "metrics", "peers", "trajectories")
 _NAMES = {
@@ -13,18 +13,4 @@ _NAMES = {
     "deformation_summary": "distortion",
 }
 
-
-def __getattr__(name):  # modules drawn in on first use: peers needs libigl's bindings, which most analyses do not
-    if name in _MODULES:
-        module = import_module(f".{name}", __name__)
-        globals()[name] = module
-        return module
-    if name in _NAMES:
-        value = getattr(import_module(f".{_NAMES[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(list(globals()) + list(_MODULES) + list(_NAMES))
+__getattr__, __dir__ = attach(__name__, _MODULES, _NAMES)

@@ -3,23 +3,9 @@
 Nothing below this layer imports a plotting library.
 """
 
-from importlib import import_module
+from ..lazy import attach
 
 _MODULES = ("labels", "plot", "plot_peers", "render", "warp")
 _NAMES = {}
 
-
-def __getattr__(name):  # modules drawn in on first use: matplotlib and PyVista only when a picture is drawn
-    if name in _MODULES:
-        module = import_module(f".{name}", __name__)
-        globals()[name] = module
-        return module
-    if name in _NAMES:
-        value = getattr(import_module(f".{_NAMES[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(list(globals()) + list(_MODULES) + list(_NAMES))
+__getattr__, __dir__ = attach(__name__, _MODULES, _NAMES)
