@@ -53,6 +53,14 @@ def _imports(path, module):
                 yield a.name, [], node.lineno
 
 
+def _run_without_display(code, **env):
+    """stdout of ``python -c code`` in a fresh interpreter without DISPLAY, with ``env`` added; fails on an error."""
+    env = {**{k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}, **env}
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return r.stdout
+
+
 def test_every_listed_subpackage_exists_and_imports():
     for name in dop._SUBPACKAGES:
         assert (PACKAGE / name / "__init__.py").exists() or (PACKAGE / f"{name}.py").exists(), name
@@ -114,11 +122,7 @@ def test_the_core_loads_no_plotting_or_widget_library():
         "loaded = [m for m in ('matplotlib', 'pyvista', 'vtk', 'ipywidgets', 'anywidget') if m in sys.modules]\n"
         "print(loaded)\n"
     )
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    env["DEFOP_CACHE"] = "off"
-    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    assert r.stdout.strip().splitlines()[-1] == "[]"
+    assert _run_without_display(code, DEFOP_CACHE="off").strip().splitlines()[-1] == "[]"
 
 
 def test_every_name_in_every_subpackage_imports_without_a_display():
@@ -132,8 +136,4 @@ def test_every_name_in_every_subpackage_imports_without_a_display():
         "        getattr(mod, n); count += 1\n"
         "print(count)\n"
     )
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    env["MPLBACKEND"] = "Agg"
-    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    assert int(r.stdout.split()[-1]) > 50
+    assert int(_run_without_display(code, MPLBACKEND="Agg").split()[-1]) > 50
