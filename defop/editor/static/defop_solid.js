@@ -62,7 +62,7 @@ function bounds(V) {
 
 /** The three.js scene: shaded surface, handle spheres, a head light; camera and orbit controls. */
 function makeScene(THREE, OrbitControls, canvas, p, width, height) {
-  const renderer = new THREE.WebGLRenderer({ canvas, antialias: true });
+  const renderer = new THREE.WebGLRenderer({ canvas, antialias: false });
   renderer.setPixelRatio((typeof window !== "undefined" && window.devicePixelRatio) || 1);
   renderer.setSize(width, height);
   const scene = new THREE.Scene();
