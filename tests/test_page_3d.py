@@ -169,35 +169,43 @@ def _ray_plane(cam, u, v, point, normal):
     return origin + t * direction
 
 
+def _drag(page, box, e, i, du, dv, steps=5):
+    """Drag moving handle i by (du, dv) CSS pixels, ending on whole pixels; returns what the test checks."""
+    u, v = page.evaluate(f"() => {e}.handleScreen({i})")
+    before = page.evaluate(f"() => ({{Q: Array.from({e}.st.Q), cam: {e}.cameraState()}})")
+    page.mouse.move(box["x"] + u, box["y"] + v)
+    page.mouse.down()
+    u1, v1 = round(u + du), round(v + dv)  # whole pixels: the pointer event's position, exactly
+    for t in np.linspace(1.0 / steps, 1.0, steps):
+        page.mouse.move(box["x"] + u + (u1 - u) * t, box["y"] + v + (v1 - v) * t)
+        page.wait_for_timeout(30)
+    held = page.evaluate(f"() => ({{active: {e}.st.active, orbit: {e}.controls.enabled, plane: {e}.dragPlane}})")
+    page.mouse.up()
+    after = page.evaluate(f"() => ({{Q: Array.from({e}.st.Q), X: Array.from({e}.st.X), cam: {e}.cameraState(),"
+                          f" orbit: {e}.controls.enabled}})")
+    return {"u1": u1, "v1": v1, "before": before, "held": held, "after": after}
+
+
 @pytest.mark.browser
 def test_page_3d_drag_in_chromium(ops3, bar3, tmp_path):
     op = ops3["tps"]
+    diag = op.mesh.bbox_diagonal
+    moving = op.handles[op.moving]
     path = export.to_html(op, tmp_path / "bar3.html", shape=bar3)
+    rng = np.random.default_rng(5)  # which handle, and where to: varied, reproducibly
+    drags = [(int(rng.integers(op.n_moving)), *(rng.choice([-1, 1], 2) * rng.uniform(25, 60, 2))) for _ in range(3)]
     with chromium_page() as page:
         page.goto(path.as_uri())
         page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
         e = "window.defopEditor"
         X0 = np.array(page.evaluate(f"() => Array.from({e}.st.X)")).reshape(-1, 3)
-        cam0 = page.evaluate(f"() => {e}.cameraState()")
         box = page.locator("canvas.defop-canvas").bounding_box()
-        i = 1
-        u, v = page.evaluate(f"() => {e}.handleScreen({i})")
-        start = np.array(page.evaluate(f"() => Array.from({e}.st.Q.slice({3 * i}, {3 * i + 3}))"))
-        page.mouse.move(box["x"] + u, box["y"] + v)
-        page.mouse.down()
-        u1, v1 = round(u + 45), round(v - 30)  # whole pixels: the pointer event's position, exactly
-        for t in np.linspace(0.2, 1.0, 5):
-            page.mouse.move(box["x"] + u + (u1 - u) * t, box["y"] + v + (v1 - v) * t)
-            page.wait_for_timeout(30)
-        held = page.evaluate(f"() => ({{active: {e}.st.active, orbit: {e}.controls.enabled,"
-                             f" plane: {e}.dragPlane}})")
-        page.mouse.up()
-        res = page.evaluate(f"() => ({{Q: Array.from({e}.st.Q), X: Array.from({e}.st.X), cam: {e}.cameraState(),"
-                            " orbit: window.defopEditor.controls.enabled})")
+        results = [_drag(page, box, e, i, du, dv) for i, du, dv in drags]
         page.screenshot(path="/tmp/defop_page_3d_drag.png")
         page.locator("button.defop-reset").click()
         rest = page.evaluate(f"() => ({{Q: Array.from({e}.st.Q), X: Array.from({e}.st.X)}})")
         # a drag on empty canvas orbits the camera
+        cam0 = page.evaluate(f"() => {e}.cameraState()")
         page.mouse.move(box["x"] + 20, box["y"] + 20)
         page.mouse.down()
         page.mouse.move(box["x"] + 120, box["y"] + 60, steps=5)
@@ -206,25 +214,26 @@ def test_page_3d_drag_in_chromium(ops3, bar3, tmp_path):
         errors, requests = page.errors, page.requests
     assert not errors, errors
     assert all(url.startswith(("file:", "data:", "about:")) for url in requests), requests  # offline
-    assert held["active"] == i and held["orbit"] is False, held  # orbit disabled while the handle is held
-    assert res["orbit"] is True
-    assert res["cam"]["matrixWorld"] == cam0["matrixWorld"], "the camera moved during a handle drag"
-    # the view plane: through the handle's position at pointerdown, normal to the viewing direction (−z of camera)
-    M = np.array(cam0["matrixWorld"]).reshape(4, 4).T
-    normal = -M[:3, 2] / np.linalg.norm(M[:3, 2])
-    np.testing.assert_allclose(held["plane"]["normal"], normal, atol=1e-12)
-    target = _ray_plane(cam0, u1, v1, start, normal)
-    Q = np.array(res["Q"]).reshape(-1, 3)
-    X = np.array(res["X"]).reshape(-1, 3)
-    diag = op.mesh.bbox_diagonal
-    np.testing.assert_allclose(Q[i], target, atol=1e-9 * diag)  # the handle is the cursor's target in 3D
-    assert abs(normal @ (Q[i] - start)) <= 1e-9 * diag  # moved within the view plane
-    assert np.linalg.norm(Q[i] - start) > 0.05 * diag
-    np.testing.assert_array_equal(np.delete(Q, i, axis=0), np.delete(op.P, i, axis=0))  # the others stay
-    moving = op.handles[op.moving]
-    assert np.all(np.abs(X[moving] - Q) <= 1e-12 * diag), "the dragged vertex is not exactly on its target"
-    with _quiet():
-        assert np.all(np.abs(X - op(Q)) <= _float32_bound(op, Q)), "the page's mesh is not op(Q)"
+    for (i, _, _), r in zip(drags, results, strict=True):
+        held, before, after = r["held"], r["before"], r["after"]
+        assert held["active"] == i and held["orbit"] is False, held  # orbit disabled while the handle is held
+        assert after["orbit"] is True
+        assert after["cam"]["matrixWorld"] == before["cam"]["matrixWorld"], "the camera moved during a handle drag"
+        # the view plane: through the handle's position at pointerdown, normal to the viewing direction
+        M = np.array(before["cam"]["matrixWorld"]).reshape(4, 4).T
+        normal = -M[:3, 2] / np.linalg.norm(M[:3, 2])
+        np.testing.assert_allclose(held["plane"]["normal"], normal, atol=1e-12)
+        start = np.array(before["Q"]).reshape(-1, 3)
+        target = _ray_plane(before["cam"], r["u1"], r["v1"], start[i], normal)
+        Q = np.array(after["Q"]).reshape(-1, 3)
+        X = np.array(after["X"]).reshape(-1, 3)
+        np.testing.assert_allclose(Q[i], target, atol=1e-9 * diag)  # the handle is the cursor's target in 3D
+        assert abs(normal @ (Q[i] - start[i])) <= 1e-9 * diag  # moved within the view plane
+        assert np.linalg.norm(Q[i] - start[i]) > 0.02 * diag
+        np.testing.assert_array_equal(np.delete(Q, i, axis=0), np.delete(start, i, axis=0))  # the others stay
+        assert np.all(np.abs(X[moving] - Q) <= 1e-12 * diag), "the dragged vertices are not exactly on target"
+        with _quiet():
+            assert np.all(np.abs(X - op(Q)) <= _float32_bound(op, Q)), "the page's mesh is not op(Q)"
     assert np.max(np.linalg.norm(X - X0, axis=1)) > 0.05 * diag, "the mesh did not move"
     np.testing.assert_array_equal(np.array(rest["Q"]).reshape(-1, 3), op.P)
     np.testing.assert_array_equal(np.array(rest["X"]).reshape(-1, 3), op.mesh.V)  # reset: the rest pose, exact

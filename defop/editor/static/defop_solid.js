@@ -84,12 +84,15 @@ function makeScene(THREE, OrbitControls, canvas, p, width, height) {
   const mesh = new THREE.Mesh(geometry, material);
   mesh.frustumCulled = false; // the bounding sphere is the rest pose's; the deformed mesh may leave it
   scene.add(mesh);
-  const ball = new THREE.SphereGeometry(0.018 * diag, 20, 14);
-  const colours = { moving: new THREE.MeshStandardMaterial({ color: 0xd62728, roughness: 0.5 }),
-    fixed: new THREE.MeshStandardMaterial({ color: 0x1f77b4, roughness: 0.5 }),
-    outside: new THREE.MeshStandardMaterial({ color: 0x4a0000, emissive: 0x660000, roughness: 0.5 }) };
+  const ball = new THREE.SphereGeometry(0.02 * diag, 20, 14);
+  // handles are drawn over the surface (no depth test): a handle behind a limb stays visible and draggable
+  const handleMaterial = (color, emissive = 0x000000) =>
+    new THREE.MeshStandardMaterial({ color, emissive, roughness: 0.5, depthTest: false });
+  const colours = { moving: handleMaterial(0xd62728), fixed: handleMaterial(0x1f77b4),
+    outside: handleMaterial(0x4a0000, 0x660000) };
   const spheres = Array.from(p.handles, (_, h) => {
     const s = new THREE.Mesh(ball, p.moving[h] ? colours.moving : colours.fixed);
+    s.renderOrder = 1;
     scene.add(s);
     return s;
   });
