@@ -23,7 +23,8 @@ THREE_FILES = {
     "OrbitControls.js": "80efaadea4f8a636a65fb0bd08bfef62f3d93a0bb94e2e7500f23176c5c07f4e",
 }
 
-_PAGE = """<!DOCTYPE html>
+# the head of both pages: a strict Content-Security-Policy (inline script and style only: nothing is fetched)
+_HEAD = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>
 <meta http-equiv="Content-Security-Policy"
  content="default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'">
@@ -38,6 +39,8 @@ h1 {{ font-size: 18px; margin: 0 0 2px; }}
 </style>
 </head><body>
 <h1>{title}</h1>
+"""
+_PAGE = _HEAD + """\
 <p class="defop-instruction">Drag a red handle with the mouse: the shape follows, computed in this page.</p>
 <div id="defop-app"></div>
 <div class="defop-legend" aria-label="legend">
@@ -61,21 +64,7 @@ window.defopEditor = mountStandalone(document.getElementById("defop-app"), {meta
 """
 
 
-_PAGE_3D = """<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>{title}</title>
-<meta http-equiv="Content-Security-Policy"
- content="default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'">
-<style>
-body {{ margin: 12px; font: 13px system-ui, sans-serif; color: #222; }}
-h1 {{ font-size: 18px; margin: 0 0 2px; }}
-.defop-instruction {{ margin: 0 0 8px; }}
-.defop-legend {{ display: flex; flex-wrap: wrap; gap: 4px 16px; margin: 8px 0; font-size: 12px; color: #333; }}
-.defop-legend span {{ display: inline-flex; align-items: center; gap: 5px; }}
-.defop-swatch {{ display: inline-block; width: 12px; height: 12px; box-sizing: border-box; }}
-.defop-note {{ font-size: 12px; color: #555; }}
-</style>
-</head><body>
-<h1>{title}</h1>
+_PAGE_3D = _HEAD + """\
 <p class="defop-instruction">Drag a red handle in the view plane; drag elsewhere to orbit, scroll to zoom.</p>
 <div id="defop-app"></div>
 <div class="defop-legend" aria-label="legend">
@@ -215,7 +204,7 @@ def solid_script():
         raise RuntimeError("OrbitControls.js: no import from 'three'")
     imports = "const {" + ", ".join(n.strip() for n in names.group(1).split(",")) + "} = THREE;"
     solid = SOLID_JS_PATH.read_text(encoding="utf-8")
-    solid, n = re.subn(r'^import \{[^}]*\} from "\./defop_editor\.js";\n', "", solid, count=1, flags=re.M)
+    solid, n = re.subn(r'^import \{[^}]*\}\s*from "\./defop_editor\.js";\n', "", solid, count=1, flags=re.M)
     if n != 1:
         raise RuntimeError(f"{SOLID_JS_PATH.name}: no import line from ./defop_editor.js")
     parts = [

@@ -144,19 +144,24 @@ const STYLE = `
 .defop-editor label { display: flex; gap: 6px; align-items: center; }
 `;
 
-function el(tag, attrs = {}, text = "") {
+/** A DOM element with attributes and text (shared with defop_solid.js). */
+export function el(tag, attrs = {}, text = "") {
   const e = document.createElement(tag);
   for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
   if (text) e.textContent = text;
   return e;
 }
 
+/** Add a <style> with `css` to the document once (by `id`). */
+export function addStyle(id, css) {
+  if (document.getElementById(id)) return;
+  const s = el("style", { id });
+  s.textContent = css;
+  document.head.appendChild(s);
+}
+
 function buildLayout(root, opts) {
-  if (!document.getElementById("defop-editor-style")) {
-    const s = el("style", { id: "defop-editor-style" });
-    s.textContent = STYLE;
-    document.head.appendChild(s);
-  }
+  addStyle("defop-editor-style", STYLE);
   const box = el("div", { class: "defop-editor" });
   const stack = el("div", { class: "defop-stack" });
   const glCanvas = el("canvas", { class: "defop-gl" });
@@ -453,25 +458,31 @@ function rate(f) {
 }
 
 /**
- * The readout: the rate of frames the browser rendered while dragging (every requestAnimationFrame callback, not
- * the pointer events), how many of them showed a new deformation, per-frame evaluation and drawing times, Q, and
- * the extrapolation warning.
+ * The readout's timing lines (shared with defop_solid.js): the rate of frames the browser rendered while dragging
+ * (every requestAnimationFrame callback, not the pointer events), how many of them showed a new deformation,
+ * per-frame evaluation and drawing times.
  */
-function readout(ui, st) {
-  const fps = rate(st.frames);
+export function timingText(st) {
   const median = (a) => [...a].sort((x, y) => x - y)[Math.floor(a.length / 2)];
   const fmt = (v, digits) => (v === undefined || v === null ? "–" : v.toFixed(digits));
-  const q = Array.from({ length: st.p.n_moving }, (_, i) => `q${i} = (${st.Q[2 * i].toFixed(3)}, ${st.Q[2 * i + 1].toFixed(3)})`);
-  ui.readout.textContent =
-    `${fmt(fps, 0)} fps (frames the browser rendered while dragging)\n` +
+  return `${fmt(rate(st.frames), 0)} fps (frames the browser rendered while dragging)\n` +
     `${fmt(rate(st.updates), 0)} new deformations per second (one per pointer move)\n` +
-    `evaluation ${fmt(median(st.evalMs), 2)} ms/frame in the page, drawing ${fmt(median(st.drawMs), 1)} ms\n` +
+    `evaluation ${fmt(median(st.evalMs), 2)} ms/frame in the page, drawing ${fmt(median(st.drawMs), 1)} ms\n`;
+}
+
+/** The extrapolation warning (shared with defop_solid.js). */
+export function warnText(st) {
+  return st.outside.length ? `handle ${st.outside.join(", ")} outside its sampling region: the operator extrapolates` : "";
+}
+
+/** The readout: timings ({@link timingText}), sizes, the picture, Q, and the extrapolation warning. */
+function readout(ui, st) {
+  const q = Array.from({ length: st.p.n_moving }, (_, i) => `q${i} = (${st.Q[2 * i].toFixed(3)}, ${st.Q[2 * i + 1].toFixed(3)})`);
+  ui.readout.textContent = timingText(st) +
     `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices)\n` +
     (st.picture ? `picture ${st.picture.size[0]} × ${st.picture.size[1]} px: ${st.textured ? "textured (WebGL)" :
       st.picture.failed || "not drawn (needs WebGL)"}\n` : "") + q.join("\n");
-  ui.warn.textContent = st.outside.length
-    ? `handle ${st.outside.join(", ")} outside its sampling region: the operator extrapolates`
-    : "";
+  ui.warn.textContent = warnText(st);
 }
 
 /** Reset, basis and shape menus, ground-truth toggle: local redraw plus the kernel hooks, when connected. */
@@ -595,26 +606,11 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
  */
 function wirePointer(editor, canvas) {
   const st = editor.st;
-  let pending = null, scheduled = false;
-  const keep = (list, t) => { list.push(t); if (list.length > 120) list.shift(); };
   const position = (ev) => {
     const r = canvas.getBoundingClientRect();
     return st.view.toData(ev.clientX - r.left, ev.clientY - r.top);
   };
-  const frame = (t) => {
-    scheduled = false;
-    if (st.active === null) return;
-    keep(st.frames, t);
-    scheduled = true;
-    requestAnimationFrame(frame); // the next frame, as long as the handle is held
-    if (pending === null) { editor.readout(); return; }
-    st.Q[2 * st.active] = pending[0];
-    st.Q[2 * st.active + 1] = pending[1];
-    pending = null;
-    keep(st.updates, t);
-    editor.evaluate();
-    if (editor.onFrame) editor.onFrame(t); // benchmarks log the rAF timestamp of every frame that evaluated
-  };
+  const loop = dragLoop(editor, (q) => { st.Q[2 * st.active] = q[0]; st.Q[2 * st.active + 1] = q[1]; });
   canvas.addEventListener("pointerdown", (ev) => {
     const [x, y] = position(ev);
     let best = null, bestD = (st.p.pick_radius || 0.05) * st.view.diag;
@@ -625,15 +621,12 @@ function wirePointer(editor, canvas) {
     st.active = best;
     if (best !== null) {
       canvas.setPointerCapture(ev.pointerId);
-      st.frames = [];
-      st.updates = [];
-      if (!scheduled) { scheduled = true; requestAnimationFrame(frame); }
+      loop.start();
     }
   });
   canvas.addEventListener("pointermove", (ev) => {
     if (st.active === null) return;
-    pending = position(ev);
-    if (!scheduled) { scheduled = true; requestAnimationFrame(frame); }
+    loop.move(position(ev));
   });
   const release = (ev) => {
     if (st.active === null) return;
@@ -641,12 +634,43 @@ function wirePointer(editor, canvas) {
     st.Q[2 * st.active] = x;
     st.Q[2 * st.active + 1] = y;
     st.active = null;
-    pending = null;
+    loop.stop();
     editor.evaluate();
     if (editor.hooks.onRelease) editor.hooks.onRelease(Array.from(st.Q));
   };
   canvas.addEventListener("pointerup", release);
   canvas.addEventListener("pointercancel", release);
+}
+
+/**
+ * The drag's animation-frame loop (shared with defop_solid.js). While a handle is held (st.active), every
+ * animation frame is counted (st.frames: the rate the browser renders at); a frame with a new pointer position
+ * applies it (`apply(q)` writes st.Q), evaluates, and is counted in st.updates too. start() on pointerdown,
+ * move(q) on pointermove, stop() on release.
+ */
+export function dragLoop(editor, apply) {
+  const st = editor.st;
+  let pending = null, scheduled = false;
+  const keep = (list, t) => { list.push(t); if (list.length > 120) list.shift(); };
+  const frame = (t) => {
+    scheduled = false;
+    if (st.active === null) return;
+    keep(st.frames, t);
+    scheduled = true;
+    requestAnimationFrame(frame); // the next frame, as long as the handle is held
+    if (pending === null) { editor.readout(); return; }
+    apply(pending);
+    pending = null;
+    keep(st.updates, t);
+    editor.evaluate();
+    if (editor.onFrame) editor.onFrame(t); // benchmarks log the rAF timestamp of every frame that evaluated
+  };
+  const schedule = () => { if (!scheduled) { scheduled = true; requestAnimationFrame(frame); } };
+  return {
+    start() { st.frames = []; st.updates = []; schedule(); },
+    move(q) { pending = q; schedule(); },
+    stop() { pending = null; },
+  };
 }
 
 /** The standalone page (defop.editor.export.to_html): no kernel, one operator; its readout folds away. */

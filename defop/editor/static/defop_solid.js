@@ -12,7 +12,8 @@
 // that plane at the new handle position q, the operator is evaluated at Q, and the mesh and spheres follow.
 // The orbit camera is disabled while a handle is held. Reset returns Q to P (the rest pose, exact: (8b)).
 
-import { decodePayload, fromBase64, makeOperator, outsideRegions } from "./defop_editor.js";
+import { addStyle, decodePayload, dragLoop, el, fromBase64, makeOperator, outsideRegions, timingText, warnText }
+  from "./defop_editor.js";
 
 const PICK_PX = 14; // a handle is picked within this many CSS pixels of its centre
 const SOLID_STYLE = `
@@ -24,27 +25,16 @@ const SOLID_STYLE = `
 .defop-solid details summary { cursor: pointer; color: #555; }
 `;
 
-function tag(name, attrs = {}, text = "") {
-  const e = document.createElement(name);
-  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
-  if (text) e.textContent = text;
-  return e;
-}
-
 function solidLayout(root) {
-  if (!document.getElementById("defop-solid-style")) {
-    const s = tag("style", { id: "defop-solid-style" });
-    s.textContent = SOLID_STYLE;
-    document.head.appendChild(s);
-  }
-  const box = tag("div", { class: "defop-solid" });
-  const canvas = tag("canvas", { class: "defop-canvas" });
-  const side = tag("div", { class: "defop-side" });
-  const reset = tag("button", { class: "defop-reset" }, "Reset");
-  const warn = tag("div", { class: "defop-warn" });
-  const readout = tag("div", { class: "defop-readout" });
-  const details = tag("details", { class: "defop-details" });
-  details.append(tag("summary", {}, "details: frame rate, timings, handle positions"), readout);
+  addStyle("defop-solid-style", SOLID_STYLE);
+  const box = el("div", { class: "defop-solid" });
+  const canvas = el("canvas", { class: "defop-canvas" });
+  const side = el("div", { class: "defop-side" });
+  const reset = el("button", { class: "defop-reset" }, "Reset");
+  const warn = el("div", { class: "defop-warn" });
+  const readout = el("div", { class: "defop-readout" });
+  const details = el("details", { class: "defop-details" });
+  details.append(el("summary", {}, "details: frame rate, timings, handle positions"), readout);
   side.append(reset, warn, details);
   box.append(canvas, side);
   root.appendChild(box);
@@ -142,8 +132,9 @@ export function createSolidView(root, p, THREE, OrbitControls, options = {}) {
     st.evalMs.push(t1 - t0);
     st.drawMs.push(performance.now() - t1);
     if (st.evalMs.length > 120) { st.evalMs.shift(); st.drawMs.shift(); }
-    solidReadout(ui, st);
+    editor.readout();
   };
+  editor.readout = () => solidReadout(ui, st);
   editor.reset = () => {
     st.Q = Float64Array.from(p.P);
     st.frames = [];
@@ -167,35 +158,25 @@ export function createSolidView(root, p, THREE, OrbitControls, options = {}) {
 }
 
 function solidReadout(ui, st) {
-  const rate = (f) => (f.length > 2 ? (1000 * (f.length - 1)) / (f[f.length - 1] - f[0]) : null);
-  const median = (a) => [...a].sort((x, y) => x - y)[Math.floor(a.length / 2)];
-  const fmt = (v, digits) => (v === undefined || v === null ? "–" : v.toFixed(digits));
   const Q = st.Q;
   const q = Array.from({ length: st.p.n_moving },
     (_, i) => `q${i} = (${Q[3 * i].toFixed(3)}, ${Q[3 * i + 1].toFixed(3)}, ${Q[3 * i + 2].toFixed(3)})`);
-  ui.readout.textContent =
-    `${fmt(rate(st.frames), 0)} fps (frames the browser rendered while dragging)\n` +
-    `${fmt(rate(st.updates), 0)} new deformations per second (one per pointer move)\n` +
-    `evaluation ${fmt(median(st.evalMs), 2)} ms/frame in the page, drawing ${fmt(median(st.drawMs), 1)} ms\n` +
+  ui.readout.textContent = timingText(st) +
     `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices, ` +
     `${st.p.F.length / 3} surface triangles)\n` + q.join("\n");
-  ui.warn.textContent = st.outside.length
-    ? `handle ${st.outside.join(", ")} outside its sampling region: the operator extrapolates`
-    : "";
+  ui.warn.textContent = warnText(st);
 }
 
 /**
  * Pointer events: pick the nearest moving handle on screen, fix the view plane through it, and move it to the
- * pointer ray's intersection with that plane once per animation frame; orbit is disabled while a handle is held.
- * Registered before OrbitControls' own listener would see the event only because controls.enabled is switched
- * off here first (this listener is added in the capture phase).
+ * pointer ray's intersection with that plane once per animation frame (dragLoop of defop_editor.js, as in 2D);
+ * orbit is disabled while a handle is held: this pointerdown listener is in the capture phase, so it runs before
+ * OrbitControls' own, switches controls.enabled off and stops the event.
  */
 function wireSolidPointer(editor, sc, width, height) {
   const { THREE } = sc, st = editor.st, canvas = sc.renderer.domElement;
   const raycaster = new THREE.Raycaster(), plane = new THREE.Plane(), hit = new THREE.Vector3();
   const ndc = new THREE.Vector2(), normal = new THREE.Vector3();
-  let pending = null, scheduled = false;
-  const keep = (list, t) => { list.push(t); if (list.length > 120) list.shift(); };
   const local = (ev) => { const r = canvas.getBoundingClientRect(); return [ev.clientX - r.left, ev.clientY - r.top]; };
   /** The pointer's ray (CSS pixels u, v) met with the drag plane, or null when parallel / behind. */
   const onPlane = (u, v) => {
@@ -205,19 +186,7 @@ function wireSolidPointer(editor, sc, width, height) {
   };
   editor.onPlane = onPlane;
   const apply = (q) => { for (let c = 0; c < 3; c++) st.Q[3 * st.active + c] = q[c]; };
-  const frame = (t) => {
-    scheduled = false;
-    if (st.active === null) return;
-    keep(st.frames, t);
-    scheduled = true;
-    requestAnimationFrame(frame); // the next frame, as long as the handle is held
-    if (pending === null) { solidReadout(editor.ui, st); return; }
-    apply(pending);
-    pending = null;
-    keep(st.updates, t);
-    editor.evaluate();
-    if (editor.onFrame) editor.onFrame(t); // benchmarks log the rAF timestamp of every frame that evaluated
-  };
+  const loop = dragLoop(editor, apply);
   canvas.addEventListener("pointerdown", (ev) => {
     const [u, v] = local(ev);
     let best = null, bestD = PICK_PX;
@@ -234,23 +203,19 @@ function wireSolidPointer(editor, sc, width, height) {
     plane.setFromNormalAndCoplanarPoint(normal, new THREE.Vector3(...st.Q.slice(3 * best, 3 * best + 3)));
     editor.dragPlane = { normal: normal.toArray(), constant: plane.constant };
     canvas.setPointerCapture(ev.pointerId);
-    st.frames = [];
-    st.updates = [];
-    if (!scheduled) { scheduled = true; requestAnimationFrame(frame); }
+    loop.start();
   }, { capture: true });
   canvas.addEventListener("pointermove", (ev) => {
     if (st.active === null) return;
     const q = onPlane(...local(ev));
-    if (q === null) return;
-    pending = q;
-    if (!scheduled) { scheduled = true; requestAnimationFrame(frame); }
+    if (q !== null) loop.move(q);
   });
   const release = (ev) => {
     if (st.active === null) return;
     const q = onPlane(...local(ev));
     if (q !== null) apply(q);
     st.active = null;
-    pending = null;
+    loop.stop();
     sc.controls.enabled = true;
     editor.evaluate();
   };
