@@ -70,7 +70,7 @@ function makeScene(THREE, OrbitControls, canvas, p, width, height) {
   geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3).setUsage(THREE.DynamicDrawUsage));
   geometry.setIndex(new THREE.BufferAttribute(Uint32Array.from(p.F), 1));
   geometry.computeVertexNormals();
-  const material = new THREE.MeshStandardMaterial({ color: 0xf2d7a6, roughness: 0.75, metalness: 0.0 });
+  const material = new THREE.MeshLambertMaterial({ color: 0xf2d7a6 });
   const mesh = new THREE.Mesh(geometry, material);
   mesh.frustumCulled = false; // the bounding sphere is the rest pose's; the deformed mesh may leave it
   scene.add(mesh);
