@@ -238,3 +238,12 @@ def test_page_3d_drag_in_chromium(ops3, bar3, tmp_path):
     np.testing.assert_array_equal(np.array(rest["Q"]).reshape(-1, 3), op.P)
     np.testing.assert_array_equal(np.array(rest["X"]).reshape(-1, 3), op.mesh.V)  # reset: the rest pose, exact
     assert cam2["matrixWorld"] != cam0["matrixWorld"], "dragging empty canvas orbits"
+
+
+def test_page_3d_is_one_inline_script_whatever_the_title(ops3, bar3, tmp_path):
+    title = "</script><script>alert(1)</script><!-- bar & <b>"
+    text = export.to_html(ops3["tps"], tmp_path / "t.html", shape=bar3, title=title).read_text()
+    low = text.lower()
+    assert low.count("</script") == 1 and low.count("<script") == 1 and "<!--" not in low
+    assert "<h1>&lt;/script&gt;&lt;script&gt;alert(1)&lt;/script&gt;&lt;!-- bar &amp; &lt;b&gt;</h1>" in text
+    assert "http://" not in low.split("<script", 1)[0] and "https://" not in low.split("<script", 1)[0]
