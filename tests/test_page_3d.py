@@ -247,3 +247,14 @@ def test_page_3d_is_one_inline_script_whatever_the_title(ops3, bar3, tmp_path):
     assert low.count("</script") == 1 and low.count("<script") == 1 and "<!--" not in low
     assert "<h1>&lt;/script&gt;&lt;script&gt;alert(1)&lt;/script&gt;&lt;!-- bar &amp; &lt;b&gt;</h1>" in text
     assert "http://" not in low.split("<script", 1)[0] and "https://" not in low.split("<script", 1)[0]
+
+
+def test_the_2d_editors_name_a_3d_shape(ops3, bar3):
+    from defop.editor import browser
+    from defop.editor.state import EditorState
+
+    ops = {"tps": ops3["tps"]}
+    said = "shape must be a 2D shape for the editor .* got the 3D shape 'bar3'.*to_html"
+    for make in (lambda: EditorState(bar3, ops), lambda: browser.BrowserEditor(bar3, ops)):
+        with pytest.raises(ValueError, match=said):
+            make()

@@ -2,8 +2,9 @@
 
 :func:`defop_to_payload` packs Ψ's kind and centres or monomial plan, the float32 factors, the mesh and the
 handles; ``static/defop_editor.js`` evaluates D(·, Q) = x + δψ(Q) A B (Eq. 3 in the form (★) of
-:mod:`defop.operator.defop`) with the formulas of :mod:`defop.operator.handle_bases`. Shared by the Jupyter
-widget (:mod:`.browser`) and the standalone page (:mod:`.export`).
+:mod:`defop.operator.defop`) with the formulas of :mod:`defop.operator.handle_bases`, in 2D and 3D (scalar ``d``;
+the 3D page ``static/defop_solid.js`` uses the same evaluator). Shared by the Jupyter widget (:mod:`.browser`)
+and the standalone pages (:mod:`.export`).
 """
 
 from __future__ import annotations
