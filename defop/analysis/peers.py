@@ -64,9 +64,9 @@ def _check_handles(P, min_count=1, method="this method", d=None):
     P = _check_points(P, "P", d=d)
     if len(P) < min_count:
         raise ValueError(f"{method} needs at least {min_count} handles, got {len(P)}")
-    d = np.linalg.norm(P[:, None] - P[None], axis=-1) + np.eye(len(P))
-    i, j = np.unravel_index(np.argmin(d), d.shape)
-    if len(P) > 1 and d[i, j] < 1e-12 * max(1.0, np.abs(P).max()):
+    dist = np.linalg.norm(P[:, None] - P[None], axis=-1) + np.eye(len(P))
+    i, j = np.unravel_index(np.argmin(dist), dist.shape)
+    if len(P) > 1 and dist[i, j] < 1e-12 * max(1.0, np.abs(P).max()):
         raise ValueError(f"handles {min(i, j)} and {max(i, j)} coincide at {P[i].tolist()}")
     return P
 
@@ -229,8 +229,7 @@ def _procrustes(pre, Q):
     """f(v) − q* = s R (v − p*) per point, from the SVD of C = Σ_i q_i (w_i p̂_i)ᵀ (see :func:`mls_precompute`)."""
     C = np.einsum("hc,nhe->nce", Q, pre.Wp)  # (n,d,d)
     U, S, Vt = np.linalg.svd(C)
-    sign = np.sign(np.linalg.det(U @ Vt))
-    sign[sign == 0] = 1.0
+    sign = np.sign(np.linalg.det(U @ Vt))  # ±1: U and Vᵀ are orthogonal
     U[..., -1] *= sign[:, None]  # R = U diag(1, .., det U Vᵀ) Vᵀ, a rotation
     R = U @ Vt
     f = np.einsum("ncd,nd->nc", R, pre.dv)
