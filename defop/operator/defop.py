@@ -24,9 +24,11 @@ paper's two guarantees by construction:
 
 The fast paths (:meth:`DefOp.evaluate_fast`, :meth:`DefOp.evaluate_batch`) multiply the basis' raw values
 (:meth:`HandleBasis.delta_raw`: Q − P and, for TPS, ℓ − ℓ(0) with ℓ = r² log r², or r³ in 3D) by diag(raw_scale) W_F or
-diag(raw_scale) A, folded once, so a frame is one gemv for the distances, four ufuncs and one product per
-matrix. They are taken while |Q − P|² < R² (every float32 product provably finite); beyond, or at NaN, a frame
-takes the checked path, which raises a clear ValueError where Ψ(Q) is not finite.
+diag(raw_scale) A, folded once. A batch is one gemm for the distances, four ufuncs and one product per matrix;
+a single frame (``evaluate_fast``, and ``op(Q)`` of a compressed operator) is one compiled call of
+:mod:`defop.operator.kernels` (ψ, the products, x and the handles fused). They are taken while |Q − P|² < R²
+(every float32 product provably finite); beyond, or at NaN, a frame takes the checked path, which raises a clear
+ValueError where Ψ(Q) is not finite.
 
 Files: :meth:`DefOp.save` and :meth:`DefOp.load` (:mod:`defop.operator.io`: format, limits, old files).
 """
