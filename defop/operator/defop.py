@@ -177,21 +177,31 @@ class DefOp:
         if self._fast is None or self._fast["key"] is not self.factors:
             f = fast_matrices(self.handle_basis, self._WF, self.factors)
             f["xh"] = self._x[self._hcols].copy()
-            f["kernel"] = kernel_state(self.handle_basis, f["mats"])
+            f["kernel"] = kernel_state(self.handle_basis, f["mats"], self._far2)
             self._fast = f
         return self._fast
 
     def _frame(self, Q, warn):
-        """(★) of one float64 Q (n_moving,d) by the compiled kernel (:func:`fast_frame`), or None when
-        |Q − P|² is not below the overflow guard (NaN, inf, far); ``warn``: the extrapolation check."""
+        """(★) of one float64 Q (n_moving,d) by the compiled kernel (:mod:`defop.operator.kernels`), or None
+        when |Q − P|² is not below the overflow guard (NaN, inf, far); ``warn``: the extrapolation check."""
         f = self._fast if self._fast is not None and self._fast["key"] is self.factors else self._fast_state()
-        dz = (Q - self.handle_basis.P).ravel()
-        zz = np.vdot(dz, dz)  # vdot: inf for a far Q without np.dot's overflow RuntimeWarning
-        if type(zz) is not np.float64 or not zz < f["R2"]:
-            return None
-        if warn and self._far2 is not None and f["kernel"]["beyond"](dz, self.d, self._far2):
+        k = f["kernel"]
+        if k["tps"] is not None:  # TPS: everything in one call, dz and the guard included
+            X, far = k["tps_frame"](Q, self.P, f["R2"], k["far2"], *k["tps"], k["A"], k["B"], self._x, self._hcols,
+                                    f["xh"])
+            if not X.size:
+                return None
+        else:
+            dz = (Q - self.P).ravel()
+            zz = np.vdot(dz, dz)  # vdot: inf for a far Q without np.dot's overflow RuntimeWarning
+            if type(zz) is not np.float64 or not zz < f["R2"]:
+                return None
+            far = k["far2"].size > 0 and k["beyond"](dz, self.d, k["far2"])
+            y = self.handle_basis.delta_raw(dz, zz, np.empty(self._q, f["dtype"]))
+            X = k["apply"](y, k["A"], k["B"], self._x, self._hcols, f["xh"], dz)
+        if warn and far:
             check_extrapolation(self, Q, stacklevel=4)  # the full check decides (and words the warning)
-        return fast_frame(self, f, dz, zz).reshape(-1, self.d)
+        return X.reshape(-1, self.d)
 
     def check_mesh(self, mesh):
         """Raise ValueError unless ``mesh`` is the mesh this operator was trained on (dimension, sizes, arrays)."""
@@ -473,9 +483,10 @@ def fast_matrices(basis, WF, factors=None):
     return {"key": factors, "mats": mats, "R2": 10.0 ** (2 * lo), "dtype": mats[0].dtype}
 
 
-def kernel_state(basis, mats):
+def kernel_state(basis, mats, far2=None):
     """The single-frame kernel's arguments for the fast matrices ``mats`` (:func:`fast_matrices`).
 
+    ``far2`` (n_moving,): the squared distances from rest beyond which the extrapolation check runs (None: never).
     ``A`` (q, r) row-major (the kernel's δψ A' runs along rows), or (0, 0) when W_F is uncompressed; ``B``
     the last matrix; ``tps`` the TPS constants of :meth:`TPSBasis.raw_constants` with ℓ(0) from the kernel's
     own ψ (:func:`kernels.tps_rest`, so δψ(P) = 0 bit for bit), or None for the polynomial bases.
@@ -488,16 +499,6 @@ def kernel_state(basis, mats):
         cm, czeps, inv_s2, log_kernel = basis.raw_constants()
         tps = (cm, czeps, inv_s2, kernels.tps_rest(cm, czeps, inv_s2, log_kernel), log_kernel)
     B = np.ascontiguousarray(mats[-1])
-    return {"A": A, "B": B, "tps": tps, "tps_frame": kernels.tps_frame, "apply": kernels.apply,
+    far2 = np.zeros(0) if far2 is None else np.ascontiguousarray(far2, dtype=float)
+    return {"A": A, "B": B, "tps": tps, "far2": far2, "tps_frame": kernels.tps_frame, "apply": kernels.apply,
             "beyond": kernels.beyond}
-
-
-def fast_frame(op, f, dz, zz):
-    """x + δψ W_F (or the factors) + the handles' exact part for dz = (Q − P).ravel() (dn,) float64 with
-    |dz|² = zz below the guard: one kernel call (:mod:`defop.operator.kernels`). Returns (d n_vertices,)."""
-    k = f["kernel"]
-    if k["tps"] is not None:
-        cm, czeps, inv_s2, ell0, log_kernel = k["tps"]
-        return k["tps_frame"](dz, zz, cm, czeps, inv_s2, ell0, log_kernel, k["A"], k["B"], op._x, op._hcols, f["xh"])
-    y = op.handle_basis.delta_raw(dz, zz, np.empty(op._q, f["dtype"]))
-    return k["apply"](y, k["A"], k["B"], op._x, op._hcols, f["xh"], dz)

@@ -100,7 +100,7 @@ def apply(y, A, B, x, hcols, xh, dz):
     u = np.zeros(c, B.dtype)
     axpy8(u, t, B)
     out = np.empty(c)
-    for j in range(c):
+    for j in range(c):  # float64: x is never rounded to float32 (summing into a float64 out was 20% slower)
         out[j] = x[j] + u[j]
     for i in range(hcols.size):
         out[hcols[i]] = xh[i] + dz[i]
@@ -108,8 +108,24 @@ def apply(y, A, B, x, hcols, xh, dz):
 
 
 @njit(**_JIT)
-def tps_frame(dz, zz, cm, czeps, inv_s2, ell0, log_kernel, A, B, x, hcols, xh):
-    """One frame of a TPS operator: :func:`tps_raw` then :func:`apply`, in one call."""
+def tps_frame(Q, P, R2, far2, cm, czeps, inv_s2, ell0, log_kernel, A, B, x, hcols, xh):
+    """One frame of a TPS operator in one call: dz = (Q − P).ravel(), the guard, :func:`tps_raw`, :func:`apply`.
+
+    Q, P (n, d) float64; R2 the overflow guard on |dz|²; far2 (n,) the extrapolation bounds (or empty).
+    Returns (out (c,), beyond): out is empty when |dz|² is not below R2 (NaN, inf, far: the caller takes the
+    checked path); beyond tells whether a handle reached its far2 bound (:func:`beyond`).
+    """
+    n, d = P.shape
+    dz = np.empty(n * d)
+    zz = 0.0
+    for j in range(n):
+        for i in range(d):
+            v = Q[j, i] - P[j, i]
+            dz[d * j + i] = v
+            zz += v * v
+    if not zz < R2:
+        return np.empty(0), False
+    far = far2.size > 0 and beyond(dz, d, far2)
     y = np.empty(cm.shape[0] + cm.shape[1], B.dtype)
     tps_raw(dz, zz, cm, czeps, inv_s2, ell0, log_kernel, y)
-    return apply(y, A, B, x, hcols, xh, dz)
+    return apply(y, A, B, x, hcols, xh, dz), far
