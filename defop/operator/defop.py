@@ -313,12 +313,12 @@ class DefOp:
         return self._evaluate(Q, fast=True) if X is None else X  # NaN, inf, complex, far: the checked path
 
     # ------------------------------------------------------------------ compression
-    def compress(self, rank=None, tol=1e-3, dtype=np.float32):
+    def compress(self, rank=None, tol=compress_mod.TOL, dtype=np.float32):
         """Replace W_F by a rank-r factor W_F ≈ A B; the guarantees stay exact.
 
         ``rank`` (a positive integer), or else the fewest directions whose discarded part is at most ``tol``
-        (relative, in [0, 1)); ``dtype`` float32 (default) or float64. See :func:`compress.factorise`, which
-        raises a ValueError naming a bad option. Returns ``self``.
+        (relative, in [0, 1); default :data:`compress.TOL`, 5e-3); ``dtype`` float32 (default) or float64. See
+        :func:`compress.factorise`, which raises a ValueError naming a bad option. Returns ``self``.
         """
         self.factors = compress_mod.factorise(self, rank, tol, dtype)
         self.meta["rank"] = self.factors[0].shape[1]
