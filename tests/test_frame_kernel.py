@@ -8,20 +8,12 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_operator import op_and_data  # noqa: F401 - the shared fixture (250-vertex bar, TPS, 25 ARAP samples)
 
 import defop as dop
 from defop.operator import handle_bases as hb
 from defop.operator import kernels
 from defop.operator.defop import ExtrapolationWarning
-
-
-@pytest.fixture(scope="module")
-def op_and_data():
-    s = dop.shapes.load("bar", n_vertices=250)
-    solver = dop.variational.Solver(s.mesh, s.handles, "arap")
-    Q = dop.training.sampling.sample_shape(s, 25, np.random.default_rng(0))
-    X = np.array([solver.solve(s.targets(q)).X for q in Q])
-    return s, dop.operator.fit.fit_shape(s, Q, X, "tps", meta={"energy": "arap"}), Q, X
 
 
 @settings(max_examples=25, deadline=None)
@@ -44,7 +36,7 @@ def test_kernel_psi_is_delta_raw_and_exactly_zero_at_rest(d, n, m, seed, far):
 
 
 @pytest.mark.parametrize("rank, dtype", [(None, np.float32), (3, np.float32), (None, np.float64), ("exact", None)])
-def test_kernel_frame_is_the_checked_path_and_exact_at_handles_and_rest(op_and_data, rank, dtype):
+def test_kernel_frame_is_the_checked_path_and_exact_at_handles_and_rest(op_and_data, rank, dtype):  # noqa: F811 - the fixture imported above
     s, op, Q, _ = op_and_data
     rng = np.random.default_rng(3)
     Qs = s.P_moving + 0.05 * s.mesh.bbox_diagonal * rng.standard_normal((20, *s.P_moving.shape))
@@ -67,7 +59,7 @@ def test_kernel_frame_is_the_checked_path_and_exact_at_handles_and_rest(op_and_d
         op.decompress()
 
 
-def test_compressed_single_frame_still_warns_and_validates(op_and_data):
+def test_compressed_single_frame_still_warns_and_validates(op_and_data):  # noqa: F811 - the fixture imported above
     s, op, Q, _ = op_and_data
     op.compress(tol=1e-3)
     try:
@@ -87,7 +79,7 @@ def test_compressed_single_frame_still_warns_and_validates(op_and_data):
         op.decompress()
 
 
-def test_polynomial_bases_take_the_kernel_products(op_and_data):
+def test_polynomial_bases_take_the_kernel_products(op_and_data):  # noqa: F811 - the fixture imported above
     s, _, Q, X = op_and_data
     op = dop.operator.fit.fit_shape(s, Q, X, "quadratic", meta={"energy": "arap"}).compress(rank=4)
     ref = op._evaluate(Q[:4], fast=True)
