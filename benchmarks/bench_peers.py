@@ -21,6 +21,8 @@ import numpy as np
 import defop as dop
 from defop.analysis import compare, peers
 
+ROUNDS = 3
+
 
 def main(m=500):
     os.environ["DEFOP_CACHE"] = "off"
@@ -29,16 +31,19 @@ def main(m=500):
     op.compress()
     Q = dop.training.sampling.sample_shape(shape, 50, np.random.default_rng(1))
     methods = peers.make_peers(shape) + [op]
-    rows = []
+    seconds = [None] * len(methods)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
-        for method in methods:
-            _, seconds = compare.run_frames(method, Q)
-            rows.append((getattr(method, "name", f"defop TPS-{m}, compressed"), seconds))
+        for _ in range(ROUNDS):  # interleaved rounds, each frame's best: a burst of load hits one round, not one method
+            for i, method in enumerate(methods):
+                s = compare.run_frames(method, Q)[1]
+                seconds[i] = s if seconds[i] is None else np.minimum(seconds[i], s)
+    rows = [(getattr(method, "name", f"defop TPS-{m}, compressed"), s) for method, s in zip(methods, seconds)]
     ours = rows[-1][1].min()
     print(
-        f"\naleph: {shape.mesh.n_vertices} vertices, {shape.n_moving} handles, 50 frames, one BLAS thread, thread CPU "
-        f"time; DefOp compressed rank {op.rank} {op.factors[1].dtype}; load average {os.getloadavg()[0]:.1f}"
+        f"\naleph: {shape.mesh.n_vertices} vertices, {shape.n_moving} handles, 50 frames (each its best of {ROUNDS} "
+        f"interleaved rounds), one BLAS thread, thread CPU time; DefOp compressed rank {op.rank} "
+        f"{op.factors[1].dtype}; load average {os.getloadavg()[0]:.1f}"
     )
     print(f"{'method':32s} {'best':>10s} {'median':>10s} {'best / defop':>13s}")
     for name, s in rows:
