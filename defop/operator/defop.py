@@ -24,9 +24,11 @@ paper's two guarantees by construction:
 
 The fast paths (:meth:`DefOp.evaluate_fast`, :meth:`DefOp.evaluate_batch`) multiply the basis' raw values
 (:meth:`HandleBasis.delta_raw`: Q − P and, for TPS, ℓ − ℓ(0) with ℓ = r² log r², or r³ in 3D) by diag(raw_scale) W_F or
-diag(raw_scale) A, folded once, so a frame is one gemv for the distances, four ufuncs and one product per
-matrix. They are taken while |Q − P|² < R² (every float32 product provably finite); beyond, or at NaN, a frame
-takes the checked path, which raises a clear ValueError where Ψ(Q) is not finite.
+diag(raw_scale) A, folded once. A batch is one gemm for the distances, four ufuncs and one product per matrix;
+a single frame (``evaluate_fast``, and ``op(Q)`` of a compressed operator) is one compiled call of
+:mod:`defop.operator.kernels` (ψ, the products, x and the handles fused). They are taken while |Q − P|² < R²
+(every float32 product provably finite); beyond, or at NaN, a frame takes the checked path, which raises a clear
+ValueError where Ψ(Q) is not finite.
 
 Files: :meth:`DefOp.save` and :meth:`DefOp.load` (:mod:`defop.operator.io`: format, limits, old files).
 """
@@ -98,8 +100,11 @@ class DefOp:
         self.meta = {"version": __version__, **(meta or {})}
         self.train_samples = None if train_samples is None else np.asarray(train_samples, float)
         self._reach = None
+        self._far2 = None  # per handle: |Q_j − P_j|² below this is not beyond 1.5x its reach (the fast check)
         if self.train_samples is not None and len(self.train_samples) > 1:
             self._reach = np.linalg.norm(self.train_samples - self.P, axis=-1).max(axis=0)  # (n,)
+            # the factor 1 − 1e-9 covers the rounding of the two ways of summing the squares
+            self._far2 = (1.5 * self._reach) ** 2 * (1.0 - 1e-9)
         self.fit_time = self.fold_time = None
         # (★): x, the moving handles' coordinate columns, and W_F = W[1:] without the handle columns
         self._x = np.ascontiguousarray(mesh.V, dtype=float).ravel()
@@ -167,11 +172,36 @@ class DefOp:
         return self.handle_basis(Q)
 
     def _fast_state(self):
-        """The fast paths' matrices and overflow guard (:func:`fast_matrices`), rebuilt when the factors change."""
+        """The fast paths' matrices, overflow guard and kernel constants (:func:`fast_matrices`,
+        :func:`kernel_state`), rebuilt when the factors change."""
         if self._fast is None or self._fast["key"] is not self.factors:
-            self._fast = fast_matrices(self.handle_basis, self._WF, self.factors)
-            self._fast["xh"] = self._x[self._hcols].copy()
+            f = fast_matrices(self.handle_basis, self._WF, self.factors)
+            f["xh"] = self._x[self._hcols].copy()
+            f["kernel"] = kernel_state(self.handle_basis, f["mats"], self._far2)
+            self._fast = f
         return self._fast
+
+    def _frame(self, Q, warn):
+        """(★) of one float64 Q (n_moving,d) by the compiled kernel (:mod:`defop.operator.kernels`), or None
+        when |Q − P|² is not below the overflow guard (NaN, inf, far); ``warn``: the extrapolation check."""
+        f = self._fast if self._fast is not None and self._fast["key"] is self.factors else self._fast_state()
+        k = f["kernel"]
+        if k["tps"] is not None:  # TPS: everything in one call, dz and the guard included
+            X, far = k["tps_frame"](Q, self.P, f["R2"], k["far2"], *k["tps"], k["A"], k["B"], self._x, self._hcols,
+                                    f["xh"])
+            if not X.size:
+                return None
+        else:
+            dz = (Q - self.P).ravel()
+            zz = np.vdot(dz, dz)  # vdot: inf for a far Q without np.dot's overflow RuntimeWarning
+            if type(zz) is not np.float64 or not zz < f["R2"]:
+                return None
+            far = k["far2"].size > 0 and k["beyond"](dz, self.d, k["far2"])
+            y = self.handle_basis.delta_raw(dz, zz, np.empty(self._q, f["dtype"]))
+            X = k["apply"](y, k["A"], k["B"], self._x, self._hcols, f["xh"], dz)
+        if warn and far:
+            check_extrapolation(self, Q, stacklevel=4)  # the full check decides (and words the warning)
+        return X.reshape(-1, self.d)
 
     def check_mesh(self, mesh):
         """Raise ValueError unless ``mesh`` is the mesh this operator was trained on (dimension, sizes, arrays)."""
@@ -210,7 +240,17 @@ class DefOp:
         ------
         ValueError
             Q with the wrong shape or NaN, or Q so far away that Ψ(Q) is not finite (the message names Q).
+
+        Notes
+        -----
+        A compressed operator evaluates one float64 Q (n_moving,d) within the overflow guard by the
+        single-frame kernel of :meth:`evaluate_fast` (the same (★), validated: every other Q takes the
+        checked path).
         """
+        if self.factors is not None and type(Q) is np.ndarray and Q.dtype == np.float64 and Q.shape == self.P.shape:
+            X = self._frame(Q, warn=True)
+            if X is not None:
+                return X
         return self._evaluate(Q, fast=False)
 
     def evaluate_batch(self, Qs, out=None):
@@ -251,10 +291,11 @@ class DefOp:
     def evaluate_fast(self, Q):
         """D(·, Q) for one configuration, the interactive path: (★) with float32 W_F or the factors.
 
-        Q must have the shape of P (a cheap check; no copy). A frame is the basis' raw values
-        (:meth:`HandleBasis.delta_raw`) times the matrices of :func:`fast_matrices`, x added in float64 and
-        Q − P written at the handles. Q with NaN/inf, complex, or |Q − P|² beyond the overflow guard takes the
-        checked path (:meth:`__call__`'s validation: a clear ValueError where Ψ(Q) is not finite). The
+        Q must have the shape of P (a cheap check; no copy). A frame is one compiled call
+        (:mod:`defop.operator.kernels`): the basis' raw values (:meth:`HandleBasis.delta_raw`) times the
+        matrices of :func:`fast_matrices`, x added in float64 and Q − P written at the handles. Q with
+        NaN/inf, complex, or |Q − P|² beyond the overflow guard takes the checked path (:meth:`__call__`'s
+        validation: a clear ValueError where Ψ(Q) is not finite). The
         float32 W_F rounds the free vertices by about 1e-6 of the bounding-box diagonal (aleph TPS-500);
         the handles and the rest pose stay exact.
 
@@ -268,26 +309,16 @@ class DefOp:
         """
         if np.shape(Q) != self.handle_basis.P.shape:  # broadcasting would move every handle to one point
             raise ValueError(f"Q must have shape {self.handle_basis.P.shape} (the moving handles), got {np.shape(Q)}")
-        f = self._fast if self._fast is not None and self._fast["key"] is self.factors else self._fast_state()
-        dz = (Q - self.handle_basis.P).ravel()
-        zz = np.vdot(dz, dz)  # vdot: inf for a far Q without np.dot's overflow RuntimeWarning
-        if type(zz) is not np.float64 or not zz < f["R2"]:  # NaN, inf, complex, or far enough to overflow
-            return self._evaluate(Q, fast=True)
-        y = self.handle_basis.delta_raw(dz, zz, np.empty(self._q, f["dtype"]))
-        for M in f["mats"]:
-            y = np.dot(y, M)  # np.dot: less call overhead than @ for a vector times a matrix
-        out = y.astype(np.float64)  # then x added in place: faster than a mixed float64 + float32 sum
-        out += self._x
-        out[self._hcols] = f["xh"] + dz  # δψ W_H = Q − P (Prop. 2); the matrices are 0 on these columns
-        return out.reshape(-1, self.d)
+        X = self._frame(Q, warn=False) if type(Q) is np.ndarray and Q.dtype == np.float64 else None
+        return self._evaluate(Q, fast=True) if X is None else X  # NaN, inf, complex, far: the checked path
 
     # ------------------------------------------------------------------ compression
-    def compress(self, rank=None, tol=1e-3, dtype=np.float32):
+    def compress(self, rank=None, tol=compress_mod.TOL, dtype=np.float32):
         """Replace W_F by a rank-r factor W_F ≈ A B; the guarantees stay exact.
 
         ``rank`` (a positive integer), or else the fewest directions whose discarded part is at most ``tol``
-        (relative, in [0, 1)); ``dtype`` float32 (default) or float64. See :func:`compress.factorise`, which
-        raises a ValueError naming a bad option. Returns ``self``.
+        (relative, in [0, 1); default :data:`compress.TOL`, 5e-3); ``dtype`` float32 (default) or float64. See
+        :func:`compress.factorise`, which raises a ValueError naming a bad option. Returns ``self``.
         """
         self.factors = compress_mod.factorise(self, rank, tol, dtype)
         self.meta["rank"] = self.factors[0].shape[1]
@@ -314,8 +345,9 @@ class DefOp:
         return io_mod.load(path, cls)
 
 
-def check_extrapolation(op, Q):
-    """Warn (:class:`ExtrapolationWarning`) when a moving handle of Q is beyond 1.5x its farthest training sample."""
+def check_extrapolation(op, Q, stacklevel=3):
+    """Warn (:class:`ExtrapolationWarning`) when a moving handle of Q is beyond 1.5x its farthest training sample
+    (``stacklevel`` of the warning: the user's call)."""
     if op._reach is None:
         return
     dist = np.linalg.norm(Q - op.P, axis=-1)
@@ -327,7 +359,7 @@ def check_extrapolation(op, Q):
             f"moving handle {j} is {dist[tuple(idx)]:.3g} from rest, beyond 1.5x the farthest training sample "
             f"({op._reach[j]:.3g}): the operator extrapolates",
             ExtrapolationWarning,
-            stacklevel=3,
+            stacklevel=stacklevel,
         )
 
 
@@ -449,3 +481,24 @@ def fast_matrices(basis, WF, factors=None):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if basis.raw_bound(10.0**mid) * gain <= 1e30 else (lo, mid)
     return {"key": factors, "mats": mats, "R2": 10.0 ** (2 * lo), "dtype": mats[0].dtype}
+
+
+def kernel_state(basis, mats, far2=None):
+    """The single-frame kernel's arguments for the fast matrices ``mats`` (:func:`fast_matrices`).
+
+    ``far2`` (n_moving,): the squared distances from rest beyond which the extrapolation check runs (None: never).
+    ``A`` (q, r) row-major (the kernel's δψ A' runs along rows), or (0, 0) when W_F is uncompressed; ``B``
+    the last matrix; ``tps`` the TPS constants of :meth:`TPSBasis.raw_constants` with ℓ(0) from the kernel's
+    own ψ (:func:`kernels.tps_rest`, so δψ(P) = 0 bit for bit), or None for the polynomial bases.
+    """
+    from . import kernels  # numba: compiled (or loaded from its cache) on the first fast frame
+
+    A = np.ascontiguousarray(mats[0]) if len(mats) == 2 else np.empty((0, 0), mats[-1].dtype)
+    tps = None
+    if hasattr(basis, "raw_constants"):
+        cm, czeps, inv_s2, log_kernel = basis.raw_constants()
+        tps = (cm, czeps, inv_s2, kernels.tps_rest(cm, czeps, inv_s2, log_kernel), log_kernel)
+    B = np.ascontiguousarray(mats[-1])
+    far2 = np.zeros(0) if far2 is None else np.ascontiguousarray(far2, dtype=float)
+    return {"A": A, "B": B, "tps": tps, "far2": far2, "tps_frame": kernels.tps_frame, "apply": kernels.apply,
+            "beyond": kernels.beyond}

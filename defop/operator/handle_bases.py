@@ -460,6 +460,22 @@ class TPSBasis(HandleBasis):
         out[..., :d] = dz
         return out
 
+    def raw_constants(self):
+        """The constants of :meth:`delta_raw` for the compiled single frame (:func:`defop.operator.kernels.tps_raw`).
+
+        Returns
+        -------
+        cm : (dn, m) numpy array
+            −2c/scale.
+        czeps : (m,) numpy array
+            |c|² + ε.
+        inv_s2 : float
+            1/scale².
+        log_kernel : bool
+            True for ℓ = r² log r² (d = 2), False for ℓ = r² √r² (d = 3).
+        """
+        return self._cm, self._cz_sq_eps, self._inv_s2, self.kernel == "r2logr"
+
     @property
     def raw_scale(self):
         half = 0.5 if self.kernel == "r2logr" else 1.0

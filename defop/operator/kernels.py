@@ -1,0 +1,131 @@
+"""The single-frame kernel of DefOp's fast paths: (★) of :mod:`defop.operator.defop` in one compiled call.
+
+A compressed frame streams B (rank × d n_vertices, float32: 1.1 MB for the aleph TPS-500 at rank 49) from
+cache; numpy spends as long again in the dozen ufunc and BLAS calls around it (ψ: a gemv, two additions, a
+log, a product and a subtraction; δψ A; t B; the cast; x added; the handles). Here the whole frame is one
+numba call (BSD-2): the TPS raw values ℓ − ℓ(0) (:meth:`defop.operator.handle_bases.TPSBasis.delta_raw`),
+t = δψ A', u = t B in float32 (B read once), then x + u in float64 and the handles' exact part, with no
+temporary but the output. Measured in ``benchmarks/bench_frame.py``.
+
+The guarantees do not depend on the kernel's arithmetic:
+
+* (8b): at Q = P every distance is r² = |c|² + ε bit for bit (the other terms are exact zeros), so ℓ = ℓ(0)
+  when ℓ(0) comes from the same function (:func:`tps_rest`, which runs :func:`tps_raw`), δψ = 0, t = 0, u = 0
+  and the output is x exactly.
+* Prop. 2: the handle columns are written last as x_h + (Q − P) in float64 (B and W_F are zero there).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+_JIT = {"cache": True, "nogil": True, "boundscheck": False}
+
+
+@njit(**_JIT)
+def tps_raw(dz, zz, cm, czeps, inv_s2, ell0, log_kernel, y):
+    """[dz, ℓ − ℓ(0)] into y (dn + m,): r² = |c|² + ε + |z|² − 2c·z, ℓ = r² log r² (d = 2) or r² √r² (d = 3).
+
+    dz (dn,) float64, zz = |dz|², cm (dn, m) = −2c/scale, czeps (m,) = |c|² + ε, ell0 (m,) ℓ(0).
+    """
+    dn, m = cm.shape
+    r2 = czeps + zz * inv_s2
+    for i in range(dn):
+        di = dz[i]
+        for k in range(m):
+            r2[k] += di * cm[i, k]
+    for i in range(dn):
+        y[i] = dz[i]
+    for k in range(m):
+        v = r2[k]
+        ell = v * np.log(v) if log_kernel else v * np.sqrt(v)
+        y[dn + k] = ell - ell0[k]
+
+
+@njit(**_JIT)
+def tps_rest(cm, czeps, inv_s2, log_kernel):
+    """ℓ(0) (m,) by :func:`tps_raw` itself (its value at dz = 0 with ℓ(0) = 0)."""
+    dn, m = cm.shape
+    y = np.empty(dn + m)
+    tps_raw(np.zeros(dn), 0.0, cm, czeps, inv_s2, np.zeros(m), log_kernel, y)
+    return y[dn:].copy()
+
+
+@njit(**_JIT, fastmath={"contract"})
+def axpy8(u, t, M):
+    """u += t M (u (c,), t (k,), M (k, c) row-major), eight rows of M per pass over u: u is loaded and stored
+    once per eight rows, as BLAS's gemv does (each element's sum is in a fixed order; fused multiply-adds)."""
+    c, k1 = M.shape[1], M.shape[0]
+    k = 0
+    while k + 8 <= k1:
+        a0, a1, a2, a3, a4, a5, a6, a7 = t[k], t[k + 1], t[k + 2], t[k + 3], t[k + 4], t[k + 5], t[k + 6], t[k + 7]
+        for j in range(c):
+            u[j] += (a0 * M[k, j] + a1 * M[k + 1, j] + a2 * M[k + 2, j] + a3 * M[k + 3, j]) + (
+                a4 * M[k + 4, j] + a5 * M[k + 5, j] + a6 * M[k + 6, j] + a7 * M[k + 7, j]
+            )
+        k += 8
+    while k < k1:
+        a0 = t[k]
+        for j in range(c):
+            u[j] += a0 * M[k, j]
+        k += 1
+
+
+@njit(**_JIT)
+def beyond(dz, d, far2):
+    """Whether a handle's |dz_j|² (dz (d n,), handles of d coordinates) reaches its bound far2[j]."""
+    for j in range(far2.size):
+        s = 0.0
+        for i in range(d):
+            s += dz[d * j + i] * dz[d * j + i]
+        if s >= far2[j]:
+            return True
+    return False
+
+
+@njit(**_JIT)
+def apply(y, A, B, x, hcols, xh, dz):
+    """x + (y A) B (or x + y B when A has no rows) in float64, then x_h + dz at the handle columns.
+
+    y (q,), A (q, r) row-major, B (r, c) row-major, both of y's dtype; x (c,) float64; hcols (h,), xh (h,),
+    dz (h,). Returns the output (c,) float64.
+    """
+    if A.shape[0] > 0:
+        t = np.zeros(A.shape[1], A.dtype)
+        axpy8(t, y, A)
+    else:
+        t = y
+    c = B.shape[1]
+    u = np.zeros(c, B.dtype)
+    axpy8(u, t, B)
+    out = np.empty(c)
+    for j in range(c):  # float64: x is never rounded to float32 (summing into a float64 out was 20% slower)
+        out[j] = x[j] + u[j]
+    for i in range(hcols.size):
+        out[hcols[i]] = xh[i] + dz[i]
+    return out
+
+
+@njit(**_JIT)
+def tps_frame(Q, P, R2, far2, cm, czeps, inv_s2, ell0, log_kernel, A, B, x, hcols, xh):
+    """One frame of a TPS operator in one call: dz = (Q − P).ravel(), the guard, :func:`tps_raw`, :func:`apply`.
+
+    Q, P (n, d) float64; R2 the overflow guard on |dz|²; far2 (n,) the extrapolation bounds (or empty).
+    Returns (out (c,), beyond): out is empty when |dz|² is not below R2 (NaN, inf, far: the caller takes the
+    checked path); beyond tells whether a handle reached its far2 bound (:func:`beyond`).
+    """
+    n, d = P.shape
+    dz = np.empty(n * d)
+    zz = 0.0
+    for j in range(n):
+        for i in range(d):
+            v = Q[j, i] - P[j, i]
+            dz[d * j + i] = v
+            zz += v * v
+    if not zz < R2:
+        return np.empty(0), False
+    far = far2.size > 0 and beyond(dz, d, far2)
+    y = np.empty(cm.shape[0] + cm.shape[1], B.dtype)
+    tps_raw(dz, zz, cm, czeps, inv_s2, ell0, log_kernel, y)
+    return apply(y, A, B, x, hcols, xh, dz), far
