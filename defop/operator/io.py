@@ -269,8 +269,7 @@ def _read(path, reads, members, max_members, check_declared):
                 fmt = header.get("format") if isinstance(header, dict) else None
                 if not isinstance(fmt, str) or fmt not in reads:
                     known = ", ".join(repr(f) for f in reads)
-                    other = " (a multi-valued operator: BranchedOperator.load)" if fmt in BRANCHED_READS else ""
-                    raise OperatorFileError(f"{path} has format {fmt!r}{other}; this defop reads {known}")
+                    raise OperatorFileError(f"{path} has format {fmt!r}; this defop reads {known}")
                 check_declared(path, header, headers, reads[fmt])
                 data = {name: _read_array(path, zf, name, h) for name, h in headers.items() if name != "header"}
     except OperatorFileError:
@@ -287,6 +286,11 @@ def _read(path, reads, members, max_members, check_declared):
 def _member_headers(path, zf, members=MEMBERS, max_members=MAX_MEMBERS):
     """{name: (shape, dtype, fortran, data_offset, info)} from the zip directory and each .npy header."""
     infos = zf.infolist()
+    names = {i.filename for i in infos[: 2 * max_members]}
+    if members is MEMBERS and "mode.npy" in names:
+        raise OperatorFileError(f"{path} is a multi-valued operator file (kind 'branched'): use BranchedOperator.load")
+    if members is not MEMBERS and "W.npy" in names:
+        raise OperatorFileError(f"{path} is a single-valued operator file ({FORMAT} or older): use DefOp.load")
     if len(infos) > max_members:
         raise OperatorFileError(f"{path} holds {len(infos)} archive members, limit {max_members}")
     out, total = {}, 0

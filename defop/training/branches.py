@@ -53,7 +53,7 @@ __all__ = [
     "Branch",
     "Branches",
     "Minima",
-    "column_order",
+    "scan_order",
     "discover",
     "fit_branched",
     "fit_single",
@@ -68,7 +68,7 @@ SAME = 1e-6
 
 
 # --------------------------------------------------------------------------- samples and sweeps
-def grid_samples(shape, radius, n, moving=0):
+def grid_samples(shape, radius, n, moving=0, offset=(0.0, 0.0)):
     """Q_k on an n × n grid of one moving handle's positions (the others at rest), rows of y, then x.
 
     Parameters
@@ -80,11 +80,13 @@ def grid_samples(shape, radius, n, moving=0):
         Points per side (≥ 2; odd puts the rest pose on the grid).
     moving : int
         Which moving handle.
+    offset : (2,) sequence of float
+        Displacement of the grid's centre from the rest position (default: centred at rest).
 
     Returns
     -------
     Q : (n², n_moving, d) numpy array
-        Sample k = i n + j has the handle at p + (xs[j], ys[i]).
+        Sample k = i n + j has the handle at p + offset + (xs[j], ys[i]).
     """
     n = opt.integer("n", n, minimum=2)
     radius = opt.positive("radius", radius)
@@ -92,30 +94,37 @@ def grid_samples(shape, radius, n, moving=0):
     P = np.asarray(shape.P_moving, dtype=float)
     if moving >= len(P) or P.shape[1] != 2:
         raise ValueError(f"moving must index one of the {len(P)} moving handles of a 2D shape, got {moving}")
+    offset = np.asarray(offset, dtype=float)
+    if offset.shape != (2,) or not np.isfinite(offset).all():
+        raise ValueError(f"offset must be a finite (2,) displacement, got {offset!r}")
     t = np.linspace(-radius, radius, n)
     gx, gy = np.meshgrid(t, t)
     Q = np.repeat(P[None], n * n, axis=0)
-    Q[:, moving] += np.stack([gx.ravel(), gy.ravel()], axis=-1)
+    Q[:, moving] += offset + np.stack([gx.ravel(), gy.ravel()], axis=-1)
     return Q
 
 
-def column_order(ny, nx, start="bottom"):
-    """Flat sample indices (i nx + j) of a scan of a (ny, nx) grid by columns, alternating up and down.
+def scan_order(ny, nx, by="columns", reverse=False):
+    """Flat sample indices (i nx + j) of a boustrophedon scan of a (ny, nx) grid by columns or by rows.
 
-    Column 0 is swept from the bottom (``start="bottom"``) or the top, column 1 the other way, ...: every step
-    joins 4-neighbours, as a user dragging the handle up and down the region.
+    By columns: column 0 is swept from the bottom (from the top with ``reverse``), column 1 the other way, ...
+    By rows: row 0 from the left (the right with ``reverse``), row 1 the other way, ... Every step joins
+    4-neighbours, as a user dragging the handle back and forth across the region. A sweep should cross the folds
+    (:func:`discover`): by columns when they run across the columns (the bar), by rows otherwise (the U's arm).
 
     Returns
     -------
     order : (ny nx,) numpy int array
     """
     ny, nx = opt.integer("ny", ny, minimum=1), opt.integer("nx", nx, minimum=1)
-    if start not in ("bottom", "top"):
-        raise ValueError(f"start must be 'bottom' or 'top', got {start!r}")
+    if by not in ("columns", "rows"):
+        raise ValueError(f"by must be 'columns' or 'rows', got {by!r}")
+    outer, inner = (nx, ny) if by == "columns" else (ny, nx)
     order = []
-    for j in range(nx):
-        up = (j % 2 == 0) == (start == "bottom")
-        order.extend(i * nx + j for i in (range(ny) if up else range(ny - 1, -1, -1)))
+    for a in range(outer):
+        forward = (a % 2 == 0) != bool(reverse)
+        for b in range(inner) if forward else range(inner - 1, -1, -1):
+            order.append(b * nx + a if by == "columns" else a * nx + b)
     return np.asarray(order, dtype=np.int64)
 
 
@@ -212,7 +221,7 @@ def discover(shape, samples, sweeps=(), energy="sarap", cache=True, progress=Fal
     samples : (m, n_moving, d) numpy array
     sweeps : sequence of (m,) int arrays
         Orders of the samples (each a permutation of 0..m−1, consecutive samples neighbours, e.g.
-        :func:`column_order`); each is one continuation.
+        :func:`scan_order`); each is one continuation.
     energy : str
     cache : bool
         Store/reuse the result under ``config.cache_dir()`` (keyed by the mesh, handles, samples, sweeps and
@@ -383,8 +392,10 @@ def group(shape, minima, tol=1e-3):
     for k, cs in enumerate(kept):
         seen = set()
         for c in cs:  # lowest first: on a conflict the lower minimum stays
-            above = score(minima.X[k, c]) - plane(t, minima.samples[k], shape.P_moving) >= 0
-            label = side_of[1 if above else -1] if pairs else 0
+            label = 0
+            if pairs:
+                above = score(minima.X[k, c]) - plane(t, minima.samples[k], shape.P_moving) >= 0
+                label = side_of[1 if above else -1]
             if label in seen:
                 conflicts += 1
                 continue
