@@ -12,14 +12,18 @@ computation; drawing is in :mod:`defop.view.branches`.
 from __future__ import annotations
 
 import dataclasses
+import time
 import warnings
 
 import numpy as np
 
 from .. import options as opt
+from ..scene import shapes
+from ..training import branches as br
 from ..variational.solver import NotConvergedWarning, Solver
 
-__all__ = ["PathComparison", "compare", "jump_frames", "line_path", "solver_path", "targets_met"]
+__all__ = ["CASES", "Case", "PathComparison", "compare", "jump_frames", "line_path", "run_case", "solver_path",
+           "targets_met"]
 
 
 def line_path(P, moving, start, end, steps):
@@ -179,3 +183,72 @@ def targets_met(c, window=5, tolerance=2):
             dist, both_ways and len(jf) == len(js) and all(d <= tolerance for d in dist)),
         "elsewhere: follow / single mean error": (f_far / max(s_far, 1e-300), f_far <= 1.1 * s_far),
     }
+
+
+#: the measured cases: shape, the moving handle's sample grid (centre offset, half width, sweep direction across
+#: the folds) and the there-and-back path (two ends, as displacements from rest). Every other handle is fixed
+#: (the U's second tip too: Ψ is then a function of the one handle that moves, as the samples need)
+CASES = {
+    "bar": {"shape": "bar", "moving": 0, "offset": (0.0, 0.0), "radius": 0.3, "by": "columns",
+            "path": ((-0.15, -0.3), (-0.15, 0.3))},
+    "u_shape": {"shape": "u_shape", "moving": 0, "offset": (0.1, -0.4), "radius": 0.3, "by": "rows",
+                "path": ((-0.2, -0.25), (0.4, -0.25))},
+}
+
+
+@dataclasses.dataclass
+class Case:
+    """One measured case (:func:`run_case`): the shape, the minima, the branches, both operators and the comparison."""
+
+    name: str
+    shape: object
+    minima: object
+    branches: object
+    operator: object
+    single: object
+    comparison: PathComparison
+    fit_seconds: float
+
+
+def run_case(name, n, steps=100, energy="sarap"):
+    """Discover the branches of a case of :data:`CASES` on an n × n grid, fit, and compare along its path.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`CASES`.
+    n : int
+        Samples per side of the grid.
+    steps : int
+        Steps of the path one way (there and back: 2 steps + 1 frames).
+
+    Returns
+    -------
+    Case
+    """
+    if name not in CASES:
+        raise ValueError(f"name must be one of {sorted(CASES)}, got {name!r}")
+    c = CASES[name]
+    shape = one_moving(shapes.load(c["shape"]), c["moving"])
+    Q = br.grid_samples(shape, c["radius"], n, 0, c["offset"])
+    sweeps = [br.scan_order(n, n, c["by"]), br.scan_order(n, n, c["by"], reverse=True)]
+    minima = br.discover(shape, Q, sweeps, energy)
+    branches = br.group(shape, minima, energy=energy)
+    t0 = time.perf_counter()
+    bop = br.fit_branched(shape, branches, energy)
+    fit_seconds = time.perf_counter() - t0
+    single = br.fit_single(shape, minima, energy)
+    Qs = line_path(shape.P_moving, 0, c["path"][0], c["path"][1], steps)
+    return Case(name, shape, minima, branches, bop, single, compare(shape, bop, single, Qs, energy), fit_seconds)
+
+
+def one_moving(shape, moving):
+    """The shape with only its moving handle ``moving`` (an index among the moving handles) moving, the rest fixed."""
+    idx = np.flatnonzero(shape.moving)
+    if not 0 <= moving < len(idx):
+        raise ValueError(f"moving must index one of the {len(idx)} moving handles, got {moving!r}")
+    if len(idx) == 1:
+        return shape
+    flags = np.zeros_like(shape.moving)
+    flags[idx[moving]] = True
+    return dataclasses.replace(shape, moving=flags, regions=[shape.regions[moving]])

@@ -6,8 +6,7 @@ single-valued training keeps one minimum per Q_k; here every verified minimum we
 1. **starts** (:func:`discover`): at each Q_k the multi-start of the single-valued training
    (:meth:`defop.variational.solver.Solver.solve_best` from the rest pose, saddles escaped: source 0), plus the
    minima that **continuation** reaches: each sweep visits the samples in an order where consecutive samples are
-   neighbours and warm-starts every solve from the previous minimum (a user's drag; sources 1..). Each verified
-   minimum also gets its **stability margin** λ_min, the smallest eigenvalue of the exact reduced Hessian.
+   neighbours and warm-starts every solve from the previous minimum (a user's drag; sources 1..).
 2. **grouping** (:func:`group`): minima closer than ``tol`` (M-norm RMS distance over the bounding-box diagonal)
    at one Q_k are one. Where a Q_k holds two distinct minima, their difference is the mode that separates the
    branches: u is the leading M-weighted principal direction of these differences (for the bar: the buckling
@@ -20,6 +19,8 @@ single-valued training keeps one minimum per Q_k; here every verified minimum we
    score that grows as the handle moves down, past the other sheet's scores higher up the column (measured:
    +0.021 at q − p = (−0.15, −0.3), where the wedge's midpoints are about +0.05). With no Q_k holding two minima there
    is one branch. Label 0 is the branch holding the rest pose (the side of s(x) = 0), so labels are stable.
+   Each kept minimum gets its **stability margin** (:func:`stability_margin`): the reduced Hessian's eigenvalue
+   of the eigenvector most parallel to u, which vanishes at the branch's fold.
 3. **domains**: branch b exists at the samples where it has a minimum (``Branch.samples``); between samples
    :mod:`defop.operator.branched` estimates the domain in closed form from λ²_b(Q) (zero at a fold: a
    saddle-node's smallest eigenvalue vanishes like the square root of the distance) and the side score.
@@ -61,10 +62,6 @@ __all__ = [
     "group",
     "stability_margin",
 ]
-
-
-#: two end points of one sample closer than this (max vertex distance / bbox diagonal) share their margin
-SAME = 1e-6
 
 
 # --------------------------------------------------------------------------- samples and sweeps
@@ -138,33 +135,40 @@ class Minima:
     samples : (m, n_moving, d) numpy array
     X : (m, s, n_vertices, d) numpy array
         The end point of source s at sample k (source 0: the multi-start from the rest pose; 1..: the sweeps).
-    energy, margin : (m, s) numpy arrays
-        E(X) and λ_min of the exact reduced Hessian (NaN where not converged).
+    energy : (m, s) numpy array
+        E(X) (NaN where not converged).
     converged : (m, s) numpy bool array
         A verified local minimum.
     seconds : dict
-        Wall-clock seconds of the rest-pose multi-start (``single``: the single-valued training's solves), the
-        sweeps and the margins, as measured when computed; ``cached`` says whether they were read from the cache.
+        Wall-clock seconds of the rest-pose multi-start (``single``: the single-valued training's solves) and the
+        sweeps, as measured when computed; ``cached`` says whether they were read from the cache.
     """
 
     samples: np.ndarray
     X: np.ndarray
     energy: np.ndarray
-    margin: np.ndarray
     converged: np.ndarray
     seconds: dict = dataclasses.field(default_factory=dict)
 
 
-def stability_margin(solver, X):
-    """λ_min, the smallest eigenvalue of the exact reduced Hessian of problem (6) at X (S-ARAP's kink as check 5).
+def stability_margin(solver, X, mode=None, k=4):
+    """The stability margin at a minimum X: an eigenvalue of the exact reduced Hessian of problem (6) (S-ARAP's kink
+    as check 5).
 
-    Shift-invert Lanczos just below zero (one sparse LU), so the eigenvalue nearest the fold comes first.
+    Without ``mode``: λ_min, the smallest eigenvalue. With ``mode`` u: of the ``k`` smallest eigenpairs, the
+    eigenvalue whose eigenvector is most parallel to u on the free dofs, i.e. the curvature of the mode that
+    vanishes at the branch's fold (a saddle-node's critical eigenvector is the direction of the jump). λ_min alone
+    can be another, unrelated soft mode that stays put (the U's arm: 0.0039 at every sample).
+    Shift-invert Lanczos just below zero (one sparse LU).
 
     Parameters
     ----------
     solver : defop.variational.solver.Solver
     X : (n_vertices, d) numpy array
         A verified local minimum.
+    mode : (n_vertices, d) numpy array, optional
+    k : int
+        Eigenpairs searched for the mode.
 
     Returns
     -------
@@ -173,7 +177,11 @@ def stability_margin(solver, X):
     _, _, data, _ = solver.grad_hess(X, 0.0, project=False, kink=KINK)
     K = solver.hessian.full(data)
     shift = -1e-8 * float(np.abs(K.diagonal()).mean())
-    return float(spla.eigsh(K, k=1, sigma=shift, which="LM", return_eigenvectors=False)[0])
+    if mode is None:
+        return float(spla.eigsh(K, k=1, sigma=shift, which="LM", return_eigenvectors=False)[0])
+    lam, vec = spla.eigsh(K, k=min(k, K.shape[0] - 1), sigma=shift, which="LM")
+    u = np.asarray(mode, dtype=float).ravel()[solver.free]
+    return float(lam[np.argmax(np.abs(vec.T @ u))])
 
 
 def _solve(solver, targets, X0, start):
@@ -184,7 +192,7 @@ def _solve(solver, targets, X0, start):
 
 
 def _compute(shape, solver, samples, sweeps, progress):
-    m, s, diag = len(samples), 1 + len(sweeps), shape.mesh.bbox_diagonal
+    m, s = len(samples), 1 + len(sweeps)
     X = np.empty((m, s, shape.mesh.n_vertices, shape.mesh.V.shape[1]))
     E, conv = np.full((m, s), np.nan), np.zeros((m, s), bool)
     targets = [shape.targets(q) for q in samples]
@@ -201,15 +209,8 @@ def _compute(shape, solver, samples, sweeps, progress):
             bar and bar.update(1)
     t2 = time.perf_counter()
     bar and bar.close()
-    margin = np.full((m, s), np.nan)
-    for k in range(m):  # once per distinct minimum: the sweeps mostly reach the rest-pose start's minimum again
-        for c in np.flatnonzero(conv[k]):
-            same = [j for j in range(c) if conv[k, j] and np.abs(X[k, j] - X[k, c]).max() <= SAME * diag]
-            margin[k, c] = margin[k, same[0]] if same else stability_margin(solver, X[k, c])
-    t3 = time.perf_counter()
     E[~conv] = np.nan
-    return {"X": X, "energy": E, "margin": margin, "converged": conv,
-            "seconds": np.array([t1 - t0, t2 - t1, t3 - t2])}
+    return {"X": X, "energy": E, "converged": conv, "seconds": np.array([t1 - t0, t2 - t1])}
 
 
 def discover(shape, samples, sweeps=(), energy="sarap", cache=True, progress=False, solver_kw=None):
@@ -248,21 +249,21 @@ def discover(shape, samples, sweeps=(), energy="sarap", cache=True, progress=Fal
     key = None
     if store is not None:
         arrays = (shape.mesh.V, shape.mesh.F, np.asarray(shape.handles), np.asarray(shape.moving), samples)
-        key = cache_mod.key("branches", *arrays, *sweeps, energy, cache_mod.solver_settings(solver))
+        key = cache_mod.key("branch-minima", *arrays, *sweeps, energy, cache_mod.solver_settings(solver))
     m, s, n = len(samples), 1 + len(sweeps), shape.mesh.n_vertices
     d = shape.mesh.V.shape[1]
-    expect = {"X": ((m, s, n, d), "f"), "energy": ((m, s), "f"), "margin": ((m, s), "f"),
-              "converged": ((m, s), "b"), "seconds": ((3,), "f")}
+    expect = {"X": ((m, s, n, d), "f"), "energy": ((m, s), "f"), "converged": ((m, s), "b"),
+              "seconds": ((2,), "f")}
     fresh = []
 
     def compute():
         fresh.append(True)
         return _compute(shape, solver, samples, sweeps, progress)
 
-    z = batch.load_or_compute(store, "branches", key, expect, compute)
+    z = batch.load_or_compute(store, "branch-minima", key, expect, compute)
     sec = z["seconds"]  # measured when computed (a cache hit returns the stored cost)
-    return Minima(samples, z["X"], z["energy"], z["margin"], z["converged"],
-                  {"single": float(sec[0]), "sweeps": float(sec[1]), "margins": float(sec[2]), "cached": not fresh})
+    return Minima(samples, z["X"], z["energy"], z["converged"],
+                  {"single": float(sec[0]), "sweeps": float(sec[1]), "cached": not fresh})
 
 
 # --------------------------------------------------------------------------- grouping
@@ -277,7 +278,7 @@ class Branch:
         Indices of the samples Q_k where the branch has a minimum (its domain on the samples).
     X : (k, n_vertices, d) numpy array
     energy, margin : (k,) numpy arrays
-        E and λ_min of each minimum.
+        E and the stability margin (:func:`stability_margin` along u) of each minimum.
     side : int
         +1 when the branch's scores are above the threshold t, −1 below.
     """
@@ -315,6 +316,8 @@ class Branches:
         Samples where two distinct minima fell on one side of t (the lower was kept).
     lowest : (m,) numpy int array
         The label of the lowest minimum at each sample (the single-valued training's choice).
+    margin_seconds : float
+        Wall-clock seconds of the stability margins.
     """
 
     samples: np.ndarray
@@ -324,6 +327,7 @@ class Branches:
     distinct: np.ndarray
     conflicts: int
     lowest: np.ndarray
+    margin_seconds: float = 0.0
 
     def reports(self):
         """Per branch: :meth:`Branch.report`."""
@@ -354,7 +358,7 @@ def separating_mode(mesh, minima, pairs):
     return u / np.sqrt(np.einsum("v,vc->", mesh.mass_matrix.diagonal(), u**2))
 
 
-def group(shape, minima, tol=1e-3):
+def group(shape, minima, tol=1e-3, energy="sarap"):
     """Group the verified minima into branches by the side of the separating mode's score (module docstring).
 
     Parameters
@@ -363,6 +367,8 @@ def group(shape, minima, tol=1e-3):
     minima : Minima
     tol : float
         Minima at one sample closer than ``tol`` × bbox diagonal (M-weighted RMS) are one.
+    energy : str
+        The energy of the minima (for their stability margins, :func:`stability_margin` along u).
 
     Returns
     -------
@@ -404,14 +410,14 @@ def group(shape, minima, tol=1e-3):
             if lowest[k] < 0:
                 lowest[k] = label
     sides = {v: s for s, v in side_of.items()} if pairs else {0: 1}
-    branches = []
+    branches, solver, t0 = [], Solver(mesh, shape.handles, energy=energy), time.perf_counter()
     for label, pts in members.items():
         ks = np.array([k for k, _ in pts], dtype=np.int64)
         cs = np.array([c for _, c in pts], dtype=np.int64)
-        branches.append(Branch(label, ks, minima.X[ks, cs], minima.energy[ks, cs], minima.margin[ks, cs],
-                               sides[label]))
+        margin = np.array([stability_margin(solver, minima.X[k, c], u if pairs else None) for k, c in pts])
+        branches.append(Branch(label, ks, minima.X[ks, cs], minima.energy[ks, cs], margin, sides[label]))
     distinct = np.array([len(c) for c in kept])
-    return Branches(minima.samples, branches, u, t, distinct, conflicts, lowest)
+    return Branches(minima.samples, branches, u, t, distinct, conflicts, lowest, time.perf_counter() - t0)
 
 
 def plane(t, Q, P):
@@ -456,7 +462,7 @@ def fit_branched(shape, branches, energy="sarap", basis="tps", spatial="hat", k=
     defop.operator.branched.BranchedOperator
     """
     solver = Solver(shape.mesh, shape.handles, energy=energy)
-    lam_rest = stability_margin(solver, shape.mesh.V)
+    lam_rest = stability_margin(solver, shape.mesh.V, branches.mode if len(branches.branches) > 1 else None)
     out = []
     for b in branches.branches:
         Q = branches.samples[b.samples]
