@@ -23,27 +23,37 @@ from defop.analysis import branches as ab
 
 def report(case, steps):
     B, c, m = case.branches, case.comparison, case.minima
-    print(f"\n=== {case.name}: {case.shape.mesh.n_vertices} vertices, {len(B.samples)} samples, path "
-          f"{2 * steps} steps there and back ===")
+    print(
+        f"\n=== {case.name}: {case.shape.mesh.n_vertices} vertices, {len(B.samples)} samples, path "
+        f"{2 * steps} steps there and back ==="
+    )
     sec = m.seconds
     multi = sec["single"] + sec["sweeps"] + B.margin_seconds
-    print(f"training: single-valued solves {sec['single']:.1f} s; multi-valued {multi:.1f} s (sweeps "
-          f"{sec['sweeps']:.1f} s, margins {B.margin_seconds:.1f} s) = {multi / sec['single']:.2f}x; fits "
-          f"{case.fit_seconds:.2f} s{' (solves read from the cache: costs as measured then)' if sec['cached'] else ''}")
+    print(
+        f"training: single-valued solves {sec['single']:.1f} s; multi-valued {multi:.1f} s (sweeps "
+        f"{sec['sweeps']:.1f} s, margins {B.margin_seconds:.1f} s) = {multi / sec['single']:.2f}x; fits "
+        f"{case.fit_seconds:.2f} s{' (solves read from the cache: costs as measured then)' if sec['cached'] else ''}"
+    )
     print(f"distinct minima per sample: {np.bincount(B.distinct).tolist()} (index = count); conflicts {B.conflicts}")
     for r in B.reports():
-        print(f"  branch {r['label']}: {r['count']} samples, q from {np.round(r['q_min'], 3)} to "
-              f"{np.round(r['q_max'], 3)}, energy {r['energy'][0]:.3g} .. {r['energy'][1]:.3g}")
+        print(
+            f"  branch {r['label']}: {r['count']} samples, q from {np.round(r['q_min'], 3)} to "
+            f"{np.round(r['q_max'], 3)}, energy {r['energy'][0]:.3g} .. {r['energy'][1]:.3g}"
+        )
     q = c.Qs[:, 0] - case.shape.P_moving[0]
     for who in ("solver", "follow", "single"):
         j = c.jumps[who]
         print(f"  {who:6s} jumps at frames {j.tolist()}  (q - p = {[tuple(np.round(q[k], 3)) for k in j]})")
-    print(f"  error near the solver's jumps (±5 steps, {int(c.near.sum())} frames): follow mean "
-          f"{c.follow[c.near].mean():.2e} max {c.follow[c.near].max():.2e}; single mean "
-          f"{c.single[c.near].mean():.2e} max {c.single[c.near].max():.2e}")
-    print(f"  error elsewhere ({int((~c.near).sum())} frames): follow mean {c.follow[~c.near].mean():.2e} max "
-          f"{c.follow[~c.near].max():.2e}; single mean {c.single[~c.near].mean():.2e} "
-          f"max {c.single[~c.near].max():.2e}")
+    print(
+        f"  error near the solver's jumps (±5 steps, {int(c.near.sum())} frames): follow mean "
+        f"{c.follow[c.near].mean():.2e} max {c.follow[c.near].max():.2e}; single mean "
+        f"{c.single[c.near].mean():.2e} max {c.single[c.near].max():.2e}"
+    )
+    print(
+        f"  error elsewhere ({int((~c.near).sum())} frames): follow mean {c.follow[~c.near].mean():.2e} max "
+        f"{c.follow[~c.near].max():.2e}; single mean {c.single[~c.near].mean():.2e} "
+        f"max {c.single[~c.near].max():.2e}"
+    )
     print(f"  global's energy over the lowest verified minimum: max {c.excess.max():.2%}, mean {c.excess.mean():.2%}")
     ok = True
     for name, (value, passed) in ab.targets_met(c).items():

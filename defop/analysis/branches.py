@@ -22,8 +22,17 @@ from ..scene import shapes
 from ..training import branches as br
 from ..variational.solver import NotConvergedWarning, Solver
 
-__all__ = ["CASES", "Case", "PathComparison", "compare", "jump_frames", "line_path", "run_case", "solver_path",
-           "targets_met"]
+__all__ = [
+    "CASES",
+    "Case",
+    "PathComparison",
+    "compare",
+    "jump_frames",
+    "line_path",
+    "run_case",
+    "solver_path",
+    "targets_met",
+]
 
 
 def line_path(P, moving, start, end, steps):
@@ -103,6 +112,8 @@ class PathComparison:
         (E(global's X) − lowest verified minimum) / lowest, per frame.
     labels : (k,) numpy int array
         ``follow``'s branch per frame.
+    X : dict of str -> (k, n_vertices, d) numpy arrays
+        The frames of ``solver``, ``follow``, ``global`` and ``single``.
     """
 
     Qs: np.ndarray
@@ -112,6 +123,7 @@ class PathComparison:
     near: np.ndarray
     excess: np.ndarray
     labels: np.ndarray
+    X: dict = dataclasses.field(default_factory=dict)
 
 
 def _error(X, ref, diag):
@@ -154,9 +166,15 @@ def compare(shape, bop, single, Qs, energy="sarap", window=5):
     near = np.zeros(len(Qs), bool)
     for j in solver_jumps:
         near |= np.abs(frames - j) <= window
-    jumps = {"solver": solver_jumps, "follow": np.flatnonzero(np.diff(labels) != 0) + 1,
-             "single": jump_frames(Xs, diag)}
-    return PathComparison(Qs, _error(Xf, X, diag), _error(Xs, X, diag), jumps, near, (Eg - lowest) / lowest, labels)
+    jumps = {
+        "solver": solver_jumps,
+        "follow": np.flatnonzero(np.diff(labels) != 0) + 1,
+        "single": jump_frames(Xs, diag),
+    }
+    out = {"solver": X, "follow": Xf, "global": Xg, "single": Xs}
+    return PathComparison(
+        Qs, _error(Xf, X, diag), _error(Xs, X, diag), jumps, near, (Eg - lowest) / lowest, labels, out
+    )
 
 
 def solver_energies(solver, X):
@@ -180,7 +198,9 @@ def targets_met(c, window=5, tolerance=2):
     return {
         "near: single / follow mean error": (s_near / max(f_near, 1e-300), s_near >= 10 * f_near),
         "hysteresis: solver jumps out and back, follow within 2 steps of each": (
-            dist, both_ways and len(jf) == len(js) and all(d <= tolerance for d in dist)),
+            dist,
+            both_ways and len(jf) == len(js) and all(d <= tolerance for d in dist),
+        ),
         "elsewhere: follow / single mean error": (f_far / max(s_far, 1e-300), f_far <= 1.1 * s_far),
     }
 
@@ -189,10 +209,22 @@ def targets_met(c, window=5, tolerance=2):
 #: the folds) and the there-and-back path (two ends, as displacements from rest). Every other handle is fixed
 #: (the U's second tip too: Ψ is then a function of the one handle that moves, as the samples need)
 CASES = {
-    "bar": {"shape": "bar", "moving": 0, "offset": (0.0, 0.0), "radius": 0.3, "by": "columns",
-            "path": ((-0.15, -0.3), (-0.15, 0.3))},
-    "u_shape": {"shape": "u_shape", "moving": 0, "offset": (0.1, -0.4), "radius": 0.3, "by": "rows",
-                "path": ((-0.2, -0.25), (0.4, -0.25))},
+    "bar": {
+        "shape": "bar",
+        "moving": 0,
+        "offset": (0.0, 0.0),
+        "radius": 0.3,
+        "by": "columns",
+        "path": ((-0.15, -0.3), (-0.15, 0.3)),
+    },
+    "u_shape": {
+        "shape": "u_shape",
+        "moving": 0,
+        "offset": (0.1, -0.4),
+        "radius": 0.3,
+        "by": "rows",
+        "path": ((-0.2, -0.25), (0.4, -0.25)),
+    },
 }
 
 

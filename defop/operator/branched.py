@@ -139,8 +139,10 @@ class BranchedOperator:
 
     def check_label(self, label, name="label"):
         """The branch of a label; ValueError naming ``name`` for anything else."""
-        if isinstance(label, (bool, np.bool_)) or not isinstance(label, (int, np.integer)) or not (
-            0 <= label < len(self)
+        if (
+            isinstance(label, (bool, np.bool_))
+            or not isinstance(label, (int, np.integer))
+            or not (0 <= label < len(self))
         ):
             raise ValueError(f"{name} must be one of the branch labels {self.labels}, got {label!r}")
         return self.branches[int(label)]
@@ -149,8 +151,10 @@ class BranchedOperator:
     def estimates(self, Q):
         """E_b(Q), λ²_b(Q), s_b(Q) for every branch: three (B,) arrays (one Q) or (k, B) arrays (a batch)."""
         psis = [b.op.psi(Q) for b in self.branches]  # validates Q (shape, NaN) like DefOp
-        out = [np.stack([p @ getattr(b, w) for p, b in zip(psis, self.branches)], axis=-1)
-               for w in ("energy_w", "margin_w", "score_w")]
+        out = [
+            np.stack([p @ getattr(b, w) for p, b in zip(psis, self.branches)], axis=-1)
+            for w in ("energy_w", "margin_w", "score_w")
+        ]
         return tuple(out)
 
     def exists(self, Q):
@@ -281,8 +285,9 @@ class FollowSession:
         """The label of the branch D is evaluated on at Q (one configuration (n_moving, d)), updating the state."""
         Q = np.asarray(Q, dtype=float)
         if Q.shape != self.op.P.shape:
-            raise ValueError(f"Q must have shape {self.op.P.shape} (one configuration of the moving handles), "
-                             f"got {Q.shape}")
+            raise ValueError(
+                f"Q must have shape {self.op.P.shape} (one configuration of the moving handles), got {Q.shape}"
+            )
         E, lam2, side = self.op.estimates(Q)
         ok = existing(lam2, side)
         if self.branch is None or not ok[self.branch]:

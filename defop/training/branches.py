@@ -252,8 +252,7 @@ def discover(shape, samples, sweeps=(), energy="sarap", cache=True, progress=Fal
         key = cache_mod.key("branch-minima", *arrays, *sweeps, energy, cache_mod.solver_settings(solver))
     m, s, n = len(samples), 1 + len(sweeps), shape.mesh.n_vertices
     d = shape.mesh.V.shape[1]
-    expect = {"X": ((m, s, n, d), "f"), "energy": ((m, s), "f"), "converged": ((m, s), "b"),
-              "seconds": ((2,), "f")}
+    expect = {"X": ((m, s, n, d), "f"), "energy": ((m, s), "f"), "converged": ((m, s), "b"), "seconds": ((2,), "f")}
     fresh = []
 
     def compute():
@@ -262,8 +261,13 @@ def discover(shape, samples, sweeps=(), energy="sarap", cache=True, progress=Fal
 
     z = batch.load_or_compute(store, "branch-minima", key, expect, compute)
     sec = z["seconds"]  # measured when computed (a cache hit returns the stored cost)
-    return Minima(samples, z["X"], z["energy"], z["converged"],
-                  {"single": float(sec[0]), "sweeps": float(sec[1]), "cached": not fresh})
+    return Minima(
+        samples,
+        z["X"],
+        z["energy"],
+        z["converged"],
+        {"single": float(sec[0]), "sweeps": float(sec[1]), "cached": not fresh},
+    )
 
 
 # --------------------------------------------------------------------------- grouping
@@ -293,8 +297,13 @@ class Branch:
     def report(self, Q):
         """count, domain extent (min and max of each coordinate of Q over the branch's samples), energy range."""
         q = np.asarray(Q)[self.samples].reshape(len(self.samples), -1)
-        return {"label": self.label, "count": int(len(self.samples)), "q_min": q.min(axis=0), "q_max": q.max(axis=0),
-                "energy": (float(self.energy.min()), float(self.energy.max()))}
+        return {
+            "label": self.label,
+            "count": int(len(self.samples)),
+            "q_min": q.min(axis=0),
+            "q_max": q.max(axis=0),
+            "energy": (float(self.energy.min()), float(self.energy.max())),
+        }
 
 
 @dataclasses.dataclass
@@ -389,8 +398,9 @@ def group(shape, minima, tol=1e-3, energy="sarap"):
         def score(X):
             return float(np.einsum("v,vc,vc->", mass, X - mesh.V, u))
 
-        t = threshold_plane(shape, minima.samples, [(k, score(minima.X[k, a]), score(minima.X[k, b]))
-                                                     for k, a, b in pairs])
+        t = threshold_plane(
+            shape, minima.samples, [(k, score(minima.X[k, a]), score(minima.X[k, b])) for k, a, b in pairs]
+        )
         rest_side = 1 if -t[0] >= 0 else -1  # s(x) = 0 at the rest pose, t(P) = t[0]
         side_of = {rest_side: 0, -rest_side: 1}
     members = {0: [], 1: []} if pairs else {0: []}
