@@ -11,16 +11,16 @@ from .plot import plot_deformation
 BRANCH_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd")
 
 
-def plot_minima(shape, X, titles, profile, size=3.0):
-    """Deformations side by side (two minima and the top of the straight path between them) and the energy profile.
+def plot_minima(shape, X, titles, energies, size=3.0):
+    """Deformations side by side (two minima and the configuration between them) and their energies.
 
     Parameters
     ----------
     shape : Shape
     X : list of (n_vertices, 2) numpy arrays
     titles : list of str
-    profile : (s (k,), E (k,)) numpy arrays
-        E((1 − s) X_a + s X_b) along the straight path between the minima.
+    energies : list of float
+        E of each deformation.
 
     Returns
     -------
@@ -29,11 +29,10 @@ def plot_minima(shape, X, titles, profile, size=3.0):
     fig, axes = plt.subplots(1, len(X) + 1, figsize=(size * (len(X) + 1), size * 0.9))
     for ax, x, t in zip(axes, X, titles):
         plot_deformation(ax, shape, x, title=t)
-    s, E = profile
-    axes[-1].plot(s, E, "k-")
-    axes[-1].set_xlabel("s along (1 − s) X_a + s X_b")
+    axes[-1].bar(range(len(X)), energies, color=[BRANCH_COLORS[0], "0.6", BRANCH_COLORS[1]][: len(X)])
+    axes[-1].set_xticks(range(len(X)), [t.split(" (")[0] for t in titles], fontsize=7)
     axes[-1].set_ylabel("E (Eq. 11)")
-    axes[-1].set_title("energy between the minima")
+    axes[-1].set_title("energy")
     fig.tight_layout()
     return fig
 
