@@ -233,7 +233,7 @@ def _compute(shape, solver, samples, sweeps, progress):
             bar and bar.update(1)
     t2 = time.perf_counter()
     bar and bar.close()
-    E[~conv] = np.nan
+    E[~conv | ~np.isfinite(E)] = 0.0  # the cache stores finite numbers only; discover masks them out again
     return {"X": X, "energy": E, "converged": conv, "seconds": np.array([t1 - t0, t2 - t1])}
 
 
@@ -288,7 +288,7 @@ def discover(shape, samples, sweeps=(), energy="sarap", cache=True, progress=Fal
     return Minima(
         samples,
         z["X"],
-        z["energy"],
+        np.where(z["converged"], z["energy"], np.nan),
         z["converged"],
         {"single": float(sec[0]), "sweeps": float(sec[1]), "cached": not fresh},
     )
