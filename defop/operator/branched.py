@@ -194,12 +194,16 @@ class BranchedOperator:
         labels = self.choose(Q)
         if np.ndim(labels) == 0:
             return self.branches[labels].op(Q)
-        Q = np.asarray(Q, dtype=float)
-        out = np.empty((len(Q), self.mesh.n_vertices, self.branches[0].op.d))
+        return self.on_branches(labels, Q)
+
+    def on_branches(self, labels, Qs):
+        """D_{labels[i]}(·, Qs[i]) for a batch: (k, n_vertices, d), one batch evaluation per branch."""
+        Qs = np.asarray(Qs, dtype=float)
+        out = np.empty((len(Qs), self.mesh.n_vertices, self.branches[0].op.d))
         for b in self.branches:
             rows = labels == b.label
             if rows.any():
-                out[rows] = b.op(Q[rows])
+                out[rows] = b.op(Qs[rows])
         return out
 
     def session(self, branch=None):
@@ -309,9 +313,4 @@ class FollowSession:
         if Qs.ndim != 3:
             raise ValueError(f"Qs must have shape (k, {self.op.n_moving}, d), got {Qs.shape}")
         labels = np.array([self.step(q) for q in Qs], dtype=np.int64)
-        X = np.empty((len(Qs), self.op.mesh.n_vertices, self.op.branches[0].op.d))
-        for b in self.op.branches:
-            rows = labels == b.label
-            if rows.any():
-                X[rows] = b.op(Qs[rows])
-        return labels, X
+        return labels, self.op.on_branches(labels, Qs)
