@@ -1,11 +1,24 @@
 """The closed-form DefOp (layer 3): D(x, Q) = Σ_ij C_ij φ_i(x) ψ_j(Q) (Eq. 3), in 2D and 3D.
 
 :mod:`.spatial` is Φ (§3.1), :mod:`.handle_bases` Ψ (Appendix A), :mod:`.fit` problem (8),
-:mod:`.defop` the trained operator :class:`DefOp` and its evaluation paths, :mod:`.compress` its
+:mod:`.defop` the trained operator :class:`DefOp` and its evaluation paths, :mod:`.branched` the multi-valued
+operator (one DefOp per branch of D^E), :mod:`.compress` its
 compression and :mod:`.io` its files. Never imports :mod:`defop.variational`.
 """
 
-from . import compress, defop, fit, handle_bases, io, spatial
+from . import branched, compress, defop, fit, handle_bases, io, spatial
+from .branched import BranchedOperator
 from .defop import DefOp, ExtrapolationWarning
 
-__all__ = ["DefOp", "ExtrapolationWarning", "compress", "defop", "fit", "handle_bases", "io", "spatial"]
+__all__ = [
+    "BranchedOperator",
+    "DefOp",
+    "ExtrapolationWarning",
+    "branched",
+    "compress",
+    "defop",
+    "fit",
+    "handle_bases",
+    "io",
+    "spatial",
+]

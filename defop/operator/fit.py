@@ -229,6 +229,30 @@ def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, sc
         spatial = spatial_mod.make_spatial(mesh, spatial, k)
 
     t0 = time.perf_counter()
+    G, beta = structure(psi, Qs)
+    fit_time = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    Wf = fold(mesh, handles, moving, psi, spatial, G, beta, Xs)
+    fold_time = time.perf_counter() - t1
+    meta = dict(meta or {})
+    meta.update(basis=psi.kind, spatial=spatial.kind, spatial_size=spatial.size, n_samples=len(Qs) - 1)
+    op = DefOp(mesh, handles, moving, psi, Wf.reshape(psi.size, -1), meta=meta, train_samples=Qs)
+    op.fit_time, op.fold_time = fit_time, fold_time
+    return op
+
+
+def structure(psi, Qs):
+    """G (|Ψ|, m), β (|Ψ|,) of problem (8) for the samples Qs (m, n, d), the rest pose first.
+
+    The fit of any per-sample data Y (m, ...) with the rest pose's value Y[0] is G Y + β Y[0] (Appendix A, the
+    module docstring): :func:`fold` uses it for the deformations, :func:`fit_values` for a scalar per sample.
+
+    Raises
+    ------
+    ValueError
+        Samples that do not determine the basis (the message says how many it needs).
+    """
     S = psi.evaluate_z(psi.z(Qs))  # (m, q)
     A = np.vstack([S[:1], psi.side_conditions()])
     fast = None
@@ -240,16 +264,34 @@ def fit(mesh, handles, moving, samples, X, basis="tps", spatial="hat", k=100, sc
             f"the samples do not determine the {psi.kind} basis (rank {rank} < {A.shape[1] - A.shape[0]}): "
             f"too few or degenerate samples; it needs at least {psi.min_samples() - 1} distinct ones"
         )
-    fit_time = time.perf_counter() - t0
+    return G, beta
 
-    t1 = time.perf_counter()
-    Wf = fold(mesh, handles, moving, psi, spatial, G, beta, Xs)
-    fold_time = time.perf_counter() - t1
-    meta = dict(meta or {})
-    meta.update(basis=psi.kind, spatial=spatial.kind, spatial_size=spatial.size, n_samples=len(Qs) - 1)
-    op = DefOp(mesh, handles, moving, psi, Wf.reshape(psi.size, -1), meta=meta, train_samples=Qs)
-    op.fit_time, op.fold_time = fit_time, fold_time
-    return op
+
+def fit_values(op, values):
+    """Coefficients w (|Ψ|,) of a scalar closed form f(Q) = Ψ(Q) · w fitted like problem (8), with ``op``'s Ψ.
+
+    The same least-squares structure as the operator's (for TPS: interpolation at the same centres), so a
+    per-branch energy E_b(Q) or stability margin costs one dot product more than D_b(·, Q).
+
+    Parameters
+    ----------
+    op : defop.operator.DefOp
+        A fitted operator with its ``train_samples`` (m, n, d), the rest pose first (as :func:`fit` stores them).
+    values : (m,) numpy array
+        The value at each of ``op.train_samples`` (the rest pose's first; f(P) = values[0] exactly).
+
+    Returns
+    -------
+    w : (|Ψ|,) numpy array
+    """
+    Qs = op.train_samples
+    if Qs is None:
+        raise ValueError("op must hold its training samples (train_samples) to fit values with its basis")
+    values = np.asarray(values, dtype=float)
+    if values.shape != (len(Qs),) or not np.isfinite(values).all():
+        raise ValueError(f"values must be {len(Qs)} finite numbers, one per training sample, got shape {values.shape}")
+    G, beta = structure(op.handle_basis, Qs)
+    return G @ values + beta * values[0]
 
 
 def _with_rest_pose(mesh, handles, moving, samples, X, basis):

@@ -10,6 +10,11 @@ and, when compressed, ``factor_A`` and ``factor_B``; plus ``header``, a JSON obj
 | ``defop-operator-1`` | before (★) | 2 | W only; old factors are recomputed |
 | ``defop-operator-2`` | 7c4dc5f and before this change | 2 | as saved (d = 2 is implied) |
 | ``defop-operator-3`` | this version | 2 or 3 (``dim``) | as saved |
+| ``defop-branched-1`` | this version, kind ``branched`` | 2 or 3 | :func:`load_branched` (one DefOp per branch) |
+
+A multi-valued operator (:mod:`defop.operator.branched`) is one archive: the mesh, handles and ``mode`` once, each
+branch's arrays prefixed ``b<label>.`` (``W``, ``basis_centers``, ``train_samples``, the factors, ``energy`` and
+``margin``), and the header's ``branches`` list; every branch is checked as a DefOp file is (steps 1-7).
 
 **Checks before work** (:func:`load`). Every error is a ``ValueError`` that names the file and what is wrong:
 
@@ -78,6 +83,14 @@ MEMBERS = (
     "factor_A",
     "factor_B",
 )
+#: the multi-valued kind (:class:`defop.operator.branched.BranchedOperator`): shared arrays once, per-branch arrays
+#: prefixed ``b<label>.``, the header's ``branches`` list (label, side, meta, basis of each)
+BRANCHED_FORMAT = "defop-branched-1"
+BRANCHED_READS = {BRANCHED_FORMAT: 1}
+#: the most branches a file may hold
+MAX_BRANCHES = 8
+BRANCH_MEMBERS = ("W", "basis_centers", "train_samples", "factor_A", "factor_B", "energy", "margin")
+SHARED_MEMBERS = ("header", "V", "F", "handles", "moving", "basis_P", "mode")
 _NPY_HEADER_MAX = 65_536 + 16  # numpy's own limit on a .npy header
 #: what a damaged archive can make zipfile, zlib or numpy's header parser raise while we read it
 _DAMAGED = (zipfile.BadZipFile, zlib.error, EOFError, struct.error, NotImplementedError, SyntaxError, UnicodeError)
@@ -99,6 +112,24 @@ def save(op, path):
     path : str or pathlib.Path
     """
     path = Path(path)
+    arrays, basis = _arrays(op)
+    header = {"format": FORMAT, "format_version": FORMAT_VERSION, "dim": op.d, "meta": op.meta, "basis": basis}
+    arrays["header"] = np.array(json.dumps(header))
+    _write(path, arrays)
+
+
+def _write(path, arrays):
+    """np.savez of ``arrays`` to ``path``, atomically."""
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:  # a handle: np.savez(name) would append ".npz" to another suffix
+            np.savez(fh, **arrays)
+
+    opt.write_atomic(path, write)
+
+
+def _arrays(op):
+    """The arrays of one DefOp (format 3) and its basis entry of the header."""
     params = op.handle_basis.params()
     arrays = {"V": op.mesh.V, "F": op.mesh.F, "handles": op.handles, "moving": op.moving, "W": op.W}
     arrays["basis_P"] = params["P"]
@@ -111,14 +142,83 @@ def save(op, path):
     basis = {"kind": params["kind"], "scale": params["scale"], "degree": params.get("degree")}
     if "kernel" in params:
         basis["kernel"] = params["kernel"]
-    header = {"format": FORMAT, "format_version": FORMAT_VERSION, "dim": op.d, "meta": op.meta, "basis": basis}
+    return arrays, basis
+
+
+def save_branched(bop, path):
+    """Write a :class:`defop.operator.branched.BranchedOperator` (kind ``branched``, module docstring), atomically.
+
+    The mesh and handles once; per branch b its DefOp's arrays, e_b and l_b under ``b<label>.``; the mode u.
+    """
+    path = Path(path)
+    if len(bop.branches) > MAX_BRANCHES:
+        raise ValueError(f"a file holds at most {MAX_BRANCHES} branches, got {len(bop.branches)}")
+    arrays, entries = {"mode": bop.mode}, []
+    for b in bop.branches:
+        own, basis = _arrays(b.op)
+        for name in ("V", "F", "handles", "moving", "basis_P"):
+            arrays[name] = own.pop(name)
+        own["energy"], own["margin"] = b.energy_w, b.margin_w
+        arrays.update({f"b{b.label}.{name}": a for name, a in own.items()})
+        entries.append({"label": b.label, "side": b.side, "meta": b.op.meta, "basis": basis})
+    header = {"format": BRANCHED_FORMAT, "format_version": 1, "kind": "branched", "dim": bop.branches[0].op.d,
+              "meta": bop.meta, "threshold": bop.threshold.tolist(), "branches": entries}
     arrays["header"] = np.array(json.dumps(header))
+    _write(path, arrays)
 
-    def write(tmp):
-        with open(tmp, "wb") as fh:  # a handle: np.savez(name) would append ".npz" to another suffix
-            np.savez(fh, **arrays)
 
-    opt.write_atomic(path, write)
+def _branch_members():
+    return SHARED_MEMBERS + tuple(f"b{k}.{n}" for k in range(MAX_BRANCHES) for n in BRANCH_MEMBERS)
+
+
+def _branch_view(header, data, k):
+    """The header and arrays of branch k as a format-3 DefOp file's."""
+    entry = header["branches"][k]
+    if not isinstance(entry, dict) or entry.get("label") != k:
+        raise ValueError(f"branch entry {k} must be an object with label {k}")
+    sub = {name: data[name] for name in ("V", "F", "handles", "moving", "basis_P") if name in data}
+    sub.update({n: data[f"b{k}.{n}"] for n in BRANCH_MEMBERS if f"b{k}.{n}" in data})
+    return {"meta": entry["meta"], "basis": entry["basis"], "dim": header.get("dim")}, sub
+
+
+def _check_declared_branched(path, header, headers, version):
+    """Each branch's declared shapes as :func:`_check_declared` checks a DefOp file's."""
+    entries = header.get("branches") if isinstance(header, dict) else None
+    if not isinstance(entries, list) or not 1 <= len(entries) <= MAX_BRANCHES:
+        raise OperatorFileError(f"{path}: the header must list 1 to {MAX_BRANCHES} branches")
+    for k, entry in enumerate(entries):
+        sub_head = {"dim": header.get("dim"), "basis": entry.get("basis") if isinstance(entry, dict) else None}
+        sub = {n: headers[n] for n in ("V", "F") if n in headers}
+        sub.update({n: headers[f"b{k}.{n}"] for n in ("W", "basis_centers") if f"b{k}.{n}" in headers})
+        _check_declared(path, sub_head, sub, FORMAT_VERSION)
+
+
+def load_branched(path, cls, branch_cls, op_cls):
+    """Read a file written by :func:`save_branched`, with the checks of :func:`load`; build a ``cls``.
+
+    Raises
+    ------
+    ValueError
+        (:class:`OperatorFileError`) naming the file and the problem, as :func:`load`.
+    """
+    members = _branch_members()
+    header, data, _ = _read(path, BRANCHED_READS, members, len(members), _check_declared_branched)
+    try:
+        branches = []
+        for k, entry in enumerate(header["branches"]):
+            sub_head, sub = _branch_view(header, data, k)
+            op = _build(op_cls, sub_head, sub, FORMAT_VERSION)
+            energy = _array(data, f"b{k}.energy", 1, "f", (op.handle_basis.size,))
+            margin = _array(data, f"b{k}.margin", 1, "f", (op.handle_basis.size,))
+            branches.append(branch_cls(k, op, energy, margin, entry["side"]))
+        mode = _array(data, "mode", 2, "f", data["V"].shape)
+        meta = header["meta"]
+        if not isinstance(meta, dict):
+            raise TypeError("header 'meta' must be an object")
+        return cls(branches, mode, np.asarray(header["threshold"], dtype=float), meta)
+    except (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError) as exc:
+        what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or type(exc).__name__
+        raise OperatorFileError(f"{path} is not a valid multi-valued operator file: {what}") from exc
 
 
 def load(path, cls):
@@ -140,6 +240,16 @@ def load(path, cls):
         (:class:`OperatorFileError`) naming the file and the problem: missing, not a defop operator,
         damaged or truncated, beyond a limit, of an unknown format, or with arrays that do not fit together.
     """
+    header, data, version = _read(path, READS, MEMBERS, MAX_MEMBERS, _check_declared)
+    try:
+        return _build(cls, header, data, version)
+    except (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError) as exc:
+        what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or type(exc).__name__
+        raise OperatorFileError(f"{path} is not a valid defop operator file: {what}") from exc
+
+
+def _read(path, reads, members, max_members, check_declared):
+    """(header, arrays, format version) of an operator file of one of the formats ``reads``, checked (steps 1-6)."""
     if isinstance(path, bytes):
         path = os.fsdecode(path)
     path = Path(path)
@@ -154,13 +264,13 @@ def load(path, cls):
                 raise OperatorFileError(f"{path} is not a defop operator file (not a zip archive)")
             fh.seek(0)
             with zipfile.ZipFile(fh) as zf:
-                headers = _member_headers(path, zf)
+                headers = _member_headers(path, zf, members, max_members)
                 header = _json_header(path, zf, headers)
                 fmt = header.get("format") if isinstance(header, dict) else None
-                if not isinstance(fmt, str) or fmt not in READS:
-                    known = ", ".join(repr(f) for f in READS)
+                if not isinstance(fmt, str) or fmt not in reads:
+                    known = ", ".join(repr(f) for f in reads)
                     raise OperatorFileError(f"{path} has format {fmt!r}; this defop reads {known}")
-                _check_declared(path, header, headers, READS[fmt])
+                check_declared(path, header, headers, reads[fmt])
                 data = {name: _read_array(path, zf, name, h) for name, h in headers.items() if name != "header"}
     except OperatorFileError:
         raise
@@ -170,22 +280,23 @@ def load(path, cls):
         raise OperatorFileError(
             f"{path} is not a readable defop operator file: damaged or truncated ({type(exc).__name__}: {exc})"
         ) from exc
-    try:
-        return _build(cls, header, data, READS[fmt])
-    except (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError) as exc:
-        what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or type(exc).__name__
-        raise OperatorFileError(f"{path} is not a valid defop operator file: {what}") from exc
+    return header, data, reads[fmt]
 
 
-def _member_headers(path, zf):
+def _member_headers(path, zf, members=MEMBERS, max_members=MAX_MEMBERS):
     """{name: (shape, dtype, fortran, data_offset, info)} from the zip directory and each .npy header."""
     infos = zf.infolist()
-    if len(infos) > MAX_MEMBERS:
-        raise OperatorFileError(f"{path} holds {len(infos)} archive members, limit {MAX_MEMBERS}")
+    names = {i.filename for i in infos[: 2 * max_members]}
+    if members is MEMBERS and "mode.npy" in names:
+        raise OperatorFileError(f"{path} is a multi-valued operator file (kind 'branched'): use BranchedOperator.load")
+    if members is not MEMBERS and "W.npy" in names:
+        raise OperatorFileError(f"{path} is a single-valued operator file ({FORMAT} or older): use DefOp.load")
+    if len(infos) > max_members:
+        raise OperatorFileError(f"{path} holds {len(infos)} archive members, limit {max_members}")
     out, total = {}, 0
     for info in infos:
         name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
-        if name not in MEMBERS or name in out:
+        if name not in members or name in out:
             raise OperatorFileError(f"{path} is not a defop operator file: unexpected member {info.filename!r}")
         if info.flag_bits & 0x1 or info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
             raise OperatorFileError(f"{path}: member {info.filename!r} is encrypted or uses an unknown compression")

@@ -1,10 +1,21 @@
 """Training a DefOp (layer 4, §3.3): sample Q_k, solve D^E at each (in parallel, cached), fit.
 
 :mod:`.sampling` draws the Q_k, :mod:`.cache` stores ground truths and operators on disk and
-:mod:`.bootstrap` runs the pipeline (:func:`train`).
+:mod:`.bootstrap` runs the pipeline (:func:`train`); :mod:`.branches` finds every branch of D^E and fits a
+multi-valued operator.
 """
 
-from . import bootstrap, cache, sampling
+from . import bootstrap, branches, cache, sampling
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
 
-__all__ = ["TrainingRecord", "bootstrap", "cache", "held_out", "min_samples", "sampling", "solve_samples", "train"]
+__all__ = [
+    "TrainingRecord",
+    "bootstrap",
+    "branches",
+    "cache",
+    "held_out",
+    "min_samples",
+    "sampling",
+    "solve_samples",
+    "train",
+]

@@ -5,7 +5,7 @@ Nothing below this layer imports a plotting library.
 
 from ..lazy import attach
 
-_MODULES = ("labels", "plot", "plot_peers", "render", "warp")
+_MODULES = ("branches", "labels", "plot", "plot_peers", "render", "warp")
 _NAMES = {}
 
 __getattr__, __dir__ = attach(__name__, _MODULES, _NAMES)

@@ -1,0 +1,286 @@
+"""A multi-valued operator against the solver along back-and-forth handle paths (§5, issue 29's targets).
+
+The truth of a drag is the solver's warm-started continuation: each frame solved from the previous frame's
+minimum (:func:`solver_path`), so it keeps its branch until the branch folds and then jumps, which gives the
+hysteresis loop of Fig. 10. :func:`compare` measures, frame by frame, the error (max vertex distance over the bbox
+diagonal) of ``follow`` (:class:`defop.operator.branched.FollowSession`) and of a single-valued DefOp against that
+truth, where each jumps, and the energy excess of ``global`` over the lowest verified minimum (the lower of the
+minima the continuation reaches at the frame: out and back, a there-and-back path visits each Q twice). Pure
+computation; drawing is in :mod:`defop.view.branches`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+
+import numpy as np
+
+from .. import options as opt
+from ..scene import shapes
+from ..training import branches as br
+from ..variational.solver import NotConvergedWarning, Solver
+
+__all__ = [
+    "CASES",
+    "Case",
+    "PathComparison",
+    "compare",
+    "jump_frames",
+    "line_path",
+    "run_case",
+    "solver_path",
+    "targets_met",
+]
+
+
+def line_path(P, moving, start, end, steps):
+    """A there-and-back handle path: ``steps`` steps from ``start`` to ``end``, then ``steps`` back.
+
+    Parameters
+    ----------
+    P : (n_moving, d) numpy array
+        Rest positions of the moving handles (the others stay there).
+    moving : int
+        Which moving handle follows the path.
+    start, end : (d,) numpy arrays
+        Displacements q − p of the two ends.
+    steps : int
+        Steps one way (≥ 1); the path has 2 steps + 1 frames.
+
+    Returns
+    -------
+    Qs : (2 steps + 1, n_moving, d) numpy array
+    """
+    steps = opt.integer("steps", steps, minimum=1)
+    P = np.asarray(P, dtype=float)
+    if not 0 <= moving < len(P):
+        raise ValueError(f"moving must index one of the {len(P)} moving handles, got {moving!r}")
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    if start.shape != (P.shape[1],) or end.shape != start.shape:
+        raise ValueError(f"start and end must be ({P.shape[1]},) displacements, got {start.shape} and {end.shape}")
+    a = np.concatenate([np.linspace(0, 1, steps + 1), np.linspace(1, 0, steps + 1)[1:]])
+    Qs = np.repeat(P[None], len(a), axis=0)
+    Qs[:, moving] += start + a[:, None] * (end - start)
+    return Qs
+
+
+def solver_path(shape, Qs, energy="sarap", X0=None):
+    """The solver's warm-started continuation along Qs: frame 0 from the rest pose's multi-start, then each frame
+    from the previous minimum (no other start: the drag of a variational editor).
+
+    Returns
+    -------
+    X : (k, n_vertices, d) numpy array
+    energy : (k,) numpy array
+    converged : (k,) numpy bool array
+    """
+    solver = Solver(shape.mesh, shape.handles, energy=energy)
+    X, E, ok = [], [], []
+    prev = X0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotConvergedWarning)
+        for k, q in enumerate(Qs):
+            r = solver.solve(shape.targets(q), X0=prev, start="global" if k == 0 and X0 is None else "local")
+            prev = r.X
+            X.append(r.X), E.append(r.energy), ok.append(r.converged)
+    return np.array(X), np.array(E), np.array(ok)
+
+
+def jump_frames(X, diag, factor=8.0):
+    """Frames s where X jumps between s − 1 and s: the max vertex step is above ``factor`` × the median step."""
+    step = np.abs(np.diff(X, axis=0)).max(axis=(1, 2)) / diag
+    med = np.median(step)
+    return np.flatnonzero(step > factor * max(med, 1e-12)) + 1
+
+
+@dataclasses.dataclass
+class PathComparison:
+    """Errors and jumps of ``follow`` and a single-valued fit against the solver's continuation on one path.
+
+    Attributes
+    ----------
+    Qs : (k, n_moving, d) numpy array
+    follow, single : (k,) numpy arrays
+        Per-frame error: max vertex distance to the solver's frame over the bbox diagonal.
+    jumps : dict of str -> (j,) int arrays
+        Frames where the solver, ``follow`` (its branch switches) and the single-valued fit jump.
+    near : (k,) numpy bool array
+        Frames within ``window`` steps of a solver jump.
+    excess : (k,) numpy array
+        (E(global's X) − lowest verified minimum) / lowest, per frame.
+    labels : (k,) numpy int array
+        ``follow``'s branch per frame.
+    X : dict of str -> (k, n_vertices, d) numpy arrays
+        The frames of ``solver``, ``follow``, ``global`` and ``single``.
+    """
+
+    Qs: np.ndarray
+    follow: np.ndarray
+    single: np.ndarray
+    jumps: dict
+    near: np.ndarray
+    excess: np.ndarray
+    labels: np.ndarray
+    X: dict = dataclasses.field(default_factory=dict)
+
+
+def _error(X, ref, diag):
+    return np.linalg.norm(X - ref, axis=-1).max(axis=-1) / diag
+
+
+def compare(shape, bop, single, Qs, energy="sarap", window=5):
+    """``follow``, ``global`` and a single-valued DefOp against the solver's continuation along Qs.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    bop : defop.operator.branched.BranchedOperator
+    single : defop.operator.DefOp
+    Qs : (k, n_moving, d) numpy array
+        The path (e.g. :func:`line_path`).
+    energy : str
+    window : int
+        "Near the jump": within this many steps of a frame where the solver jumps.
+
+    Returns
+    -------
+    PathComparison
+    """
+    diag = shape.mesh.bbox_diagonal
+    X, E, ok = solver_path(shape, Qs, energy)
+    if not ok.all():
+        warnings.warn(f"{int((~ok).sum())} of {len(ok)} continuation solves did not converge", stacklevel=2)
+    # a there-and-back path visits each Q twice: out on one branch, back on the other where both exist
+    E = np.where(ok, E, np.inf)
+    lowest = np.minimum(E, E[::-1]) if np.allclose(Qs, Qs[::-1]) else E
+    solver = Solver(shape.mesh, shape.handles, energy=energy)
+    session = bop.session()
+    labels, Xf = session.run(Qs)
+    Xs = single(Qs)
+    Xg = bop(Qs)
+    Eg = solver_energies(solver, Xg)
+    solver_jumps = jump_frames(X, diag)
+    frames = np.arange(len(Qs))
+    near = np.zeros(len(Qs), bool)
+    for j in solver_jumps:
+        near |= np.abs(frames - j) <= window
+    jumps = {
+        "solver": solver_jumps,
+        "follow": np.flatnonzero(np.diff(labels) != 0) + 1,
+        "single": jump_frames(Xs, diag),
+    }
+    out = {"solver": X, "follow": Xf, "global": Xg, "single": Xs}
+    return PathComparison(
+        Qs, _error(Xf, X, diag), _error(Xs, X, diag), jumps, near, (Eg - lowest) / lowest, labels, out
+    )
+
+
+def solver_energies(solver, X):
+    """E(X) for a batch (k, n_vertices, d) (the true energy, Eq. 10 / 11)."""
+    return np.array([solver.energy_of(x) for x in X])
+
+
+def targets_met(c, window=5, tolerance=2):
+    """Issue 29's three targets on one :class:`PathComparison`: a dict of name -> (value, passed).
+
+    * near the solver's jumps (``window`` steps), ``follow``'s mean error ≥ 10× below the single-valued fit's;
+    * ``follow`` jumps on the way out and back, each within ``tolerance`` steps of a solver jump (and as often);
+    * elsewhere, ``follow``'s mean error within 10% of the single-valued fit's, or lower.
+    """
+    f_near, s_near = float(c.follow[c.near].mean()), float(c.single[c.near].mean())
+    f_far, s_far = float(c.follow[~c.near].mean()), float(c.single[~c.near].mean())
+    js, jf = c.jumps["solver"], c.jumps["follow"]
+    half = (len(c.Qs) - 1) / 2
+    both_ways = bool((js < half).any() and (js > half).any())
+    dist = [int(np.min(np.abs(jf - j))) if len(jf) else 10**9 for j in js]
+    return {
+        "near: single / follow mean error": (s_near / max(f_near, 1e-300), s_near >= 10 * f_near),
+        "hysteresis: solver jumps out and back, follow within 2 steps of each": (
+            dist,
+            both_ways and len(jf) == len(js) and all(d <= tolerance for d in dist),
+        ),
+        "elsewhere: follow / single mean error": (f_far / max(s_far, 1e-300), f_far <= 1.1 * s_far),
+    }
+
+
+#: the measured cases: shape, the moving handle's sample grid (centre offset, half width, sweep direction across
+#: the folds) and the there-and-back path (two ends, as displacements from rest). Every other handle is fixed
+#: (the U's second tip too: Ψ is then a function of the one handle that moves, as the samples need)
+CASES = {
+    "bar": {
+        "shape": "bar",
+        "moving": 0,
+        "offset": (0.0, 0.0),
+        "radius": 0.3,
+        "by": "columns",
+        "path": ((-0.15, -0.3), (-0.15, 0.3)),
+    },
+    "u_shape": {
+        "shape": "u_shape",
+        "moving": 0,
+        "offset": (0.1, -0.4),
+        "radius": 0.3,
+        "by": "rows",
+        "path": ((-0.2, -0.25), (0.4, -0.25)),
+    },
+}
+
+
+@dataclasses.dataclass
+class Case:
+    """One measured case (:func:`run_case`): the shape, the minima, the branches, both operators and the comparison."""
+
+    name: str
+    shape: object
+    minima: object
+    branches: object
+    operator: object
+    single: object
+    comparison: PathComparison
+    fit_seconds: float
+
+
+def run_case(name, n, steps=100, energy="sarap"):
+    """Discover the branches of a case of :data:`CASES` on an n × n grid, fit, and compare along its path.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`CASES`.
+    n : int
+        Samples per side of the grid.
+    steps : int
+        Steps of the path one way (there and back: 2 steps + 1 frames).
+
+    Returns
+    -------
+    Case
+    """
+    if name not in CASES:
+        raise ValueError(f"name must be one of {sorted(CASES)}, got {name!r}")
+    c = CASES[name]
+    shape = one_moving(shapes.load(c["shape"]), c["moving"])
+    Q = br.grid_samples(shape, c["radius"], n, 0, c["offset"])
+    sweeps = [br.scan_order(n, n, c["by"]), br.scan_order(n, n, c["by"], reverse=True)]
+    minima = br.discover(shape, Q, sweeps, energy)
+    branches = br.group(shape, minima, energy=energy)
+    t0 = time.perf_counter()
+    bop = br.fit_branched(shape, branches, energy)
+    fit_seconds = time.perf_counter() - t0
+    single = br.fit_single(shape, minima, energy)
+    Qs = line_path(shape.P_moving, 0, c["path"][0], c["path"][1], steps)
+    return Case(name, shape, minima, branches, bop, single, compare(shape, bop, single, Qs, energy), fit_seconds)
+
+
+def one_moving(shape, moving):
+    """The shape with only its moving handle ``moving`` (an index among the moving handles) moving, the rest fixed."""
+    idx = np.flatnonzero(shape.moving)
+    if not 0 <= moving < len(idx):
+        raise ValueError(f"moving must index one of the {len(idx)} moving handles, got {moving!r}")
+    if len(idx) == 1:
+        return shape
+    flags = np.zeros_like(shape.moving)
+    flags[idx[moving]] = True
+    return dataclasses.replace(shape, moving=flags, regions=[shape.regions[moving]])

@@ -1,0 +1,119 @@
+"""Pictures of a multi-valued operator (notebook 15): two minima and the barrier between them, the branches'
+domains in the handle plane, the hysteresis loop of ``follow`` beside the solver's, errors per frame."""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib import pyplot as plt
+
+from .plot import plot_deformation
+
+BRANCH_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd")
+
+
+def plot_minima(shape, X, titles, energies, size=3.0):
+    """Deformations side by side (two minima and the configuration between them) and their energies.
+
+    Parameters
+    ----------
+    shape : Shape
+    X : list of (n_vertices, 2) numpy arrays
+    titles : list of str
+    energies : list of float
+        E of each deformation.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    fig, axes = plt.subplots(1, len(X) + 1, figsize=(size * (len(X) + 1), size * 0.9))
+    for ax, x, t in zip(axes, X, titles):
+        plot_deformation(ax, shape, x, title=t)
+    axes[-1].bar(range(len(X)), energies, color=[BRANCH_COLORS[0], "0.6", BRANCH_COLORS[1]][: len(X)])
+    axes[-1].set_xticks(range(len(X)), [t.split(" (")[0] for t in titles], fontsize=7)
+    axes[-1].set_ylabel("E (Eq. 11)")
+    axes[-1].set_title("energy")
+    fig.tight_layout()
+    return fig
+
+
+def plot_domains(samples_xy, branches, grid_xy, exists, path_xy=None, size=3.6):
+    """The branches in the handle plane: samples where each has a minimum, and its estimated domain.
+
+    Parameters
+    ----------
+    samples_xy : (m, 2) numpy array
+        Handle displacements of the samples.
+    branches : list of (label, (k,) sample indices)
+    grid_xy : (gy, gx, 2) numpy array
+        A fine grid of handle displacements.
+    exists : (gy, gx, B) numpy bool array
+        The operator's domain estimate on the grid.
+    path_xy : (k, 2) numpy array, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    B = len(branches)
+    fig, axes = plt.subplots(1, B, figsize=(size * B, size), squeeze=False)
+    for ax, (label, idx), b in zip(axes[0], branches, range(B)):
+        color = BRANCH_COLORS[b % len(BRANCH_COLORS)]
+        ax.contourf(
+            grid_xy[..., 0], grid_xy[..., 1], exists[..., b].astype(float), levels=[0.5, 1.5], colors=[color], alpha=0.2
+        )
+        ax.contour(grid_xy[..., 0], grid_xy[..., 1], exists[..., b].astype(float), levels=[0.5], colors=[color])
+        ax.plot(samples_xy[:, 0], samples_xy[:, 1], ".", color="0.75", ms=3)
+        ax.plot(samples_xy[idx, 0], samples_xy[idx, 1], "o", color=color, ms=3.5)
+        if path_xy is not None:
+            ax.plot(path_xy[:, 0], path_xy[:, 1], "k--", lw=0.8)
+        ax.set_title(f"branch {label}: {len(idx)} samples")
+        ax.set_xlabel("q_x − p_x")
+        ax.set_aspect("equal")
+    axes[0, 0].set_ylabel("q_y − p_y")
+    fig.tight_layout()
+    return fig
+
+
+def plot_hysteresis(t, solver, operator, labels, errors, names=("solver (warm-started)", "follow (operator)")):
+    """The hysteresis loop of a point along a there-and-back path, solver and operator side by side, and errors.
+
+    Parameters
+    ----------
+    t : (k,) numpy array
+        The path parameter shown on the x axis (e.g. q_y − p_y).
+    solver, operator : (k,) numpy arrays
+        The point's coordinate per frame.
+    labels : (k,) numpy int array
+        ``follow``'s branch per frame (colours the operator's curve).
+    errors : dict of str -> (k,) numpy arrays
+        Per-frame errors (max vertex distance / bbox diagonal).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    k = len(t)
+    half = k // 2
+    fig, axes = plt.subplots(1, 3, figsize=(11, 3.2))
+    for ax, y, name in zip(axes[:2], (solver, operator), names):
+        ax.plot(t[: half + 1], y[: half + 1], "-", color="0.3", lw=1, label="out")
+        ax.plot(t[half:], y[half:], "--", color="0.3", lw=1, label="back")
+        ax.set_title(name)
+        ax.set_xlabel("q_y − p_y along the path")
+    for b in np.unique(labels):
+        on = labels == b
+        axes[1].plot(
+            t[on], operator[on], ".", ms=3, color=BRANCH_COLORS[int(b) % len(BRANCH_COLORS)], label=f"branch {int(b)}"
+        )
+    axes[0].set_ylabel("y of the marked point")
+    axes[0].legend(fontsize=7)
+    axes[1].legend(fontsize=7)
+    for name, e in errors.items():
+        axes[2].semilogy(np.arange(k), np.maximum(e, 1e-16), lw=1, label=name)
+    axes[2].set_xlabel("frame")
+    axes[2].set_ylabel("error / bbox diagonal")
+    axes[2].legend(fontsize=7)
+    axes[2].set_title("error against the solver")
+    fig.tight_layout()
+    return fig

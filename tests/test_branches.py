@@ -1,0 +1,176 @@
+"""Multi-valued operators (issue 29): branch discovery, one DefOp per branch, global and follow, files.
+
+A small case: the bar of Fig. 10 on a 7 × 7 grid of handle positions (±0.3), two continuation sweeps. Props. 1 and
+2 on every branch and evaluation path, (8b) on the branch holding the rest pose, ``follow`` against the solver's
+warm-started continuation on a hysteresis loop, one branch = DefOp, files, bad input.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import defop as dop
+from defop.analysis import branches as ab
+from defop.operator import ExtrapolationWarning
+from defop.operator.branched import BranchedOperator
+from defop.operator.fit import fit_values
+from defop.training import branches as br
+
+N, R = 7, 0.3
+
+
+@pytest.fixture(scope="module")
+def bar():
+    return dop.shapes.load("bar")
+
+
+@pytest.fixture(scope="module")
+def found(bar):
+    Q = br.grid_samples(bar, R, N)
+    minima = br.discover(bar, Q, [br.scan_order(N, N), br.scan_order(N, N, reverse=True)])
+    B = br.group(bar, minima)
+    return Q, minima, B, br.fit_branched(bar, B)
+
+
+def test_two_branches_with_overlapping_domains(bar, found):
+    Q, minima, B, bop = found
+    assert minima.converged.all() and B.conflicts == 0
+    assert len(B.branches) == 2 and bop.labels == (0, 1)
+    assert (B.distinct == 2).sum() >= 5  # the bistable wedge of the compressed columns
+    covered = np.zeros(len(Q), int)
+    for b in B.branches:
+        covered[b.samples] += 1
+    assert (covered >= 1).all() and (covered[B.distinct == 2] == 2).all()
+    centre = (N * N) // 2  # the rest pose
+    assert centre in B.branches[0].samples and np.abs(Q[centre] - bar.P_moving).max() == 0
+    for r in B.reports():
+        assert r["count"] == len(B.branches[r["label"]].samples) and r["energy"][0] <= r["energy"][1]
+
+
+def test_prop1_every_branch_reproduces_its_minima(bar, found):
+    Q, _, B, bop = found
+    for b, ob in zip(B.branches, bop.branches):
+        err = np.abs(ob.op(Q[b.samples]) - b.X).max() / bar.mesh.bbox_diagonal
+        assert err < 1e-9
+        E, lam2, _ = bop.estimates(Q[b.samples])
+        assert np.allclose(E[:, b.label], b.energy, rtol=1e-8, atol=1e-12)  # E_b interpolates (same Ψ)
+        assert np.allclose(lam2[:, b.label], b.margin**2, rtol=1e-8, atol=1e-14)
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.lists(st.tuples(st.floats(-R, R), st.floats(-R, R)), min_size=1, max_size=6))
+def test_prop2_every_branch_and_path(bar, found, moves):
+    _, _, _, bop = found
+    Qs = bar.P_moving[None] + np.asarray(moves)[:, None, :]
+    h, mv = bar.handles, bar.moving
+    outs = [b.op(Qs) for b in bop.branches] + [bop(Qs), bop.session().run(Qs)[1]]
+    outs += [np.array([bop.session(b)(q) for q in Qs]) for b in bop.labels]
+    for X in outs:
+        assert np.abs(X[:, h[mv]] - Qs).max() < 1e-12  # Prop. 2: the moving handles exact
+        assert np.abs(X[:, h[~mv]] - bar.mesh.V[h[~mv]]).max() < 1e-12
+
+
+def test_8b_on_the_rest_branch(bar, found):
+    _, _, _, bop = found
+    P = bar.P_moving
+    assert np.array_equal(bop(P, branch=0), bar.mesh.V)  # (★): exact at the rest pose
+    assert bop.choose(P) == 0 and np.array_equal(bop(P), bar.mesh.V)
+    assert np.array_equal(bop.session()(P), bar.mesh.V)
+
+
+def test_follow_reproduces_the_solvers_hysteresis_loop(bar, found):
+    _, _, _, bop = found
+    single = br.fit_single(bar, found[1])
+    Qs = ab.line_path(bar.P_moving, 0, [-0.15, -0.3], [-0.15, 0.3], 20)  # between sample columns, up and down
+    c = ab.compare(bar, bop, single, Qs)
+    js, jf = c.jumps["solver"], c.jumps["follow"]
+    assert len(js) == 2 and js[0] < 20 < js[1]  # the solver jumps on the way out and on the way back
+    assert len(jf) == 2 and np.abs(jf - js).max() <= 2  # follow too, within 2 steps of each
+    assert not np.array_equal(c.labels[:21], c.labels[::-1][:21])  # hysteresis: other branch at the same Q
+    # 7 × 7 samples: away from the jumps follow is within 2% of the diagonal, the single-valued fit is not
+    assert c.follow[~c.near].max() < 0.02 and c.follow[~c.near].mean() < 0.5 * c.single[~c.near].mean()
+
+
+def test_one_branch_equals_defop(bar):
+    Q = br.grid_samples(bar, 0.05, 3)  # small moves: one minimum everywhere
+    minima = br.discover(bar, Q, [br.scan_order(3, 3)])
+    B = br.group(bar, minima)
+    assert len(B.branches) == 1 and (B.distinct == 1).all()
+    bop = br.fit_branched(bar, B)
+    op = br.fit_single(bar, minima)  # the single-valued training on the same minima
+    rng = np.random.default_rng(0)
+    Qs = bar.P_moving[None] + rng.uniform(-0.05, 0.05, (8, 1, 2))
+    ref = op(Qs)
+    for X in (bop(Qs), bop.session().run(Qs)[1], bop(Qs, branch=0)):
+        assert np.array_equal(X, ref)  # the same fit: bit for bit
+
+
+def test_fit_values_interpolates_with_the_operators_basis(bar, found):
+    _, _, _, bop = found
+    op = bop.branches[1].op
+    values = np.random.default_rng(1).normal(size=len(op.train_samples))
+    w = fit_values(op, values)
+    assert np.allclose(op.psi(op.train_samples) @ w, values, atol=1e-9)
+    with pytest.raises(ValueError, match="values must be"):
+        fit_values(op, values[:-1])
+
+
+def test_save_load_compress(bar, found, tmp_path):
+    Q, _, _, bop = found
+    path = tmp_path / "bar.npz"
+    bop.save(path)
+    back = BranchedOperator.load(path)
+    assert back.labels == bop.labels and np.array_equal(back.threshold, bop.threshold)
+    assert np.array_equal(back(Q), bop(Q)) and np.array_equal(back.choose(Q), bop.choose(Q))
+    with pytest.raises(ValueError, match="multi-valued"):
+        dop.operator.DefOp.load(path)
+    bop.branches[0].op.save(tmp_path / "one.npz")  # a plain DefOp file: not a branched one
+    with pytest.raises(ValueError, match="single-valued operator file"):
+        BranchedOperator.load(tmp_path / "one.npz")
+    back.compress(rank=4)
+    X = back(Q)
+    assert np.abs(X[:, bar.handles[bar.moving]] - Q).max() < 1e-12 and np.array_equal(back(bar.P_moving), bar.mesh.V)
+    back.save(tmp_path / "c.npz")
+    again = BranchedOperator.load(tmp_path / "c.npz")
+    assert all(b.op.rank == 4 for b in again.branches) and np.array_equal(again(Q), X)
+
+
+def test_bad_input(bar, found):
+    _, _, _, bop = found
+    P = bar.P_moving
+    s = bop.session(1)
+    for bad in (2, -1, 1.0, True, "0", None):
+        with pytest.raises(ValueError, match="branch must be one of the branch labels"):
+            s.set(bad)
+        assert s.branch == 1  # unchanged
+    with pytest.raises(ValueError, match="mode must be one of"):
+        bop(P, mode="lowest")
+    with pytest.raises(ValueError, match="follow"):
+        bop(P, mode="follow")
+    with pytest.raises(ValueError, match="Q must have shape"):
+        s.step(np.zeros(3))
+    assert s.frame == 0
+    with pytest.raises(ValueError):
+        bop(np.full_like(P, np.nan))
+    with pytest.raises(ValueError, match="sweep 0 must be a permutation"):
+        br.discover(bar, br.grid_samples(bar, 0.1, 2), [[0, 0, 1, 2]])
+    with pytest.raises(ValueError, match="by must be"):
+        br.scan_order(2, 2, by="diagonal")
+    with pytest.raises(ValueError, match="offset must be"):
+        br.grid_samples(bar, 0.1, 3, offset=(np.nan, 0))
+    with pytest.raises(ValueError, match="steps"):
+        ab.line_path(P, 0, [0, 0], [0, 1], 0)
+
+
+def test_far_q_falls_back_to_the_nearest_branch_with_a_warning(bar, found):
+    _, _, _, bop = found
+    far = bar.P_moving + [[-3.0, 0.0]]  # far beyond the samples (and every fold)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        X = bop(far)
+        label = bop.session().step(far)
+    assert any(issubclass(w.category, ExtrapolationWarning) for w in caught)
+    assert label in bop.labels and np.isfinite(X).all()
