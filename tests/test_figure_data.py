@@ -227,10 +227,14 @@ def test_patch_motions_are_rigid_with_the_given_twist_and_shift(angle, shift, ax
 
 def test_twist_bend_samples_stay_in_their_ranges_and_reject_bad_input():
     P = np.array([[1.0, 0.04, 0.04], [1.0, 0.16, 0.04], [1.0, 0.16, 0.16], [1.0, 0.04, 0.16]])
-    Q = fd.twist_bend_samples(P, 1.0, 0.3, 200, np.random.default_rng(0))
-    assert Q.shape == (200, 4, 3)
-    shift = Q.mean(1) - P.mean(0)
+    rigid = fd.twist_bend_samples(P, 1.0, 0.3, 200, np.random.default_rng(0), jitter=0.0)
+    assert rigid.shape == (200, 4, 3)
+    shift = rigid.mean(1) - P.mean(0)
     assert np.abs(shift[:, 0]).max() < 1e-12 and np.linalg.norm(shift, axis=1).max() <= 0.3
+    assert np.linalg.matrix_rank((rigid - rigid.mean(0)).reshape(200, -1), tol=1e-9) == 4  # cos, sin, two shifts
+    Q = fd.twist_bend_samples(P, 1.0, 0.3, 200, np.random.default_rng(0), jitter=0.02)
+    assert np.linalg.norm(Q - rigid, axis=-1).max() <= 0.02  # each handle within its ball around the rigid motion
+    assert np.linalg.matrix_rank((Q - Q.mean(0)).reshape(200, -1)) == 12  # the jitter fills R^12
     with pytest.raises(ValueError, match="angle"):
         fd.twist_bend_samples(P, 4.0, 0.3, 5, np.random.default_rng(0))
     with pytest.raises(ValueError, match=r"shifts \(k,3\)"):

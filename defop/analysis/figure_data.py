@@ -210,9 +210,14 @@ def patch_motions(P, angles, shifts, axis=0):
     return np.einsum("kab,hb->kha", R, P - c) + c + t[:, None, :]
 
 
-def twist_bend_samples(P, angle, shift, m, rng, axis=0):
+def twist_bend_samples(P, angle, shift, m, rng, axis=0, jitter=0.02):
     """m configurations of a beam's end patch: twists uniform in [−angle, angle] and shifts uniform in the disc
-    of radius ``shift`` across the beam (perpendicular to ``axis``); :func:`patch_motions` of those.
+    of radius ``shift`` across the beam (perpendicular to ``axis``); :func:`patch_motions` of those, then each
+    handle moved on its own, uniformly in a ball of radius ``jitter``.
+
+    Rigid motions alone span a 3-parameter family: their Q_k lie in a 4-dimensional affine subspace of R^{3h}
+    (cos and sin of the twist, two shifts), which no linear or TPS Ψ on R^{3h} can be fitted to; the jitter makes
+    the samples determine Ψ.
 
     Parameters
     ----------
@@ -222,19 +227,27 @@ def twist_bend_samples(P, angle, shift, m, rng, axis=0):
     m : int
     rng : numpy.random.Generator
     axis : int
+    jitter : float
+        Radius of each handle's own ball.
 
     Returns
     -------
     Q : (m,h,3) numpy array
     """
-    if int(m) != m or m < 1 or not 0 <= angle < np.pi or not shift >= 0:
-        raise ValueError(f"need m >= 1, 0 <= angle < pi and shift >= 0, got m={m}, angle={angle}, shift={shift}")
+    if int(m) != m or m < 1 or not 0 <= angle < np.pi or not shift >= 0 or not jitter >= 0:
+        raise ValueError(
+            f"need m >= 1, 0 <= angle < pi, shift >= 0 and jitter >= 0, got m={m}, angle={angle}, shift={shift}, "
+            f"jitter={jitter}"
+        )
     a = rng.uniform(-angle, angle, size=m)
     r, phi = shift * np.sqrt(rng.uniform(size=m)), rng.uniform(0, 2 * np.pi, size=m)
     t = np.zeros((m, 3))
     i, j = [c for c in range(3) if c != axis]
     t[:, i], t[:, j] = r * np.cos(phi), r * np.sin(phi)
-    return patch_motions(P, a, t, axis)
+    Q = patch_motions(P, a, t, axis)
+    u = rng.normal(size=Q.shape)
+    u *= jitter * rng.uniform(size=Q.shape[:2] + (1,)) ** (1 / 3) / np.linalg.norm(u, axis=-1, keepdims=True)
+    return Q + u
 
 
 def fit_diagnostics(op, Q_train, X_train, Q_test, X_test):

@@ -15,13 +15,20 @@ import numpy as np
 from .. import options as opt
 
 
+def _dim(defop):
+    """The dimension d of the operator's mesh (2 when it does not say)."""
+    mesh = getattr(defop, "mesh", None)
+    return mesh.V.shape[1] if mesh is not None else 2
+
+
 def _samples(defop, samples):
-    """(k,n,2) float array of configurations of the operator's n moving handles, k >= 1, finite."""
+    """(k,n,d) float array of configurations of the operator's n moving handles, k >= 1, finite."""
     samples = opt.real_array("samples", samples)
     basis = getattr(defop, "handle_basis", None)  # None: frames computed elsewhere (defop.analysis.compare)
     n = len(basis.P) if basis is not None else samples.shape[1] if samples.ndim == 3 else "n"
-    if samples.ndim != 3 or samples.shape[1:] != (n, 2) or len(samples) == 0:
-        raise ValueError(f"samples must have shape (k, {n}, 2), k >= 1, for {n} moving handles, got {samples.shape}")
+    d = _dim(defop)
+    if samples.ndim != 3 or samples.shape[1:] != (n, d) or len(samples) == 0:
+        raise ValueError(f"samples must have shape (k, {n}, {d}), k >= 1, for {n} moving handles, got {samples.shape}")
     if not np.isfinite(samples).all():
         raise ValueError("samples have NaN or infinite entries")
     return samples
@@ -29,8 +36,9 @@ def _samples(defop, samples):
 
 def _ground_truth(defop, samples, X_true):
     X_true = opt.real_array("X_true", X_true)
-    if X_true.shape != (len(samples), defop.n_vertices, 2):
-        raise ValueError(f"X_true must have shape ({len(samples)}, {defop.n_vertices}, 2), got {X_true.shape}")
+    d = _dim(defop)
+    if X_true.shape != (len(samples), defop.n_vertices, d):
+        raise ValueError(f"X_true must have shape ({len(samples)}, {defop.n_vertices}, {d}), got {X_true.shape}")
     if not np.isfinite(X_true).all():  # the error was NaN, silently
         first = int(np.argwhere(~np.isfinite(X_true))[0, 0])
         raise ValueError(f"X_true has NaN or infinite entries (first in sample {first})")
