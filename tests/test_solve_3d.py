@@ -245,3 +245,16 @@ def test_kink_offset_is_the_energy_above_the_kink_and_the_fenchel_gap_vanishes_a
     assert offset[0] == 0.0 and excess[0] == 0.0
     F *= 4
     assert kink.fenchel_gap(S, on, np.ones(1), F)[1][0] > 0
+
+
+def test_verify_names_tetrahedra_when_it_rejects_an_inverted_point():
+    """Check 3 on a barrier energy: an inverted tet is rejected, and the reason says tetrahedron, not triangle."""
+    mesh, b, T = _pinned_box((1.0, 1.0, 1.0), 0.0)
+    solver = Solver(mesh, b, "sarap")
+    X = mesh.V.copy()
+    free = np.setdiff1d(np.arange(mesh.n_vertices), solver.handles)
+    X[free[0]] += 10 * mesh.bbox_diagonal * np.array([1.0, 0.3, -0.2])  # drags one free vertex through the box
+    check = solver.verify(X, solver.targets_of(T))
+    assert count_flips(mesh, X) > 0
+    assert not check.ok and check.failed in ("energy", "flips"), check.reason
+    assert "tetrahedron" in check.reason and "triangle" not in check.reason

@@ -4,6 +4,10 @@ Every method is a callable ``method(Q) → X`` on the moving handles (a :class:`
 :class:`~defop.analysis.peers.Peer`). :func:`score` runs it once over the held-out frames, in order (so ARAP
 iterations warm-start from the previous frame), timing each frame with BLAS pinned to one thread, and
 scores the frames with the paper's Fig. 8 metric (:func:`defop.analysis.metrics.approximation_error`).
+
+The same harness scores triangle meshes (d = 2) and tetrahedral meshes (d = 3), reading d from the shape's
+mesh; a frame's inverted elements are the ones :meth:`defop.geometry.mesh.Mesh.flipped` counts (signed volume
+≤ 0): flipped triangles in 2D, inverted tetrahedra in 3D.
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ from . import metrics
 
 COLUMNS = ("method", "(8a)/n", "worst/diag", "flips/frame", "frames flipped", "handle err", "precompute",
            "frame median", "frame best")
+#: the 3D headers of the inverted-element columns
+INVERTED_HEADER = {"flips/frame": "inverted tets/frame", "frames flipped": "frames inverted"}
 
 
 @dataclasses.dataclass
@@ -32,9 +38,10 @@ class Score:
     worst : float
         The largest vertex error over all frames, divided by the bounding-box diagonal.
     flips_per_frame : float
-        Mean number of flipped triangles per frame.
+        Mean number of inverted elements per frame (signed volume ≤ 0): flipped triangles in 2D, inverted
+        tetrahedra in 3D.
     frames_flipped : int
-        Frames with at least one flipped triangle.
+        Frames with at least one inverted element.
     handle_error : float
         Largest distance of a handle vertex from its target.
     precompute : float
@@ -42,6 +49,8 @@ class Score:
     frame_median, frame_best : float
         Seconds per frame: CPU time of the calling thread, single-threaded BLAS (see :func:`run_frames`).
     n_frames : int
+    dim : int
+        d of the mesh: 2 (triangles) or 3 (tetrahedra); names the inverted-element column.
     """
 
     name: str
@@ -54,6 +63,12 @@ class Score:
     frame_median: float
     frame_best: float
     n_frames: int
+    dim: int = 2
+
+    @property
+    def inverted_per_frame(self) -> float:
+        """:attr:`flips_per_frame`, by its 3D name: inverted tetrahedra (or flipped triangles) per frame."""
+        return self.flips_per_frame
 
     def row(self):
         """The table row as strings (see :data:`COLUMNS`)."""
@@ -92,19 +107,20 @@ def run_frames(method, Q):
     Parameters
     ----------
     method : callable
-        (n_moving,2) → (n_vertices,2).
-    Q : (k,n_moving,2) numpy array
+        (n_moving,d) → (n_vertices,d).
+    Q : (k,n_moving,d) numpy array
+        d = 2 or 3.
 
     Returns
     -------
-    X : (k,n_vertices,2) numpy array
+    X : (k,n_vertices,d) numpy array
     seconds : (k,) numpy array
     """
     from threadpoolctl import threadpool_limits
 
     Q = opt.real_array("Q", Q)
-    if Q.ndim != 3 or Q.shape[-1] != 2 or len(Q) == 0:
-        raise ValueError(f"Q must be a batch of shape (k, n_moving, 2) with k >= 1, got {Q.shape}")
+    if Q.ndim != 3 or Q.shape[-1] not in (2, 3) or len(Q) == 0:
+        raise ValueError(f"Q must be a batch of shape (k, n_moving, d), d = 2 or 3, with k >= 1, got {Q.shape}")
     out, seconds = [], np.empty(len(Q))
     with threadpool_limits(1):
         method(Q[0])
@@ -135,11 +151,11 @@ def score(method, shape, Q, X_true, name=None, precompute=None):
     Parameters
     ----------
     method : callable
-        A DefOp or a :class:`~defop.analysis.peers.Peer` (n_moving,2) → (n_vertices,2).
+        A DefOp or a :class:`~defop.analysis.peers.Peer` (n_moving,d) → (n_vertices,d).
     shape : defop.scene.shapes.Shape
-        The shape both were built on (mesh and handles).
-    Q : (k,n_moving,2) numpy array
-    X_true : (k,n_vertices,2) numpy array
+        The shape both were built on (mesh and handles); d = ``shape.mesh.dim``.
+    Q : (k,n_moving,d) numpy array
+    X_true : (k,n_vertices,d) numpy array
     name : str, optional
         Default: ``method.name`` or its repr.
     precompute : float, optional
@@ -148,19 +164,19 @@ def score(method, shape, Q, X_true, name=None, precompute=None):
     Returns
     -------
     score : Score
-    X : (k,n_vertices,2) numpy array
+    X : (k,n_vertices,d) numpy array
         The method's frames.
     """
     Q = opt.real_array("Q", Q)
-    n = shape.n_moving
-    if Q.ndim != 3 or Q.shape[1:] != (n, 2) or len(Q) == 0:
-        raise ValueError(f"Q must be a batch of shape (k, {n}, 2) with k >= 1 (the moving handles), got {Q.shape}")
+    n, d = shape.n_moving, shape.mesh.dim
+    if Q.ndim != 3 or Q.shape[1:] != (n, d) or len(Q) == 0:
+        raise ValueError(f"Q must be a batch of shape (k, {n}, {d}) with k >= 1 (the moving handles), got {Q.shape}")
     X_true = opt.real_array("X_true", X_true)
     if precompute is not None and not (isinstance(precompute, (int, float, np.number)) and np.isfinite(precompute)
                                        and precompute >= 0 and not isinstance(precompute, (bool, np.bool_))):
         raise ValueError(f"precompute must be None or seconds, a finite number >= 0, got {precompute!r}")
-    if X_true.shape != (len(Q), shape.mesh.n_vertices, 2):
-        raise ValueError(f"X_true must have shape ({len(Q)}, {shape.mesh.n_vertices}, 2), got {X_true.shape}")
+    if X_true.shape != (len(Q), shape.mesh.n_vertices, d):
+        raise ValueError(f"X_true must have shape ({len(Q)}, {shape.mesh.n_vertices}, {d}), got {X_true.shape}")
     X, seconds = run_frames(method, Q)
     if not np.isfinite(X).all():
         raise ValueError(f"{name or method!r} returned NaN or infinite positions")
@@ -180,6 +196,7 @@ def score(method, shape, Q, X_true, name=None, precompute=None):
         frame_median=float(np.median(seconds)),
         frame_best=float(seconds.min()),
         n_frames=len(Q),
+        dim=d,
     )
     return s, X
 
@@ -211,11 +228,14 @@ def pareto_front(cost, error):
 def markdown_table(scores):
     """The scores as a Markdown table (one row per method, :data:`COLUMNS`).
 
+    On tetrahedral meshes the flips column is headed "inverted tets/frame" (the same count: signed volume ≤ 0).
+
     Returns
     -------
     text : str
     """
-    lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    columns = [INVERTED_HEADER.get(c, c) for c in COLUMNS] if any(s.dim == 3 for s in scores) else COLUMNS
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(COLUMNS)]
     lines += ["| " + " | ".join(s.row()) + " |" for s in scores]
     return "\n".join(lines)
 
@@ -237,15 +257,15 @@ def score_all(methods, shape, Q, X_true, names=None, precompute=None):
     ----------
     methods : list of callable
     shape : defop.scene.shapes.Shape
-    Q : (k,n_moving,2) numpy array
-    X_true : (k,n_vertices,2) numpy array
+    Q : (k,n_moving,d) numpy array
+    X_true : (k,n_vertices,d) numpy array
     names, precompute : list, optional
         Per method; None entries use the defaults of :func:`score`.
 
     Returns
     -------
     scores : list of Score
-    frames : dict of str -> (k,n_vertices,2) numpy array
+    frames : dict of str -> (k,n_vertices,d) numpy array
         Each method's frames, by name.
     """
     methods = list(methods)

@@ -15,18 +15,12 @@ import numpy as np
 from .. import options as opt
 
 
-def _dim(defop):
-    """The dimension d of the operator's mesh (2 when it does not say)."""
-    mesh = getattr(defop, "mesh", None)
-    return mesh.V.shape[1] if mesh is not None else 2
-
-
 def _samples(defop, samples):
-    """(k,n,d) float array of configurations of the operator's n moving handles, k >= 1, finite."""
+    """(k,n,d) float array of configurations of the operator's n moving handles, k >= 1, finite (d = mesh.dim)."""
     samples = opt.real_array("samples", samples)
     basis = getattr(defop, "handle_basis", None)  # None: frames computed elsewhere (defop.analysis.compare)
     n = len(basis.P) if basis is not None else samples.shape[1] if samples.ndim == 3 else "n"
-    d = _dim(defop)
+    d = defop.mesh.dim
     if samples.ndim != 3 or samples.shape[1:] != (n, d) or len(samples) == 0:
         raise ValueError(f"samples must have shape (k, {n}, {d}), k >= 1, for {n} moving handles, got {samples.shape}")
     if not np.isfinite(samples).all():
@@ -36,7 +30,7 @@ def _samples(defop, samples):
 
 def _ground_truth(defop, samples, X_true):
     X_true = opt.real_array("X_true", X_true)
-    d = _dim(defop)
+    d = defop.mesh.dim
     if X_true.shape != (len(samples), defop.n_vertices, d):
         raise ValueError(f"X_true must have shape ({len(samples)}, {defop.n_vertices}, {d}), got {X_true.shape}")
     if not np.isfinite(X_true).all():  # the error was NaN, silently
@@ -244,7 +238,7 @@ def batch_frame_rate(defop, samples, k=256, repeats=5, min_time=0.2):
     samples = _samples(defop, samples)
     k = opt.integer("k", k, minimum=1)
     Qs = samples[np.arange(k) % len(samples)]
-    out = np.empty((k, defop.n_vertices, 2))  # reused, as an animation loop would
+    out = np.empty((k, defop.n_vertices, defop.mesh.dim))  # reused, as an animation loop would
     t = repeat_timing(lambda: defop.evaluate_batch(Qs, out=out), repeats, min_time)
     return {"median": k / t["median"], "best": k / t["best"], "cpu_best": k / t["cpu_best"], "k": k}
 

@@ -17,6 +17,7 @@ import dataclasses
 
 import numpy as np
 
+from ..geometry.mesh import ELEMENT
 from . import energies as en
 from . import kink
 from .problem import count_flips
@@ -68,13 +69,14 @@ def verify_point(solver, X, T, tol=None):
     mesh = solver.mesh
     E = solver.energy_of(X)
     flips = count_flips(mesh, X)
+    el = ELEMENT[mesh.dim]
     if not np.isfinite(E):
-        return Verification(False, "energy", f"energy is not finite (E = {E}, {flips} flipped/collapsed triangles)", E)
+        return Verification(False, "energy", f"energy is not finite (E = {E}, {flips} flipped/collapsed {el}(s))", E)
     err = float(np.abs(X[solver.handles] - T).max()) / mesh.bbox_diagonal
     if not err <= HANDLE_TOL:
         return Verification(False, "handles", f"a handle is {err:.2e} of the diagonal off its target", E)
     if solver.barrier and flips:
-        return Verification(False, "flips", f"{flips} flipped or collapsed triangle(s)", E)
+        return Verification(False, "flips", f"{flips} flipped or collapsed {el}(s)", E)
     E, g, data, local = solver.grad_hess(X, 0.0, project=False, kink=solver._kink)  # true energy, exact Hessian
     gf = g[solver.free]
     p = solver.newton_direction(gf, data, rel_shift=INERTIA_SHIFT)
@@ -102,9 +104,9 @@ def verify_point(solver, X, T, tol=None):
                 why = (
                     "not a minimum at Eq. (11)'s kink: "
                     + (
-                        f"triangle {worst[0]} is pulled off it by {worst[1]:.4g} times the force its cone bears; "
+                        f"{el} {worst[0]} is pulled off it by {worst[1]:.4g} times the force its cone bears; "
                         if worst
-                        else "the held triangles' offsets from it cost "
+                        else "the held elements' offsets from it cost "
                     )
                     + f"up to {bound:.2e} > {tol:g}·E (smoothing bound {cert:.2e})"
                 )
