@@ -1,6 +1,7 @@
 """Interactive editing (layer 7): the editor's state (:mod:`.state`, numpy only), the in-browser view
 (:class:`BrowserEditor`, :mod:`.browser`), the matplotlib widget controls (:mod:`.widgets`) and the standalone
-HTML page (:mod:`.export`).
+HTML page (:mod:`.export`): for a 2D operator the 2D editor, for a 3D operator (tetrahedra) the 3D page
+(``static/defop_solid.js`` with the vendored three.js, ``static/three/README.md``).
 """
 
 from ..lazy import attach

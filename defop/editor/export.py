@@ -3,16 +3,28 @@
 from __future__ import annotations
 
 import base64
+import hashlib
 import html
 import json
+import re
 
 from .. import options as opt
 from ..operator.defop import DefOp
 from ..scene.shapes import Shape
-from .payload import JS_PATH, defop_to_payload, encode_payload, image_for
+from .payload import JS_PATH, defop_to_payload, encode_payload, image_for, region_balls
 from .state import region_polygons
 
-_PAGE = """<!DOCTYPE html>
+SOLID_JS_PATH = JS_PATH.with_name("defop_solid.js")
+THREE_DIR = JS_PATH.with_name("three")
+THREE_VERSION = "0.170.0"
+#: the vendored three.js files (static/three/README.md): name -> sha256, checked before a page inlines them
+THREE_FILES = {
+    "three.module.min.js": "08fd7545d13d2c7fb65ab691530a802dafefd638596501854f267d0fb13c39e7",
+    "OrbitControls.js": "80efaadea4f8a636a65fb0bd08bfef62f3d93a0bb94e2e7500f23176c5c07f4e",
+}
+
+# the head of both pages: a strict Content-Security-Policy (inline script and style only: nothing is fetched)
+_HEAD = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>
 <meta http-equiv="Content-Security-Policy"
  content="default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'">
@@ -27,6 +39,8 @@ h1 {{ font-size: 18px; margin: 0 0 2px; }}
 </style>
 </head><body>
 <h1>{title}</h1>
+"""
+_PAGE = _HEAD + """\
 <p class="defop-instruction">Drag a red handle with the mouse: the shape follows, computed in this page.</p>
 <div id="defop-app"></div>
 <div class="defop-legend" aria-label="legend">
@@ -50,16 +64,55 @@ window.defopEditor = mountStandalone(document.getElementById("defop-app"), {meta
 """
 
 
+_PAGE_3D = _HEAD + """\
+<p class="defop-instruction">Drag a red handle in the view plane; drag elsewhere to orbit, scroll to zoom.</p>
+<div id="defop-app"></div>
+<div class="defop-legend" aria-label="legend">
+<span><i class="defop-swatch" style="border-radius:50%;background:#d62728"></i>moving handle (drag it)</span>
+<span><i class="defop-swatch" style="border-radius:50%;background:#1f77b4"></i>fixed handle</span>
+<span><i class="defop-swatch" style="border-radius:50%;background:#4a0000"></i>handle outside its sampling ball:
+the operator extrapolates</span>
+<span><i class="defop-swatch" style="background:#f2d7a6;border:1px solid #999"></i>boundary surface of the
+tetrahedral mesh</span>
+</div>
+<p class="defop-note">D(x, Q) = &Sigma;<sub>ij</sub> C<sub>ij</sub> &phi;<sub>i</sub>(x) &psi;<sub>j</sub>(Q)
+(Eq. 3 of Poranne &amp; Lipman) is evaluated in this page for every vertex of the tetrahedral mesh, with no
+network access; handles exact (Prop. 2), rest pose exact (8b). Drawn with three.js {three_version} (MIT licence,
+Copyright 2010-2024 three.js authors); written by defop.</p>
+<script type="module">
+{js}
+window.defopEditor = mountSolid(document.getElementById("defop-app"), {meta}, "{data}", THREE, OrbitControls);
+</script>
+</body></html>
+"""
+
+
+def _check_dimensions(op, shape, image, image_frame):
+    """A 3D operator with a 2D shape (or the reverse), or a picture on a 3D mesh: a ValueError naming them."""
+    if shape is not None and shape.mesh.dim != op.d:
+        raise ValueError(f"shape must be a {op.d}D shape for this {op.d}D operator, got the {shape.mesh.dim}D shape "
+                         f"{shape.name!r} ({'tetrahedra' if shape.mesh.dim == 3 else 'triangles'})")
+    if op.d == 3 and (image is not None or image_frame is not None):
+        raise ValueError("image and image_frame are for 2D operators (a picture on the triangles); this operator "
+                         "is 3D")
+
+
 def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     """Write one self-contained page that drags ``op`` offline (inline script, no network access).
+
+    A 2D operator gets the 2D editor (``static/defop_editor.js``). A 3D operator (tetrahedra) gets the 3D view
+    (``static/defop_solid.js`` with the vendored three.js): the boundary surface shaded, an orbit camera,
+    handles as spheres dragged in the view plane, a reset button; the page evaluates the operator with the
+    same evaluator (``makeOperator`` of ``defop_editor.js``) for every vertex.
 
     Parameters
     ----------
     op : defop.operator.DefOp
     path : str or pathlib.Path
     shape : defop.scene.shapes.Shape, optional
-        Its sampling regions are drawn and used for the extrapolation warning; default: discs through the
-        farthest training sample of each handle.
+        Its sampling regions are drawn and used for the extrapolation warning; default: discs (balls in 3D)
+        through the farthest training sample of each handle. Its mesh must be the operator's (same
+        dimension too).
     title : str, optional
         Any string: it is shown as text (HTML-escaped in ``<title>``, JSON-escaped in the inline script, where
         ``<``, ``>`` and ``&`` become ``\\u003c``, ``\\u003e``, ``\\u0026`` so no ``</script>`` or ``<!--`` can end
@@ -77,18 +130,21 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     Raises
     ------
     ValueError
-        ``op`` is not a DefOp, ``shape`` not a Shape, ``title`` not a string, ``path`` not a path.
+        ``op`` is not a DefOp, ``shape`` not a Shape (or of another dimension or mesh than ``op``), ``title``
+        not a string, ``path`` not a path, a picture for a 3D operator.
     """
     if not isinstance(op, DefOp):
         raise ValueError(f"op must be a trained DefOp, got {type(op).__name__}")
     if shape is not None and not isinstance(shape, Shape):
         raise ValueError(f"shape must be a Shape (dop.shapes.load(...)) or None, got {type(shape).__name__}")
+    _check_dimensions(op, shape, image, image_frame)
     if title is not None:
         title = opt.text("title", title)
     regions = None
     if shape is not None:
         op.check_mesh(shape.mesh)
-        regions = region_polygons(shape.P_moving, shape.regions)
+        regions = (region_polygons(shape.P_moving, shape.regions) if op.d == 2 else
+                   region_balls(shape.P_moving, shape.regions, op.train_samples))
     payload = defop_to_payload(op, regions)
     if not title:  # the shape's name comes from the operator's file: as untrusted as a title
         title = opt.text("title", f"defop: {op.meta.get('shape', 'shape')}, Ψ = {op.handle_basis.kind}")
@@ -96,13 +152,68 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     if image is not None or image_frame is not None:
         payload.update(image_for(op.mesh, image, image_frame))
     meta, data = encode_payload(payload)
-    text = _PAGE.format(
-        title=html.escape(title),
-        js=_inline_script(JS_PATH.read_text(encoding="utf-8")),
-        meta=script_json(meta),
-        data=base64.b64encode(data).decode("ascii"),
-    )
+    fields = dict(title=html.escape(title), meta=script_json(meta), data=base64.b64encode(data).decode("ascii"))
+    if op.d == 3:
+        text = _PAGE_3D.format(js=solid_script(), three_version=THREE_VERSION, **fields)
+    else:
+        text = _PAGE.format(js=_inline_script(JS_PATH.read_text(encoding="utf-8")), **fields)
     return opt.write_atomic(path, text.encode("utf-8"))
+
+
+def _vendored(name):
+    """A vendored three.js file's text, checked against its pinned sha256 (:data:`THREE_FILES`)."""
+    raw = (THREE_DIR / name).read_bytes()
+    digest = hashlib.sha256(raw).hexdigest()
+    if digest != THREE_FILES[name]:
+        raise RuntimeError(f"{THREE_DIR / name} has sha256 {digest}, not the pinned {THREE_FILES[name]} "
+                           f"(see {THREE_DIR / 'README.md'})")
+    return raw.decode("utf-8")
+
+
+def _module_as_function(text, name, imports=""):
+    """An ES module's text as an expression: ``(() => { imports; body; return {exported names}; })()``.
+
+    Only the shapes of the two vendored files are accepted: no ``import`` except one ``import {...} from
+    'three'`` (replaced by ``imports``) and exactly one final ``export { a as B, ... };`` statement.
+    """
+    text = re.sub(r"^import\s*\{[^}]*\}\s*from\s*'three';", imports, text, count=1, flags=re.M)
+    found = list(re.finditer(r"export\s*\{([^}]*)\}\s*;?\s*$", text))
+    if len(found) != 1 or re.search(r"^\s*import[\s{]", text, flags=re.M) or "export " in text[: found[0].start()]:
+        raise RuntimeError(f"{name}: not the module shape the page expects (one final export statement)")
+    items = []
+    for item in found[0].group(1).split(","):
+        parts = item.split(" as ")
+        local, exported = parts[0].strip(), parts[-1].strip()
+        items.append(f"{exported}: {local}" if exported != local else local)
+    body = text[: found[0].start()]
+    return f"(() => {{\n{body}\nreturn {{ {', '.join(items)} }};\n}})()"
+
+
+def solid_script():
+    """The 3D page's inline module: three.js and OrbitControls (vendored, sha256-checked) as the bindings
+    ``THREE`` and ``OrbitControls``, then ``defop_editor.js`` verbatim (the one evaluator) and
+    ``defop_solid.js`` without its import line (the names it imports are in the same module scope).
+
+    Returns
+    -------
+    str
+    """
+    orbit = _vendored("OrbitControls.js")
+    names = re.search(r"^import\s*\{([^}]*)\}\s*from\s*'three';", orbit, flags=re.M)
+    if names is None:
+        raise RuntimeError("OrbitControls.js: no import from 'three'")
+    imports = "const {" + ", ".join(n.strip() for n in names.group(1).split(",")) + "} = THREE;"
+    solid = SOLID_JS_PATH.read_text(encoding="utf-8")
+    solid, n = re.subn(r'^import \{[^}]*\}\s*from "\./defop_editor\.js";\n', "", solid, count=1, flags=re.M)
+    if n != 1:
+        raise RuntimeError(f"{SOLID_JS_PATH.name}: no import line from ./defop_editor.js")
+    parts = [
+        "const THREE = " + _module_as_function(_vendored("three.module.min.js"), "three.module.min.js") + ";",
+        "const { OrbitControls } = " + _module_as_function(orbit, "OrbitControls.js", imports) + ";",
+        JS_PATH.read_text(encoding="utf-8"),
+        solid,
+    ]
+    return _inline_script("\n".join(parts))
 
 
 def script_json(value):

@@ -2,8 +2,9 @@
 
 :func:`defop_to_payload` packs Ψ's kind and centres or monomial plan, the float32 factors, the mesh and the
 handles; ``static/defop_editor.js`` evaluates D(·, Q) = x + δψ(Q) A B (Eq. 3 in the form (★) of
-:mod:`defop.operator.defop`) with the formulas of :mod:`defop.operator.handle_bases`. Shared by the Jupyter
-widget (:mod:`.browser`) and the standalone page (:mod:`.export`).
+:mod:`defop.operator.defop`) with the formulas of :mod:`defop.operator.handle_bases`, in 2D and 3D (scalar ``d``;
+the 3D page ``static/defop_solid.js`` uses the same evaluator). Shared by the Jupyter widget (:mod:`.browser`)
+and the standalone pages (:mod:`.export`).
 """
 
 from __future__ import annotations
@@ -46,6 +47,42 @@ def _polynomial_plan(monomials):
     return np.array(parent, np.int32), np.array(factor, np.int32)
 
 
+def region_balls(P, regions=None, samples=None):
+    """The sampling region of every moving handle in 3D as balls ``[cx, cy, cz, radius]`` (the page's test).
+
+    Parameters
+    ----------
+    P : (n,3) numpy array
+        Rest positions of the moving handles.
+    regions : list of dict, optional
+        One region per moving handle, as in :class:`defop.scene.shapes.Shape`; a ``ball`` gives its radius.
+        Other kinds (and no regions) fall back to the ball through the farthest training sample.
+    samples : (m,n,3) numpy array or None
+        The training configurations (for the fallback); without them a handle has no region (empty list).
+
+    Returns
+    -------
+    balls : list of list of (4,) numpy array
+    """
+    P = np.asarray(P, float)
+    reach = None
+    if samples is not None and len(samples) > 1:
+        reach = np.linalg.norm(np.asarray(samples, float) - P, axis=-1).max(axis=0)
+    out = []
+    for i, p in enumerate(P):
+        region = regions[i] if regions is not None else None
+        kind = region.get("kind") if isinstance(region, dict) else getattr(region, "kind", None)
+        if kind == "ball":
+            radius = region["radius"] if isinstance(region, dict) else region.radius
+        elif reach is not None:
+            radius = reach[i]
+        else:
+            out.append([])
+            continue
+        out.append([np.append(p, float(radius))])
+    return out
+
+
 def defop_to_payload(op, regions=None):
     """Everything the page needs to evaluate and draw a DefOp: the one place that reads its internals.
 
@@ -55,20 +92,25 @@ def defop_to_payload(op, regions=None):
         Uses the compressed factors ``(A, B)`` of W_F when present, otherwise W_F (W[1:] with the handle
         columns zeroed) as a single factor: the page evaluates (★) of :mod:`defop.operator.defop`.
     regions : list of list of (k,2) numpy array, optional
-        Sampling-region polygons per moving handle (:func:`defop.editor.state.region_polygons`); default:
-        discs through the farthest training sample.
+        Sampling-region polygons per moving handle (:func:`defop.editor.state.region_polygons`), or in 3D
+        balls ``[cx, cy, cz, r]`` (:func:`region_balls`); default: discs (balls) through the farthest
+        training sample.
 
     Returns
     -------
     payload : dict
-        Scalars (``kind``, ``size``, ``n_moving``, ``n_vertices``, ``scale``, ``rank``, ``regions``) and
-        numpy arrays (``P``, ``centers`` or ``parent``/``factor``, ``A``, ``B``, ``V``, ``F``, ``E``,
-        ``handles``, ``moving``), each flattened row-major by :func:`encode_payload`.
+        Scalars (``d``, ``kind``, ``kernel`` for ``"tps"``, ``size``, ``n_moving``, ``n_vertices``, ``scale``,
+        ``rank``, ``regions``) and numpy arrays (``P``, ``centers`` or ``parent``/``factor``, ``A``, ``B``,
+        ``V``, ``F``, ``E``, ``handles``, ``moving``), each flattened row-major by :func:`encode_payload`. In 2D
+        ``F`` are the triangles; in 3D the outward boundary triangles of the tetrahedra
+        (:attr:`defop.geometry.mesh.Mesh.boundary_facets`), the surface the page shades, and ``E`` its edges.
     """
     basis = op.handle_basis
     if regions is None:
-        regions = reach_polygons(op.P, op.train_samples)
+        regions = region_balls(op.P, None, op.train_samples) if op.d == 3 else reach_polygons(op.P, op.train_samples)
+    F = op.mesh.F if op.d == 2 else op.mesh.boundary_facets
     p = {
+        "d": int(op.d),
         "kind": basis.kind,
         "size": int(basis.size),
         "n_moving": int(basis.n_handles),
@@ -77,13 +119,14 @@ def defop_to_payload(op, regions=None):
         "regions": [[np.asarray(poly, float).ravel().tolist() for poly in polys] for polys in regions],
         "P": np.asarray(basis.P, np.float64),
         "V": np.asarray(op.mesh.V, np.float64),
-        "F": np.asarray(op.mesh.F, np.int32),
-        "E": mesh_edges(op.mesh.F).astype(np.int32),
+        "F": np.asarray(F, np.int32),
+        "E": mesh_edges(F).astype(np.int32),
         "handles": np.asarray(op.handles, np.int32),
         "moving": np.asarray(op.moving, np.uint8),
     }
     if basis.kind == "tps":
-        p["centers"] = np.asarray(basis.z(basis.centers), np.float64)  # z_k = (Q_k − P)/scale, (m, 2n)
+        p["kernel"] = basis.kernel  # φ: "r2logr" (d = 2) or "r3" (d = 3), defop.operator.handle_bases.KERNELS
+        p["centers"] = np.asarray(basis.z(basis.centers), np.float64)  # z_k = (Q_k − P)/scale, (m, d n)
     else:
         p["parent"], p["factor"] = _polynomial_plan(basis.monomials)
     # (★) of defop.operator.defop: D(·, Q) = x + δψ(Q) W_F, the moving handles' columns set to Q − P exactly

@@ -184,6 +184,10 @@ class EditorState:
         elif not isinstance(shape, Shape):
             raise ValueError(f"shape must be a Shape or the name of one (dop.shapes.names()), got "
                              f"{type(shape).__name__} {shape!r:.80}")
+        if shape.mesh.dim != 2:
+            raise ValueError(f"shape must be a 2D shape for the editor (drags in the plane), got the {shape.mesh.dim}D "
+                             f"shape {shape.name!r}: write the 3D page instead, defop.editor.to_html(op, path, "
+                             f"shape=shape), and show it with IPython.display.IFrame(path)")
         self.kinds = tuple(kinds)
         for kind in [basis, *(operators or {})]:
             if kind not in self.kinds:

@@ -8,8 +8,10 @@
 //
 // The payload is written by defop.editor.payload.defop_to_payload: Ψ's kind, the rest positions P of the moving
 // handles, the normalising scale, the TPS centres z_k = (Q_k − P)/scale or the monomial plan, and the
-// float32 factors A ((|Ψ|−1) × r) and B (r × 2·n_vertices) of W_F ≈ A B, or B absent and A = W_F
-// ((|Ψ|−1) × 2·n_vertices), evaluated as (★) of defop.operator.defop. Products accumulate in float64 (JavaScript numbers).
+// float32 factors A ((|Ψ|−1) × r) and B (r × d·n_vertices) of W_F ≈ A B, or B absent and A = W_F
+// ((|Ψ|−1) × d·n_vertices), evaluated as (★) of defop.operator.defop. Products accumulate in float64 (JavaScript numbers).
+// d = 2 (triangles) or 3 (tetrahedra, payload scalar `d`); the radial kernel of "tps" follows
+// defop.operator.handle_bases.KERNELS: r² log r in 2D, r³ in 3D (payload scalar `kernel`).
 //
 // A picture (defop.editor.payload.image_payload, optional): its PNG bytes and one texture coordinate per vertex (the rest
 // vertex in the picture, v down). WebGL draws every deformed triangle with the picture's rest triangle mapped
@@ -40,11 +42,12 @@ export function fromBase64(text) {
 
 /**
  * The closed-form operator: psi(Q) and evaluate(Q) with the same formulas as defop.operator.handle_bases / DefOp.
- * Q is a flat array (2n) of the moving handles, row-major; evaluate returns a Float64Array (2·n_vertices)
- * that is reused between calls.
+ * Q is a flat array (D·n, D = 2 or 3) of the moving handles, row-major; evaluate returns a Float64Array
+ * (D·n_vertices) that is reused between calls.
  */
 export function makeOperator(p) {
-  const n = p.n_moving, d = 2 * n, size = p.size, nc = 2 * p.n_vertices;
+  const D = p.d || 2, n = p.n_moving, d = D * n, size = p.size, nc = D * p.n_vertices;
+  const cubic = p.kernel === "r3"; // φ(r) = r³ (3D) instead of r² log r
   const P = p.P, scale = p.scale, A = p.A, B = p.B || null, r = B ? p.rank : nc, x = p.V;
   const z = new Float64Array(d), psi = new Float64Array(size), dpsi = new Float64Array(size - 1);
   const tmp = new Float64Array(r), out = new Float64Array(nc);
@@ -54,12 +57,13 @@ export function makeOperator(p) {
     for (let i = 0; i < d; i++) z[i] = (Q[i] - P[i]) / scale;
     psi[0] = 1;
     if (p.kind === "tps") {
-      const C = p.centers, m = size - 1 - d; // C: (m, 2n) normalised centres
+      const C = p.centers, m = size - 1 - d; // C: (m, D·n) normalised centres
       for (let i = 0; i < d; i++) psi[1 + i] = z[i];
       for (let k = 0; k < m; k++) {
         let r2 = 0;
         for (let i = 0; i < d; i++) { const t = z[i] - C[k * d + i]; r2 += t * t; }
-        psi[1 + d + k] = r2 > 0 ? 0.5 * r2 * Math.log(r2) : 0; // r² log r = ½ r² log r², φ(0) = 0
+        if (cubic) psi[1 + d + k] = r2 > 0 ? r2 * Math.sqrt(r2) : 0; // r³ = r² √r², φ(0) = 0
+        else psi[1 + d + k] = r2 > 0 ? 0.5 * r2 * Math.log(r2) : 0; // r² log r = ½ r² log r², φ(0) = 0
       }
     } else {
       const parent = p.parent, factor = p.factor; // monomial j = monomial parent[j-1] · z[factor[j-1]]
@@ -90,13 +94,12 @@ export function makeOperator(p) {
     for (let c = 0; c < nc; c++) out[c] += x[c];
     for (let l = 0; l < n; l++) {
       const v = movingVertices[l];
-      out[2 * v] += Q[2 * l] - P[2 * l];
-      out[2 * v + 1] += Q[2 * l + 1] - P[2 * l + 1];
+      for (let c = 0; c < D; c++) out[D * v + c] += Q[D * l + c] - P[D * l + c];
     }
     return out;
   }
 
-  return { psi: fillPsi, evaluate, n_moving: n, n_vertices: p.n_vertices };
+  return { psi: fillPsi, evaluate, n_moving: n, n_vertices: p.n_vertices, d: D };
 }
 
 /** Even-odd point-in-polygon test; poly is a flat [x0, y0, x1, y1, ...] array. */
@@ -109,11 +112,21 @@ export function insidePolygon(x, y, poly) {
   return inside;
 }
 
-/** Indices of the moving handles outside their sampling region (the union of their region polygons). */
-export function outsideRegions(Q, regions) {
+/** Is (x, y, z) inside the ball [cx, cy, cz, radius]? (a 3D region, defop.editor.payload.region_balls) */
+export function insideBall(x, y, z, ball) {
+  return Math.hypot(x - ball[0], y - ball[1], z - ball[2]) <= ball[3];
+}
+
+/**
+ * Indices of the moving handles outside their sampling region: the union of their region polygons (d = 2,
+ * the default) or balls (d = 3).
+ */
+export function outsideRegions(Q, regions, d = 2) {
   const out = [];
   regions.forEach((polys, i) => {
-    if (polys.length && !polys.some((poly) => insidePolygon(Q[2 * i], Q[2 * i + 1], poly))) out.push(i);
+    const inside = d === 3 ? (b) => insideBall(Q[3 * i], Q[3 * i + 1], Q[3 * i + 2], b)
+      : (poly) => insidePolygon(Q[2 * i], Q[2 * i + 1], poly);
+    if (polys.length && !polys.some(inside)) out.push(i);
   });
   return out;
 }
@@ -131,19 +144,24 @@ const STYLE = `
 .defop-editor label { display: flex; gap: 6px; align-items: center; }
 `;
 
-function el(tag, attrs = {}, text = "") {
+/** A DOM element with attributes and text (shared with defop_solid.js). */
+export function el(tag, attrs = {}, text = "") {
   const e = document.createElement(tag);
   for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
   if (text) e.textContent = text;
   return e;
 }
 
+/** Add a <style> with `css` to the document once (by `id`). */
+export function addStyle(id, css) {
+  if (document.getElementById(id)) return;
+  const s = el("style", { id });
+  s.textContent = css;
+  document.head.appendChild(s);
+}
+
 function buildLayout(root, opts) {
-  if (!document.getElementById("defop-editor-style")) {
-    const s = el("style", { id: "defop-editor-style" });
-    s.textContent = STYLE;
-    document.head.appendChild(s);
-  }
+  addStyle("defop-editor-style", STYLE);
   const box = el("div", { class: "defop-editor" });
   const stack = el("div", { class: "defop-stack" });
   const glCanvas = el("canvas", { class: "defop-gl" });
@@ -440,25 +458,31 @@ function rate(f) {
 }
 
 /**
- * The readout: the rate of frames the browser rendered while dragging (every requestAnimationFrame callback, not
- * the pointer events), how many of them showed a new deformation, per-frame evaluation and drawing times, Q, and
- * the extrapolation warning.
+ * The readout's timing lines (shared with defop_solid.js): the rate of frames the browser rendered while dragging
+ * (every requestAnimationFrame callback, not the pointer events), how many of them showed a new deformation,
+ * per-frame evaluation and drawing times.
  */
-function readout(ui, st) {
-  const fps = rate(st.frames);
+export function timingText(st) {
   const median = (a) => [...a].sort((x, y) => x - y)[Math.floor(a.length / 2)];
   const fmt = (v, digits) => (v === undefined || v === null ? "–" : v.toFixed(digits));
-  const q = Array.from({ length: st.p.n_moving }, (_, i) => `q${i} = (${st.Q[2 * i].toFixed(3)}, ${st.Q[2 * i + 1].toFixed(3)})`);
-  ui.readout.textContent =
-    `${fmt(fps, 0)} fps (frames the browser rendered while dragging)\n` +
+  return `${fmt(rate(st.frames), 0)} fps (frames the browser rendered while dragging)\n` +
     `${fmt(rate(st.updates), 0)} new deformations per second (one per pointer move)\n` +
-    `evaluation ${fmt(median(st.evalMs), 2)} ms/frame in the page, drawing ${fmt(median(st.drawMs), 1)} ms\n` +
+    `evaluation ${fmt(median(st.evalMs), 2)} ms/frame in the page, drawing ${fmt(median(st.drawMs), 1)} ms\n`;
+}
+
+/** The extrapolation warning (shared with defop_solid.js). */
+export function warnText(st) {
+  return st.outside.length ? `handle ${st.outside.join(", ")} outside its sampling region: the operator extrapolates` : "";
+}
+
+/** The readout: timings ({@link timingText}), sizes, the picture, Q, and the extrapolation warning. */
+function readout(ui, st) {
+  const q = Array.from({ length: st.p.n_moving }, (_, i) => `q${i} = (${st.Q[2 * i].toFixed(3)}, ${st.Q[2 * i + 1].toFixed(3)})`);
+  ui.readout.textContent = timingText(st) +
     `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices)\n` +
     (st.picture ? `picture ${st.picture.size[0]} × ${st.picture.size[1]} px: ${st.textured ? "textured (WebGL)" :
       st.picture.failed || "not drawn (needs WebGL)"}\n` : "") + q.join("\n");
-  ui.warn.textContent = st.outside.length
-    ? `handle ${st.outside.join(", ")} outside its sampling region: the operator extrapolates`
-    : "";
+  ui.warn.textContent = warnText(st);
 }
 
 /** Reset, basis and shape menus, ground-truth toggle: local redraw plus the kernel hooks, when connected. */
@@ -582,26 +606,11 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
  */
 function wirePointer(editor, canvas) {
   const st = editor.st;
-  let pending = null, scheduled = false;
-  const keep = (list, t) => { list.push(t); if (list.length > 120) list.shift(); };
   const position = (ev) => {
     const r = canvas.getBoundingClientRect();
     return st.view.toData(ev.clientX - r.left, ev.clientY - r.top);
   };
-  const frame = (t) => {
-    scheduled = false;
-    if (st.active === null) return;
-    keep(st.frames, t);
-    scheduled = true;
-    requestAnimationFrame(frame); // the next frame, as long as the handle is held
-    if (pending === null) { editor.readout(); return; }
-    st.Q[2 * st.active] = pending[0];
-    st.Q[2 * st.active + 1] = pending[1];
-    pending = null;
-    keep(st.updates, t);
-    editor.evaluate();
-    if (editor.onFrame) editor.onFrame(t); // benchmarks log the rAF timestamp of every frame that evaluated
-  };
+  const loop = dragLoop(editor, (q) => { st.Q[2 * st.active] = q[0]; st.Q[2 * st.active + 1] = q[1]; });
   canvas.addEventListener("pointerdown", (ev) => {
     const [x, y] = position(ev);
     let best = null, bestD = (st.p.pick_radius || 0.05) * st.view.diag;
@@ -612,15 +621,12 @@ function wirePointer(editor, canvas) {
     st.active = best;
     if (best !== null) {
       canvas.setPointerCapture(ev.pointerId);
-      st.frames = [];
-      st.updates = [];
-      if (!scheduled) { scheduled = true; requestAnimationFrame(frame); }
+      loop.start();
     }
   });
   canvas.addEventListener("pointermove", (ev) => {
     if (st.active === null) return;
-    pending = position(ev);
-    if (!scheduled) { scheduled = true; requestAnimationFrame(frame); }
+    loop.move(position(ev));
   });
   const release = (ev) => {
     if (st.active === null) return;
@@ -628,12 +634,43 @@ function wirePointer(editor, canvas) {
     st.Q[2 * st.active] = x;
     st.Q[2 * st.active + 1] = y;
     st.active = null;
-    pending = null;
+    loop.stop();
     editor.evaluate();
     if (editor.hooks.onRelease) editor.hooks.onRelease(Array.from(st.Q));
   };
   canvas.addEventListener("pointerup", release);
   canvas.addEventListener("pointercancel", release);
+}
+
+/**
+ * The drag's animation-frame loop (shared with defop_solid.js). While a handle is held (st.active), every
+ * animation frame is counted (st.frames: the rate the browser renders at); a frame with a new pointer position
+ * applies it (`apply(q)` writes st.Q), evaluates, and is counted in st.updates too. start() on pointerdown,
+ * move(q) on pointermove, stop() on release.
+ */
+export function dragLoop(editor, apply) {
+  const st = editor.st;
+  let pending = null, scheduled = false;
+  const keep = (list, t) => { list.push(t); if (list.length > 120) list.shift(); };
+  const frame = (t) => {
+    scheduled = false;
+    if (st.active === null) return;
+    keep(st.frames, t);
+    scheduled = true;
+    requestAnimationFrame(frame); // the next frame, as long as the handle is held
+    if (pending === null) { editor.readout(); return; }
+    apply(pending);
+    pending = null;
+    keep(st.updates, t);
+    editor.evaluate();
+    if (editor.onFrame) editor.onFrame(t); // benchmarks log the rAF timestamp of every frame that evaluated
+  };
+  const schedule = () => { if (!scheduled) { scheduled = true; requestAnimationFrame(frame); } };
+  return {
+    start() { st.frames = []; st.updates = []; schedule(); },
+    move(q) { pending = q; schedule(); },
+    stop() { pending = null; },
+  };
 }
 
 /** The standalone page (defop.editor.export.to_html): no kernel, one operator; its readout folds away. */
