@@ -53,3 +53,40 @@ def test_no_window_gives_the_apt_line(monkeypatch):
         pytest.skip("headless selection only applies to Linux")
     with pytest.raises(RuntimeError, match="apt-get install -y --no-install-recommends libosmesa6"):
         dop.view.render.configure_headless()
+
+
+@pytest.fixture(scope="module")
+def tets():
+    from reference3d import box_tets  # tests/ is on sys.path (rootdir conftest)
+
+    V, T = box_tets((4, 1, 1), (1.0, 0.25, 0.25))
+    return dop.Mesh(V, T)
+
+
+def test_a_tet_mesh_renders_its_boundary_surface(tets):
+    poly = dop.view.render.to_polydata(tets.V, tets.F)
+    assert poly.n_cells == len(tets.boundary_facets)  # the boundary triangles, not the tetrahedra's faces
+    assert poly.volume == pytest.approx(tets.volumes.sum(), rel=1e-9)  # a closed surface around the solid
+    img = dop.view.render.render_panels(tets, [tets.V, tets.V * [1, 2, 1]], ["rest", "stretched"], panel_size=(120, 90))
+    assert img.shape == (90, 240, 3)
+    white = np.all(img > 245, axis=-1)
+    assert 0.02 < (~white[:, :120]).mean() < (~white[:, 120:]).mean() < 0.95  # the stretched bar covers more
+
+
+@pytest.mark.parametrize("suffix", [".vtk", ".vtu", ".ply", ".stl"])
+def test_deformed_meshes_are_written_and_read_back(tets, tmp_path, suffix):
+    import pyvista as pv
+
+    X = tets.V @ np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1.5]]).T + 0.25  # any map: written as given
+    back = pv.read(dop.view.render.save_deformed(tmp_path / f"bar{suffix}", tets, X))
+    if suffix in (".vtk", ".vtu"):
+        assert back.n_cells == tets.n_faces and np.allclose(back.points, X, atol=1e-12)
+    else:
+        bv = tets.boundary_vertices
+        assert back.n_cells == len(tets.boundary_facets) and back.n_points == len(bv)
+        assert np.allclose(np.sort(np.asarray(back.points), 0), np.sort(X[bv], 0), atol=1e-5)  # float32 in STL
+    with pytest.raises(ValueError, match="path must end in one of"):
+        dop.view.render.save_deformed(tmp_path / "bar.xyz", tets, X)
+    with pytest.raises(ValueError, match="X must be finite"):
+        dop.view.render.save_deformed(tmp_path / f"bad{suffix}", tets, X[:, :2])
+    assert not (tmp_path / f"bad{suffix}").exists()

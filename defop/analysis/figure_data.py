@@ -3,6 +3,8 @@
 * :func:`column_path`, :func:`lowest_of` and :func:`column_jumps`: Fig. 10 (global against local optima
   along vertical drags of the bar's handle, and the hysteresis between them);
 * :func:`arc_samples` and :func:`arc_point`: Fig. 7 (configurations along a bending cantilever's tip path);
+* :func:`patch_motions` and :func:`twist_bend_samples`: Fig. 7 in 3D (a handle patch at the end of a beam, twisted
+  about the beam's axis and shifted across it);
 * :func:`fit_diagnostics`: Figs. 2 and 8 (why a richer Ψ can lose to a poorer one: train against held-out
   error and the conditioning of the handle-basis matrix Ψ(Q_k));
 * :func:`subspace_floor`: Fig. 2 (the best error any Ψ can reach with a reduced Φ);
@@ -32,6 +34,8 @@ __all__ = [
     "column_jumps",
     "arc_samples",
     "arc_point",
+    "patch_motions",
+    "twist_bend_samples",
     "fit_diagnostics",
     "subspace_floor",
     "grid_error",
@@ -165,6 +169,85 @@ def arc_point(pivot, tip, a, scale=1.0):
     r = np.linalg.norm(tip - pivot) * np.sinc(a / np.pi) * scale
     a0 = np.arctan2(*(tip - pivot)[::-1]) + a
     return (pivot + r[:, None] * np.column_stack([np.cos(a0), np.sin(a0)]))[:, None, :]
+
+
+def patch_motions(P, angles, shifts, axis=0):
+    """Rigid motions of a handle patch: turned by ``angles`` about the coordinate axis ``axis`` through the
+    patch's centroid, then moved by ``shifts`` (a twist and a bend of a beam's end, Fig. 7 in 3D).
+
+    Parameters
+    ----------
+    P : (h,3) array_like
+        Rest positions of the patch's handles.
+    angles : (k,) array_like
+        Twist angles, radians (right-hand rule about +axis).
+    shifts : (k,3) array_like
+        Translations of the patch.
+    axis : int
+        0, 1 or 2: the beam's axis.
+
+    Returns
+    -------
+    Q : (k,h,3) numpy array
+        One configuration per angle (``train(..., samples=Q)``).
+    """
+    P = np.asarray(P, float)
+    a = np.atleast_1d(np.asarray(angles, float))
+    t = np.asarray(shifts, float).reshape(-1, 3) if np.size(shifts) else np.zeros((0, 3))
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise ValueError(f"P must have shape (h,3), got {P.shape}")
+    if a.ndim != 1 or t.shape != (len(a), 3) or not (np.isfinite(a).all() and np.isfinite(t).all()):
+        raise ValueError(f"angles (k,) and shifts (k,3) must be finite and match, got {a.shape} and {np.shape(shifts)}")
+    if axis not in (0, 1, 2):
+        raise ValueError(f"axis must be 0, 1 or 2, got {axis!r}")
+    i, j = [c for c in range(3) if c != axis]
+    c = P.mean(axis=0)
+    R = np.zeros((len(a), 3, 3))
+    R[:, axis, axis] = 1.0
+    R[:, i, i] = R[:, j, j] = np.cos(a)
+    R[:, j, i] = np.sin(a)
+    R[:, i, j] = -np.sin(a)
+    return np.einsum("kab,hb->kha", R, P - c) + c + t[:, None, :]
+
+
+def twist_bend_samples(P, angle, shift, m, rng, axis=0, jitter=0.02):
+    """m configurations of a beam's end patch: twists uniform in [−angle, angle] and shifts uniform in the disc
+    of radius ``shift`` across the beam (perpendicular to ``axis``); :func:`patch_motions` of those, then each
+    handle moved on its own, uniformly in a ball of radius ``jitter``.
+
+    Rigid motions alone span a 3-parameter family: their Q_k lie in a 4-dimensional affine subspace of R^{3h}
+    (cos and sin of the twist, two shifts), which no linear or TPS Ψ on R^{3h} can be fitted to; the jitter makes
+    the samples determine Ψ.
+
+    Parameters
+    ----------
+    P : (h,3) array_like
+    angle, shift : float
+        Largest twist (radians, below pi) and largest sideways shift.
+    m : int
+    rng : numpy.random.Generator
+    axis : int
+    jitter : float
+        Radius of each handle's own ball.
+
+    Returns
+    -------
+    Q : (m,h,3) numpy array
+    """
+    if int(m) != m or m < 1 or not 0 <= angle < np.pi or not shift >= 0 or not jitter >= 0:
+        raise ValueError(
+            f"need m >= 1, 0 <= angle < pi, shift >= 0 and jitter >= 0, got m={m}, angle={angle}, shift={shift}, "
+            f"jitter={jitter}"
+        )
+    a = rng.uniform(-angle, angle, size=m)
+    r, phi = shift * np.sqrt(rng.uniform(size=m)), rng.uniform(0, 2 * np.pi, size=m)
+    t = np.zeros((m, 3))
+    i, j = [c for c in range(3) if c != axis]
+    t[:, i], t[:, j] = r * np.cos(phi), r * np.sin(phi)
+    Q = patch_motions(P, a, t, axis)
+    u = rng.normal(size=Q.shape)
+    u *= jitter * rng.uniform(size=Q.shape[:2] + (1,)) ** (1 / 3) / np.linalg.norm(u, axis=-1, keepdims=True)
+    return Q + u
 
 
 def fit_diagnostics(op, Q_train, X_train, Q_test, X_test):
@@ -348,7 +431,7 @@ def subset_fits(shape, samples, X, bases, counts, **kw):
     bad = [m for m in counts if int(m) != m or not 1 <= m <= len(samples)]
     if bad:
         raise ValueError(f"sample counts must be integers from 1 to {len(samples)} (the solved samples), got {bad}")
-    need = {b: min_samples(b, shape.n_moving) for b in bases}  # an unknown basis raises here
+    need = {b: min_samples(b, shape.n_moving, shape.mesh.dim) for b in bases}  # an unknown basis raises here
     return {
         (b, int(m)): fit_shape(shape, samples[:m], X[:m], b, **kw) if m >= need[b] else None
         for b in bases

@@ -818,3 +818,80 @@ def plot_trajectories_3d(shape, truth, T, vertex, titles=None, n_poses=5, compon
     fig.colorbar(surf, cax=fig.add_subplot(spec[-1]), label=f"T_{c}: {c}-displacement of x")
     fig.suptitle(f"Fig. 5: the trajectory of the starred point x, {c} component T_{c}, over the handle plane", y=0.99)
     return fig
+
+
+def plot_path_trajectories(t, T, reference="ground truth", size=4.2):
+    """Trajectories of one point along a handle path in 3D (Figs. 3 and 5 for volumetric shapes).
+
+    Left: each trajectory T_x(t) = D(x, Q(t)) − x as a curve in space (the reference solid, the others dashed).
+    Right: each trajectory's distance to the reference along the path.
+
+    Parameters
+    ----------
+    t : (k,) numpy array
+        The path parameter of each configuration Q(t).
+    T : dict of str -> (k,3) numpy array
+        Trajectories, ``reference`` among them.
+    reference : str
+    size : float
+        Inches per panel.
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    t = np.asarray(t, float)
+    if reference not in T or any(np.shape(v) != (len(t), 3) for v in T.values()):
+        raise ValueError(f"T must map names (with {reference!r}) to (k,3) trajectories, k = {len(t)}")
+    fig = plt.figure(figsize=(2.3 * size, size))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    err = fig.add_subplot(1, 2, 2)
+    ref = np.asarray(T[reference])
+    for name, D in T.items():
+        D = np.asarray(D)
+        style = dict(color="k", lw=2.2) if name == reference else dict(ls="--", marker="o", ms=3)
+        (line,) = ax.plot(D[:, 0], D[:, 1], D[:, 2], label=readable(name), **style)
+        if name != reference:
+            err.plot(t, np.linalg.norm(D - ref, axis=1), "o-", ms=3, color=line.get_color(), label=readable(name))
+    ax.scatter(*ref[0], color="k", s=12)
+    ax.set_xlabel("T_x"), ax.set_ylabel("T_y"), ax.set_zlabel("T_z")
+    ax.set_title("trajectory of the point x in space", fontsize=9)
+    ax.legend(fontsize=7, loc="upper left")
+    err.set_xlabel("path parameter t (twist and shift grow with t)")
+    err.set_ylabel(f"|T − T {reference}|")
+    err.set_title(f"distance to the {reference} along the path", fontsize=9)
+    err.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def plot_error_over_m(counts, error, ylabel, sizes=None):
+    """Held-out error against the number of samples m for each handle basis, log-log (Fig. 8).
+
+    Parameters
+    ----------
+    counts : (c,) sequence of int
+    error : dict of str -> (c,) numpy array
+        Error per basis (NaN where the basis needs more samples).
+    ylabel : str
+    sizes : dict of str -> int, optional
+        |Ψ| of the polynomial bases: a dotted line at the fewest samples each needs.
+
+    Returns
+    -------
+    fig : matplotlib Figure
+    """
+    fig, ax = plt.subplots(figsize=(6.0, 4.0))
+    for b, e in error.items():
+        (line,) = ax.loglog(
+            counts, e, "o-", label=readable(b) + (f" (|Ψ| = {sizes[b]})" if sizes and b in sizes else "")
+        )
+        if sizes and b in sizes:
+            ax.axvline(sizes[b], color=line.get_color(), ls=":", lw=1)
+    ax.set_xticks(list(counts), [str(c) for c in counts], minor=False)
+    ax.set_xticks([], minor=True)
+    ax.set_xlabel("number of samples m")
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig

@@ -22,8 +22,14 @@ import os
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
+
+from ..geometry.mesh import boundary_facets
+
+#: surface colour of a mesh without scalars
+FILL = "#f2d7a6"
 
 #: Debian packages that provide each off-screen window class.
 APT_PACKAGES = {
@@ -197,19 +203,28 @@ def _pyvista():
     return pv
 
 
+def _surface_of(F):
+    """Triangles to draw: F itself in 2D (triangles), the outward boundary surface of tetrahedra in 3D."""
+    F = np.asarray(F, dtype=np.int64)
+    if F.ndim != 2 or F.shape[1] not in (3, 4):
+        raise ValueError(f"F must have shape (m,3) (triangles) or (m,4) (tetrahedra), got {F.shape}")
+    return F if F.shape[1] == 3 else boundary_facets(F)
+
+
 def to_polydata(V, F, X=None, scalars=None):
-    """A pyvista PolyData of a planar triangle mesh (z = 0).
+    """A pyvista PolyData of a triangle mesh (planar: z = 0) or of the boundary surface of a tetrahedral mesh.
 
     Parameters
     ----------
-    V : (n,2) numpy array
+    V : (n,2) or (n,3) numpy array
         Rest vertex positions (used when ``X`` is None).
-    F : (m,3) numpy array
-        Triangles.
-    X : (n,2) numpy array, optional
+    F : (m,3) or (m,4) numpy array
+        Triangles, or tetrahedra (the boundary triangles are drawn,
+        :func:`defop.geometry.mesh.boundary_facets`).
+    X : (n,2) or (n,3) numpy array, optional
         Deformed positions.
-    scalars : (n,) or (m,) numpy array, optional
-        Point or cell data stored as ``"scalars"``.
+    scalars : (n,) numpy array, or (m,) for triangles, optional
+        Point (or triangle) data stored as ``"scalars"``.
 
     Returns
     -------
@@ -217,13 +232,110 @@ def to_polydata(V, F, X=None, scalars=None):
     """
     pv = _pyvista()
     P = np.asarray(V if X is None else X, dtype=float)
-    pts = np.column_stack([P, np.zeros(len(P))])
-    F = np.asarray(F, dtype=np.int64)
-    faces = np.column_stack([np.full(len(F), 3), F]).ravel()
+    pts = P if P.shape[1] == 3 else np.column_stack([P, np.zeros(len(P))])
+    T = _surface_of(F)
+    faces = np.column_stack([np.full(len(T), 3), T]).ravel()
     poly = pv.PolyData(pts, faces)
     if scalars is not None:
         poly["scalars"] = np.asarray(scalars)
     return poly
+
+
+def to_unstructured_grid(V, F, X=None):
+    """A pyvista UnstructuredGrid of a tetrahedral mesh (every tetrahedron, for VTK files).
+
+    Parameters
+    ----------
+    V : (n,3) numpy array
+    F : (m,4) int numpy array
+    X : (n,3) numpy array, optional
+        Deformed positions.
+
+    Returns
+    -------
+    grid : pyvista.UnstructuredGrid
+    """
+    pv = _pyvista()
+    P = np.asarray(V if X is None else X, dtype=float)
+    F = np.asarray(F, dtype=np.int64)
+    if P.ndim != 2 or P.shape[1] != 3 or F.ndim != 2 or F.shape[1] != 4:
+        raise ValueError(f"need V (n,3) and tetrahedra F (m,4), got {P.shape} and {F.shape}")
+    cells = np.column_stack([np.full(len(F), 4), F]).ravel()
+    return pv.UnstructuredGrid(cells, np.full(len(F), pv.CellType.TETRA, dtype=np.uint8), P)
+
+
+#: file endings :func:`save_deformed` writes, and what goes in them
+EXPORT_FORMATS = {".vtk": "volume", ".vtu": "volume", ".ply": "surface", ".stl": "surface", ".obj": "surface"}
+
+
+def save_deformed(path, mesh, X=None, surface=None):
+    """Write a (deformed) mesh to a standard file: the tetrahedra to VTK (``.vtk``, ``.vtu``), the boundary
+    surface (or a fine embedded surface) to PLY, STL or OBJ. Triangle meshes (2D) are written at z = 0.
+
+    Parameters
+    ----------
+    path : str or path
+        Its ending picks the format (:data:`EXPORT_FORMATS`).
+    mesh : defop.geometry.mesh.Mesh
+    X : (n,d) numpy array, optional
+        Deformed vertex positions; the rest pose when None.
+    surface : defop.geometry.volumetric.surface.EmbeddedSurface, optional
+        Write this fine surface, deformed by X, instead of the tetrahedra's boundary (surface formats only).
+
+    Returns
+    -------
+    path : pathlib.Path
+    """
+    path = Path(path)
+    kind = EXPORT_FORMATS.get(path.suffix.lower())
+    if kind is None:
+        raise ValueError(f"path must end in one of {sorted(EXPORT_FORMATS)}, got {path.name!r}")
+    P = mesh.V if X is None else np.asarray(X, dtype=float)
+    if P.shape != mesh.V.shape or not np.isfinite(P).all():
+        raise ValueError(f"X must be finite with shape {mesh.V.shape} (a row per vertex), got {P.shape}")
+    if kind == "volume" and mesh.dim == 3:
+        if surface is not None:
+            raise ValueError(f"surface= is written to .ply, .stl or .obj files, not to {path.suffix}")
+        data = to_unstructured_grid(mesh.V, mesh.F, P)
+    elif surface is not None:
+        data = to_polydata(surface.V, surface.F, surface.deform(P))
+    else:
+        data = to_polydata(mesh.V, mesh.F, P).clean(point_merging=False)  # drops the interior vertices
+    data.save(str(path))
+    return path
+
+
+def _add_handles(plotter, pv, P, handles, moving, radius):
+    handles = np.asarray(handles)
+    moving = np.ones(len(handles), bool) if moving is None else np.asarray(moving, bool)
+    for idx, mv in zip(handles, moving, strict=True):
+        c = P[idx] if P.shape[1] == 3 else np.append(P[idx], 0.0)
+        plotter.add_mesh(pv.Sphere(radius=radius, center=c), color="#d62728" if mv else "#1f77b4")
+
+
+def _add_shape(plotter, pv, mesh, P, scalars=None, cmap="viridis", show_edges=True, surface=None, color=FILL):
+    """Add the (deformed) mesh, or its embedded fine surface, to the current subplot; returns the PolyData."""
+    if surface is not None:
+        poly = to_polydata(surface.V, surface.F, surface.deform(P))
+    else:
+        poly = to_polydata(mesh.V, mesh.F, P, scalars)
+    style = dict(show_edges=show_edges, edge_color="#555555", line_width=0.5)
+    if mesh.dim == 3:
+        style.update(smooth_shading=surface is not None, specular=0.2)
+    if scalars is None or surface is not None:
+        plotter.add_mesh(poly, color=color, **style)
+    else:
+        plotter.add_mesh(poly, scalars="scalars", cmap=cmap, **style)
+    return poly
+
+
+def _place_camera(plotter, mesh, bounds, view=None):
+    if mesh.dim == 2:
+        plotter.view_xy()
+        plotter.enable_parallel_projection()
+    else:
+        plotter.camera_position = view or "iso"
+    plotter.reset_camera(bounds=bounds)
 
 
 def mesh_plotter(
@@ -237,16 +349,19 @@ def mesh_plotter(
     show_edges=True,
     off_screen=True,
     notebook=None,
+    surface=None,
+    view=None,
 ):
-    """A PyVista Plotter showing a (deformed) planar mesh, seen from above, with its handles.
+    """A PyVista Plotter showing a (deformed) mesh with its handles: a planar mesh seen from above, a tetrahedral
+    mesh as its boundary surface (or a fine embedded surface) in perspective.
 
     Parameters
     ----------
     mesh : defop.geometry.mesh.Mesh
-        The rest mesh.
-    X : (n,2) numpy array, optional
+        The rest mesh (triangles or tetrahedra).
+    X : (n,d) numpy array, optional
         Deformed vertex positions; the rest pose when None.
-    scalars : (n,) or (m,) numpy array, optional
+    scalars : (n,) numpy array, or (m,) for triangles, optional
         Colours per vertex or per triangle.
     handles : (h,) int numpy array, optional
         Handle vertex indices, drawn as spheres.
@@ -260,6 +375,10 @@ def mesh_plotter(
         Draw the triangle edges.
     off_screen, notebook : bool
         Passed to ``pyvista.Plotter``.
+    surface : defop.geometry.volumetric.surface.EmbeddedSurface, optional
+        In 3D, draw this fine surface deformed with the tetrahedra (``shape.surface``) instead of their boundary.
+    view : str or camera position, optional
+        In 3D, the camera (a PyVista camera position, e.g. ``"xy"``); ``"iso"`` when None.
 
     Returns
     -------
@@ -267,40 +386,28 @@ def mesh_plotter(
     """
     pv = _pyvista()
     P = mesh.V if X is None else np.asarray(X, dtype=float)
-    poly = to_polydata(mesh.V, mesh.F, P, scalars)
     kw = {} if notebook is None else {"notebook": notebook}
     plotter = pv.Plotter(off_screen=off_screen, window_size=tuple(window_size), **kw)
     plotter.set_background("white")
-    style = dict(show_edges=show_edges, edge_color="#555555", line_width=0.5)
-    if scalars is None:
-        plotter.add_mesh(poly, color="#f2d7a6", **style)
-    else:
-        plotter.add_mesh(poly, scalars="scalars", cmap=cmap, **style)
+    poly = _add_shape(plotter, pv, mesh, P, scalars, cmap, show_edges, surface)
     if handles is not None and len(handles):
-        handles = np.asarray(handles)
-        moving = np.ones(len(handles), bool) if moving is None else np.asarray(moving, bool)
-        radius = 0.012 * mesh.bbox_diagonal
-        for idx, mv in zip(handles, moving, strict=True):
-            c = np.append(P[idx], 0.0)
-            plotter.add_mesh(pv.Sphere(radius=radius, center=c), color="#d62728" if mv else "#1f77b4")
-    plotter.view_xy()
-    plotter.enable_parallel_projection()
-    plotter.reset_camera(bounds=poly.bounds)
+        _add_handles(plotter, pv, P, handles, moving, 0.012 * mesh.bbox_diagonal)
+    _place_camera(plotter, mesh, poly.bounds, view)
     return plotter
 
 
 def render_mesh(mesh, X=None, screenshot=None, **kw):
-    """Render a (deformed) planar mesh off-screen with PyVista and return the image.
+    """Render a (deformed) mesh off-screen with PyVista and return the image.
 
     Parameters
     ----------
     mesh : defop.geometry.mesh.Mesh
-    X : (n,2) numpy array, optional
+    X : (n,d) numpy array, optional
         Deformed positions.
     screenshot : str or path, optional
         Also write the image there (PNG).
     **kw
-        As for :func:`mesh_plotter` (``scalars``, ``handles``, ``moving``, ``window_size``, ...).
+        As for :func:`mesh_plotter` (``scalars``, ``handles``, ``moving``, ``window_size``, ``surface``, ...).
 
     Returns
     -------
@@ -308,6 +415,82 @@ def render_mesh(mesh, X=None, screenshot=None, **kw):
     """
     plotter = mesh_plotter(mesh, X, off_screen=True, **kw)
     try:
+        img = plotter.screenshot(filename=None if screenshot is None else str(screenshot), return_img=True)
+    finally:
+        plotter.close()
+    return np.asarray(img)
+
+
+def render_panels(
+    mesh,
+    poses,
+    titles=None,
+    handles=None,
+    moving=None,
+    colors=None,
+    surface=None,
+    view=None,
+    ncols=None,
+    panel_size=(360, 300),
+    screenshot=None,
+    show_edges=True,
+):
+    """Several poses of one mesh side by side (off-screen), one camera for all: e.g. the ground truth against
+    operators with different Ψ (Fig. 7), or a gallery.
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    poses : list of (n,d) numpy array
+        Deformed positions, one panel each.
+    titles : list of str, optional
+    handles : (h,) int numpy array, optional
+    moving : (h,) bool numpy array, optional
+    colors : list of str, optional
+        Surface colour per panel.
+    surface : defop.geometry.volumetric.surface.EmbeddedSurface, optional
+        Draw this fine surface instead of the tetrahedra's boundary.
+    view : str or camera position, optional
+    ncols : int, optional
+        Panels per row (all in one row when None).
+    panel_size : (2,) tuple
+        Pixels per panel.
+    screenshot : path, optional
+        Also write a PNG.
+    show_edges : bool
+
+    Returns
+    -------
+    img : (H,W,3) uint8 numpy array
+    """
+    pv = _pyvista()
+    poses = [np.asarray(p, dtype=float) for p in poses]
+    if not poses or any(p.shape != mesh.V.shape for p in poses):
+        raise ValueError(f"poses must be a non-empty list of {mesh.V.shape} arrays, got {[p.shape for p in poses]}")
+    ncols = len(poses) if ncols is None else int(ncols)
+    nrows = -(-len(poses) // ncols)
+    size = (panel_size[0] * ncols, panel_size[1] * nrows)
+    plotter = pv.Plotter(off_screen=True, shape=(nrows, ncols), window_size=size, border=False)
+    bounds = np.array([p.min(0) for p in poses]).min(0), np.array([p.max(0) for p in poses]).max(0)
+    box = [v for pair in zip(*(np.append(b, 0.0)[:3] for b in bounds)) for v in pair]
+    try:
+        for k, P in enumerate(poses):
+            plotter.subplot(k // ncols, k % ncols)
+            plotter.set_background("white")
+            _add_shape(
+                plotter,
+                pv,
+                mesh,
+                P,
+                show_edges=show_edges,
+                surface=surface,
+                color=FILL if colors is None else colors[k],
+            )
+            if handles is not None and len(handles):
+                _add_handles(plotter, pv, P, handles, moving, 0.012 * mesh.bbox_diagonal)
+            if titles:
+                plotter.add_text(titles[k], font_size=9, color="black")
+            _place_camera(plotter, mesh, box, view)
         img = plotter.screenshot(filename=None if screenshot is None else str(screenshot), return_img=True)
     finally:
         plotter.close()
