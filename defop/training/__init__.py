@@ -1,10 +1,23 @@
 """Training a DefOp (layer 4, §3.3): sample Q_k, solve D^E at each (in parallel, cached), fit.
 
 :mod:`.sampling` draws the Q_k, :mod:`.cache` stores ground truths and operators on disk and
-:mod:`.bootstrap` runs the pipeline (:func:`train`).
+:mod:`.bootstrap` runs the pipeline (:func:`train`);
+:mod:`.adaptive` chooses the samples where the operator is least certain (:func:`train_adaptive`).
 """
 
-from . import bootstrap, cache, sampling
+from . import adaptive, bootstrap, cache, sampling
+from .adaptive import train_adaptive
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
 
-__all__ = ["TrainingRecord", "bootstrap", "cache", "held_out", "min_samples", "sampling", "solve_samples", "train"]
+__all__ = [
+    "TrainingRecord",
+    "adaptive",
+    "bootstrap",
+    "cache",
+    "held_out",
+    "min_samples",
+    "sampling",
+    "solve_samples",
+    "train",
+    "train_adaptive",
+]
