@@ -58,22 +58,27 @@ def run(name, n_jobs=1):
     _, uni = dop.train(shape, "sarap", "tps", m=UNIFORM, seed=0, rounds=1, n_jobs=n_jobs, progress=False)
     Q_test, X_test, ok = dop.training.held_out(shape, "sarap", 100, seed=5000, n_jobs=n_jobs, progress=False)
     e_uni = _prefix_errors(shape, uni.samples, uni.X, COUNTS, Q_test, X_test)
-    print(f"\n{name}: {shape.mesh.n_vertices} vertices, {shape.n_moving} moving handles, S-ARAP, TPS, hat Φ; "
-          f"uniform ({uni.cache}, {time.perf_counter() - t0:.0f} s), every sample converged "
-          f"{bool(uni.converged.all())}, held-out {bool(ok.all())}")
+    print(
+        f"\n{name}: {shape.mesh.n_vertices} vertices, {shape.n_moving} moving handles, S-ARAP, TPS, hat Φ; "
+        f"uniform ({uni.cache}, {time.perf_counter() - t0:.0f} s), every sample converged "
+        f"{bool(uni.converged.all())}, held-out {bool(ok.all())}"
+    )
     return [_adaptive(shape, crit, e_uni, Q_test, X_test, n_jobs) for crit in CRITERIA]
 
 
 def _adaptive(shape, criterion, e_uni, Q_test, X_test, n_jobs):
     t1 = time.perf_counter()
-    _, ada = dop.training.train_adaptive(shape, "sarap", "tps", m=ADAPTIVE, seed=0, criterion=criterion,
-                                         n_jobs=n_jobs, progress=False)
+    _, ada = dop.training.train_adaptive(
+        shape, "sarap", "tps", m=ADAPTIVE, seed=0, criterion=criterion, n_jobs=n_jobs, progress=False
+    )
     t2 = time.perf_counter()
     counts = ada.params["counts"]
     e_ada = _prefix_errors(shape, ada.samples, ada.X, counts, Q_test, X_test)
-    print(f"adaptive, criterion {criterion!r} (initial {counts[0]}, batches of {ada.params['batch']} from a pool of "
-          f"{ada.params['pool']}, {t2 - t1:.0f} s, every sample converged {bool(ada.converged.all())}): "
-          f"(8a)/n over N = 100")
+    print(
+        f"adaptive, criterion {criterion!r} (initial {counts[0]}, batches of {ada.params['batch']} from a pool of "
+        f"{ada.params['pool']}, {t2 - t1:.0f} s, every sample converged {bool(ada.converged.all())}): "
+        f"(8a)/n over N = 100"
+    )
     print("  uniform m  error        adaptive m  error")
     for i in range(max(len(COUNTS), len(counts))):
         left = f"  {COUNTS[i]:9d}  {e_uni[i]:.4e}" if i < len(COUNTS) else " " * 24
@@ -82,14 +87,20 @@ def _adaptive(shape, criterion, e_uni, Q_test, X_test, n_jobs):
     target = e_uni[-1]
     at = samples_at(counts, e_ada, target)
     uni_at = samples_at(COUNTS, e_uni, e_ada[-1])
-    print(f"error of {UNIFORM} uniform: {target:.4e}; of {counts[-1]} adaptive: {e_ada[-1]:.4e} "
-          f"({e_ada[-1] / target:.2f}x)")
+    print(
+        f"error of {UNIFORM} uniform: {target:.4e}; of {counts[-1]} adaptive: {e_ada[-1]:.4e} "
+        f"({e_ada[-1] / target:.2f}x)"
+    )
     if at is None:
-        print(f"  adaptive does NOT reach it with {counts[-1]} samples; uniform reaches the adaptive "
-              f"{counts[-1]}'s error at m = {uni_at if uni_at is None else round(uni_at)} "
-              f"(ratio at equal error {'n/a' if uni_at is None else f'{uni_at / counts[-1]:.2f}'})")
+        print(
+            f"  adaptive does NOT reach it with {counts[-1]} samples; uniform reaches the adaptive "
+            f"{counts[-1]}'s error at m = {uni_at if uni_at is None else round(uni_at)} "
+            f"(ratio at equal error {'n/a' if uni_at is None else f'{uni_at / counts[-1]:.2f}'})"
+        )
     else:
-        print(f"  adaptive reaches it at m = {at:.0f}: ratio of samples at equal error {UNIFORM / at:.2f} (target >= 3)")
+        print(
+            f"  adaptive reaches it at m = {at:.0f}: ratio of samples at equal error {UNIFORM / at:.2f} (target >= 3)"
+        )
     return at is not None and UNIFORM / at >= 3
 
 

@@ -1,7 +1,8 @@
 """Adaptive sampling (issue 28): choose the next samples Q_k where the current operator is least certain.
 
 Training by :func:`defop.training.bootstrap.train` solves problem (6) at m configurations drawn uniformly from the
-shape's sampling regions. :func:`train_adaptive` chooses each next batch of samples where the operator is least certain. Measured
+shape's sampling regions. :func:`train_adaptive` chooses each next batch of samples where the operator is least
+certain. Measured
 (``benchmarks/bench_adaptive.py``), this does NOT reach the held-out error of 500 uniform samples with 167: see
 ``benchmarks/README.md``.
 
@@ -167,9 +168,7 @@ def uncertainty(shape, samples, X, candidates, basis="tps", spatial="hat", k=100
     -------
     scores : (p,) numpy array
     """
-    halves = [
-        fit(shape.mesh, shape.handles, shape.moving, samples[i::2], X[i::2], basis, spatial, k) for i in (0, 1)
-    ]
+    halves = [fit(shape.mesh, shape.handles, shape.moving, samples[i::2], X[i::2], basis, spatial, k) for i in (0, 1)]
     return disagreement(halves[0], halves[1], candidates, shape.mesh.mass_matrix.diagonal())
 
 
@@ -212,8 +211,8 @@ def train_adaptive(
     seed : int
         Seeds the initial samples and the candidate pool.
     n_initial : int, optional
-        Uniform samples to start from (default and minimum twice :func:`~defop.training.bootstrap.min_samples`, 2(dn + 1) for
-        TPS: each half determines the basis).
+        Uniform samples to start from (default and minimum twice :func:`~defop.training.bootstrap.min_samples`,
+        2(dn + 1) for TPS: each half determines the basis).
     batch : int
         Samples added per round of scoring.
     pool : int
@@ -243,8 +242,9 @@ def train_adaptive(
     t0 = time.perf_counter()
     Q = sample_shape(shape, n_initial, np.random.default_rng(seed))
     candidates = sample_shape(shape, pool, np.random.default_rng([seed, 1]))
-    _, rec = bootstrap.train(shape, energy, "linear", samples=Q, rounds=1, n_jobs=n_jobs, cache=cache,
-                             progress=progress)  # the initial solves exactly as train's, cached
+    _, rec = bootstrap.train(
+        shape, energy, "linear", samples=Q, rounds=1, n_jobs=n_jobs, cache=cache, progress=progress
+    )  # the initial solves exactly as train's, cached
     X, conv = rec.X, rec.converged
     taken = np.zeros(pool, bool)
     counts = [n_initial]
@@ -263,11 +263,26 @@ def train_adaptive(
         counts.append(len(Q))
     times = {"solve": time.perf_counter() - t0}
     if not conv.all():
-        warnings.warn(f"{int((~conv).sum())} of {m} sample solves did not converge; they are used as they are",
-                      NotConvergedWarning, stacklevel=2)
+        warnings.warn(
+            f"{int((~conv).sum())} of {m} sample solves did not converge; they are used as they are",
+            NotConvergedWarning,
+            stacklevel=2,
+        )
     meta = {"shape": shape.name, "energy": energy, "seed": seed, "sampling": "adaptive"}
     op = fit(shape.mesh, shape.handles, shape.moving, Q, X, basis, spatial, k, meta=meta)
     times["fit"] = op.fit_time
-    params = dict(shape=shape.name, energy=energy, basis=basis, m=m, spatial=spatial, seed=seed, sampling="adaptive",
-                  criterion=criterion, n_initial=n_initial, batch=batch, pool=pool, counts=counts)
+    params = dict(
+        shape=shape.name,
+        energy=energy,
+        basis=basis,
+        m=m,
+        spatial=spatial,
+        seed=seed,
+        sampling="adaptive",
+        criterion=criterion,
+        n_initial=n_initial,
+        batch=batch,
+        pool=pool,
+        counts=counts,
+    )
     return op, bootstrap.TrainingRecord(Q, X, conv, times, "none", params)

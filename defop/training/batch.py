@@ -31,7 +31,8 @@ def progress(total, desc, enabled):
     desc : str
     enabled : bool or callable
         False: no bar. The tqdm bars count solves and show the elapsed time, the remaining time (the ETA) and the
-        rate (``12/500 [00:31<20:45, 2.6 s/solve]``). A callable: ``enabled(total=total, desc=desc)`` makes the bar, any object with
+        rate (``12/500 [00:31<20:45, 2.6 s/solve]``). A callable: ``enabled(total=total, desc=desc)`` makes the
+        bar, any object with
         ``update(n)`` and ``close()`` (the playground passes its widget bar). True: ``tqdm.auto`` (a
         widget in a live notebook), except with ``DEFOP_PROGRESS=text``, set by the main job: a plain
         text bar on stderr, which the job forwards to the terminal instead of storing a widget frozen
@@ -160,7 +161,12 @@ def map_checkpointed(fn, items, n_jobs, show, desc, chunk):
         for a in range(0, len(items), CHUNK):
             b = min(a + CHUNK, len(items))
             solved = []
-            res = chunk(a, b, lambda a=a, b=b: solved.append(1) or _run(fn, items[a:b], n_jobs, bar))
+
+            def compute(a=a, b=b, solved=solved):
+                solved.append(b - a)
+                return _run(fn, items[a:b], n_jobs, bar)
+
+            res = chunk(a, b, compute)
             if bar and not solved:  # loaded: the bar counts it at once, the ETA from the solves left
                 bar.update(b - a)
             results += list(res)

@@ -201,8 +201,18 @@ def _chunk_cache(checkpoint, shape, energy, samples, starts, rest):
     n_vertices, d = mesh.V.shape
 
     def chunk(a, b, compute):
-        key = cache_mod.key("chunk", mesh.V, mesh.F, shape.handles, shape.moving, energy, settings, samples[a:b],
-                            *_starts_parts(starts[a:b]), rest)
+        key = cache_mod.key(
+            "chunk",
+            mesh.V,
+            mesh.F,
+            shape.handles,
+            shape.moving,
+            energy,
+            settings,
+            samples[a:b],
+            *_starts_parts(starts[a:b]),
+            rest,
+        )
 
         def arrays():
             res = compute()
@@ -214,8 +224,9 @@ def _chunk_cache(checkpoint, shape, energy, samples, starts, rest):
     return chunk
 
 
-def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress=True, desc="solving", rest=True,
-                  checkpoint=None):
+def solve_samples(
+    shape, samples, energy="sarap", X0=None, n_jobs=None, progress=True, desc="solving", rest=True, checkpoint=None
+):
     """Solve problem (6) at every sample, in parallel: the lowest verified minimum over the starts
     (:meth:`defop.variational.solver.Solver.solve_best`).
 
@@ -252,7 +263,11 @@ def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress
     starts = list(X0) if X0 is not None else [None] * m
     solver = Solver(shape.mesh, shape.handles, energy)
     results = batch.map_checkpointed(
-        functools.partial(_solve_chunk, solver, rest=rest), list(zip(targets, starts)), n_jobs, progress, desc,
+        functools.partial(_solve_chunk, solver, rest=rest),
+        list(zip(targets, starts)),
+        n_jobs,
+        progress,
+        desc,
         _chunk_cache(checkpoint, shape, energy, samples, starts, rest),
     )
     X = np.array([r[0] for r in results])
@@ -455,16 +470,18 @@ def train(
         n = shape.n_moving
         nb = min(m, min_samples("linear", n, mesh.V.shape[1]) + 1)  # dn + 1: the linear bootstrap fit
         t0 = time.perf_counter()
-        Xb, cb = solve_samples(shape, samples[:nb], energy, None, n_jobs, progress, desc="bootstrap solves",
-                                checkpoint=ck)
+        Xb, cb = solve_samples(
+            shape, samples[:nb], energy, None, n_jobs, progress, desc="bootstrap solves", checkpoint=ck
+        )
         lin = fit(shape.mesh, shape.handles, shape.moving, samples[:nb], Xb, "linear", "hat", meta=meta)
         times["bootstrap"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         X, conv = Xb, cb
         if m > nb:
             starts = _warm_starts(lin, samples[nb:], shape.mesh, energy)
-            Xr, cr = solve_samples(shape, samples[nb:], energy, starts, n_jobs, progress, desc="sample solves",
-                                   checkpoint=ck)
+            Xr, cr = solve_samples(
+                shape, samples[nb:], energy, starts, n_jobs, progress, desc="sample solves", checkpoint=ck
+            )
             X, conv = np.concatenate([Xb, Xr]), np.concatenate([cb, cr])
         for _ in range(rounds - 1):
             # a smooth predictor (not an interpolant, which would reproduce a bad local minimum)
@@ -472,8 +489,9 @@ def train(
             inter = fit(shape.mesh, shape.handles, shape.moving, samples, X, smooth, "hat", meta=meta)
             # the current solutions and the smooth fit's predictions: the lower verified minimum of the two
             starts = [[x, w] for x, w in zip(X, _warm_starts(inter, samples, shape.mesh, energy))]
-            X, conv = solve_samples(shape, samples, energy, starts, n_jobs, progress, desc="re-solves", rest=False,
-                                    checkpoint=ck)
+            X, conv = solve_samples(
+                shape, samples, energy, starts, n_jobs, progress, desc="re-solves", rest=False, checkpoint=ck
+            )
         times["solve"] = time.perf_counter() - t0
         if store is not None:
             store.store("gt", gt_key, {"X": X, "converged": conv}, meta={"times": times})
