@@ -6,8 +6,9 @@ For the 2D aleph and the 2D octopus (S-ARAP, TPS Ψ, hat Φ): the (8a)/n over N 
 
 * **uniform**: ``dop.train(m=500, seed=0, rounds=1)``, and the fits to its first m samples (with one round each
   prefix is exactly what ``train(samples=Q[:m], rounds=1)`` solves: the linear bootstrap uses the first dn + 1);
-* **adaptive**: ``dop.training.train_adaptive(m=167)`` with each criterion (energy residual, halves' disagreement),
-  and the fit after its initial set and each batch.
+* **adaptive**: ``dop.training.train_adaptive(m=167)`` with its defaults (halves' disagreement, a pool of
+  3(m - n_initial)) and with a pool of 2,000 for each criterion (disagreement, energy residual), and the fit after
+  its initial set and each batch.
 
 Prints both curves, the number of adaptive samples that reaches the error of 500 uniform ones (log-log
 interpolation between stages; "not reached" if none does) and the ratio 500 / that, with the load average and the
@@ -29,7 +30,8 @@ from defop.operator.fit import fit
 
 UNIFORM, ADAPTIVE = 500, 167
 COUNTS = [50, 100, 167, 250, 333, 500]
-CRITERIA = ("residual", "disagreement")
+#: (criterion, pool) of each adaptive run: the default (pool 3(m - n_initial)) and a large pool per criterion
+CONFIGS = (("disagreement", None), ("disagreement", 2000), ("residual", 2000))
 
 
 def _prefix_errors(shape, samples, X, counts, Q_test, X_test):
@@ -63,13 +65,13 @@ def run(name, n_jobs=1):
         f"uniform ({uni.cache}, {time.perf_counter() - t0:.0f} s), every sample converged "
         f"{bool(uni.converged.all())}, held-out {bool(ok.all())}"
     )
-    return [_adaptive(shape, crit, e_uni, Q_test, X_test, n_jobs) for crit in CRITERIA]
+    return [_adaptive(shape, crit, pool, e_uni, Q_test, X_test, n_jobs) for crit, pool in CONFIGS]
 
 
-def _adaptive(shape, criterion, e_uni, Q_test, X_test, n_jobs):
+def _adaptive(shape, criterion, pool, e_uni, Q_test, X_test, n_jobs):
     t1 = time.perf_counter()
     _, ada = dop.training.train_adaptive(
-        shape, "sarap", "tps", m=ADAPTIVE, seed=0, criterion=criterion, n_jobs=n_jobs, progress=False
+        shape, "sarap", "tps", m=ADAPTIVE, seed=0, criterion=criterion, pool=pool, n_jobs=n_jobs, progress=False
     )
     t2 = time.perf_counter()
     counts = ada.params["counts"]
