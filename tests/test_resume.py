@@ -43,8 +43,10 @@ def _saved(folder):
     return sum(len(np.load(p)["converged"]) for p in folder.glob("chunk-*.npz"))
 
 
-@pytest.mark.parametrize("stop_after", [4, 11])
-def test_an_interrupted_training_resumes_without_re_solving(bar, tmp_path, monkeypatch, stop_after):
+# the bar's one moving handle: 3 bootstrap solves (one chunk or less: no checkpoint), 7 sample solves and 10
+# re-solves in chunks of 3; interrupted at solve 8, 3 samples are kept, at solve 15, 7 + 3
+@pytest.mark.parametrize("stop_after, kept", [(7, 3), (14, 10)])
+def test_an_interrupted_training_resumes_without_re_solving(bar, tmp_path, monkeypatch, stop_after, kept):
     kw = dict(energy="sarap", basis="tps", m=10, seed=3, n_jobs=1, progress=False)
     calls = _counting(monkeypatch)
     ref, ref_rec = dop.train(bar, cache=False, **kw)
@@ -54,7 +56,7 @@ def test_an_interrupted_training_resumes_without_re_solving(bar, tmp_path, monke
         dop.train(bar, **kw)
     folder = tmp_path / "cache"
     saved = _saved(folder)
-    assert 0 < saved <= stop_after  # whole chunks (of 3 samples, or the end of a stage) kept
+    assert saved == kept  # whole chunks (of 3 samples, or the end of a stage)
     calls = _counting(monkeypatch)
     op, rec = dop.train(bar, **kw)
     assert sum(calls) == total - saved  # only the samples not finished before the interruption

@@ -274,18 +274,6 @@ def train_adaptive(
     meta = {"shape": shape.name, "energy": energy, "seed": seed, "sampling": "adaptive"}
     op = fit(shape.mesh, shape.handles, shape.moving, Q, X, basis, spatial, k, meta=meta)
     times["fit"] = op.fit_time
-    params = dict(
-        shape=shape.name,
-        energy=energy,
-        basis=basis,
-        m=m,
-        spatial=spatial,
-        seed=seed,
-        sampling="adaptive",
-        criterion=criterion,
-        n_initial=n_initial,
-        batch=batch,
-        pool=pool,
-        counts=counts,
-    )
+    params = {"shape": shape.name, "energy": energy, "basis": basis, "m": m, "spatial": spatial, "seed": seed}
+    params.update(sampling="adaptive", criterion=criterion, n_initial=n_initial, batch=batch, pool=pool, counts=counts)
     return op, bootstrap.TrainingRecord(Q, X, conv, times, "none", params)

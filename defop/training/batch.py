@@ -9,11 +9,13 @@ and the cache policy are written once.
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 
 from .. import config
 from .. import options as opt
+from .cache import CacheWarning
 
 __all__ = ["CHUNK", "Checkpoints", "load_or_compute", "map_checkpointed", "parallel_map", "progress"]
 
@@ -124,9 +126,19 @@ class Checkpoints:
         self.keys = []
 
     def load_or_compute(self, key, expect, compute):
-        """:func:`load_or_compute` of entry ``chunk``/``key``, remembered for :meth:`discard`."""
+        """:func:`load_or_compute` of entry ``chunk``/``key``, remembered for :meth:`discard`.
+
+        A checkpoint that cannot be written is skipped silently: the caller's whole result, stored next, warns.
+        """
         self.keys.append(key)
-        return load_or_compute(self.store, self.KIND, key, expect, compute)
+        hit = self.store.load(self.KIND, key, expect)
+        if hit is not None:
+            return hit[0]
+        arrays = compute()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CacheWarning)
+            self.store.store(self.KIND, key, arrays)
+        return arrays
 
     def discard(self):
         """Remove every chunk entry used so far (the caller has cached the whole result)."""
@@ -144,7 +156,8 @@ def map_checkpointed(fn, items, n_jobs, show, desc, chunk):
         As in :func:`parallel_map`.
     chunk : callable or None
         ``chunk(a, b, compute) -> list``: the results of ``items[a:b]``, loaded from a checkpoint or ``compute()``
-        and stored (e.g. through :meth:`Checkpoints.load_or_compute`); None: no checkpoints.
+        and stored (e.g. through :meth:`Checkpoints.load_or_compute`); None: no checkpoints. Nor are there for
+        at most :data:`CHUNK` items: the caller's own cache entry follows at once.
 
     Returns
     -------
@@ -152,9 +165,9 @@ def map_checkpointed(fn, items, n_jobs, show, desc, chunk):
         As :func:`parallel_map`'s: each item's result depends only on the item, so a resumed run returns what an
         uninterrupted one does.
     """
-    if chunk is None:
-        return parallel_map(fn, items, n_jobs, show, desc)
     items = list(items)
+    if chunk is None or len(items) <= CHUNK:
+        return parallel_map(fn, items, n_jobs, show, desc)
     bar = progress(len(items), desc, show)
     results = []
     try:
