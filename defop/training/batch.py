@@ -3,7 +3,8 @@
 Training (:func:`defop.training.bootstrap.solve_samples`) and the ground-truth trajectories
 (:func:`defop.analysis.trajectories.ground_truth_trajectories`) both run through :func:`parallel_map` and
 :func:`load_or_compute`, so the split into chunks, the joblib backend (a Dask cluster included), the progress bars
-and the cache policy are written once.
+and the cache policy are written once; :func:`map_checkpointed` adds the checkpoints that let an interrupted run
+resume (:class:`Checkpoints`).
 """
 
 from __future__ import annotations
@@ -78,6 +79,7 @@ def parallel_map(fn, items, n_jobs=None, show=False, desc="solving"):
     results : list
     """
     items = list(items)
+    n_jobs = opt.n_jobs(config.n_jobs() if n_jobs is None else n_jobs)  # checked before a bar is shown
     bar = progress(len(items), desc, show)
     try:
         return _run(fn, items, n_jobs, bar)
