@@ -1,15 +1,17 @@
 """Training a DefOp (layer 4, §3.3): sample Q_k, solve D^E at each (in parallel, cached), fit.
 
 :mod:`.sampling` draws the Q_k, :mod:`.cache` stores ground truths and operators on disk and
-:mod:`.bootstrap` runs the pipeline (:func:`train`); :mod:`.branches` finds every branch of D^E and fits a
-multi-valued operator.
+:mod:`.bootstrap` runs the pipeline (:func:`train`); :mod:`.adaptive` chooses the samples where the operator is
+least certain (:func:`train_adaptive`); :mod:`.branches` finds every branch of D^E and fits a multi-valued operator.
 """
 
-from . import bootstrap, branches, cache, sampling
+from . import adaptive, bootstrap, branches, cache, sampling
+from .adaptive import train_adaptive
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
 
 __all__ = [
     "TrainingRecord",
+    "adaptive",
     "bootstrap",
     "branches",
     "cache",
@@ -18,4 +20,5 @@ __all__ = [
     "sampling",
     "solve_samples",
     "train",
+    "train_adaptive",
 ]

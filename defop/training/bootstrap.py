@@ -181,7 +181,52 @@ def _solve_chunk(solver, jobs, rest=True):
     return out
 
 
-def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress=True, desc="solving", rest=True):
+def _starts_parts(starts):
+    """The extra starts of some samples as :func:`defop.training.cache.key` parts (None, or arrays)."""
+    parts = []
+    for X0 in starts:
+        group = [] if X0 is None else list(X0) if isinstance(X0, (list, tuple)) else [X0]
+        parts.append(len(group))
+        parts += [np.asarray(x, float) for x in group]
+    return parts
+
+
+def _chunk_cache(checkpoint, shape, energy, samples, starts, rest):
+    """The ``chunk`` callable of :func:`defop.training.batch.map_checkpointed` for :func:`solve_samples`: a chunk's
+    entry is keyed by everything that determines its solves (mesh, handles, energy, solver settings, its samples,
+    their starts and ``rest``)."""
+    if checkpoint is None:
+        return None
+    mesh, settings = shape.mesh, _solver_key(shape, energy)
+    n_vertices, d = mesh.V.shape
+
+    def chunk(a, b, compute):
+        key = cache_mod.key(
+            "chunk",
+            mesh.V,
+            mesh.F,
+            shape.handles,
+            shape.moving,
+            energy,
+            settings,
+            samples[a:b],
+            *_starts_parts(starts[a:b]),
+            rest,
+        )
+
+        def arrays():
+            res = compute()
+            return {"X": np.array([r[0] for r in res]), "converged": np.array([r[1] for r in res], dtype=bool)}
+
+        got = checkpoint.load_or_compute(key, _gt_expect(b - a, n_vertices, d), arrays)
+        return list(zip(got["X"], got["converged"]))
+
+    return chunk
+
+
+def solve_samples(
+    shape, samples, energy="sarap", X0=None, n_jobs=None, progress=True, desc="solving", rest=True, checkpoint=None
+):
     """Solve problem (6) at every sample, in parallel: the lowest verified minimum over the starts
     (:meth:`defop.variational.solver.Solver.solve_best`).
 
@@ -195,9 +240,12 @@ def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress
     n_jobs : int, optional
         Workers (default ``dop.config.n_jobs()``: all cores); 1 solves in this process.
     progress : bool
-        A tqdm progress bar.
+        A tqdm progress bar (with the ETA).
     rest : bool
         Also solve from the rest pose (through flip-free continuation).
+    checkpoint : defop.training.batch.Checkpoints, optional
+        Cache every :data:`~defop.training.batch.CHUNK` finished samples, so that a run interrupted midway
+        (killed, Ctrl-C) and started again solves only the samples it had not finished, and returns the same.
 
     Returns
     -------
@@ -214,8 +262,13 @@ def solve_samples(shape, samples, energy="sarap", X0=None, n_jobs=None, progress
     targets = [shape.targets(q) for q in samples]
     starts = list(X0) if X0 is not None else [None] * m
     solver = Solver(shape.mesh, shape.handles, energy)
-    results = batch.parallel_map(
-        functools.partial(_solve_chunk, solver, rest=rest), list(zip(targets, starts)), n_jobs, progress, desc
+    results = batch.map_checkpointed(
+        functools.partial(_solve_chunk, solver, rest=rest),
+        list(zip(targets, starts)),
+        n_jobs,
+        progress,
+        desc,
+        _chunk_cache(checkpoint, shape, energy, samples, starts, rest),
     )
     X = np.array([r[0] for r in results])
     conv = np.array([r[1] for r in results], dtype=bool)
@@ -243,12 +296,16 @@ def sample_ground_truth(shape, samples, energy="sarap", X0=None, n_jobs=None, pr
         settings = _solver_key(shape, energy)
         key = cache_mod.key("gt", mesh.V, mesh.F, shape.handles, shape.moving, energy, settings, samples)
 
+    checkpoint = None if store is None else batch.Checkpoints(store)
+
     def compute():
-        X, conv = solve_samples(shape, samples, energy, X0, n_jobs, progress)
+        X, conv = solve_samples(shape, samples, energy, X0, n_jobs, progress, checkpoint=checkpoint)
         return {"X": X, "converged": conv}
 
     expect = _gt_expect(len(samples), mesh.n_vertices, mesh.V.shape[1])
     gt = batch.load_or_compute(store, "gt", key, expect, compute)
+    if checkpoint is not None:
+        checkpoint.discard()  # the whole ground truth is cached
     return gt["X"], gt["converged"]
 
 
@@ -409,17 +466,22 @@ def train(
         cache_state = "ground truth"
     else:
         cache_state = "none"
+        ck = None if store is None else batch.Checkpoints(store)  # resume an interrupted run where it stopped
         n = shape.n_moving
         nb = min(m, min_samples("linear", n, mesh.V.shape[1]) + 1)  # dn + 1: the linear bootstrap fit
         t0 = time.perf_counter()
-        Xb, cb = solve_samples(shape, samples[:nb], energy, None, n_jobs, progress, desc="bootstrap solves")
+        Xb, cb = solve_samples(
+            shape, samples[:nb], energy, None, n_jobs, progress, desc="bootstrap solves", checkpoint=ck
+        )
         lin = fit(shape.mesh, shape.handles, shape.moving, samples[:nb], Xb, "linear", "hat", meta=meta)
         times["bootstrap"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         X, conv = Xb, cb
         if m > nb:
             starts = _warm_starts(lin, samples[nb:], shape.mesh, energy)
-            Xr, cr = solve_samples(shape, samples[nb:], energy, starts, n_jobs, progress, desc="sample solves")
+            Xr, cr = solve_samples(
+                shape, samples[nb:], energy, starts, n_jobs, progress, desc="sample solves", checkpoint=ck
+            )
             X, conv = np.concatenate([Xb, Xr]), np.concatenate([cb, cr])
         for _ in range(rounds - 1):
             # a smooth predictor (not an interpolant, which would reproduce a bad local minimum)
@@ -427,10 +489,13 @@ def train(
             inter = fit(shape.mesh, shape.handles, shape.moving, samples, X, smooth, "hat", meta=meta)
             # the current solutions and the smooth fit's predictions: the lower verified minimum of the two
             starts = [[x, w] for x, w in zip(X, _warm_starts(inter, samples, shape.mesh, energy))]
-            X, conv = solve_samples(shape, samples, energy, starts, n_jobs, progress, desc="re-solves", rest=False)
+            X, conv = solve_samples(
+                shape, samples, energy, starts, n_jobs, progress, desc="re-solves", rest=False, checkpoint=ck
+            )
         times["solve"] = time.perf_counter() - t0
         if store is not None:
             store.store("gt", gt_key, {"X": X, "converged": conv}, meta={"times": times})
+            ck.discard()  # the whole ground truth is cached
     if not conv.all():
         warnings.warn(
             f"{int((~conv).sum())} of {m} sample solves did not converge; they are used as they are",

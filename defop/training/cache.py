@@ -271,6 +271,11 @@ class Cache:
                     path.unlink()
             return None
 
+    def remove(self, kind, key):
+        """Remove the entry ``<kind>-<key>.npz`` if there is one (an entry another process removed first is fine)."""
+        with contextlib.suppress(FileNotFoundError):
+            self.path(kind, key).unlink()
+
     def store_with(self, kind, key, write):
         """Write an entry atomically with ``write(tmp)`` (e.g. ``op.save``), ``tmp`` a temporary path.
 
