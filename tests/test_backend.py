@@ -127,3 +127,21 @@ def test_pardiso_finds_the_compressed_bars_saddle_by_its_inertia():
     q, p = _both(mesh, b, targets)  # with escapes: both buckle, to one of two mirror-image minima of equal energy
     assert q.converged and p.converged and "escape" in p.start
     assert abs(q.energy - p.energy) <= 1e-9 * q.energy
+
+
+@needs_pardiso
+def test_a_pickled_pardiso_solver_rebuilds_its_factorisation_and_solves_alike():
+    """joblib ships solvers to workers: the MKL handle is not pickled, the copy factorises afresh."""
+    import pickle
+
+    V, T = r3.grid_tets(2)
+    mesh = dop.Mesh(V, T)
+    h = np.flatnonzero(V[:, 0] == 0).tolist() + [int(np.argmax(V.sum(1)))]
+    targets = V[h] + np.array([0.0, 0.0, 0.0])[None] + 0.1 * (np.arange(len(h)) == len(h) - 1)[:, None]
+    solver = Solver(mesh, h, "sarap", backend="pardiso")
+    first = solver.solve(targets)
+    copy = pickle.loads(pickle.dumps(solver))
+    assert copy.hessian.backend == "pardiso" and copy.hessian._factor is None
+    again = copy.solve(targets)
+    assert first.converged and again.converged
+    assert np.array_equal(first.X, again.X)

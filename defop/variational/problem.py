@@ -17,6 +17,7 @@ symmetric-indefinite LDLᵀ whose inertia (iparm[22]) feeds the saddle verificat
 
 from __future__ import annotations
 
+import copy
 import ctypes
 import importlib.util
 import os
@@ -38,9 +39,12 @@ HAVE_PARDISO = importlib.util.find_spec("pypardiso") is not None
 
 #: the factorisation back ends a solver can be asked for (``DEFOP_BACKEND`` or ``backend=``)
 BACKENDS = ("auto", "qdldl", "pardiso")
-#: ``auto`` takes PARDISO on tet meshes from this many vertices: measured on the real S-ARAP Hessians
-#: (``benchmarks/bench_factor.py --real``), it loses to qdldl on small meshes and wins from about 2k vertices in 3D
-PARDISO_MIN_VERTICES_3D = 2000
+#: ``auto`` takes PARDISO on tet meshes from this many vertices. Measured on the real S-ARAP Hessians
+#: (``benchmarks/bench_factor.py --real``, one MKL thread), per factorisation it wins in 3D from about 200 vertices
+#: (4x qdldl at 512 and 1,000 vertices, 11x on the nut's 3.2k, 26x on the octopus's 10k); loading MKL costs about
+#: 1.5 s once per process, which a training on 1k vertices repays within a few samples. In 2D it loses below 10k
+#: vertices and wins 1.7x at 30k: 2D keeps qdldl (bit for bit)
+PARDISO_MIN_VERTICES_3D = 1000
 
 #: targets farther than this many bounding-box diagonals from the mesh are rejected (the energy overflows)
 MAX_TARGET_DISTANCE = 1e6
@@ -249,11 +253,18 @@ class PardisoLDL:
         The upper triangle (the pattern of every later ``factor``).
     """
 
-    def __init__(self, K):
-        import pypardiso
+    #: a PyPardisoSolver whose loaded MKL the others share: finding and loading it takes about 0.7 s
+    _template = None
 
+    def __init__(self, K):
+        if PardisoLDL._template is None:
+            import pypardiso
+
+            PardisoLDL._template = pypardiso.PyPardisoSolver(mtype=-2)
+        self._ps = copy.copy(PardisoLDL._template)  # fresh handle and parameters, the same library
+        self._ps.pt = np.zeros_like(self._ps.pt)
+        self._ps.iparm = np.zeros(64, dtype=np.int32)
         threads = int(os.environ.get("DEFOP_MKL_THREADS", "1") or 1)
-        self._ps = pypardiso.PyPardisoSolver(mtype=-2)
         self._ps.libmkl.MKL_Set_Num_Threads(ctypes.c_int(max(threads, 1)))
         iparm = self._ps.iparm
         iparm[0], iparm[1], iparm[9], iparm[10], iparm[12], iparm[20] = 1, 2, 8, 0, 0, 1
@@ -263,6 +274,10 @@ class PardisoLDL:
         self._order = order.data.astype(np.int64)
         self._A = sp.csr_matrix((K.data[self._order], order.indices, order.indptr), shape=K.shape)
         self._call(11, np.zeros(K.shape[0]))
+
+    def __del__(self):  # PARDISO's factors live in MKL's memory, not Python's: release them (phase −1)
+        if getattr(self, "_A", None) is not None:
+            self._call(-1, np.zeros(self._A.shape[0]))
 
     def _call(self, phase, b):
         self._ps.set_phase(phase)
