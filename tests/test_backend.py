@@ -145,3 +145,15 @@ def test_a_pickled_pardiso_solver_rebuilds_its_factorisation_and_solves_alike():
     again = copy.solve(targets)
     assert first.converged and again.converged
     assert np.array_equal(first.X, again.X)
+
+
+@needs_pardiso
+def test_a_matrix_pardiso_cannot_factorise_gives_nan_not_an_exception():
+    U = sp.triu(sp.csc_matrix(np.array([[1.0, 2.0], [2.0, np.nan]])), format="csc")
+    f = pb.PardisoLDL(U)
+    f.factor(U)
+    x = f.solve(np.ones(2))
+    if f.inertia() is None:  # PARDISO refused it: NaN, no inertia
+        assert np.isnan(x).all()
+    else:  # it factorised NaN values: the direction is not finite either
+        assert not np.isfinite(x).all()

@@ -274,6 +274,7 @@ class PardisoLDL:
         self._order = order.data.astype(np.int64)
         self._A = sp.csr_matrix((K.data[self._order], order.indices, order.indptr), shape=K.shape)
         self._call(11, np.zeros(K.shape[0]))
+        self._ok = False
 
     def __del__(self):  # PARDISO's factors live in MKL's memory, not Python's: release them (phase −1)
         if getattr(self, "_A", None) is not None:
@@ -284,17 +285,28 @@ class PardisoLDL:
         return self._ps._call_pardiso(self._A, b)
 
     def factor(self, K):
-        """Numeric factorisation of K (upper CSC, the pattern given at construction)."""
+        """Numeric factorisation of K (upper CSC, the pattern given at construction).
+
+        A matrix PARDISO cannot factorise (NaN values, say) leaves no factorisation: :meth:`solve` then returns
+        NaN, as qdldl's would, and the Newton stage reports a non-finite direction."""
+        from pypardiso.pardiso_wrapper import PyPardisoError
+
         self._A.data[:] = K.data[self._order]
-        self._call(22, np.zeros(K.shape[0]))
+        try:
+            self._call(22, np.zeros(K.shape[0]))
+            self._ok = True
+        except PyPardisoError:
+            self._ok = False
 
     def solve(self, b):
-        """K⁻¹ b from the last factorisation."""
+        """K⁻¹ b from the last factorisation (NaN when it failed)."""
+        if not self._ok:
+            return np.full(np.shape(b), np.nan)
         return np.asarray(self._call(33, np.asfortranarray(b, dtype=float))).reshape(b.shape)
 
     def inertia(self):
-        """Negative eigenvalues of the last factorised K (MKL's iparm[22])."""
-        return int(self._ps.iparm[22])
+        """Negative eigenvalues of the last factorised K (MKL's iparm[22]); None when it failed."""
+        return int(self._ps.iparm[22]) if self._ok else None
 
 
 def element_dofs(F, d):
