@@ -21,6 +21,7 @@ import copy
 import ctypes
 import importlib.util
 import os
+import weakref
 
 import numpy as np
 import scipy.sparse as sp
@@ -235,6 +236,11 @@ def choose_backend(backend, n_vertices, d):
     return backend
 
 
+def _pardiso_release(ps, A):
+    ps.set_phase(-1)
+    ps._call_pardiso(A, np.zeros(A.shape[0]))
+
+
 class PardisoLDL:
     """MKL PARDISO's symmetric-indefinite LDLᵀ (mtype −2, Bunch-Kaufman pivots) of one fixed sparsity pattern.
 
@@ -275,10 +281,9 @@ class PardisoLDL:
         self._A = sp.csr_matrix((K.data[self._order], order.indices, order.indptr), shape=K.shape)
         self._call(11, np.zeros(K.shape[0]))
         self._ok = False
-
-    def __del__(self):  # PARDISO's factors live in MKL's memory, not Python's: release them (phase −1)
-        if getattr(self, "_A", None) is not None:
-            self._call(-1, np.zeros(self._A.shape[0]))
+        # PARDISO's factors live in MKL's memory, not Python's: release them (phase −1) when this object goes, or
+        # at exit while the interpreter still runs (a __del__ at shutdown cannot call MKL any more)
+        weakref.finalize(self, _pardiso_release, self._ps, self._A)
 
     def _call(self, phase, b):
         self._ps.set_phase(phase)
