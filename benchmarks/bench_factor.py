@@ -22,7 +22,16 @@ the free vertices (SPD; a factorisation's cost depends on the pattern, not on th
 benchmark does not depend on ``solve.py``'s internals. One BLAS thread (threadpoolctl); each time is
 the median and best of 5; every solution's relative residual is printed.
 
-Run: ``python benchmarks/bench_factor.py [--dim 3] [--threads 2] [--sizes 1000 4000]``.
+``--real`` uses the solver's own reduced S-ARAP Hessians instead (issue 28 §1): for each catalogue model
+(``aleph`` at 1k, 3k, 10k and 30k vertices; the tet models ``bar_3d``, ``nut`` and ``octopus_3d``), one sampled
+handle configuration, the biharmonic start the solver takes, and the Hessian's values there (μ = 1e-5, projected:
+the matrix a Newton step factorises). It compares the solver's two back ends through the solver's own classes
+(qdldl ``update`` + solve; :class:`defop.variational.problem.PardisoLDL` numeric factorisation + solve with 1 and 2
+MKL threads), prints each one's one-off analysis, and checks the inertia of the exact (indefinite) Hessian at the
+verification's shift agrees. ``--solve`` adds one full verified S-ARAP solve of that sample with each back end.
+
+Run: ``python benchmarks/bench_factor.py [--dim 3] [--threads 2] [--sizes 1000 4000]``,
+``python benchmarks/bench_factor.py --real [--models bar_3d nut] [--solve]``.
 """
 
 from __future__ import annotations
@@ -166,12 +175,127 @@ def candidates(K, b):
     return out
 
 
+REAL = (
+    ("aleph", 1000),
+    ("aleph", 3000),
+    ("aleph", 10000),
+    ("aleph", 30000),
+    ("bar_3d", None),
+    ("nut", None),
+    ("octopus_3d", None),
+)
+
+
+def real_problem(name, n_vertices=None, seed=0):
+    """(shape, targets, X): one sampled configuration of a catalogue model and the solver's biharmonic start."""
+    import defop as dop
+    from defop.training.sampling import sample_shape
+
+    shape = dop.shapes.load(name, n_vertices=n_vertices) if n_vertices else dop.shapes.load(name)
+    Q = sample_shape(shape, 1, np.random.default_rng(seed))[0]
+    T = shape.targets(Q)
+    return shape, T
+
+
+def real_hessian(shape, T, backend):
+    """The solver (on ``backend``), its projected S-ARAP Hessian values at the biharmonic start, the gradient."""
+    from defop.variational import Solver
+
+    solver = Solver(shape.mesh, shape.handles, "sarap", backend=backend)
+    Tu = solver.targets_of(T)
+    X = shape.mesh.V + solver.extend(Tu - shape.mesh.V[solver.handles])
+    for _ in range(20):  # the start continuation takes: halve the move until no tet flips
+        if not np.any(shape.mesh.flipped(X)):
+            break
+        X = 0.5 * (X + shape.mesh.V)
+    _, g, data, _ = solver.grad_hess(X, 1e-5, project=True)
+    _, _, exact, _ = solver.grad_hess(X, 0.0, project=False)
+    return solver, data, exact, g[solver.free]
+
+
+def _timed_backend(shape, T, backend, threads):
+    """(analysis s, median s, best s, x, negative eigenvalues of the exact Hessian at INERTIA_SHIFT) of a back end."""
+    from defop.variational.verify import INERTIA_SHIFT
+
+    os.environ["DEFOP_MKL_THREADS"] = str(threads)
+    solver, data, exact, b = real_hessian(shape, T, backend)
+    t0 = time.perf_counter()
+    solver.hessian.solve(data, b, 1e-10)  # the first call analyses (qdldl: AMD + etree; PARDISO: phase 11)
+    first = time.perf_counter() - t0
+    med, best, x = timed(lambda: solver.hessian.solve(data, b, 1e-10), 3)
+    solver.hessian.solve(exact, b, INERTIA_SHIFT)
+    K = solver.hessian.full(data)
+    res = np.linalg.norm(K @ x - b) / np.linalg.norm(b)
+    return first - best, med, best, res, solver.hessian.inertia(), len(b), len(data)
+
+
+def real_solve(shape, T, backend):
+    """One verified S-ARAP solve from the rest pose: (seconds, CPU seconds, result)."""
+    from defop.variational import Solver
+
+    solver = Solver(shape.mesh, shape.handles, "sarap", backend=backend)
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = solver.solve(T)
+    return time.perf_counter() - t0, time.process_time() - c0, res
+
+
+def main_real(models=None, solve=False):
+    from defop.variational import problem
+
+    if not problem.HAVE_PARDISO:
+        print("pypardiso is not installed (pip install -e '.[mkl]'): only qdldl is measured")
+    else:  # load MKL (about 1 s, once per process) before any timing
+        t0 = time.perf_counter()
+        eye = sp.identity(2, format="csc")
+        problem.PardisoLDL(eye).factor(eye)
+        print(f"loading MKL and a first PARDISO call: {time.perf_counter() - t0:.2f} s (once per process)")
+    todo = [m for m in REAL if models is None or m[0] in models or f"{m[0]}:{m[1]}" in models]
+    print(
+        f"real reduced S-ARAP Hessians (μ = 1e-5, projected) at one sampled configuration's biharmonic start; "
+        f"median / best of 3 (ms); load average {os.getloadavg()[0]:.1f}"
+    )
+    print(
+        f"{'model':>16s} {'verts':>6s} {'unknowns':>8s} {'nnz':>9s} | {'back end':18s} {'analysis':>9s} "
+        f"{'factor+solve':>21s} {'speed-up':>8s} {'residual':>8s} {'neg.eig':>7s}"
+    )
+    runs = [("qdldl", 1)] + ([("pardiso", 1), ("pardiso", 2)] if problem.HAVE_PARDISO else [])
+    for name, n in todo:
+        shape, T = real_problem(name, n)
+        base = None
+        for backend, threads in runs:
+            with threadpool_limits(limits=threads):
+                an, med, best, res, neg, nf, nnz = _timed_backend(shape, T, backend, threads)
+            base = base or best
+            print(
+                f"{name:>16s} {shape.mesh.n_vertices:6d} {nf:8d} {nnz:9d} | {backend + f' ({threads} thr)':18s} "
+                f"{1e3 * an:9.1f} {1e3 * med:10.1f} / {1e3 * best:8.1f} {base / best:7.2f}x {res:8.1e} {neg!s:>7s}"
+            )
+        if solve:
+            out = {}
+            for backend, threads in runs[:2]:
+                os.environ["DEFOP_MKL_THREADS"] = str(threads)
+                with threadpool_limits(limits=threads):
+                    wall, cpu, r = real_solve(shape, T, backend)
+                out[backend] = r
+                print(
+                    f"{'':>16s} solve on {backend:8s}: {wall:8.1f} s wall, {cpu:8.1f} CPU s, {r.iterations:3d} "
+                    f"iterations, E = {r.energy:.12g}, converged {r.converged}"
+                )
+            if len(out) == 2:
+                a, b = out["qdldl"], out["pardiso"]
+                dx = np.abs(a.X - b.X).max() / shape.mesh.bbox_diagonal
+                print(f"{'':>16s} |ΔE|/E = {abs(a.energy - b.energy) / a.energy:.1e}, max |ΔX| / diagonal = {dx:.1e}")
+    print(f"\nload average {os.getloadavg()[0]:.1f}")
+
+
 def main(sizes=None, dim=2, threads=1):
     sizes = sizes or (SIZES if dim == 2 else SIZES_3D)
     where = "aleph-like meshes" if dim == 2 else "structured tet grids (6 Kuhn tets a cube)"
     load = os.getloadavg()[0]
-    print(f"reduced S-ARAP Hessian pattern on {where}; {threads} BLAS/MKL thread(s); median / best of 5 (ms); "
-          f"load average {load:.1f}")
+    print(
+        f"reduced S-ARAP Hessian pattern on {where}; {threads} BLAS/MKL thread(s); median / best of 5 (ms); "
+        f"load average {load:.1f}"
+    )
     for size in sizes:
         K, n = reduced_hessian(size) if dim == 2 else reduced_hessian_3d(size)
         b = np.random.default_rng(0).standard_normal(K.shape[0])
@@ -199,5 +323,11 @@ if __name__ == "__main__":
     parser.add_argument("--dim", type=int, choices=(2, 3), default=2)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--sizes", type=int, nargs="*")
+    parser.add_argument("--real", action="store_true", help="the solver's own S-ARAP Hessians on catalogue models")
+    parser.add_argument("--models", nargs="*", help="with --real: model names (or name:n_vertices for the aleph)")
+    parser.add_argument("--solve", action="store_true", help="with --real: one full solve per back end too")
     args = parser.parse_args()
-    main(args.sizes, args.dim, args.threads)
+    if args.real:
+        main_real(args.models, args.solve)
+    else:
+        main(args.sizes, args.dim, args.threads)

@@ -6,9 +6,22 @@ hard constraints, eliminated from the system: only the d·n_free free dofs are u
 holds what depends only on the mesh, the handle set and the energy; :class:`ReducedHessian` the fixed sparsity
 pattern of the Hessian Σ_t A_t B_tᵀ H_t B_t and its factorisation (QDLDL: the AMD ordering and the symbolic
 analysis are computed once and reused by every ``update``; scipy's SuperLU is the fallback without qdldl).
+
+The factorisation back end is chosen at run time (:func:`choose_backend`): ``DEFOP_BACKEND=auto|qdldl|pardiso``
+or the solver's ``backend`` keyword. ``pardiso`` is MKL PARDISO through the optional ``pypardiso`` (the ``mkl``
+extra, x86-64 only; pypardiso is BSD-3, MKL comes under Intel's Simplified Software Licence), a supernodal
+symmetric-indefinite LDLᵀ whose inertia (iparm[22]) feeds the saddle verification like qdldl's negative pivots.
+``auto`` takes PARDISO for tetrahedral meshes of at least :data:`PARDISO_MIN_VERTICES_3D` vertices, where it wins
+(``benchmarks/bench_factor.py --real``), and qdldl everywhere else (2D stays bit-for-bit).
 """
 
 from __future__ import annotations
+
+import copy
+import ctypes
+import importlib.util
+import os
+import weakref
 
 import numpy as np
 import scipy.sparse as sp
@@ -21,6 +34,18 @@ try:  # QDLDL reuses the symbolic factorisation (AMD ordering, elimination tree)
     import qdldl
 except ImportError:  # pragma: no cover - exercised only without the dependency
     qdldl = None
+
+#: MKL PARDISO, the optional ``mkl`` extra (x86-64): imported on first use (importing it loads MKL)
+HAVE_PARDISO = importlib.util.find_spec("pypardiso") is not None
+
+#: the factorisation back ends a solver can be asked for (``DEFOP_BACKEND`` or ``backend=``)
+BACKENDS = ("auto", "qdldl", "pardiso")
+#: ``auto`` takes PARDISO on tet meshes from this many vertices. Measured on the real S-ARAP Hessians
+#: (``benchmarks/bench_factor.py --real``, one MKL thread), per factorisation it wins in 3D from about 200 vertices
+#: (4x qdldl at 512 and 1,000 vertices, 11x on the nut's 3.2k, 26x on the octopus's 10k); loading MKL costs about
+#: 1.5 s once per process, which a training on 1k vertices repays within a few samples. In 2D it loses below 10k
+#: vertices and wins 1.7x at 30k: 2D keeps qdldl (bit for bit)
+PARDISO_MIN_VERTICES_3D = 1000
 
 #: targets farther than this many bounding-box diagonals from the mesh are rejected (the energy overflows)
 MAX_TARGET_DISTANCE = 1e6
@@ -175,6 +200,120 @@ def check_targets(targets, handles, mesh=None, dim=2):
     return T
 
 
+def check_backend(backend=None):
+    """The back-end name asked for: ``backend``, else ``DEFOP_BACKEND``, else ``"auto"``.
+
+    Raises
+    ------
+    ValueError
+        Not one of :data:`BACKENDS`, or ``"pardiso"`` without pypardiso installed.
+    """
+    source = "backend"
+    if backend is None:
+        backend, source = os.environ.get("DEFOP_BACKEND", "").strip() or "auto", "DEFOP_BACKEND"
+    if not isinstance(backend, str) or backend.lower() not in BACKENDS:
+        raise ValueError(f"{source} must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    backend = backend.lower()
+    if backend == "pardiso" and not HAVE_PARDISO:
+        raise ValueError(
+            f"{source}='pardiso' needs pypardiso (MKL, x86-64): pip install 'defop[mkl]', or use qdldl or auto"
+        )
+    return backend
+
+
+def choose_backend(backend, n_vertices, d):
+    """The factorisation a mesh of ``n_vertices`` in ``d`` dimensions gets: "qdldl", "pardiso" or "splu".
+
+    ``auto``: PARDISO when installed and d = 3 with at least :data:`PARDISO_MIN_VERTICES_3D` vertices, else
+    qdldl; SuperLU only when qdldl is missing (it gives no inertia).
+    """
+    backend = check_backend(backend)
+    if backend == "auto":
+        big3d = d == 3 and n_vertices >= PARDISO_MIN_VERTICES_3D
+        backend = "pardiso" if big3d and HAVE_PARDISO else "qdldl"
+    if backend == "qdldl" and qdldl is None:  # pragma: no cover - exercised only without the dependency
+        backend = "splu"
+    return backend
+
+
+def _pardiso_release(ps, A):
+    ps.set_phase(-1)
+    ps._call_pardiso(A, np.zeros(A.shape[0]))
+
+
+class PardisoLDL:
+    """MKL PARDISO's symmetric-indefinite LDLᵀ (mtype −2, Bunch-Kaufman pivots) of one fixed sparsity pattern.
+
+    The ordering and symbolic analysis (phase 11) run once; each :meth:`factor` is the numeric factorisation
+    (phase 22), :meth:`solve` the substitutions (phase 33). Sylvester's law of inertia holds for the pivoted
+    LDLᵀ, so :meth:`inertia` is the negative eigenvalue count MKL reports (iparm[22]), qdldl's negative pivots.
+    PARDISO replaces a pivot below 1e-8·‖K‖ by ±1e-8·‖K‖ (iparm[9] = 8, the default) where qdldl would divide by
+    it; the verification shifts the diagonal by more than that (``INERTIA_SHIFT``).
+
+    MKL runs on ``DEFOP_MKL_THREADS`` threads (default 1: one solve per core is how training uses the machine,
+    and one thread makes every factorisation reproducible).
+
+    Parameters
+    ----------
+    K : (N, N) scipy CSC matrix
+        The upper triangle (the pattern of every later ``factor``).
+    """
+
+    #: a PyPardisoSolver whose loaded MKL the others share: finding and loading it takes about 0.7 s
+    _template = None
+
+    def __init__(self, K):
+        if PardisoLDL._template is None:
+            import pypardiso
+
+            PardisoLDL._template = pypardiso.PyPardisoSolver(mtype=-2)
+        self._ps = copy.copy(PardisoLDL._template)  # fresh handle and parameters, the same library
+        self._ps.pt = np.zeros_like(self._ps.pt)
+        self._ps.iparm = np.zeros(64, dtype=np.int32)
+        threads = int(os.environ.get("DEFOP_MKL_THREADS", "1") or 1)
+        self._ps.libmkl.MKL_Set_Num_Threads(ctypes.c_int(max(threads, 1)))
+        iparm = self._ps.iparm
+        iparm[0], iparm[1], iparm[9], iparm[10], iparm[12], iparm[20] = 1, 2, 8, 0, 0, 1
+        # PARDISO reads the upper triangle row by row: the CSR order of the CSC values, found once
+        order = sp.csc_matrix((np.arange(K.nnz, dtype=float), K.indices, K.indptr), shape=K.shape).tocsr()
+        order.sort_indices()
+        self._order = order.data.astype(np.int64)
+        self._A = sp.csr_matrix((K.data[self._order], order.indices, order.indptr), shape=K.shape)
+        self._call(11, np.zeros(K.shape[0]))
+        self._ok = False
+        # PARDISO's factors live in MKL's memory, not Python's: release them (phase −1) when this object goes, or
+        # at exit while the interpreter still runs (a __del__ at shutdown cannot call MKL any more)
+        weakref.finalize(self, _pardiso_release, self._ps, self._A)
+
+    def _call(self, phase, b):
+        self._ps.set_phase(phase)
+        return self._ps._call_pardiso(self._A, b)
+
+    def factor(self, K):
+        """Numeric factorisation of K (upper CSC, the pattern given at construction).
+
+        A matrix PARDISO cannot factorise (NaN values, say) leaves no factorisation: :meth:`solve` then returns
+        NaN, as qdldl's would, and the Newton stage reports a non-finite direction."""
+        from pypardiso.pardiso_wrapper import PyPardisoError
+
+        self._A.data[:] = K.data[self._order]
+        try:
+            self._call(22, np.zeros(K.shape[0]))
+            self._ok = True
+        except PyPardisoError:
+            self._ok = False
+
+    def solve(self, b):
+        """K⁻¹ b from the last factorisation (NaN when it failed)."""
+        if not self._ok:
+            return np.full(np.shape(b), np.nan)
+        return np.asarray(self._call(33, np.asfortranarray(b, dtype=float))).reshape(b.shape)
+
+    def inertia(self):
+        """Negative eigenvalues of the last factorised K (MKL's iparm[22]); None when it failed."""
+        return int(self._ps.iparm[22]) if self._ok else None
+
+
 def element_dofs(F, d):
     """(m, (d+1)·d) global dof of every element's local dof: local (d·i + c) -> d·F[t, i] + c."""
     return (d * F[:, :, None] + np.arange(d)).reshape(len(F), -1)
@@ -185,8 +324,9 @@ class ReducedHessian:
 
     The upper triangle of the free-free block is assembled in CSC order (QDLDL's input), so only its values
     change between iterations; QDLDL computes the AMD ordering and the symbolic analysis once and reuses them
-    in every ``update``. Without qdldl, SuperLU (no inertia). The one interface to the factorisation: a
-    faster back end (the scale issue) replaces :meth:`solve` and :meth:`inertia`.
+    in every ``update``. Without qdldl, SuperLU (no inertia). The one interface to the factorisation:
+    :meth:`solve` and :meth:`inertia`, whatever the back end (:func:`choose_backend`: qdldl, MKL PARDISO
+    through :class:`PardisoLDL`, or SuperLU).
 
     Parameters
     ----------
@@ -194,9 +334,17 @@ class ReducedHessian:
         V (n, d), F (m, d + 1).
     free : (n_free·d,) int numpy array
         The free dofs (d·vertex + coordinate), sorted.
+    backend : str, optional
+        One of :data:`BACKENDS` (default ``DEFOP_BACKEND``, else ``"auto"``).
+
+    Attributes
+    ----------
+    backend : str
+        The factorisation in use: "qdldl", "pardiso" or "splu".
     """
 
-    def __init__(self, mesh, free):
+    def __init__(self, mesh, free, backend=None):
+        self.backend = choose_backend(backend, mesh.n_vertices, mesh.V.shape[1])
         F = mesh.F
         d = mesh.V.shape[1]
         k = F.shape[1] * d  # local dofs per element: (d+1)·d
@@ -215,10 +363,10 @@ class ReducedHessian:
         self._ptr = np.concatenate([[0], np.cumsum(np.bincount(uniq // nf, minlength=nf))]).astype(np.int32)
         self._nnz = len(uniq)
         self._diag = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
-        self._K = self._qdldl = None
+        self._K = self._factor = None
 
     def __getstate__(self):
-        return {**self.__dict__, "_K": None, "_qdldl": None}
+        return {**self.__dict__, "_K": None, "_factor": None}
 
     def assemble(self, local, project=True):
         """Values in the pattern from per-element modes W (m, (d+1)d, d²) and A_t·λ (m, d²); ``project`` clamps
@@ -245,19 +393,28 @@ class ReducedHessian:
     def solve(self, data, b, rel_shift):
         """K⁻¹ b with K = ``matrix(data, rel_shift)``; factorises."""
         K = self.matrix(data, rel_shift)
-        if qdldl is None:  # pragma: no cover - exercised only without the dependency
-            self._qdldl = None
+        if self.backend == "splu":  # pragma: no cover - exercised only without qdldl
             lu = sla.splu((K + sp.triu(K, 1).T).tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
             return lu.solve(b)
-        if self._qdldl is None:
-            self._qdldl = qdldl.Solver(K, upper=True)
+        if self.backend == "pardiso":
+            if self._factor is None:
+                self._factor = PardisoLDL(K)
+            self._factor.factor(K)
+            return self._factor.solve(b)
+        if self._factor is None:
+            self._factor = qdldl.Solver(K, upper=True)
         else:
-            self._qdldl.update(K, upper=True)
-        return self._qdldl.solve(b)
+            self._factor.update(K, upper=True)
+        return self._factor.solve(b)
 
     def inertia(self):
-        """Negative pivots of the last LDLᵀ (Sylvester: negative eigenvalues of the shifted K), None without qdldl."""
-        return None if self._qdldl is None else int(np.count_nonzero(self._qdldl.factors()[1] < 0))
+        """Negative eigenvalues of the last factorised K (Sylvester: qdldl's negative pivots, PARDISO's
+        iparm[22]); None with SuperLU, which gives no inertia."""
+        if self._factor is None or self.backend == "splu":
+            return None
+        if self.backend == "pardiso":
+            return self._factor.inertia()
+        return int(np.count_nonzero(self._factor.factors()[1] < 0))
 
 
 class ReducedProblem:
@@ -272,6 +429,9 @@ class ReducedProblem:
         Targets are always given in this order. A vertex listed twice must get the same target each time.
     energy : str
         One of :data:`defop.variational.energies.ENERGIES`.
+    backend : str, optional
+        The factorisation, one of :data:`BACKENDS` (default ``DEFOP_BACKEND``, else ``"auto"``); every back end
+        gives the same minima (tests/test_backend.py), so it is not a setting of the solutions.
 
     Attributes
     ----------
@@ -283,7 +443,7 @@ class ReducedProblem:
     hessian : ReducedHessian
     """
 
-    def __init__(self, mesh, handles, energy="sarap"):
+    def __init__(self, mesh, handles, energy="sarap", backend=None):
         self.mesh = mesh
         self.energy = en.check_energy(energy)
         self.barrier = en.is_barrier(energy)
@@ -297,7 +457,7 @@ class ReducedProblem:
         is_handle[self.handles] = True
         self.free_vertices = np.flatnonzero(~is_handle)
         self.free = (d * self.free_vertices[:, None] + np.arange(d)).ravel()
-        self.hessian = ReducedHessian(mesh, self.free)
+        self.hessian = ReducedHessian(mesh, self.free, backend)
         self._biharmonic = None
         #: energies below this (1e-12 · area) count as zero in relative tests (ARAP and S-ARAP vanish at rest)
         self._energy_floor = 1e-12 * float(mesh.areas.sum())

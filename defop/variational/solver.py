@@ -112,6 +112,10 @@ class Solver(ReducedProblem):
         minimum and 3.7e-5 of the diagonal away from it; the default ends within 2.3e-8 of it (0-3 more
         iterations), ``(1e-5, 1e-7, 0)`` within 2e-9 (up to 5 more). The μ = 0 stage treats triangles on the
         kink as check 4 does (below); without that it stalls 2.6e-7 above the minimum.
+    backend : str, optional
+        The factorisation: ``"auto"`` (default, or ``DEFOP_BACKEND``), ``"qdldl"`` or ``"pardiso"`` (MKL, the
+        optional ``mkl`` extra); see :func:`defop.variational.problem.choose_backend`. ``hessian.backend`` says which
+        one runs. Every back end gives the same minima (tests/test_backend.py).
 
     Attributes
     ----------
@@ -145,9 +149,9 @@ class Solver(ReducedProblem):
     holding plain values are the solve's settings (:func:`defop.training.cache.solver_settings` keys on them).
     """
 
-    def __init__(self, mesh, handles, energy="sarap", tol=1e-9, max_iter=300, smoothing=None):
+    def __init__(self, mesh, handles, energy="sarap", tol=1e-9, max_iter=300, smoothing=None, backend=None):
         check_handle_span(mesh, check_handles(mesh, handles))
-        super().__init__(mesh, handles, energy)
+        super().__init__(mesh, handles, energy, backend)
         self.tol = check_tol(tol)
         self.max_iter = check_max_iter(max_iter)
         self.mu_schedule = (0.0,)
@@ -328,8 +332,8 @@ class Solver(ReducedProblem):
         return best
 
 
-def solve(mesh, handles, targets, energy="sarap", X0=None, **kw):
-    """One-shot :class:`Solver`: ``Solver(mesh, handles, energy).solve(targets, X0, **kw)``.
+def solve(mesh, handles, targets, energy="sarap", X0=None, backend=None, **kw):
+    """One-shot :class:`Solver`: ``Solver(mesh, handles, energy, backend=backend).solve(targets, X0, **kw)``.
 
     ``start="global"`` selects the multi-start policy of :meth:`Solver.solve_best`.
 
@@ -337,4 +341,4 @@ def solve(mesh, handles, targets, energy="sarap", X0=None, **kw):
     -------
     result : SolveResult
     """
-    return Solver(mesh, handles, energy).solve(targets, X0=X0, **kw)
+    return Solver(mesh, handles, energy, backend=backend).solve(targets, X0=X0, **kw)
