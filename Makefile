@@ -9,7 +9,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.defop-installed
-EXTRAS := test,notebook,dask,dev,browser,docs
+EXTRAS := test,notebook,dask,dev,browser,docs,mkl
 # pins of a venv that passed make test: a new release of any dependency cannot break make
 CONSTRAINTS := constraints.txt
 NBVAL  := --nbval-lax --nbval-cell-timeout=600 --nbval-sanitize-with .ci/nbval-sanitize.cfg

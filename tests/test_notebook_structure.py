@@ -23,6 +23,8 @@ def test_notebook_opens_with_a_header_and_checks_its_claims(path):
     head = "".join(cells[0]["source"])
     assert cells[0]["cell_type"] == "markdown" and head.startswith("# "), "the first cell must be a markdown header"
     assert "Run time" in head and "fast" in head, "the header states full and fast run times"
+    # the title is the book's sidebar entry on every page, including pages that load no MathJax: no maths in it
+    assert "$" not in head.splitlines()[0], "the title line holds maths, which pages without MathJax cannot typeset"
     code = ["".join(c["source"]) for c in cells if c["cell_type"] == "code"]
     assert any(src.startswith("# NBVAL_CHECK_OUTPUT") for src in code), "at least one checked claim"
     # outputs are stored from full runs (GitHub shows the real figures); the main job's normalisation numbers the
