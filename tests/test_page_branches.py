@@ -9,16 +9,14 @@ does, with the handles exact. The bar of Fig. 10 with the fixtures of tests/test
 
 from __future__ import annotations
 
-import base64
-import json
-import subprocess
 import warnings
 
 import numpy as np
 import pytest
 from test_branches import bar, found  # noqa: F401  (fixtures)
-from test_browser_editor import NODE, ROOT, chromium_page, needs_node
+from test_browser_editor import ROOT, chromium_page, needs_node, node_run
 
+import defop as dop
 from defop.analysis import branches as ab
 from defop.editor import export, payload
 
@@ -33,13 +31,8 @@ def seeded_path(P, seed=0, steps=20):
 
 
 def node_branched(bop, Qs, tmp_path):
-    meta, data = payload.encode_payload(payload.branched_to_payload(bop))
-    spec = {"js": str(payload.JS_PATH), "meta": meta, "data": base64.b64encode(data).decode(),
-            "Q": [np.asarray(Q, float).ravel().tolist() for Q in Qs]}
-    path = tmp_path / "input.json"
-    path.write_text(json.dumps(spec))
-    res = subprocess.run([NODE, str(DRIVER), str(path)], capture_output=True, text=True, timeout=60, check=True)
-    return json.loads(res.stdout)
+    """The page's makeBranched in Node (tests/js/eval_branched.mjs) on Qs: per-branch X, follow, global, jumps."""
+    return node_run(DRIVER, payload.branched_to_payload(bop), Qs, tmp_path)
 
 
 def python_follow(bop, Qs):
@@ -81,7 +74,13 @@ def test_branched_page_bad_input(bar, found, tmp_path):  # noqa: F811
     bop = found[3]
     with pytest.raises(ValueError, match="op must be a trained DefOp or BranchedOperator"):
         export.to_html("bar", tmp_path / "x.html")
-    assert not (tmp_path / "x.html").exists()
+    with pytest.raises(ValueError, match="shape must be a 2D shape"):
+        export.to_html(bop, tmp_path / "x.html", shape=dop.shapes.load("bar_3d"))
+    with pytest.raises(ValueError, match="title"):
+        export.to_html(bop, tmp_path / "x.html", title=3)
+    assert not (tmp_path / "x.html").exists()  # nothing written
+    path = export.to_html(bop, tmp_path / "x.html")
+    assert "2 branches" in path.read_text() and "follow" in path.read_text()
 
 
 def _drag_along(page, Qs):

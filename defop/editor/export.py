@@ -179,7 +179,8 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     if op.d == 3:
         text = _PAGE_3D.format(js=solid_script(), three_version=THREE_VERSION, **fields)
     else:
-        text = (_PAGE_BRANCHED if branched else _PAGE).format(js=_inline_script(JS_PATH.read_text(encoding="utf-8")), **fields)
+        page = _PAGE_BRANCHED if branched else _PAGE
+        text = page.format(js=_inline_script(JS_PATH.read_text(encoding="utf-8")), **fields)
     return opt.write_atomic(path, text.encode("utf-8"))
 
 

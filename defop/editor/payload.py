@@ -154,13 +154,15 @@ def branched_to_payload(bop, regions=None):
     ----------
     bop : defop.operator.branched.BranchedOperator
     regions : list of list of (k,2) numpy array, optional
-        As for :func:`defop_to_payload` (default: branch 0's farthest training samples).
+        As for :func:`defop_to_payload`; default: discs through the farthest training sample of any branch.
 
     Returns
     -------
     payload : dict
         That of branch 0 plus ``n_branches``, ``branch_labels`` and the prefixed keys.
     """
+    if regions is None:  # the training samples of every branch (each branch alone covers only its domain)
+        regions = reach_polygons(bop.P, np.concatenate([b.op.train_samples for b in bop.branches]))
     p = defop_to_payload(bop.branches[0].op, regions)
     p.update(n_branches=len(bop), branch_labels=[int(b.label) for b in bop.branches])
     for b in bop.branches:
