@@ -4,6 +4,8 @@
 //   - the anywidget view (defop.editor.browser.BrowserEditor): `export default { render }`;
 //   - the standalone page (defop.editor.export.to_html): inlined, then `mountStandalone(meta, base64)`;
 //   - the Node correctness tests (tests/test_browser_editor.py): `decodePayload` + `makeOperator`.
+// A multi-valued operator (defop.operator.branched, payload.branched_to_payload) is one makeOperator per branch
+// plus its closed-form domain test and energies (makeBranched): the standalone page drags it in `follow` mode.
 // Nothing here touches the DOM at import time.
 //
 // The payload is written by defop.editor.payload.defop_to_payload: Ψ's kind, the rest positions P of the moving
