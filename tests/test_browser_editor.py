@@ -56,9 +56,9 @@ def operators(shape):
     return ops
 
 
-def node_eval(op, Qs, tmp_path, regions=None):
-    """Run the page's module in Node on Qs (k,n,2); returns X (k,n_vertices,2), psi (k,|Ψ|) and outside lists."""
-    meta, data = payload.encode_payload(payload.defop_to_payload(op, regions))
+def node_run(driver, page_payload, Qs, tmp_path):
+    """Run a Node driver (tests/js/*.mjs) on the page's module with a payload and Qs (k,n,d): its parsed JSON."""
+    meta, data = payload.encode_payload(page_payload)
     spec = {
         "js": str(payload.JS_PATH),
         "meta": meta,
@@ -67,8 +67,13 @@ def node_eval(op, Qs, tmp_path, regions=None):
     }
     path = tmp_path / "input.json"
     path.write_text(json.dumps(spec))
-    res = subprocess.run([NODE, str(DRIVER), str(path)], capture_output=True, text=True, timeout=60, check=True)
-    out = json.loads(res.stdout)
+    res = subprocess.run([NODE, str(driver), str(path)], capture_output=True, text=True, timeout=60, check=True)
+    return json.loads(res.stdout)
+
+
+def node_eval(op, Qs, tmp_path, regions=None):
+    """Run the page's module in Node on Qs (k,n,2); returns X (k,n_vertices,2), psi (k,|Ψ|) and outside lists."""
+    out = node_run(DRIVER, payload.defop_to_payload(op, regions), Qs, tmp_path)
     X = np.array([o["X"] for o in out]).reshape(len(Qs), -1, 2)
     return X, np.array([o["psi"] for o in out]), [o["outside"] for o in out]
 

@@ -9,9 +9,10 @@ import json
 import re
 
 from .. import options as opt
+from ..operator.branched import BranchedOperator
 from ..operator.defop import DefOp
 from ..scene.shapes import Shape
-from .payload import JS_PATH, defop_to_payload, encode_payload, image_for, region_balls
+from .payload import JS_PATH, branched_to_payload, defop_to_payload, encode_payload, image_for, region_balls
 from .state import region_polygons
 
 SOLID_JS_PATH = JS_PATH.with_name("defop_solid.js")
@@ -63,6 +64,19 @@ window.defopEditor = mountStandalone(document.getElementById("defop-app"), {meta
 </body></html>
 """
 
+# the multi-valued page (a BranchedOperator): the 2D page with what the branch readout and the toggle mean
+_PAGE_BRANCHED = _PAGE.replace(
+    '<p class="defop-instruction">Drag a red handle with the mouse: the shape follows, computed in this page.</p>',
+    '<p class="defop-instruction">Drag a red handle across the jump and back: the shape stays on its branch while '
+    'that branch exists (follow), so it jumps at different places on the way out and on the way back.</p>',
+).replace(
+    "<p class=\"defop-note\">",
+    "<p class=\"defop-note\">One closed-form operator per branch of D<sup>E</sup>; a branch exists where its "
+    "estimated stability margin &lambda;&sup2;<sub>b</sub>(Q) is positive and Q is on its side of the mode score "
+    "(defop.operator.branched). Follow stays on the current branch while it exists, else takes the existing branch "
+    "of lowest estimated energy E<sub>b</sub>(Q); global always takes the lowest; Reset goes back to the rest "
+    "pose's branch.</p>\n<p class=\"defop-note\">",
+)
 
 _PAGE_3D = _HEAD + """\
 <p class="defop-instruction">Drag a red handle in the view plane; drag elsewhere to orbit, scroll to zoom.</p>
@@ -107,7 +121,10 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
 
     Parameters
     ----------
-    op : defop.operator.DefOp
+    op : defop.operator.DefOp or defop.operator.branched.BranchedOperator
+        A 2D BranchedOperator gets the 2D page with every branch (:func:`.payload.branched_to_payload`): the drag
+        runs ``follow`` (``makeBranched`` of ``defop_editor.js``), a toggle switches to ``global``, the current
+        branch's label is shown, and Reset goes back to branch 0 (the rest pose's).
     path : str or pathlib.Path
     shape : defop.scene.shapes.Shape, optional
         Its sampling regions are drawn and used for the extrapolation warning; default: discs (balls in 3D)
@@ -133,8 +150,13 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
         ``op`` is not a DefOp, ``shape`` not a Shape (or of another dimension or mesh than ``op``), ``title``
         not a string, ``path`` not a path, a picture for a 3D operator.
     """
-    if not isinstance(op, DefOp):
-        raise ValueError(f"op must be a trained DefOp, got {type(op).__name__}")
+    branched = isinstance(op, BranchedOperator)
+    if branched:
+        if op.branches[0].op.d != 2:
+            raise ValueError(f"op: the page of a multi-valued operator is 2D, got a {op.branches[0].op.d}D one")
+        bop, op = op, op.branches[0].op
+    elif not isinstance(op, DefOp):
+        raise ValueError(f"op must be a trained DefOp or BranchedOperator, got {type(op).__name__}")
     if shape is not None and not isinstance(shape, Shape):
         raise ValueError(f"shape must be a Shape (dop.shapes.load(...)) or None, got {type(shape).__name__}")
     _check_dimensions(op, shape, image, image_frame)
@@ -145,9 +167,10 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
         op.check_mesh(shape.mesh)
         regions = (region_polygons(shape.P_moving, shape.regions) if op.d == 2 else
                    region_balls(shape.P_moving, shape.regions, op.train_samples))
-    payload = defop_to_payload(op, regions)
+    payload = branched_to_payload(bop, regions) if branched else defop_to_payload(op, regions)
     if not title:  # the shape's name comes from the operator's file: as untrusted as a title
-        title = opt.text("title", f"defop: {op.meta.get('shape', 'shape')}, Ψ = {op.handle_basis.kind}")
+        title = opt.text("title", f"defop: {op.meta.get('shape', 'shape')}, Ψ = {op.handle_basis.kind}"
+                         + (f", {len(bop)} branches" if branched else ""))
     payload.update(title=title, kinds=[op.handle_basis.kind])
     if image is not None or image_frame is not None:
         payload.update(image_for(op.mesh, image, image_frame))
@@ -156,7 +179,8 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     if op.d == 3:
         text = _PAGE_3D.format(js=solid_script(), three_version=THREE_VERSION, **fields)
     else:
-        text = _PAGE.format(js=_inline_script(JS_PATH.read_text(encoding="utf-8")), **fields)
+        page = _PAGE_BRANCHED if branched else _PAGE
+        text = page.format(js=_inline_script(JS_PATH.read_text(encoding="utf-8")), **fields)
     return opt.write_atomic(path, text.encode("utf-8"))
 
 

@@ -138,6 +138,43 @@ def defop_to_payload(op, regions=None):
     return p
 
 
+#: the keys of :func:`defop_to_payload` every branch of a multi-valued operator shares (the mesh and its handles)
+_SHARED = ("d", "n_vertices", "regions", "P", "V", "F", "E", "handles", "moving")
+
+
+def branched_to_payload(bop, regions=None):
+    """The page's payload of a multi-valued operator (:class:`defop.operator.branched.BranchedOperator`, 2D).
+
+    Branch 0's :func:`defop_to_payload` (the mesh, regions and, unprefixed, its operator), then for every branch
+    b its operator's own keys as ``branch{b}.name`` (Ψ, factors) and the coefficients of its closed forms
+    ``branch{b}.energy_w``, ``.margin_w``, ``.score_w`` (E_b, λ²_b, s_b = ψ_b(Q) · w, float64: the domain test
+    of :mod:`defop.operator.branched`, ported as ``makeBranched`` in ``static/defop_editor.js``).
+
+    Parameters
+    ----------
+    bop : defop.operator.branched.BranchedOperator
+    regions : list of list of (k,2) numpy array, optional
+        As for :func:`defop_to_payload`; default: discs through the farthest training sample of any branch.
+
+    Returns
+    -------
+    payload : dict
+        That of branch 0 plus ``n_branches``, ``branch_labels`` and the prefixed keys.
+    """
+    if regions is None:  # the training samples of every branch (each branch alone covers only its domain)
+        regions = reach_polygons(bop.P, np.concatenate([b.op.train_samples for b in bop.branches]))
+    p = defop_to_payload(bop.branches[0].op, regions)
+    p.update(n_branches=len(bop), branch_labels=[int(b.label) for b in bop.branches])
+    for b in bop.branches:
+        own = defop_to_payload(b.op, p["regions"])
+        for name, value in own.items():
+            if name not in _SHARED:
+                p[f"branch{b.label}.{name}"] = value
+        for name in ("energy_w", "margin_w", "score_w"):
+            p[f"branch{b.label}.{name}"] = np.asarray(getattr(b, name), np.float64)
+    return p
+
+
 def pixel_coordinates(mesh, image_frame):
     """The rest vertices in the picture's pixels, from a mesh → pixel map or the coordinates themselves.
 

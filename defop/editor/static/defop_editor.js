@@ -4,6 +4,8 @@
 //   - the anywidget view (defop.editor.browser.BrowserEditor): `export default { render }`;
 //   - the standalone page (defop.editor.export.to_html): inlined, then `mountStandalone(meta, base64)`;
 //   - the Node correctness tests (tests/test_browser_editor.py): `decodePayload` + `makeOperator`.
+// A multi-valued operator (defop.operator.branched, payload.branched_to_payload) is one makeOperator per branch
+// plus its closed-form domain test and energies (makeBranched): the standalone page drags it in `follow` mode.
 // Nothing here touches the DOM at import time.
 //
 // The payload is written by defop.editor.payload.defop_to_payload: Ψ's kind, the rest positions P of the moving
@@ -102,6 +104,76 @@ export function makeOperator(p) {
   return { psi: fillPsi, evaluate, n_moving: n, n_vertices: p.n_vertices, d: D };
 }
 
+/** The payload of branch b of a multi-valued page: the shared mesh plus the keys written as `branch{b}.name`. */
+export function branchPayload(p, b) {
+  const q = { ...p }, pre = `branch${b}.`;
+  for (const k of Object.keys(p)) if (k.startsWith(pre)) q[k.slice(pre.length)] = p[k];
+  return q;
+}
+
+/**
+ * The multi-valued operator of defop.operator.branched (a port of its closed forms, one makeOperator per branch):
+ * E_b, λ²_b and s_b are ψ_b(Q) · (energy_w, margin_w, score_w); b exists where λ²_b > 0 and (s_b ≥ 0 or s_b is
+ * the largest side); `global` takes the existing branch of lowest E_b, `follow` (FollowSession.step) stays on its
+ * branch while it exists and otherwise jumps there; where none exists, the largest λ² (far). evaluate(Q) steps
+ * the current mode and evaluates that branch's D_b; reset() goes back to branch 0 (the rest pose's).
+ */
+export function makeBranched(p) {
+  const nb = p.n_branches, ops = [], ws = [];
+  for (let b = 0; b < nb; b++) {
+    const q = branchPayload(p, b);
+    ops.push(makeOperator(q));
+    ws.push([q.energy_w, q.margin_w, q.score_w]);
+  }
+  const E = new Float64Array(nb), lam2 = new Float64Array(nb), side = new Float64Array(nb);
+  function estimates(Q) {
+    for (let b = 0; b < nb; b++) {
+      const psi = ops[b].psi(Q), out = [0, 0, 0];
+      for (let k = 0; k < 3; k++) { const w = ws[b][k]; let s = 0; for (let j = 0; j < w.length; j++) s += psi[j] * w[j]; out[k] = s; }
+      E[b] = out[0]; lam2[b] = out[1]; side[b] = out[2];
+    }
+    return { E, lam2, side };
+  }
+  function existing() {
+    let top = -Infinity;
+    for (let b = 0; b < nb; b++) top = Math.max(top, side[b]);
+    return Array.from({ length: nb }, (_, b) => lam2[b] > 0 && (side[b] >= 0 || side[b] >= top));
+  }
+  function lowestExisting(ok) {
+    let best = -1;
+    for (let b = 0; b < nb; b++) if (ok[b] && (best < 0 || E[b] < E[best])) best = b;
+    if (best >= 0) return { label: best, far: false };
+    for (let b = 0; b < nb; b++) if (best < 0 || lam2[b] > lam2[best]) best = b;
+    return { label: best, far: true };
+  }
+  const bop = { ops, n_branches: nb, labels: p.branch_labels || [...Array(nb).keys()], mode: "follow", branch: 0,
+    far: false, frame: 0, jumps: [], log: [], estimates };
+  /** The label at Q in the current mode, updating the follow state (FollowSession.step). */
+  bop.step = (Q) => {
+    estimates(Q);
+    const ok = existing();
+    let far = false;
+    if (bop.mode === "global" || !ok[bop.branch]) {
+      const pick = lowestExisting(ok);
+      far = pick.far;
+      if (bop.mode === "follow" && pick.label !== bop.branch) bop.jumps.push([bop.frame, bop.branch, pick.label]);
+      bop.branch = pick.label;
+    }
+    bop.far = far;
+    bop.frame += 1;
+    return bop.branch;
+  };
+  bop.evaluate = (Q) => {
+    const label = bop.step(Q);
+    bop.log.push({ Q: Array.from(Q), branch: label, mode: bop.mode });
+    if (bop.log.length > 10000) bop.log.shift();
+    return ops[label].evaluate(Q);
+  };
+  bop.reset = () => { bop.branch = 0; bop.frame = 0; bop.jumps = []; bop.log = []; bop.far = false; };
+  bop.psi = (Q) => ops[bop.branch].psi(Q);
+  return bop;
+}
+
 /** Even-odd point-in-polygon test; poly is a flat [x0, y0, x1, y1, ...] array. */
 export function insidePolygon(x, y, poly) {
   let inside = false;
@@ -140,6 +212,7 @@ const STYLE = `
 .defop-editor .defop-side { display: flex; flex-direction: column; gap: 8px; width: 300px; }
 .defop-editor .defop-readout { font-family: ui-monospace, monospace; font-size: 12px; white-space: pre-wrap; }
 .defop-editor .defop-warn { color: #b00; font-weight: 600; min-height: 1.2em; }
+.defop-editor .defop-branch { font-weight: 600; font-size: 14px; }
 .defop-editor details summary { cursor: pointer; color: #555; }
 .defop-editor label { display: flex; gap: 6px; align-items: center; }
 `;
@@ -179,19 +252,24 @@ function buildLayout(root, opts) {
   controls.append(basis, shape, reset);
   const warn = el("div", { class: "defop-warn" });
   const readout = el("div", { class: "defop-readout" });
+  const branch = el("div", { class: "defop-branch" }); // a multi-valued page (makeBranched): the current branch
+  const globalLabel = el("label", {}, "");
+  const globalMode = el("input", { type: "checkbox", class: "defop-global" });
+  globalLabel.append(globalMode, document.createTextNode("global: always the lowest-energy branch (no history)"));
   const gtReadout = el("div", { class: "defop-readout defop-gt-readout" });
   if (opts.standalone) { // the page states the title above the canvas; the numbers fold away behind a toggle
     title.style.display = "none";
     const details = el("details", { class: "defop-details" });
     details.append(el("summary", {}, "details: frame rate, timings, handle positions"), readout);
     side.append(title, controls, warn, details);
+    if (opts.branched) side.insertBefore(branch, warn), side.insertBefore(globalLabel, warn);
   } else {
     side.append(title, controls, gtLabel, warn, readout, gtReadout);
   }
   if (!opts.kernel) { gtLabel.style.display = "none"; gtReadout.style.display = "none"; }
   box.append(stack, side);
   root.appendChild(box);
-  return { box, canvas, glCanvas, title, basis, shape, reset, gt, warn, readout, gtReadout };
+  return { box, canvas, glCanvas, title, basis, shape, reset, gt, warn, readout, gtReadout, branch, globalMode };
 }
 
 /** Canvas height (px) for `width`: the rest mesh plus the view's margin, between 320 and 560. */
@@ -483,6 +561,14 @@ function readout(ui, st) {
     (st.picture ? `picture ${st.picture.size[0]} × ${st.picture.size[1]} px: ${st.textured ? "textured (WebGL)" :
       st.picture.failed || "not drawn (needs WebGL)"}\n` : "") + q.join("\n");
   ui.warn.textContent = warnText(st);
+  if (st.op.n_branches) {
+    const b = st.op.branch;
+    ui.branch.textContent = `branch ${st.op.labels[b]} (${st.op.mode}${st.op.mode === "follow" ?
+      ", " + st.op.jumps.length + " jump" + (st.op.jumps.length === 1 ? "" : "s") : ""})`;
+    ui.branch.dataset.branch = String(b);
+    if (st.op.far) ui.warn.textContent = (ui.warn.textContent ? ui.warn.textContent + "; " : "") +
+      "outside every branch's domain: the nearest branch extrapolates";
+  }
 }
 
 /** Reset, basis and shape menus, ground-truth toggle: local redraw plus the kernel hooks, when connected. */
@@ -492,8 +578,14 @@ function wireControls(editor, ctx) {
     st.Q = Float64Array.from(st.p.P);
     st.frames = [];
     st.updates = [];
+    if (st.op.reset) st.op.reset(); // a multi-valued page: back to the rest branch
     editor.evaluate();
     if (hooks.onReset) hooks.onReset();
+  });
+  ui.globalMode.addEventListener("change", () => {
+    if (!st.op.n_branches) return;
+    st.op.mode = ui.globalMode.checked ? "global" : "follow"; // follow resumes on the branch shown
+    editor.evaluate();
   });
   ui.basis.addEventListener("change", () => hooks.onBasis && hooks.onBasis(ui.basis.value));
   ui.shape.addEventListener("change", () => hooks.onShape && hooks.onShape(ui.shape.value));
@@ -510,7 +602,8 @@ function wireControls(editor, ctx) {
  * Returns the editor object (also stored as root.defopEditor) with Q, X, stats and the view.
  */
 export function createEditor(root, payload, hooks = {}, options = {}) {
-  const ui = buildLayout(root, { kernel: !!hooks.onGroundTruth, standalone: !!options.standalone });
+  const ui = buildLayout(root, { kernel: !!hooks.onGroundTruth, standalone: !!options.standalone,
+    branched: !!payload.n_branches });
   const width = options.width || 720;
   const dpr = (typeof window !== "undefined" && window.devicePixelRatio) || 1;
   const ctx = ui.canvas.getContext("2d");
@@ -531,7 +624,7 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
   editor.load = (payload_, Q) => {
     const p = payload_;
     st.p = p;
-    st.op = makeOperator(p);
+    st.op = p.n_branches ? makeBranched(p) : makeOperator(p); // several branches: the follow drag
     resize(options.height || fitHeight(p.V, width, 0.25));
     st.view = makeView(p.V, width, st.height, 0.25);
     st.gl = options.webgl === false ? null : makeGL(ui.glCanvas, p, st.view, width, st.height);
