@@ -29,6 +29,25 @@ def test_select_batch_takes_distinct_high_scores_in_a_fixed_order(seed, size):
     assert chosen[0] not in ad.select_batch(scores, candidates, samples, 1)
 
 
+def test_select_batch_refuses_bad_arguments_and_spreads_out_when_nothing_is_uncertain():
+    rng = np.random.default_rng(0)
+    candidates, samples, scores = rng.normal(size=(6, 2, 2)), rng.normal(size=(3, 2, 2)), rng.random(6)
+    for args, name in (
+        ((scores, candidates, samples, 7), "size"),
+        ((scores, candidates, samples, 0), "size"),
+        ((scores[:5], candidates, samples, 2), "scores"),
+        ((np.where(np.arange(6) == 2, np.nan, scores), candidates, samples, 2), "scores"),
+        ((-scores, candidates, samples, 2), "scores"),
+        ((scores, candidates, samples[:0], 2), "samples"),
+        ((scores, candidates, samples[:, :1], 2), "samples"),
+    ):
+        with pytest.raises(ValueError, match=name):
+            ad.select_batch(*args)
+    candidates[:3] = samples  # three candidates are already sampled, and no score says anything
+    chosen = ad.select_batch(np.zeros(6), candidates, samples, 3)
+    assert sorted(chosen.tolist()) == [3, 4, 5]
+
+
 def test_disagreement_is_the_8a_term_of_the_difference():
     mass = np.array([1.0, 2.0, 3.0])
 

@@ -33,6 +33,13 @@ def test_an_unknown_backend_is_a_clear_error(bad, monkeypatch):
         Solver(mesh, handles, backend=bad)
 
 
+@pytest.mark.parametrize("threads", ["abc", "0", "-2", "1.5"])
+def test_a_bad_mkl_thread_count_is_refused_when_the_solver_is_built(threads, monkeypatch):
+    monkeypatch.setenv("DEFOP_MKL_THREADS", threads)
+    with pytest.raises(ValueError, match=f"DEFOP_MKL_THREADS must be a whole number of threads >= 1, got '{threads}'"):
+        Solver(dop.Mesh(*r3.grid_tets(2)), [0, 1, 2, 5])
+
+
 def test_pardiso_without_pypardiso_is_a_clear_error(monkeypatch):
     monkeypatch.setattr(pb, "HAVE_PARDISO", False)
     with pytest.raises(ValueError, match="needs pypardiso"):

@@ -163,6 +163,14 @@ def test_bad_input(bar, found):
         br.grid_samples(bar, 0.1, 3, offset=(np.nan, 0))
     with pytest.raises(ValueError, match="steps"):
         ab.line_path(P, 0, [0, 0], [0, 1], 0)
+    Qs = np.stack([P, P])
+    for labels in ([0, 5], [0], np.zeros((2, 1), int)):  # an unknown label, or not one label per Q
+        with pytest.raises(ValueError, match="labels must be"):
+            bop.on_branches(np.asarray(labels), Qs)
+    assert np.array_equal(bop.on_branches([0, 1], Qs)[0], bar.mesh.V)  # a list of labels, rest exact on branch 0
+    for mode in (np.zeros(3), np.full_like(bop.mode, np.nan)):
+        with pytest.raises(ValueError, match="mode must be"):
+            BranchedOperator(bop.branches, mode, bop.threshold)
 
 
 def test_far_q_falls_back_to_the_nearest_branch_with_a_warning(bar, found):

@@ -31,6 +31,7 @@ import warnings
 
 import numpy as np
 
+from . import compress as compress_policy
 from . import io as io_mod
 from .defop import DefOp, ExtrapolationWarning
 
@@ -100,7 +101,13 @@ class BranchedOperator:
             if not (np.array_equal(b.op.handles, ref.handles) and np.array_equal(b.op.moving, ref.moving)):
                 raise ValueError(f"branch {b.label} has other handles than branch 0")
         self.branches = list(branches)
-        self.mode = np.asarray(mode, dtype=float).reshape(ref.n_vertices, ref.d)
+        mode = np.asarray(mode, dtype=float)
+        if mode.size != ref.n_vertices * ref.d or not np.isfinite(mode).all():
+            raise ValueError(
+                f"mode must be {ref.n_vertices} x {ref.d} finite numbers (one row per vertex), got shape {mode.shape}"
+                + ("" if mode.size != ref.n_vertices * ref.d else " with non-finite entries")
+            )
+        self.mode = mode.reshape(ref.n_vertices, ref.d)
         self.threshold = np.asarray(threshold, dtype=float).ravel()
         if self.threshold.shape != (1 + ref.P.size,) or not np.isfinite(self.threshold).all():
             raise ValueError(f"threshold must be {1 + ref.P.size} finite numbers, got {self.threshold.shape}")
@@ -199,6 +206,12 @@ class BranchedOperator:
     def on_branches(self, labels, Qs):
         """D_{labels[i]}(·, Qs[i]) for a batch: (k, n_vertices, d), one batch evaluation per branch."""
         Qs = np.asarray(Qs, dtype=float)
+        labels = np.asarray(labels)
+        if Qs.ndim != 3 or labels.shape != (len(Qs),):
+            raise ValueError(f"labels must be one branch label per Q of Qs, got {labels.shape} for Qs {Qs.shape}")
+        unknown = sorted(set(labels.tolist()) - set(self.labels))
+        if unknown:
+            raise ValueError(f"labels must be branch labels {self.labels}, got {unknown}")
         out = np.empty((len(Qs), self.mesh.n_vertices, self.branches[0].op.d))
         for b in self.branches:
             rows = labels == b.label
@@ -211,7 +224,7 @@ class BranchedOperator:
         return FollowSession(self, branch)
 
     # ------------------------------------------------------------------ compression and files
-    def compress(self, rank=None, tol=1e-3, dtype=np.float32):
+    def compress(self, rank=None, tol=compress_policy.TOL, dtype=np.float32):
         """:meth:`DefOp.compress` on every branch (the guarantees stay exact on each). Returns ``self``."""
         for b in self.branches:
             b.op.compress(rank, tol, dtype)

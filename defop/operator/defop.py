@@ -46,6 +46,10 @@ from . import io as io_mod
 _F32_SAFE = 1e28  # bound on |δψ A|² (single frame) and |δψ| (batch): float32 products stay finite (|B| << 1e9)
 
 
+#: a moving handle farther from rest than this times its farthest training sample extrapolates (a warning)
+EXTRAPOLATION_FACTOR = 1.5
+
+
 class ExtrapolationWarning(UserWarning):
     """A handle configuration far outside the sampled region: the operator extrapolates."""
 
@@ -104,7 +108,7 @@ class DefOp:
         if self.train_samples is not None and len(self.train_samples) > 1:
             self._reach = np.linalg.norm(self.train_samples - self.P, axis=-1).max(axis=0)  # (n,)
             # the factor 1 − 1e-9 covers the rounding of the two ways of summing the squares
-            self._far2 = (1.5 * self._reach) ** 2 * (1.0 - 1e-9)
+            self._far2 = (EXTRAPOLATION_FACTOR * self._reach) ** 2 * (1.0 - 1e-9)
         self.fit_time = self.fold_time = None
         # (★): x, the moving handles' coordinate columns, and W_F = W[1:] without the handle columns
         self._x = np.ascontiguousarray(mesh.V, dtype=float).ravel()
@@ -351,7 +355,7 @@ def check_extrapolation(op, Q, stacklevel=3):
     if op._reach is None:
         return
     dist = np.linalg.norm(Q - op.P, axis=-1)
-    far = dist > 1.5 * op._reach + 1e-12
+    far = dist > EXTRAPOLATION_FACTOR * op._reach + 1e-12
     if np.any(far):
         idx = np.argwhere(far)[0]
         j = int(idx[-1])

@@ -52,6 +52,8 @@ def tps_rest(cm, czeps, inv_s2, log_kernel):
     return y[dn:].copy()
 
 
+# fused multiply-adds ("contract"): the compressed frame's float32 round-off may differ in its last bits between
+# CPUs with and without FMA (within the compression's own float32 error; handles and the rest pose stay exact)
 @njit(**_JIT, fastmath={"contract"})
 def axpy8(u, t, M):
     """u += t M (u (c,), t (k,), M (k, c) row-major), eight rows of M per pass over u: u is loaded and stored

@@ -117,6 +117,22 @@ def _pairwise(A, B):
     return np.sqrt(np.maximum(d2, 0.0))
 
 
+def _check_selection(scores, candidates, samples, size):
+    """select_batch's arguments, or a ValueError naming the one that is wrong; returns the scores as floats."""
+    candidates, samples = np.asarray(candidates), np.asarray(samples)
+    if candidates.ndim != 3 or samples.ndim != 3 or len(samples) == 0 or samples.shape[1:] != candidates.shape[1:]:
+        raise ValueError(
+            f"candidates and samples must be (p, n, d) and (m >= 1, n, d) arrays of handle configurations, "
+            f"got {candidates.shape} and {samples.shape}"
+        )
+    scores = np.asarray(scores, dtype=float)
+    if scores.shape != (len(candidates),) or np.isnan(scores).any() or (scores < 0).any():
+        raise ValueError(f"scores must be {len(candidates)} non-negative numbers (no NaN), got shape {scores.shape}")
+    if not 1 <= int(size) <= len(candidates):
+        raise ValueError(f"size must be between 1 and the {len(candidates)} candidates, got {size}")
+    return scores
+
+
 def select_batch(scores, candidates, samples, size):
     """The ``size`` candidates of highest score, spread apart, chosen greedily in a fixed order.
 
@@ -140,9 +156,12 @@ def select_batch(scores, candidates, samples, size):
     chosen : (size,) int numpy array
         Indices into ``candidates``, in the order chosen.
     """
+    scores = _check_selection(scores, candidates, samples, size)
     nearest = _pairwise(candidates, samples).min(axis=1)
     h = max(float(np.median(nearest)), 1e-300)
-    scores = np.nan_to_num(np.asarray(scores, float), posinf=np.finfo(float).max)  # +inf: a flipped prediction
+    scores = np.nan_to_num(scores, posinf=np.finfo(float).max)  # +inf: a flipped prediction
+    if not (scores > 0).any():  # no candidate is uncertain: spread the batch out (farthest from the samples)
+        scores = np.ones_like(scores)
     eff = scores * -np.expm1(-((nearest / h) ** 2))
     chosen = []
     for _ in range(size):

@@ -498,9 +498,10 @@ def fit_branched(shape, branches, energy="sarap", basis="tps", spatial="hat", k=
     solver = Solver(shape.mesh, shape.handles, energy=energy)
     lam_rest = stability_margin(solver, shape.mesh.V, branches.mode if len(branches.branches) > 1 else None)
     out = []
+    user_meta = kw.pop("meta", None) or {}  # every branch's operator carries the caller's meta
     for b in branches.branches:
         Q = branches.samples[b.samples]
-        meta = {"energy": energy, "branch": b.label, **kw.pop("meta", {})}
+        meta = {"energy": energy, "branch": b.label, **user_meta}
         op = fit_shape(shape, Q, b.X, basis, spatial, k, meta=meta, **kw)
         e = fit_values(op, _at_train(op, b.energy, 0.0, Q))
         lam = fit_values(op, _at_train(op, np.asarray(b.margin) ** 2, lam_rest**2, Q))

@@ -218,7 +218,16 @@ def check_backend(backend=None):
         raise ValueError(
             f"{source}='pardiso' needs pypardiso (MKL, x86-64): pip install 'defop[mkl]', or use qdldl or auto"
         )
+    mkl_threads()  # a bad DEFOP_MKL_THREADS is refused when the solver is built, not at its first factorisation
     return backend
+
+
+def mkl_threads():
+    """MKL's thread count for PARDISO: ``DEFOP_MKL_THREADS`` (default 1), or a ValueError naming it."""
+    raw = os.environ.get("DEFOP_MKL_THREADS", "").strip() or "1"
+    if not raw.isdigit() or int(raw) < 1:
+        raise ValueError(f"DEFOP_MKL_THREADS must be a whole number of threads >= 1, got {raw!r}")
+    return int(raw)
 
 
 def choose_backend(backend, n_vertices, d):
@@ -274,8 +283,7 @@ class PardisoLDL:
         self._ps = copy.copy(PardisoLDL._template)  # fresh handle and parameters, the same library
         self._ps.pt = np.zeros_like(self._ps.pt)
         self._ps.iparm = np.zeros(64, dtype=np.int32)
-        threads = int(os.environ.get("DEFOP_MKL_THREADS", "1") or 1)
-        self._ps.libmkl.MKL_Set_Num_Threads(ctypes.c_int(max(threads, 1)))
+        self._ps.libmkl.MKL_Set_Num_Threads(ctypes.c_int(mkl_threads()))
         iparm = self._ps.iparm
         iparm[0], iparm[1], iparm[9], iparm[10], iparm[12], iparm[20] = 1, 2, 8, 0, 0, 1
         # PARDISO reads the upper triangle row by row: the CSR order of the CSC values, found once
