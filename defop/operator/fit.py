@@ -126,6 +126,9 @@ def solve_structure_tps(S, d):
     K = S[:, r:]
     qr_raw, tau = sla.qr(S[:, :r], mode="raw")[0]
     Rp = np.triu(qr_raw[:r, :r])
+    diag = np.abs(np.diag(Rp))
+    if diag.min() <= 1e-10 * diag.max():  # samples in an affine subspace: the general method (side_conditions)
+        return None
     # compact WY form of the r Householder reflectors: [Qp Qn] = I − U Vᵀ with U = V T (LAPACK's dlarft)
     V = np.tril(qr_raw[:, :r], -1)
     V[np.arange(r), np.arange(r)] = 1.0
@@ -254,7 +257,7 @@ def structure(psi, Qs):
         Samples that do not determine the basis (the message says how many it needs).
     """
     S = psi.evaluate_z(psi.z(Qs))  # (m, q)
-    A = np.vstack([S[:1], psi.side_conditions()])
+    A = np.vstack([S[:1], side_conditions(psi, Qs)])
     fast = None
     if psi.kind == "tps" and S.shape[1] == 1 + psi.dim + len(S):  # interpolation: the symmetric TPS system
         fast = solve_structure_tps(S, psi.dim)
@@ -265,6 +268,50 @@ def structure(psi, Qs):
             f"too few or degenerate samples; it needs at least {psi.min_samples() - 1} distinct ones"
         )
     return G, beta
+
+
+def unspanned(z, rcond=1e-10):
+    """Directions (dim, k), orthonormal, in which the points z (m, dim) never move: the complement of their affine hull.
+
+    Returns
+    -------
+    N : (dim, k) numpy array
+        k = dim − the affine hull's dimension (0 columns when the points span every direction).
+    B : (dim, dim − k) numpy array
+        An orthonormal basis of the hull's directions.
+    """
+    D = np.asarray(z, dtype=float)[1:] - np.asarray(z, dtype=float)[:1]
+    dim = D.shape[1]
+    if len(D) == 0:
+        return np.eye(dim), np.zeros((dim, 0))
+    _, s, Vt = np.linalg.svd(D, full_matrices=True)
+    r = int(np.sum(s > rcond * max(float(s.max()), 1e-300)))
+    return Vt[r:].T, Vt[:r].T
+
+
+def side_conditions(psi, Qs):
+    """TPS side conditions for the samples Qs, with the linear part pinned where the samples never move.
+
+    When every Q_k lies in an affine subspace of the handle space (in 3D, one handle dragged in a plane, or a patch
+    of handles moved together), Σ_k w_k (z_k · n) = 0 repeats Σ_k w_k = 0 for every direction n out of it, and the
+    linear coefficient along n is determined by no sample. Those rows are replaced by "the coefficient along n is
+    0", the minimum-norm choice: on the subspace the fit is the TPS interpolant of the samples in its own
+    coordinates; off it only the radial terms see the distance to it, and the handles, whose rows :func:`fold` sets
+    to their linear motion, stay exact (Prop. 2). Other bases: ``psi.side_conditions()``.
+
+    Returns
+    -------
+    T : (s, |Ψ|) numpy array
+    """
+    T = psi.side_conditions()
+    if psi.kind != "tps":
+        return T
+    N, B = unspanned(psi.z(Qs))
+    if N.shape[1] == 0:
+        return T
+    pins = np.zeros((N.shape[1], psi.size))
+    pins[:, 1 : 1 + psi.dim] = N.T
+    return np.vstack([T[:1], B.T @ T[1 : 1 + psi.dim], pins])
 
 
 def fit_values(op, values):
