@@ -1,18 +1,21 @@
-"""Multi-valued operators against the solver (issue 29): the bar of Fig. 10 and the U's arm pushed down.
+"""Multi-valued operators (issue 29): the bar of Fig. 10, the U's arm pushed down, and the bar in 3D (plank_3d).
 
 For each case of :data:`defop.analysis.branches.CASES`: discover the branches on an n × n grid of one handle's
-positions (the rest-pose multi-start at every sample plus two continuation sweeps across the folds), fit one DefOp
-per branch and the single-valued DefOp (the lowest minimum per sample), then drag the handle along a
-there-and-back path of ``steps`` steps each way and compare, frame by frame, with the solver's warm-started
-continuation (the error of a frame: max vertex distance / bbox diagonal). Prints the branches, the training cost,
-where each jumps, the errors, the energy excess of ``global`` and issue 29's three targets with pass/fail.
+positions (in 3D: the plank's end handle in the plane z = const; the rest-pose multi-start at every sample plus two
+continuation sweeps across the folds), fit one DefOp per branch and the single-valued DefOp (the lowest minimum per
+sample), then drag the handle along a there-and-back path of ``steps`` steps each way and compare, frame by frame,
+with the solver's warm-started continuation (the error of a frame: max vertex distance / bbox diagonal). Prints the
+branches, the training cost in CPU seconds of this process, where each jumps, the errors, the energy excess of
+``global`` and issue 29's three targets with pass/fail, and the load average.
 
-Run: ``python benchmarks/bench_branches.py [--n 17] [--steps 100] [--cases bar u_shape]`` (DEFOP_FAST=1: n = 9).
+Run: ``python benchmarks/bench_branches.py [--n 17] [--steps 100] [--cases bar u_shape plank_3d]``
+(DEFOP_FAST=1: n = 9). plank_3d takes about 20 minutes from an empty cache on one core.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import numpy as np
@@ -30,8 +33,8 @@ def report(case, steps):
     sec = m.seconds
     multi = sec["single"] + sec["sweeps"] + B.margin_seconds
     print(
-        f"training: single-valued solves {sec['single']:.1f} s; multi-valued {multi:.1f} s (sweeps "
-        f"{sec['sweeps']:.1f} s, margins {B.margin_seconds:.1f} s) = {multi / sec['single']:.2f}x; fits "
+        f"training (CPU s): single-valued solves {sec['single']:.1f}; multi-valued {multi:.1f} (sweeps "
+        f"{sec['sweeps']:.1f}, margins {B.margin_seconds:.1f}) = {multi / sec['single']:.2f}x; fits "
         f"{case.fit_seconds:.2f} s{' (solves read from the cache: costs as measured then)' if sec['cached'] else ''}"
     )
     print(f"distinct minima per sample: {np.bincount(B.distinct).tolist()} (index = count); conflicts {B.conflicts}")
@@ -44,16 +47,14 @@ def report(case, steps):
     for who in ("solver", "follow", "single"):
         j = c.jumps[who]
         print(f"  {who:6s} jumps at frames {j.tolist()}  (q - p = {[tuple(np.round(q[k], 3)) for k in j]})")
-    print(
-        f"  error near the solver's jumps (±5 steps, {int(c.near.sum())} frames): follow mean "
-        f"{c.follow[c.near].mean():.2e} max {c.follow[c.near].max():.2e}; single mean "
-        f"{c.single[c.near].mean():.2e} max {c.single[c.near].max():.2e}"
-    )
-    print(
-        f"  error elsewhere ({int((~c.near).sum())} frames): follow mean {c.follow[~c.near].mean():.2e} max "
-        f"{c.follow[~c.near].max():.2e}; single mean {c.single[~c.near].mean():.2e} "
-        f"max {c.single[~c.near].max():.2e}"
-    )
+    for where, frames in (("near the solver's jumps (±5 steps", c.near), ("elsewhere (", ~c.near)):
+        if not frames.any():
+            print(f"  error {where}0 frames): none")
+            continue
+        print(
+            f"  error {where}{int(frames.sum())} frames): follow mean {c.follow[frames].mean():.2e} max "
+            f"{c.follow[frames].max():.2e}; single mean {c.single[frames].mean():.2e} max {c.single[frames].max():.2e}"
+        )
     print(f"  global's energy over the lowest verified minimum: max {c.excess.max():.2%}, mean {c.excess.mean():.2%}")
     ok = True
     for name, (value, passed) in ab.targets_met(c).items():
@@ -70,10 +71,11 @@ def main():
     ap.add_argument("--cases", nargs="+", default=list(ab.CASES))
     args = ap.parse_args()
     t0 = time.perf_counter()
+    print(f"load average at the start: {os.getloadavg()[0]:.1f} (2 cores: costs are CPU seconds of this process)")
     results = {}
     for name in args.cases:
         results[name] = report(ab.run_case(name, args.n, args.steps), args.steps)
-    print(f"\nall targets met: {results}  ({time.perf_counter() - t0:.0f} s)")
+    print(f"\nall targets met: {results}  ({time.perf_counter() - t0:.0f} s, load average {os.getloadavg()[0]:.1f})")
 
 
 if __name__ == "__main__":

@@ -1,10 +1,12 @@
 """Multi-valued operators (issue 29): branch discovery, one DefOp per branch, global and follow, files.
 
-A small case: the bar of Fig. 10 on a 7 × 7 grid of handle positions (±0.3), two continuation sweeps. Props. 1 and
-2 on every branch and evaluation path, (8b) on the branch holding the rest pose, ``follow`` against the solver's
-warm-started continuation on a hysteresis loop, one branch = DefOp, files, bad input.
+Small cases: the bar of Fig. 10 and the plank (the bar in 3D, 165 vertices) on a 7 × 7 grid of one handle's
+positions (±0.3), two continuation sweeps. On both: Props. 1 and 2 on every branch and evaluation path, (8b) on the
+branch holding the rest pose, files, far Q. On the bar: ``follow`` against the solver's warm-started continuation on
+a hysteresis loop, one branch = DefOp, bad input.
 """
 
+import functools
 import warnings
 
 import numpy as np
@@ -20,23 +22,37 @@ from defop.operator.fit import fit_values
 from defop.training import branches as br
 
 N, R = 7, 0.3
+#: the generic tests run on both: the bar of Fig. 10, and the plank (the bar in 3D) on its coarsest mesh, whose
+#: one moving handle is dragged in the plane z = const (the fit pins the direction the samples never move in)
+SHAPES = {"bar": None, "plank_3d": 165}
+
+
+@functools.cache
+def discovered(name):
+    shape = dop.shapes.load(name, SHAPES[name])
+    Q = br.grid_samples(shape, R, N)
+    minima = br.discover(shape, Q, [br.scan_order(N, N), br.scan_order(N, N, reverse=True)])
+    B = br.group(shape, minima)
+    return shape, Q, minima, B, br.fit_branched(shape, B)
 
 
 @pytest.fixture(scope="module")
 def bar():
-    return dop.shapes.load("bar")
+    return discovered("bar")[0]
 
 
 @pytest.fixture(scope="module")
-def found(bar):
-    Q = br.grid_samples(bar, R, N)
-    minima = br.discover(bar, Q, [br.scan_order(N, N), br.scan_order(N, N, reverse=True)])
-    B = br.group(bar, minima)
-    return Q, minima, B, br.fit_branched(bar, B)
+def found():
+    return discovered("bar")[1:]
 
 
-def test_two_branches_with_overlapping_domains(bar, found):
-    Q, minima, B, bop = found
+@pytest.fixture(scope="module", params=sorted(SHAPES))
+def case(request):
+    return discovered(request.param)
+
+
+def test_two_branches_with_overlapping_domains(case):
+    shape, Q, minima, B, bop = case
     assert minima.converged.all() and B.conflicts == 0
     assert len(B.branches) == 2 and bop.labels == (0, 1)
     assert (B.distinct == 2).sum() >= 5  # the bistable wedge of the compressed columns
@@ -45,15 +61,15 @@ def test_two_branches_with_overlapping_domains(bar, found):
         covered[b.samples] += 1
     assert (covered >= 1).all() and (covered[B.distinct == 2] == 2).all()
     centre = (N * N) // 2  # the rest pose
-    assert centre in B.branches[0].samples and np.abs(Q[centre] - bar.P_moving).max() == 0
+    assert centre in B.branches[0].samples and np.abs(Q[centre] - shape.P_moving).max() == 0
     for r in B.reports():
         assert r["count"] == len(B.branches[r["label"]].samples) and r["energy"][0] <= r["energy"][1]
 
 
-def test_prop1_every_branch_reproduces_its_minima(bar, found):
-    Q, _, B, bop = found
+def test_prop1_every_branch_reproduces_its_minima(case):
+    shape, Q, _, B, bop = case
     for b, ob in zip(B.branches, bop.branches):
-        err = np.abs(ob.op(Q[b.samples]) - b.X).max() / bar.mesh.bbox_diagonal
+        err = np.abs(ob.op(Q[b.samples]) - b.X).max() / shape.mesh.bbox_diagonal
         assert err < 1e-9
         E, lam2, _ = bop.estimates(Q[b.samples])
         assert np.allclose(E[:, b.label], b.energy, rtol=1e-8, atol=1e-12)  # E_b interpolates (same Ψ)
@@ -61,26 +77,27 @@ def test_prop1_every_branch_reproduces_its_minima(bar, found):
 
 
 @settings(max_examples=15, deadline=None)
-@given(st.lists(st.tuples(st.floats(-R, R), st.floats(-R, R)), min_size=1, max_size=6))
-def test_prop2_every_branch_and_path(bar, found, moves):
-    _, _, _, bop = found
-    Qs = bar.P_moving[None] + np.asarray(moves)[:, None, :]
-    h, mv = bar.handles, bar.moving
+@given(st.lists(st.tuples(st.floats(-R, R), st.floats(-R, R), st.floats(-R, R)), min_size=1, max_size=6))
+def test_prop2_every_branch_and_path(case, moves):
+    shape, _, _, _, bop = case
+    d = shape.mesh.V.shape[1]
+    Qs = shape.P_moving[None] + np.asarray(moves)[:, None, :d]  # in 3D off the samples' plane too
+    h, mv = shape.handles, shape.moving
     with warnings.catch_warnings():  # Q beyond every fold is allowed here: Prop. 2 holds on the nearest branch too
         warnings.simplefilter("ignore", ExtrapolationWarning)
         outs = [b.op(Qs) for b in bop.branches] + [bop(Qs), bop.session().run(Qs)[1]]
         outs += [np.array([bop.session(b)(q) for q in Qs]) for b in bop.labels]
     for X in outs:
         assert np.abs(X[:, h[mv]] - Qs).max() < 1e-12  # Prop. 2: the moving handles exact
-        assert np.abs(X[:, h[~mv]] - bar.mesh.V[h[~mv]]).max() < 1e-12
+        assert np.abs(X[:, h[~mv]] - shape.mesh.V[h[~mv]]).max() < 1e-12
 
 
-def test_8b_on_the_rest_branch(bar, found):
-    _, _, _, bop = found
-    P = bar.P_moving
-    assert np.array_equal(bop(P, branch=0), bar.mesh.V)  # (★): exact at the rest pose
-    assert bop.choose(P) == 0 and np.array_equal(bop(P), bar.mesh.V)
-    assert np.array_equal(bop.session()(P), bar.mesh.V)
+def test_8b_on_the_rest_branch(case):
+    shape, _, _, _, bop = case
+    P = shape.P_moving
+    assert np.array_equal(bop(P, branch=0), shape.mesh.V)  # (★): exact at the rest pose
+    assert bop.choose(P) == 0 and np.array_equal(bop(P), shape.mesh.V)
+    assert np.array_equal(bop.session()(P), shape.mesh.V)
 
 
 def test_follow_reproduces_the_solvers_hysteresis_loop(bar, found):
@@ -120,8 +137,8 @@ def test_fit_values_interpolates_with_the_operators_basis(bar, found):
         fit_values(op, values[:-1])
 
 
-def test_save_load_compress(bar, found, tmp_path):
-    Q, _, _, bop = found
+def test_save_load_compress(case, tmp_path):
+    bar, Q, _, _, bop = case
     path = tmp_path / "bar.npz"
     bop.save(path)
     back = BranchedOperator.load(path)
@@ -175,9 +192,10 @@ def test_bad_input(bar, found):
             BranchedOperator(bop.branches, mode, bop.threshold)
 
 
-def test_far_q_falls_back_to_the_nearest_branch_with_a_warning(bar, found):
-    _, _, _, bop = found
-    far = bar.P_moving + [[-3.0, 0.0]]  # far beyond the samples (and every fold)
+def test_far_q_falls_back_to_the_nearest_branch_with_a_warning(case):
+    shape, _, _, _, bop = case
+    far = shape.P_moving.copy()
+    far[0, 0] -= 3.0  # far beyond the samples (and every fold)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         X = bop(far)

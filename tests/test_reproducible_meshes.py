@@ -48,7 +48,7 @@ from defop.scene import models
 def digest(mesh):
     return hashlib.sha256(mesh.V.tobytes() + mesh.F.tobytes()).hexdigest()[:20]
 
-for name, n in (("bar_3d", 1500), ("octopus_3d", 3000), ("nut", 1500)):
+for name, n in (("bar_3d", 1500), ("plank_3d", 1000), ("octopus_3d", 3000), ("nut", 1500)):
     mesh = models.model(name).mesh(n)
     print(name, mesh.n_vertices, digest(mesh))
 f = union(ellipsoid((0, 0, 0), (0.5, 0.4, 0.3)), capsule((0.3, 0, 0), (1.0, 0.2, 0.1), 0.15, 0.08))
@@ -107,7 +107,7 @@ def test_tet_meshes_identical_under_every_blas_kernel_and_simd_target():
     """The Kuhn-cube meshes of the solids, of a field and of a closed surface (with its embedding), bit for bit."""
     results = {name: _run(extra, SCRIPT_3D) for name, extra in CONFIGS.items()}
     reference = results["default"]
-    assert len(reference) == 5
+    assert len(reference) == 6
     for name, got in results.items():
         differ = {k: (reference[k], v) for k, v in got.items() if v != reference[k]}
         assert not differ, f"{name}: tetrahedral meshes differ from the default run: {differ}"

@@ -250,21 +250,28 @@ def test_from_surface_rejects_an_open_surface_before_meshing(nut_surface):
 # ---------------------------------------------------------------------------------------------- catalogue
 def test_names_keep_the_planar_catalogue_by_default():
     assert dop.shapes.names() == list(models.CATALOGUE)
-    assert dop.shapes.names(dim=3) == ["bar_3d", "octopus_3d", "nut"]
-    assert dop.shapes.names(dim=None) == list(models.CATALOGUE) + ["bar_3d", "octopus_3d", "nut"]
+    solids = ["bar_3d", "plank_3d", "octopus_3d", "nut"]
+    assert dop.shapes.names(dim=3) == solids
+    assert dop.shapes.names(dim=None) == list(models.CATALOGUE) + solids
     with pytest.raises(ValueError, match="dim must be 2, 3 or None"):
         dop.shapes.names(dim=4)
 
 
-@pytest.mark.parametrize("name", ["bar_3d", "octopus_3d", "nut"])
+@pytest.mark.parametrize("name", ["bar_3d", "plank_3d", "octopus_3d", "nut"])
 def test_catalogue_solids_mesh_at_their_default_size(name):
     solid = models.model(name)
     n = models.default_vertices(name)
     m = solid.mesh(n)
     assert m.dim == 3 and abs(m.n_vertices - n) < 0.15 * n
     assert (m.volumes > 0).all() and m.contains(solid.handles).all()
-    if name == "bar_3d":  # the beam's faces lie on the grid: exact volume
-        assert m.volumes.sum() == pytest.approx(0.2 * 0.2 * 1.0)
+    if name in ("bar_3d", "plank_3d"):  # the beam's faces lie on the grid: exact volume
+        assert m.volumes.sum() == pytest.approx(0.2 * (0.2 if name == "bar_3d" else 0.4) * 1.0)
+
+
+def test_the_planks_moving_handle_sits_on_its_mid_line():  # up and down are mirror images: no side preferred
+    for n in (165, None):
+        shape = dop.shapes.load("plank_3d", n)
+        assert np.abs(shape.mesh.V[shape.handles[shape.moving]] - [1.0, 0.1, 0.2]).max() < 1e-12
 
 
 def test_catalogue_spans_1k_to_10k_vertices():

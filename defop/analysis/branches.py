@@ -1,4 +1,4 @@
-"""A multi-valued operator against the solver along back-and-forth handle paths (§5, issue 29's targets).
+"""A multi-valued operator against the solver along back-and-forth handle paths (§5), in 2D and 3D.
 
 The truth of a drag is the solver's warm-started continuation: each frame solved from the previous frame's
 minimum (:func:`solver_path`), so it keeps its branch until the branch folds and then jumps, which gives the
@@ -42,8 +42,8 @@ def line_path(P, moving, start, end, steps):
     ----------
     P : (n_moving, d) numpy array
         Rest positions of the moving handles (the others stay there).
-    moving : int
-        Which moving handle follows the path.
+    moving : int or sequence of int
+        Which moving handles follow the path (translated together).
     start, end : (d,) numpy arrays
         Displacements q − p of the two ends.
     steps : int
@@ -55,14 +55,13 @@ def line_path(P, moving, start, end, steps):
     """
     steps = opt.integer("steps", steps, minimum=1)
     P = np.asarray(P, dtype=float)
-    if not 0 <= moving < len(P):
-        raise ValueError(f"moving must index one of the {len(P)} moving handles, got {moving!r}")
+    idx = br.moving_set(P, moving)
     start, end = np.asarray(start, float), np.asarray(end, float)
     if start.shape != (P.shape[1],) or end.shape != start.shape:
         raise ValueError(f"start and end must be ({P.shape[1]},) displacements, got {start.shape} and {end.shape}")
     a = np.concatenate([np.linspace(0, 1, steps + 1), np.linspace(1, 0, steps + 1)[1:]])
     Qs = np.repeat(P[None], len(a), axis=0)
-    Qs[:, moving] += start + a[:, None] * (end - start)
+    Qs[:, idx] += (start + a[:, None] * (end - start))[:, None]
     return Qs
 
 
@@ -189,8 +188,12 @@ def targets_met(c, window=5, tolerance=2):
     * ``follow`` jumps on the way out and back, each within ``tolerance`` steps of a solver jump (and as often);
     * elsewhere, ``follow``'s mean error within 10% of the single-valued fit's, or lower.
     """
-    f_near, s_near = float(c.follow[c.near].mean()), float(c.single[c.near].mean())
-    f_far, s_far = float(c.follow[~c.near].mean()), float(c.single[~c.near].mean())
+
+    def mean(a):  # NaN (a failed target) over no frames, without numpy's warning
+        return float(a.mean()) if a.size else float("nan")
+
+    f_near, s_near = mean(c.follow[c.near]), mean(c.single[c.near])
+    f_far, s_far = mean(c.follow[~c.near]), mean(c.single[~c.near])
     js, jf = c.jumps["solver"], c.jumps["follow"]
     half = (len(c.Qs) - 1) / 2
     both_ways = bool((js < half).any() and (js > half).any())
@@ -205,9 +208,11 @@ def targets_met(c, window=5, tolerance=2):
     }
 
 
-#: the measured cases: shape, the moving handle's sample grid (centre offset, half width, sweep direction across
-#: the folds) and the there-and-back path (two ends, as displacements from rest). Every other handle is fixed
-#: (the U's second tip too: Ψ is then a function of the one handle that moves, as the samples need)
+#: the measured cases: shape (and its size), the moving handles, the sample grid of their common displacement (centre
+#: offset, half width, the two axes of its plane, sweep direction across the folds) and the there-and-back path (two
+#: ends, displacements from rest in that plane). Every other handle is fixed (the U's second tip too: Ψ is then a
+#: function of the handles that move, as the samples need). ``plank_3d`` is the bar in 3D: its end's two handles move
+#: together, the end turns about z like the bar's one handle
 CASES = {
     "bar": {
         "shape": "bar",
@@ -225,7 +230,17 @@ CASES = {
         "by": "rows",
         "path": ((-0.2, -0.25), (0.4, -0.25)),
     },
+    "plank_3d": {
+        "shape": "plank_3d",
+        "moving": 0,
+        "offset": (0.0, 0.0),
+        "radius": 0.3,
+        "by": "columns",
+        "path": ((-0.15, -0.3), (-0.15, 0.3)),
+    },
 }
+#: the axes of every case's grid plane and path
+AXES = (0, 1)
 
 
 @dataclasses.dataclass
@@ -261,8 +276,9 @@ def run_case(name, n, steps=100, energy="sarap"):
     if name not in CASES:
         raise ValueError(f"name must be one of {sorted(CASES)}, got {name!r}")
     c = CASES[name]
-    shape = one_moving(shapes.load(c["shape"]), c["moving"])
-    Q = br.grid_samples(shape, c["radius"], n, 0, c["offset"])
+    shape = one_moving(shapes.load(c["shape"], c.get("vertices")), c["moving"])
+    moving = np.arange(len(shape.P_moving))  # the case's handles, all of them moving together
+    Q = br.grid_samples(shape, c["radius"], n, moving, c["offset"], AXES)
     sweeps = [br.scan_order(n, n, c["by"]), br.scan_order(n, n, c["by"], reverse=True)]
     minima = br.discover(shape, Q, sweeps, energy)
     branches = br.group(shape, minima, energy=energy)
@@ -270,17 +286,18 @@ def run_case(name, n, steps=100, energy="sarap"):
     bop = br.fit_branched(shape, branches, energy)
     fit_seconds = time.perf_counter() - t0
     single = br.fit_single(shape, minima, energy)
-    Qs = line_path(shape.P_moving, 0, c["path"][0], c["path"][1], steps)
+    ends = np.zeros((2, shape.mesh.V.shape[1]))
+    ends[:, list(AXES)] = c["path"]
+    Qs = line_path(shape.P_moving, moving, ends[0], ends[1], steps)
     return Case(name, shape, minima, branches, bop, single, compare(shape, bop, single, Qs, energy), fit_seconds)
 
 
 def one_moving(shape, moving):
-    """The shape with only its moving handle ``moving`` (an index among the moving handles) moving, the rest fixed."""
+    """The shape with only the moving handles ``moving`` (an index or indices among the moving handles) moving."""
     idx = np.flatnonzero(shape.moving)
-    if not 0 <= moving < len(idx):
-        raise ValueError(f"moving must index one of the {len(idx)} moving handles, got {moving!r}")
-    if len(idx) == 1:
+    keep = br.moving_set(idx, moving)
+    if len(keep) == len(idx):
         return shape
     flags = np.zeros_like(shape.moving)
-    flags[idx[moving]] = True
-    return dataclasses.replace(shape, moving=flags, regions=[shape.regions[moving]])
+    flags[idx[keep]] = True
+    return dataclasses.replace(shape, moving=flags, regions=[shape.regions[i] for i in keep])

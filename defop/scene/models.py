@@ -7,9 +7,10 @@ points, moving flags, regions) that :func:`defop.scene.shapes.load` meshes. Orga
 of tapered capsules and ellipses (:mod:`defop.geometry.planar.outlines`). Every coordinate is computed element-wise
 (no BLAS), so the outline is the same on every CPU.
 
-Beyond the paper, three solids (:class:`Solid`, meshed into tetrahedra by
+Beyond the paper, four solids (:class:`Solid`, meshed into tetrahedra by
 :mod:`defop.geometry.volumetric`): ``bar_3d`` (a 1 × 0.2 × 0.2 beam with handle patches at both ends,
-for the twist and bend of Fig. 7), ``octopus_3d`` (a head ellipsoid and eight tapered, waving arms:
+for the twist and bend of Fig. 7), ``plank_3d`` (1 × 0.2 × 0.4, clamped at one end, one handle on the other
+end's centre: Fig. 10's buckling bar in 3D), ``octopus_3d`` (a head ellipsoid and eight tapered, waving arms:
 an implicit union) and ``nut`` (a hexagonal nut modelled as a closed triangle surface, read from the
 example data inside the installed PyVista wheel with libigl, without importing PyVista). They are
 listed by ``names(dim=3)``; ``names()`` keeps listing the 2D catalogue.
@@ -255,28 +256,53 @@ def _ball(r):
     return {"kind": "ball", "radius": r}
 
 
-def _bar_3d():
-    size = np.array([1.0, 0.2, 0.2])
+def _beam(name, size, moving, description):
+    """A box [0, size]: a patch of 4 fixed handles on its left end face, the ``moving`` (y, z) fractions on its
+    right end face."""
+    size = np.asarray(size, float)
+    thin = float(size[1:].min())
 
     def inside(P):
         return (P > 0).all(axis=1) & (P < size).all(axis=1)
 
-    def spacing(n):  # an integer number of cubes across 0.2: the faces of the beam lie on the grid
-        k = min(range(2, 60), key=lambda k: abs((5 * k + 1) * (k + 1) ** 2 - n))
-        return 0.2 / k
+    def spacing(n):  # an integer number of cubes across the thin side: the faces of the beam lie on the grid
+        cubes = np.round(size / thin).astype(int)
+        k = min(range(2, 60), key=lambda k: abs(int(np.prod(cubes * k + 1)) - n))
+        return thin / k
 
-    ring = [(0.04, 0.04), (0.16, 0.04), (0.16, 0.16), (0.04, 0.16)]  # never midway between grid lines
-    handles = [[0.0, y, z] for y, z in ring] + [[1.0, y, z] for y, z in ring]
+    ring = [(0.2, 0.2), (0.8, 0.2), (0.8, 0.8), (0.2, 0.8)]  # fractions of the end face, never midway
+    handles = [[0.0, y * size[1], z * size[2]] for y, z in ring]
+    handles += [[size[0], y * size[1], z * size[2]] for y, z in moving]
     return Solid(
-        "bar_3d",
+        name,
         inside,
         np.array([[0, 0, 0], size]),
         np.array(handles),
-        np.array([False] * 4 + [True] * 4),
-        [_ball(0.12)] * 4,
+        np.array([False] * 4 + [True] * len(moving)),
+        [_ball(0.12)] * len(moving),
+        description,
+        spacing=spacing,
+    )
+
+
+def _bar_3d():
+    return _beam(
+        "bar_3d",
+        (1.0, 0.2, 0.2),
+        [(0.2, 0.2), (0.8, 0.2), (0.8, 0.8), (0.2, 0.8)],
         "1 x 0.2 x 0.2 beam: a patch of 4 fixed handles clamps the left end face, 4 moving handles on the right "
         "end face twist or bend it (Fig. 7 in 3D)",
-        spacing=spacing,
+    )
+
+
+def _plank_3d():
+    return _beam(
+        "plank_3d",
+        (1.0, 0.2, 0.4),
+        [(0.5, 0.5)],
+        "1 x 0.2 x 0.4 plank (Fig. 10's bar in 3D), clamped by 4 fixed handles on the left end face; one moving "
+        "handle at the centre of the right end face lets that end turn like the bar's one handle: pushed in along "
+        "its axis it buckles up or down in y, its thin direction",
     )
 
 
@@ -352,12 +378,14 @@ CATALOGUE = {
 
 SOLIDS = {
     "bar_3d": _bar_3d,
+    "plank_3d": _plank_3d,
     "octopus_3d": _octopus_3d,
     "nut": _nut,
 }
 
 _DEFAULT_VERTICES = {
     "bar_3d": 1500,
+    "plank_3d": 1000,
     "octopus_3d": 10000,
     "nut": 3000,
     "bar": 600,

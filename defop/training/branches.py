@@ -60,14 +60,28 @@ __all__ = [
     "fit_branched",
     "fit_single",
     "grid_samples",
+    "moving_set",
     "group",
     "stability_margin",
 ]
 
 
 # --------------------------------------------------------------------------- samples and sweeps
-def grid_samples(shape, radius, n, moving=0, offset=(0.0, 0.0)):
-    """Q_k on an n × n grid of one moving handle's positions (the others at rest), rows of y, then x.
+def moving_set(P, moving):
+    """The moving handles ``moving`` names (an index or a sequence of indices into P's rows), as an int array."""
+    idx = np.atleast_1d(np.asarray(moving))
+    if idx.ndim != 1 or len(idx) == 0 or idx.dtype.kind not in "iu" or not ((idx >= 0) & (idx < len(P))).all():
+        raise ValueError(f"moving must index the {len(P)} moving handles (an int or a sequence of ints): {moving!r}")
+    if len(np.unique(idx)) != len(idx):
+        raise ValueError(f"moving must not repeat a handle, got {moving!r}")
+    return idx
+
+
+def grid_samples(shape, radius, n, moving=0, offset=(0.0, 0.0), axes=(0, 1)):
+    """Q_k on an n × n grid of displacements of the moving handles ``moving`` (the others at rest), rows of y, then x.
+
+    Every handle in ``moving`` is translated by the same displacement, in the plane of the coordinate ``axes``: in
+    2D one handle in the plane; in 3D a patch of handles moved together (``plank_3d``'s end, Fig. 10 in 3D).
 
     Parameters
     ----------
@@ -76,29 +90,39 @@ def grid_samples(shape, radius, n, moving=0, offset=(0.0, 0.0)):
         Half width of the grid (displacements in [−radius, radius]²).
     n : int
         Points per side (≥ 2; odd puts the rest pose on the grid).
-    moving : int
-        Which moving handle.
+    moving : int or sequence of int
+        Which moving handles.
     offset : (2,) sequence of float
-        Displacement of the grid's centre from the rest position (default: centred at rest).
+        Displacement of the grid's centre from the rest position, along ``axes`` (default: centred at rest).
+    axes : (2,) sequence of int
+        The two coordinate axes of the grid's plane.
 
     Returns
     -------
     Q : (n², n_moving, d) numpy array
-        Sample k = i n + j has the handle at p + offset + (xs[j], ys[i]).
+        Sample k = i n + j has the handles at p + offset + (xs[j], ys[i]) (along ``axes``).
     """
     n = opt.integer("n", n, minimum=2)
     radius = opt.positive("radius", radius)
-    moving = opt.integer("moving", moving, minimum=0)
     P = np.asarray(shape.P_moving, dtype=float)
-    if moving >= len(P) or P.shape[1] != 2:
-        raise ValueError(f"moving must index one of the {len(P)} moving handles of a 2D shape, got {moving}")
+    idx = moving_set(P, moving)
+    axes = np.asarray(axes)
+    if (
+        axes.shape != (2,)
+        or axes.dtype.kind not in "iu"
+        or not ((axes >= 0) & (axes < P.shape[1])).all()
+        or (axes[0] == axes[1])
+    ):
+        raise ValueError(f"axes must be two different coordinate axes below {P.shape[1]}, got {axes.tolist()!r}")
     offset = np.asarray(offset, dtype=float)
     if offset.shape != (2,) or not np.isfinite(offset).all():
         raise ValueError(f"offset must be a finite (2,) displacement, got {offset!r}")
     t = np.linspace(-radius, radius, n)
     gx, gy = np.meshgrid(t, t)
+    D = np.zeros((n * n, P.shape[1]))
+    D[:, axes] = offset + np.stack([gx.ravel(), gy.ravel()], axis=-1)
     Q = np.repeat(P[None], n * n, axis=0)
-    Q[:, moving] += offset + np.stack([gx.ravel(), gy.ravel()], axis=-1)
+    Q[:, idx] += D[:, None]
     return Q
 
 
@@ -141,7 +165,8 @@ class Minima:
     converged : (m, s) numpy bool array
         A verified local minimum.
     seconds : dict
-        Wall-clock seconds of the rest-pose multi-start (``single``: the single-valued training's solves) and the
+        CPU seconds of this process (``time.process_time``: the ratio of two costs does not depend on what else runs
+        on the machine) of the rest-pose multi-start (``single``: the single-valued training's solves) and the
         sweeps, as measured when computed; ``cached`` says whether they were read from the cache.
     """
 
@@ -194,17 +219,22 @@ def smallest_eigenpairs(K, k, start=None, block=6, iterations=10):
     lam : (k,) numpy array, ascending
     vec : (n, k) numpy array
     """
+    from threadpoolctl import threadpool_limits
+
     n = K.shape[0]
     p = min(max(block, k + 2), n)
     shift = -1e-8 * float(np.abs(K.diagonal()).mean())
-    lu = spla.splu((K - shift * sp.identity(n, format="csc")).tocsc(), permc_spec="MMD_AT_PLUS_A")
-    Y = np.random.default_rng(0).normal(size=(n, p))
-    if start is not None:
-        Y[:, 0] = start
-    Y = np.linalg.qr(Y)[0]
-    for _ in range(iterations):
-        Y = np.linalg.qr(lu.solve(Y))[0]
-    lam, V = np.linalg.eigh(Y.T @ (K @ Y))
+    # one BLAS thread: the blocks are (n, 6), too thin for threads; with two, OpenBLAS's waiting threads made a
+    # 3D margin (plank_3d, 945 vertices, the machine busy) cost 0.74 CPU s instead of 0.077
+    with threadpool_limits(limits=1):
+        lu = spla.splu((K - shift * sp.identity(n, format="csc")).tocsc(), permc_spec="MMD_AT_PLUS_A")
+        Y = np.random.default_rng(0).normal(size=(n, p))
+        if start is not None:
+            Y[:, 0] = start
+        Y = np.linalg.qr(Y)[0]
+        for _ in range(iterations):
+            Y = np.linalg.qr(lu.solve(Y))[0]
+        lam, V = np.linalg.eigh(Y.T @ (K @ Y))
     return lam[:k], Y @ V[:, :k]
 
 
@@ -220,18 +250,18 @@ def _compute(shape, solver, samples, sweeps, progress):
     X = np.empty((m, s, shape.mesh.n_vertices, shape.mesh.V.shape[1]))
     E, conv = np.full((m, s), np.nan), np.zeros((m, s), bool)
     targets = [shape.targets(q) for q in samples]
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     bar = batch.progress(m * s, "branch discovery solves", progress)
     for k in range(m):  # source 0: the single-valued training's multi-start from the rest pose
         X[k, 0], E[k, 0], conv[k, 0] = _solve(solver, targets[k], None, "global")
         bar and bar.update(1)
-    t1 = time.perf_counter()
+    t1 = time.process_time()
     for c, order in enumerate(sweeps, start=1):  # continuation: each solve warm-started from the previous
         X[order[0], c], E[order[0], c], conv[order[0], c] = X[order[0], 0], E[order[0], 0], conv[order[0], 0]
         for prev, k in zip(order[:-1], order[1:]):
             X[k, c], E[k, c], conv[k, c] = _solve(solver, targets[k], X[prev, c], "local")
             bar and bar.update(1)
-    t2 = time.perf_counter()
+    t2 = time.process_time()
     bar and bar.close()
     E[~conv | ~np.isfinite(E)] = 0.0  # the cache stores finite numbers only; discover masks them out again
     return {"X": X, "energy": E, "converged": conv, "seconds": np.array([t1 - t0, t2 - t1])}
@@ -273,7 +303,7 @@ def discover(shape, samples, sweeps=(), energy="sarap", cache=True, progress=Fal
     key = None
     if store is not None:
         arrays = (shape.mesh.V, shape.mesh.F, np.asarray(shape.handles), np.asarray(shape.moving), samples)
-        key = cache_mod.key("branch-minima", *arrays, *sweeps, energy, cache_mod.solver_settings(solver))
+        key = cache_mod.key("branch-minima-cpu", *arrays, *sweeps, energy, cache_mod.solver_settings(solver))
     m, s, n = len(samples), 1 + len(sweeps), shape.mesh.n_vertices
     d = shape.mesh.V.shape[1]
     expect = {"X": ((m, s, n, d), "f"), "energy": ((m, s), "f"), "converged": ((m, s), "b"), "seconds": ((2,), "f")}
@@ -350,7 +380,7 @@ class Branches:
     lowest : (m,) numpy int array
         The label of the lowest minimum at each sample (the single-valued training's choice).
     margin_seconds : float
-        Wall-clock seconds of the stability margins.
+        CPU seconds of the stability margins (``time.process_time``).
     """
 
     samples: np.ndarray
@@ -444,14 +474,14 @@ def group(shape, minima, tol=1e-3, energy="sarap"):
             if lowest[k] < 0:
                 lowest[k] = label
     sides = {v: s for s, v in side_of.items()} if pairs else {0: 1}
-    branches, solver, t0 = [], Solver(mesh, shape.handles, energy=energy), time.perf_counter()
+    branches, solver, t0 = [], Solver(mesh, shape.handles, energy=energy), time.process_time()
     for label, pts in members.items():
         ks = np.array([k for k, _ in pts], dtype=np.int64)
         cs = np.array([c for _, c in pts], dtype=np.int64)
         margin = np.array([stability_margin(solver, minima.X[k, c], u if pairs else None) for k, c in pts])
         branches.append(Branch(label, ks, minima.X[ks, cs], minima.energy[ks, cs], margin, sides[label]))
     distinct = np.array([len(c) for c in kept])
-    return Branches(minima.samples, branches, u, t, distinct, conflicts, lowest, time.perf_counter() - t0)
+    return Branches(minima.samples, branches, u, t, distinct, conflicts, lowest, time.process_time() - t0)
 
 
 def plane(t, Q, P):
