@@ -25,6 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from ..variational.newton import step_off
 from ..variational.saddle import negative_curvature
 from ..variational.solver import NotConvergedWarning, Solver
 from ..variational.verify import INERTIA_SHIFT, KINK, held_on_kink
@@ -32,6 +33,7 @@ from ..variational.verify import INERTIA_SHIFT, KINK, held_on_kink
 __all__ = [
     "Profile",
     "Saddle",
+    "descents",
     "held_constraints",
     "held_curvature",
     "inertia",
@@ -350,3 +352,33 @@ def smooth_direction(solver, X):
     """The most negative eigenvector of the smooth exact Hessian (no kink held), unit in max-norm, and its value."""
     lam, D = negative_curvature(solver, X)
     return lam, D / np.abs(D).max()
+
+
+def descents(solver, targets, X, D):
+    """Where the two descents from a saddle end: a step off along ±D with lower energy, then a solve from there.
+
+    Parameters
+    ----------
+    solver : Solver
+    targets : (h, 2) numpy array
+    X : (n, 2) numpy array
+        The saddle.
+    D : (n, 2) numpy array
+        Its descent direction (:func:`held_curvature`).
+
+    Returns
+    -------
+    ends : list of two (n, 2) numpy arrays or None
+        None where no step along that sign lowers the energy or the solve does not verify.
+    """
+    ends = []
+    for sign in (1.0, -1.0):
+        Xs = step_off(solver, X, sign * D)
+        if Xs is None:
+            ends.append(None)
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotConvergedWarning)
+            r = solver.solve(targets, X0=Xs)
+        ends.append(np.asarray(r.X) if r.converged else None)
+    return ends
