@@ -28,7 +28,7 @@ import scipy.sparse.linalg as sla
 from ..variational.newton import step_off
 from ..variational.saddle import negative_curvature
 from ..variational.solver import NotConvergedWarning, Solver
-from ..variational.verify import INERTIA_SHIFT, KINK, held_on_kink
+from ..variational.verify import KINK, held_on_kink, inertia_shift
 
 __all__ = [
     "Profile",
@@ -263,8 +263,9 @@ def mountain_pass(solver, targets, vertex, Xa, Xb, steps=12):
 def inertia(solver, X):
     """Negative pivots of the exact held Hessian at X (as check 5 assembles it): unshifted, and with check 5's shift.
 
-    Check 5 shifts the diagonal by ``INERTIA_SHIFT`` · mean|diag|; the held triangles' stiff modes make that mean
-    large (measured on the bar's saddle: 2.6e7 against a median of 8.8), so the shift can hide a negative pivot.
+    Check 5 shifts the diagonal (:func:`defop.variational.verify.inertia_shift`) so that round-off does not count;
+    a shift taken from the mean |diagonal| hid the bar's saddle: the held triangles' stiff modes make that mean
+    2.6e7 against a median of 8.8.
 
     Returns
     -------
@@ -272,7 +273,7 @@ def inertia(solver, X):
     """
     _, g, data, _ = solver.grad_hess(X, 0.0, project=False, kink=KINK)
     out = []
-    for shift in (0.0, INERTIA_SHIFT):
+    for shift in (0.0, inertia_shift(solver, data)):
         solver.newton_direction(g[solver.free], data, rel_shift=shift)
         out.append(solver.hessian.inertia())
     return tuple(out)
