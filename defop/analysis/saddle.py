@@ -115,18 +115,31 @@ def pinned_minimum(pinned, solver, targets, vertex, z, X0):
 
 
 def _secant(f, a, b, fa, fb, tol, max_iter, cap):
-    """Root of the scalar part of ``f`` by the secant method from a, b (steps capped at ``cap``)."""
+    """Root of the scalar part of ``f`` by the secant method from a, b (steps capped at ``cap``; stops at |f| ≤ tol
+    or once the step is below 1e-6 of the cap, where the solver's noise in f dominates).
+
+    Returns
+    -------
+    b : float
+    fb : numpy array
+    slope : float
+        The last secant slope (nan if none).
+    """
+    slope = np.nan
     for _ in range(max_iter):
-        if abs(fb[0]) <= tol or fb[0] == fa[0]:
+        if abs(fb[0]) <= tol or fb[0] == fa[0] or abs(b - a) < 1e-6 * cap:
             break
-        c = b - fb[0] * (b - a) / (fb[0] - fa[0])
-        c = float(np.clip(c, b - cap, b + cap))
+        slope = (fb[0] - fa[0]) / (b - a)
+        c = float(np.clip(b - fb[0] / slope, b - cap, b + cap))
         a, fa, b, fb = b, fb, c, f(c)
-    return b, fb
+    return b, fb, slope
 
 
-def relax(pinned, solver, targets, vertex, y, X0, x0, tol=1e-7, max_iter=20):
+def relax(pinned, solver, targets, vertex, y, X0, x0, tol=1e-6, max_iter=20, state=None):
     """E⋆ minimised over the pin's x at height y: a secant on f_x = ∂E⋆/∂x (each solve warm-started).
+
+    ``state`` (a dict, optional) carries the secant's slope ∂f_x/∂x from one call to the next: along a profile it
+    changes slowly, so the first step is nearly a Newton step.
 
     Returns
     -------
@@ -134,7 +147,7 @@ def relax(pinned, solver, targets, vertex, y, X0, x0, tol=1e-7, max_iter=20):
     X, energy, force, converged
         As :func:`pinned_minimum` at z.
     """
-    memo = {}
+    memo, state = {}, {} if state is None else state
 
     def f(x):
         prev = memo.get("last", (None, X0))[1]
@@ -144,13 +157,21 @@ def relax(pinned, solver, targets, vertex, y, X0, x0, tol=1e-7, max_iter=20):
         return F
 
     fa = f(x0)
-    x1 = x0 + 1e-3 * solver.mesh.bbox_diagonal
-    x, _ = _secant(f, x0, x1, fa, f(x1), tol, max_iter, 0.05 * solver.mesh.bbox_diagonal)
+    cap = 0.05 * solver.mesh.bbox_diagonal
+    k = state.get("slope", np.nan)
+    x1 = x0 + 1e-3 * solver.mesh.bbox_diagonal if not np.isfinite(k) or k <= 0 else x0 - fa[0] / k
+    x1 = float(np.clip(x1, x0 - cap, x0 + cap))
+    if abs(fa[0]) <= tol:
+        x = x0
+    else:
+        x, _, k = _secant(f, x0, x1, fa, f(x1), tol, max_iter, cap)
+        if np.isfinite(k):
+            state["slope"] = k
     X, E, F, ok = memo[x]
     return np.array([x, y]), X, E, F, ok
 
 
-def profile(solver, targets, vertex, X0, y_end, steps, halvings=6):
+def profile(solver, targets, vertex, X0, y_end, steps, halvings=6, tol=1e-5):
     """The pinned minima from X0 towards height ``y_end`` of ``vertex`` (each relaxed in x), up to the first top.
 
     Steps of (y_end − y₀)/steps, each warm-started from the last. A step is kept when its energy is the integral of
@@ -171,6 +192,8 @@ def profile(solver, targets, vertex, X0, y_end, steps, halvings=6):
     y_end : float
     steps : int
     halvings : int
+    tol : float
+        |f_x| at which a step's x is relaxed (the climb needs less than the top: :func:`refine_saddle`).
 
     Returns
     -------
@@ -180,12 +203,15 @@ def profile(solver, targets, vertex, X0, y_end, steps, halvings=6):
         raise ValueError(f"vertex must be a free vertex, got handle {vertex}")
     pinned = Solver(solver.mesh, np.append(solver.handles_given, vertex), solver.energy)
     X = np.asarray(X0, float)
-    z, X, E, F, ok = relax(pinned, solver, targets, vertex, float(X[vertex, 1]), X, float(X[vertex, 0]))
+    state = {}
+    z, X, E, F, ok = relax(
+        pinned, solver, targets, vertex, float(X[vertex, 1]), X, float(X[vertex, 0]), tol, state=state
+    )
     rows, h = [(z, E, F, X, ok)], (y_end - z[1]) / steps
     scale = 1e-3 * solver.scale(E)
     while (y_end - z[1]) * np.sign(h) > 1e-12 and abs(h) > abs(y_end - X0[vertex, 1]) / steps / 2**halvings:
         y = z[1] + h if abs(y_end - z[1]) > abs(h) * 1.000001 else y_end
-        z1, X1, E1, F1, ok1 = relax(pinned, solver, targets, vertex, y, X, z[0])
+        z1, X1, E1, F1, ok1 = relax(pinned, solver, targets, vertex, y, X, z[0], tol, state=state)
         dE = E1 - E
         if abs(dE - (F[1] + F1[1]) * (y - z[1]) / 2) > 0.1 * abs(dE) + scale:
             h /= 2  # left the family: smaller step
@@ -211,10 +237,10 @@ def refine_saddle(solver, targets, vertex, prof, tol=1e-7, max_iter=12):
     if i is None:
         return None
     pinned = Solver(solver.mesh, np.append(solver.handles_given, vertex), solver.energy)
-    memo = {"X": prof.X[i], "x": prof.pins[i, 0]}
+    memo, state = {"X": prof.X[i], "x": prof.pins[i, 0]}, {}
 
     def f(y):
-        z, X, E, F, ok = relax(pinned, solver, targets, vertex, y, memo["X"], memo["x"], tol)
+        z, X, E, F, ok = relax(pinned, solver, targets, vertex, y, memo["X"], memo["x"], tol, state=state)
         memo.update(X=X, x=z[0], z=z, E=E, F=F, ok=ok)
         return F[::-1]  # secant on f_y
 
