@@ -7,8 +7,9 @@ part) is small, and the S-ARAP triangles held on the kink are in equilibrium on 
 Fenchel bound on what their offsets and any pull beyond the cone cost (:func:`kink_pull`,
 :func:`defop.variational.kink.fenchel_gap`), or, where that bound is loose, a smoothed solve from X
 (:func:`defop.variational.kink.smoothing_certificate`); (5) the exact reduced Hessian has no negative
-eigenvalue (beyond an ``INERTIA_SHIFT`` relative shift), read from the inertia of its LDLᵀ factorisation
-(Sylvester's law: the signs of D). :class:`Verification` names the check that failed.
+eigenvalue (beyond an ``INERTIA_SHIFT`` relative shift of the median diagonal, :func:`inertia_shift`), read from
+the inertia of its LDLᵀ factorisation (Sylvester's law: the signs of D). :class:`Verification` names the check
+that failed.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ from .problem import count_flips
 HANDLE_TOL = 1e-12
 #: relative diagonal shift under which a negative Hessian eigenvalue counts as round-off (check 5)
 INERTIA_SHIFT = 1e-8
+#: check 5's shift is at least this many units of round-off of the largest diagonal entry (:func:`inertia_shift`)
+ROUNDOFF = 100.0
 #: S-ARAP triangles with Σ − σ ≤ KINK · Σ sit on Eq. (11)'s kink for check 4
 #: (:func:`defop.variational.planar.eigensystem`)
 KINK = 1e-4
@@ -79,7 +82,7 @@ def verify_point(solver, X, T, tol=None):
         return Verification(False, "flips", f"{flips} flipped or collapsed {el}(s)", E)
     E, g, data, local = solver.grad_hess(X, 0.0, project=False, kink=solver._kink)  # true energy, exact Hessian
     gf = g[solver.free]
-    p = solver.newton_direction(gf, data, rel_shift=INERTIA_SHIFT)
+    p = solver.newton_direction(gf, data, rel_shift=inertia_shift(solver, data))
     negative = solver.hessian.inertia()
     dec = -float(gf @ p) / 2
     if negative:
@@ -112,6 +115,31 @@ def verify_point(solver, X, T, tol=None):
                 )
                 return Verification(False, "kink", why, E, dec, 0, D)
     return Verification(True, "", "", E, dec, 0)
+
+
+def inertia_shift(solver, data):
+    """Check 5's diagonal shift, as the share of the mean |diagonal| that ``ReducedHessian.matrix`` takes.
+
+    ``INERTIA_SHIFT`` of the median |diagonal|, at least ``ROUNDOFF`` · ε · max|diagonal| and at most
+    ``INERTIA_SHIFT`` of the mean. The mean alone is dominated by the stiff held modes of S-ARAP triangles on the
+    kink: at the bar's S-shaped saddle (handle pushed in by 0.3, 3 held triangles) the mean |diagonal| was 2.6e7
+    against a median of 8.8, so a shift of 0.26 hid the held Hessian's eigenvalue −1.9e-3 and check 5 accepted
+    the saddle as a minimum (tests/test_saddle.py).
+
+    Parameters
+    ----------
+    solver : defop.variational.solver.Solver
+    data : (nnz,) numpy array
+        Values of the exact reduced Hessian (its ``hessian`` pattern).
+
+    Returns
+    -------
+    rel_shift : float
+    """
+    d = np.abs(data[solver.hessian._diag])
+    mean = max(float(d.mean()), 1e-300)
+    shift = max(INERTIA_SHIFT * float(np.median(d)), ROUNDOFF * np.finfo(float).eps * float(d.max()))
+    return min(shift, INERTIA_SHIFT * mean) / mean
 
 
 def _certificate_stage(solver, X, tol, mu):

@@ -1,5 +1,6 @@
-"""Pictures of a multi-valued operator (notebook 15): two minima and the barrier between them, the branches'
-domains in the handle plane, the hysteresis loop of ``follow`` beside the solver's, errors per frame."""
+"""Pictures of a multi-valued operator (notebook 15): two minima and the saddle between them, the energy profile
+of the mountain pass, the branches' domains in the handle plane, the hysteresis loop of ``follow`` beside the
+solver's, errors per frame."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ BRANCH_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd")
 
 
 def plot_minima(shape, X, titles, energies, size=3.0):
-    """Deformations side by side (two minima and the configuration between them) and their energies.
+    """Deformations side by side (two minima and the saddle between them) and their energies.
 
     Parameters
     ----------
@@ -33,6 +34,51 @@ def plot_minima(shape, X, titles, energies, size=3.0):
     axes[-1].set_xticks(range(len(X)), [t.split(" (")[0] for t in titles], fontsize=7)
     axes[-1].set_ylabel("E (Eq. 11)")
     axes[-1].set_title("energy")
+    fig.tight_layout()
+    return fig
+
+
+def plot_pass(profiles, saddles, probes, ts, size=3.6):
+    """The mountain pass between two minima (:func:`defop.analysis.saddle.mountain_pass`) and probes at its saddle.
+
+    Parameters
+    ----------
+    profiles : list of Profile
+        Each climb from one minimum (E⋆ against the pinned vertex's height), coloured by branch.
+    saddles : list of Saddle
+        The critical point at the top of each profile (a star).
+    probes : dict of str -> (2, k) numpy array
+        E(X ± tD) − E(X) at the saddle per direction name (:func:`defop.analysis.saddle.probe`).
+    ts : (k,) numpy array
+        The steps t of the probes, as a fraction of the bbox diagonal.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(size * 2.3, size))
+    for b, (p, s) in enumerate(zip(profiles, saddles)):
+        color = BRANCH_COLORS[b % len(BRANCH_COLORS)]
+        y, E = p.pins[:, 1], p.energies
+        if s is not None:
+            y, E = np.append(y[: p.top + 1], s.pin[1]), np.append(E[: p.top + 1], s.energy)
+            ax.plot(s.pin[1], s.energy, "*", color=color, ms=12, mec="k", mew=0.5)
+        ax.plot(y, E, "o-", color=color, ms=3, lw=1.2, label=f"climb from branch {b}")
+        ax.plot(y[0], E[0], "s", color=color, ms=6)
+    ax.set_xlabel("height of the pinned mid-bar point")
+    ax.set_ylabel("E* (Eq. 11)")
+    ax.set_title("the pass: pinned minima, saddles (stars)")
+    ax.legend(fontsize=7)
+    styles = ("-", "--", ":", "-.")
+    for (name, dE), ls in zip(probes.items(), styles):
+        for row, sign in zip(dE, ("+", "−")):
+            bx.loglog(ts, np.abs(row), ls, marker="o" if sign == "+" else "x", ms=3, lw=1, label=f"{name} ({sign}t)")
+            neg = row < 0
+            bx.loglog(ts[neg], np.abs(row[neg]), "v", color="k", ms=4, mfc="none")
+    bx.set_xlabel("t / bbox diagonal")
+    bx.set_ylabel("|E(X ± tD) − E(X)|  (▽: below E(X))")
+    bx.set_title("at the saddle")
+    bx.legend(fontsize=6)
     fig.tight_layout()
     return fig
 
