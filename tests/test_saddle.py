@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 import defop as dop
 from defop.analysis import saddle as sd
 from defop.analysis.branches import one_moving
+from defop.variational import problem as pb
 
 
 @pytest.fixture(scope="module")
@@ -118,6 +119,15 @@ def test_verify_rejects_the_saddle(bar, climb):
     check = S.verify(climb[1].X, S.targets_of(T))
     assert not check.ok and check.failed == "saddle" and check.negative == 1
     assert climb[1].negative_shifted == 1 and not climb[1].verified
+
+
+@pytest.mark.skipif(not pb.HAVE_PARDISO, reason="pypardiso (the mkl extra) is not installed")
+def test_verify_rejects_the_saddle_with_pardiso_too(bar, climb):
+    # PARDISO reads the inertia from its own LDLᵀ, whose pivoting perturbs pivots below 1e-8 of the matrix's norm
+    shape, _, T, _, _ = bar
+    S = dop.variational.solver.Solver(shape.mesh, shape.handles, "sarap", backend="pardiso")
+    check = S.verify(climb[1].X, S.targets_of(T))
+    assert not check.ok and check.failed == "saddle" and check.negative == 1
 
 
 def test_bad_input(bar):
