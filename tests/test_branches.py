@@ -202,3 +202,24 @@ def test_far_q_falls_back_to_the_nearest_branch_with_a_warning(case):
         label = bop.session().step(far)
     assert any(issubclass(w.category, ExtrapolationWarning) for w in caught)
     assert label in bop.labels and np.isfinite(X).all()
+
+
+def test_handle_sets_and_planes_in_3d():
+    shape = dop.shapes.load("bar_3d", 300)  # four moving handles: a patch moved together
+    Q = br.grid_samples(shape, 0.2, 3, moving=[0, 1, 2, 3], offset=(0.0, 0.1), axes=(1, 2))
+    D = Q - shape.P_moving
+    assert Q.shape == (9, 4, 3) and np.array_equal(D[:, 0], D[:, 3]) and (D[:, :, 0] == 0).all()
+    assert np.allclose(D[4, 0], [0.0, 0.0, 0.1]) and np.allclose(D[0, 0], [0.0, -0.2, -0.1])
+    Qs = ab.line_path(shape.P_moving, [1, 2], [0, 0, 0], [0.1, 0, 0], 2)
+    assert np.allclose(Qs[2, [1, 2]] - shape.P_moving[[1, 2]], [[0.1, 0, 0]] * 2)
+    assert np.array_equal(Qs[:, [0, 3]], np.repeat(shape.P_moving[None, [0, 3]], 5, axis=0))
+    two = ab.one_moving(shape, [2, 0])
+    assert np.array_equal(np.flatnonzero(two.moving), np.flatnonzero(shape.moving)[[0, 2]]) and len(two.regions) == 2
+    for bad in ([], [0, 0], 1.5, [4], np.array([True]), [[0]]):
+        with pytest.raises(ValueError, match="moving must"):
+            br.grid_samples(shape, 0.2, 3, moving=bad)
+    for axes in ((0, 0), (0, 3), (1,), (0.0, 1.0)):
+        with pytest.raises(ValueError, match="axes must"):
+            br.grid_samples(shape, 0.2, 3, axes=axes)
+    with pytest.raises(ValueError, match="start and end"):
+        ab.line_path(shape.P_moving, 0, [0, 0], [0, 1], 3)  # 2D ends for 3D handles
