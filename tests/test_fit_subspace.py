@@ -76,3 +76,18 @@ def test_unspanned_directions():
     assert np.abs(N.T @ B0).max() < 1e-10 and np.abs(B.T @ B - np.eye(2)).max() < 1e-12
     N, B = unspanned(rng.normal(size=(9, 5)))  # in general position: nothing pinned
     assert N.shape == (5, 0) and B.shape == (5, 5)
+
+
+@pytest.mark.parametrize("jitter", [0.0, 1e-11, 1e-8])
+def test_nearly_planar_samples_are_pinned_too(jitter):
+    # between 1e-10 and 1e-6 of the spread the unpinned interpolant's linear part along the normal grew to 1e3–1e5
+    shape, D, Q, X = planar_case("plank_3d", 165, 16, seed=7)
+    Q = Q.copy()
+    Q[:, :, 2] += jitter * np.random.default_rng(8).normal(size=(len(Q), 1))
+    op = fit_shape(shape, Q, X)
+    assert np.abs(op(Q) - X).max() / shape.mesh.bbox_diagonal < 1e-9 + 10 * jitter  # Prop. 1, to the jitter
+    off = shape.P_moving[None] + np.array([[[0.0, 0.0, 0.1]]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        moved = np.abs(op(off) - shape.mesh.V).max()
+    assert moved < 1.0  # the handle moves 0.1; nothing explodes

@@ -118,7 +118,7 @@ def test_verify_rejects_the_saddle(bar, climb):
     _, S, T, _, _ = bar
     check = S.verify(climb[1].X, S.targets_of(T))
     assert not check.ok and check.failed == "saddle" and check.negative == 1
-    assert climb[1].negative_shifted == 1 and not climb[1].verified
+    assert climb[1].negative_shifted == 1 and not climb[1].verified and climb[1].converged  # a pinned minimum
 
 
 @pytest.mark.skipif(not pb.HAVE_PARDISO, reason="pypardiso (the mkl extra) is not installed")
@@ -138,3 +138,27 @@ def test_bad_input(bar):
         sd.mountain_pass(S, T, x, Xa, Xb, steps=2)
     with pytest.raises(ValueError, match="different heights"):
         sd.mountain_pass(S, T, x, Xa, Xa, steps=4)
+    n = shape.mesh.n_vertices
+    for vertex in (n, -1, 5.5, True, "3"):
+        with pytest.raises(ValueError, match="vertex must be"):
+            sd.mountain_pass(S, T, vertex, Xa, Xb)
+    for steps in (np.inf, np.nan, 0, 2.5):
+        with pytest.raises(ValueError, match="steps must be an integer"):
+            sd.profile(S, T, x, Xa, 0.0, steps)
+    for y_end in (np.nan, np.inf, "0", float(Xa[x, 1])):
+        with pytest.raises(ValueError, match="y_end must"):
+            sd.profile(S, T, x, Xa, y_end, 4)
+    for X0 in (Xa[:-1], np.full_like(Xa, np.nan), Xa.tolist()[:3]):
+        with pytest.raises(ValueError, match="X0"):
+            sd.profile(S, T, x, X0, 0.0, 4)
+
+
+def test_the_pass_refuses_a_tet_mesh():
+    shape = dop.shapes.load("plank_3d", 165)
+    S = dop.variational.solver.Solver(shape.mesh, shape.handles, "sarap")
+    free = int(np.setdiff1d(np.arange(shape.mesh.n_vertices), shape.handles)[0])
+    V = shape.mesh.V
+    with pytest.raises(ValueError, match="triangle meshes"):
+        sd.mountain_pass(S, shape.targets(shape.P_moving), free, V, V + 0.01)
+    with pytest.raises(ValueError, match="triangle Jacobians"):
+        sd.held_constraints(S, V)

@@ -269,7 +269,7 @@ def test_catalogue_solids_mesh_at_their_default_size(name):
 
 
 def test_the_planks_moving_handle_sits_on_its_mid_line():  # up and down are mirror images: no side preferred
-    for n in (165, None):
+    for n in (165, 448, None, 1716, 2821):  # 448 and 1716 are nearest odd k, which would put 0.1 midway
         shape = dop.shapes.load("plank_3d", n)
         assert np.abs(shape.mesh.V[shape.handles[shape.moving]] - [1.0, 0.1, 0.2]).max() < 1e-12
 

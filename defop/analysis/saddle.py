@@ -25,6 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from .. import options as opt
 from ..variational.newton import step_off
 from ..variational.saddle import negative_curvature
 from ..variational.solver import NotConvergedWarning, Solver
@@ -51,8 +52,9 @@ __all__ = [
 class Profile:
     """The pinned minima along a pass: per step the pin (k, 2), E⋆ (k,), reaction force (k, 2), X (k, n, 2).
 
-    ``top`` is the step before the one where f_y turned against the climb (the maximum of E⋆ lies between them),
-    None when the profile ended without one (at its end height or at a fold).
+    ``converged`` (k,) says whether each pinned solve verified; ``top`` is the step before the one where f_y turned
+    against the climb (the maximum of E⋆ lies between them), None when the profile ended without one (at its end
+    height or at a fold).
     """
 
     pins: np.ndarray
@@ -69,7 +71,8 @@ class Saddle:
 
     ``force`` is the reaction force (2,) at the pin, ``force_scale`` the largest along the profile it was found
     on; ``negative`` the negative pivots of the exact held Hessian, unshifted, and ``negative_shifted`` with check
-    5's shift (what ``verify`` sees); ``curvature`` its most negative eigenvalue (:func:`held_curvature`).
+    5's shift (what ``verify`` sees); ``curvature`` its most negative eigenvalue (:func:`held_curvature`);
+    ``converged`` whether the last pinned solve verified (a pinned minimum; ``verified`` is problem (6)'s check).
     """
 
     X: np.ndarray
@@ -82,6 +85,23 @@ class Saddle:
     curvature: float
     verified: bool
     reason: str
+    converged: bool = True
+
+
+def check_pass_input(solver, vertex, X=(), name="X0"):
+    """``vertex`` as a free vertex index of a triangle mesh and each X as a finite (n, 2) array, or a ValueError.
+
+    The mountain pass reads the anti-conformal part of triangle Jacobians (:func:`held_constraints`): 2D only.
+    """
+    if solver.dim != 2:
+        raise ValueError(
+            f"the mountain pass is written for triangle meshes (d = 2; S-ARAP's kink there), got d = {solver.dim}"
+        )
+    n = solver.mesh.n_vertices
+    vertex = opt.integer("vertex", vertex, minimum=0, maximum=n - 1)
+    if vertex in set(solver.handles.tolist()):
+        raise ValueError(f"vertex must be a free vertex, got handle {vertex}")
+    return vertex, [opt.points(name, Y, n=n, d=2) for Y in X]
 
 
 def pinned_minimum(pinned, solver, targets, vertex, z, X0):
@@ -199,10 +219,15 @@ def profile(solver, targets, vertex, X0, y_end, steps, halvings=6, tol=1e-5):
     -------
     Profile
     """
-    if vertex in set(solver.handles.tolist()):
-        raise ValueError(f"vertex must be a free vertex, got handle {vertex}")
+    vertex, (X0,) = check_pass_input(solver, vertex, [X0])
+    steps = opt.integer("steps", steps, minimum=1)
+    halvings = opt.integer("halvings", halvings, minimum=0, maximum=30)
+    if not (isinstance(y_end, (int, float, np.floating, np.integer)) and np.isfinite(y_end)):
+        raise ValueError(f"y_end must be a finite height, got {y_end!r}")
+    if float(y_end) == X0[vertex, 1]:
+        raise ValueError(f"y_end must differ from the start's height {X0[vertex, 1]!r}")
     pinned = Solver(solver.mesh, np.append(solver.handles_given, vertex), solver.energy)
-    X = np.asarray(X0, float)
+    X = X0
     state = {}
     z, X, E, F, ok = relax(
         pinned, solver, targets, vertex, float(X[vertex, 1]), X, float(X[vertex, 0]), tol, state=state
@@ -252,7 +277,7 @@ def refine_saddle(solver, targets, vertex, prof, tol=1e-7, max_iter=12):
     check = solver.verify(X, T)
     scale = float(np.linalg.norm(prof.forces, axis=1).max())
     curv = held_curvature(solver, X)[0]
-    return Saddle(X, memo["E"], memo["z"], memo["F"], scale, neg, neg_shift, curv, check.ok, check.reason)
+    return Saddle(X, memo["E"], memo["z"], memo["F"], scale, neg, neg_shift, curv, check.ok, check.reason, memo["ok"])
 
 
 def mountain_pass(solver, targets, vertex, Xa, Xb, steps=12):
@@ -276,9 +301,9 @@ def mountain_pass(solver, targets, vertex, Xa, Xb, steps=12):
         From X_a and from X_b.
     saddles : tuple of two Saddle or None
     """
+    vertex, (Xa, Xb) = check_pass_input(solver, vertex, [Xa, Xb], "Xa and Xb")
+    steps = opt.integer("steps", steps, minimum=3)
     ya, yb = float(Xa[vertex, 1]), float(Xb[vertex, 1])
-    if not (int(steps) == steps and steps >= 3):
-        raise ValueError(f"steps must be an integer >= 3, got {steps!r}")
     if abs(ya - yb) < 1e-9 * solver.mesh.bbox_diagonal:
         raise ValueError("Xa and Xb must put vertex at different heights")
     pa = profile(solver, targets, vertex, Xa, yb, steps)
@@ -315,6 +340,8 @@ def held_constraints(solver, X):
     C : (2k, n_free) scipy sparse matrix
         For the k held triangles (:func:`defop.variational.verify.held_on_kink` with ``KINK``); empty if none.
     """
+    if solver.dim != 2:
+        raise ValueError(f"held_constraints reads triangle Jacobians (d = 2), got d = {solver.dim}")
     held = held_on_kink(solver, X, KINK)[3]
     G = solver.mesh.jacobian_operator.tocsr()
     t = np.flatnonzero(held)
@@ -333,8 +360,9 @@ def _anti_rows(t):
 def held_curvature(solver, X):
     """The most negative curvature of problem (6) at X with the kink-held offsets kept (their modes stiff).
 
-    Shift-invert Lanczos on the exact held Hessian about −median|diag|, then the eigenvector projected exactly onto
-    {held anti-conformal parts unchanged} (:func:`held_constraints`).
+    Shift-invert Lanczos on the exact held Hessian: the eigenvalue nearest −median|diag| (below each negative one at
+    the bar's saddles, so there the most negative; not guaranteed in general), then the eigenvector projected
+    exactly onto {held anti-conformal parts unchanged} (:func:`held_constraints`).
 
     Returns
     -------

@@ -118,8 +118,9 @@ def solve_structure_tps(S, d):
 
     Returns
     -------
-    G, beta, rank : as :func:`solve_structure`, or None when H is not numerically positive definite
-        (the caller falls back to the general method).
+    G, beta, rank : as :func:`solve_structure`, or None when H is not numerically positive definite or
+        [1, z] is rank deficient (the caller falls back to the general method; :func:`structure` sends samples in
+        an affine subspace there first, by :func:`unspanned`).
     """
     m, q = S.shape
     r = 1 + d
@@ -257,9 +258,10 @@ def structure(psi, Qs):
         Samples that do not determine the basis (the message says how many it needs).
     """
     S = psi.evaluate_z(psi.z(Qs))  # (m, q)
-    A = np.vstack([S[:1], side_conditions(psi, Qs)])
+    T, pinned = side_conditions(psi)
+    A = np.vstack([S[:1], T])
     fast = None
-    if psi.kind == "tps" and S.shape[1] == 1 + psi.dim + len(S):  # interpolation: the symmetric TPS system
+    if psi.kind == "tps" and S.shape[1] == 1 + psi.dim + len(S) and not pinned:  # the symmetric TPS system
         fast = solve_structure_tps(S, psi.dim)
     G, beta, rank = fast if fast is not None else solve_structure(S, A)
     if rank < A.shape[1] - A.shape[0]:
@@ -270,7 +272,12 @@ def structure(psi, Qs):
     return G, beta
 
 
-def unspanned(z, rcond=1e-10):
+#: :func:`unspanned`: a direction along which the centres spread less than this share of their largest spread
+#: counts as not spanned (between 1e-10 and 1e-6 the interpolant's linear part along it grew to 1e3–1e5 off the plane)
+SPAN_RCOND = 1e-6
+
+
+def unspanned(z, rcond=SPAN_RCOND):
     """Directions (dim, k), orthonormal, in which the points z (m, dim) never move: the complement of their affine hull.
 
     Returns
@@ -284,34 +291,40 @@ def unspanned(z, rcond=1e-10):
     dim = D.shape[1]
     if len(D) == 0:
         return np.eye(dim), np.zeros((dim, 0))
-    _, s, Vt = np.linalg.svd(D, full_matrices=True)
+    _, s, Vt = np.linalg.svd(D, full_matrices=False)  # thin: (min(m − 1, dim), dim), no (m − 1)² factor
     r = int(np.sum(s > rcond * max(float(s.max()), 1e-300)))
-    return Vt[r:].T, Vt[:r].T
+    B = Vt[:r].T
+    N = np.linalg.qr(B, mode="complete")[0][:, r:] if r else np.eye(dim)
+    return N, B
 
 
-def side_conditions(psi, Qs):
-    """TPS side conditions for the samples Qs, with the linear part pinned where the samples never move.
+def side_conditions(psi):
+    """The side conditions of Ψ, with the TPS linear part pinned where its centres never move.
 
-    When every Q_k lies in an affine subspace of the handle space (in 3D, one handle dragged in a plane, or a patch
-    of handles moved together), Σ_k w_k (z_k · n) = 0 repeats Σ_k w_k = 0 for every direction n out of it, and the
-    linear coefficient along n is determined by no sample. Those rows are replaced by "the coefficient along n is
-    0", the minimum-norm choice: on the subspace the fit is the TPS interpolant of the samples in its own
-    coordinates; off it only the radial terms see the distance to it, and the handles, whose rows :func:`fold` sets
-    to their linear motion, stay exact (Prop. 2). Other bases: ``psi.side_conditions()``.
+    When every centre (every Q_k: the fit centres a TPS function on each sample) lies in an affine subspace of the
+    handle space (in 3D one handle dragged in a plane, or a patch of handles moved together), Σ_k w_k (z_k · n) = 0
+    repeats Σ_k w_k = 0 for every direction n out of it, and the linear coefficient along n is determined by no
+    sample. Those rows are replaced by "the coefficient along n is 0", the minimum-norm choice: on the subspace the
+    fit is the TPS interpolant of the samples in its own coordinates; off it only the radial terms see the distance
+    to it, and the handles, whose rows :func:`fold` sets to their linear motion, stay exact (Prop. 2). With the hat
+    basis the vertices next to a handle that leaves the subspace then barely follow it, and no warning says so
+    (the extrapolation warning measures the distance from rest only). Other bases: ``psi.side_conditions()``.
 
     Returns
     -------
     T : (s, |Ψ|) numpy array
+    pinned : int
+        How many directions were pinned (0: T is ``psi.side_conditions()``).
     """
     T = psi.side_conditions()
     if psi.kind != "tps":
-        return T
-    N, B = unspanned(psi.z(Qs))
+        return T, 0
+    N, B = unspanned(psi.z(psi.centers))
     if N.shape[1] == 0:
-        return T
+        return T, 0
     pins = np.zeros((N.shape[1], psi.size))
     pins[:, 1 : 1 + psi.dim] = N.T
-    return np.vstack([T[:1], B.T @ T[1 : 1 + psi.dim], pins])
+    return np.vstack([T[:1], B.T @ T[1 : 1 + psi.dim], pins]), N.shape[1]
 
 
 def fit_values(op, values):

@@ -265,14 +265,20 @@ def _beam(name, size, moving, description):
     def inside(P):
         return (P > 0).all(axis=1) & (P < size).all(axis=1)
 
+    # a handle at half the width must sit on a grid plane (midway between two it would snap to one side): even k
+    even = any(0.5 in f for f in moving)
+
     def spacing(n):  # an integer number of cubes across the thin side: the faces of the beam lie on the grid
         cubes = np.round(size / thin).astype(int)
-        k = min(range(2, 60), key=lambda k: abs(int(np.prod(cubes * k + 1)) - n))
+        k = min(range(2, 60, 2 if even else 1), key=lambda k: abs(int(np.prod(cubes * k + 1)) - n))
         return thin / k
 
     ring = [(0.2, 0.2), (0.8, 0.2), (0.8, 0.8), (0.2, 0.8)]  # fractions of the end face, never midway
-    handles = [[0.0, y * size[1], z * size[2]] for y, z in ring]
-    handles += [[size[0], y * size[1], z * size[2]] for y, z in moving]
+
+    def at(x, y, z):  # rounded: 0.2 · 0.2 is 0.04000000000000001 in floating point
+        return [x, round(y * float(size[1]), 12), round(z * float(size[2]), 12)]
+
+    handles = [at(0.0, y, z) for y, z in ring] + [at(float(size[0]), y, z) for y, z in moving]
     return Solid(
         name,
         inside,

@@ -6,7 +6,9 @@ single-valued training keeps one minimum per Q_k; here every verified minimum we
 1. **starts** (:func:`discover`): at each Q_k the multi-start of the single-valued training
    (:meth:`defop.variational.solver.Solver.solve_best` from the rest pose, saddles escaped: source 0), plus the
    minima that **continuation** reaches: each sweep visits the samples in an order where consecutive samples are
-   neighbours and warm-starts every solve from the previous minimum (a user's drag; sources 1..).
+   neighbours and warm-starts every solve from the previous minimum (a user's drag; sources 1..), taking a step
+   again in halves where the minimum jumps (:func:`continue_to`: near a fold a whole step can skip a branch that
+   still exists).
 2. **grouping** (:func:`group`): minima closer than ``tol`` (M-norm RMS distance over the bounding-box diagonal)
    at one Q_k are one. Where a Q_k holds two distinct minima, their difference is the mode that separates the
    branches: u is the leading M-weighted principal direction of these differences (for the bar: the buckling
@@ -55,12 +57,14 @@ __all__ = [
     "Branch",
     "Branches",
     "Minima",
+    "continue_to",
     "scan_order",
     "discover",
     "fit_branched",
     "fit_single",
     "grid_samples",
     "moving_set",
+    "refine_folds",
     "group",
     "stability_margin",
 ]
@@ -245,6 +249,36 @@ def _solve(solver, targets, X0, start):
     return np.asarray(r.X), float(r.energy), bool(r.converged)
 
 
+#: a continuation step whose minimum moves a vertex more than this many times the handles' step is taken again in
+#: halves (:func:`continue_to`): near a fold the basin shrinks, and a whole grid step from the last minimum can land
+#: in the other branch while the branch still exists there (plank_3d, 17 x 17: the sweeps lost branch 1 one sample
+#: before its fold, and follow's fold estimate came 3 path steps early)
+FOLLOW_RATIO = 4.0
+#: :func:`continue_to` halves a step at most this many times
+FOLLOW_DEPTH = 3
+
+
+def continue_to(solver, shape, Qa, Qb, Xa, depth=FOLLOW_DEPTH):
+    """The minimum at Qb continued from the minimum Xa at Qa (one warm-started solve; a user's drag).
+
+    When the minimum moves a vertex by more than ``FOLLOW_RATIO`` × the handles' step, the step is taken again as
+    two halves, recursively up to ``depth`` times: the branch is followed as far as it exists, and a jump is left
+    to the half step where it happens.
+
+    Returns
+    -------
+    X : (n_vertices, d) numpy array
+    energy : float
+    converged : bool
+    """
+    X, E, ok = _solve(solver, shape.targets(Qb), Xa, "local")
+    if depth == 0 or np.abs(X - Xa).max() <= FOLLOW_RATIO * np.abs(Qb - Qa).max():
+        return X, E, ok
+    Qm = (Qa + Qb) / 2
+    Xm, _, ok_m = continue_to(solver, shape, Qa, Qm, Xa, depth - 1)
+    return continue_to(solver, shape, Qm, Qb, Xm, depth - 1) if ok_m else (X, E, ok)
+
+
 def _compute(shape, solver, samples, sweeps, progress):
     m, s = len(samples), 1 + len(sweeps)
     X = np.empty((m, s, shape.mesh.n_vertices, shape.mesh.V.shape[1]))
@@ -259,7 +293,7 @@ def _compute(shape, solver, samples, sweeps, progress):
     for c, order in enumerate(sweeps, start=1):  # continuation: each solve warm-started from the previous
         X[order[0], c], E[order[0], c], conv[order[0], c] = X[order[0], 0], E[order[0], 0], conv[order[0], 0]
         for prev, k in zip(order[:-1], order[1:]):
-            X[k, c], E[k, c], conv[k, c] = _solve(solver, targets[k], X[prev, c], "local")
+            X[k, c], E[k, c], conv[k, c] = continue_to(solver, shape, samples[prev], samples[k], X[prev, c])
             bar and bar.update(1)
     t2 = time.process_time()
     bar and bar.close()
@@ -303,7 +337,8 @@ def discover(shape, samples, sweeps=(), energy="sarap", cache=True, progress=Fal
     key = None
     if store is not None:
         arrays = (shape.mesh.V, shape.mesh.F, np.asarray(shape.handles), np.asarray(shape.moving), samples)
-        key = cache_mod.key("branch-minima-cpu", *arrays, *sweeps, energy, cache_mod.solver_settings(solver))
+        policy = ("branch-minima-cpu", FOLLOW_RATIO, FOLLOW_DEPTH)
+        key = cache_mod.key(*policy, *arrays, *sweeps, energy, cache_mod.solver_settings(solver))
     m, s, n = len(samples), 1 + len(sweeps), shape.mesh.n_vertices
     d = shape.mesh.V.shape[1]
     expect = {"X": ((m, s, n, d), "f"), "energy": ((m, s), "f"), "converged": ((m, s), "b"), "seconds": ((2,), "f")}
@@ -482,6 +517,95 @@ def group(shape, minima, tol=1e-3, energy="sarap"):
         branches.append(Branch(label, ks, minima.X[ks, cs], minima.energy[ks, cs], margin, sides[label]))
     distinct = np.array([len(c) for c in kept])
     return Branches(minima.samples, branches, u, t, distinct, conflicts, lowest, time.process_time() - t0)
+
+
+def neighbour_pairs(Q, members):
+    """(k, j) pairs of neighbouring samples (within 1.01 × the smallest spacing) with k in ``members`` and j not."""
+    flat = np.asarray(Q).reshape(len(Q), -1)
+    D = np.linalg.norm(flat[:, None] - flat[None], axis=-1)
+    h = float(D[D > 0].min()) if (D > 0).any() else 0.0
+    inside = np.zeros(len(Q), bool)
+    inside[members] = True
+    return [(int(k), int(j)) for k in np.flatnonzero(inside) for j in np.flatnonzero((D[k] <= 1.01 * h) & ~inside)]
+
+
+def edge_of_branch(solver, shape, Qa, Qb, Xa, levels):
+    """Bisect the segment Qa → Qb for the last Q where the branch of the minimum Xa at Qa still exists.
+
+    Each half step is solved from the minimum at the last Q on the branch (one warm-started solve) and counts as on
+    the branch when no vertex moved more than ``FOLLOW_RATIO`` × the handles' step (no jump) and it verified.
+
+    Returns
+    -------
+    Q : (n_moving, d) numpy array or None
+        None when not even the first half step stays on the branch.
+    X : (n_vertices, d) numpy array or None
+    energy : float
+    """
+    lo, hi, X_lo, E_lo, moved = Qa, Qb, Xa, np.nan, False
+    for _ in range(levels):
+        mid = (lo + hi) / 2
+        X, E, ok = _solve(solver, shape.targets(mid), X_lo, "local")
+        if ok and np.abs(X - X_lo).max() <= FOLLOW_RATIO * np.abs(mid - lo).max():
+            lo, X_lo, E_lo, moved = mid, X, E, True
+        else:
+            hi = mid
+    return (lo, X_lo, E_lo) if moved else (None, None, np.nan)
+
+
+def refine_folds(shape, branches, levels=4, energy="sarap"):
+    """Branches with one more minimum per edge of each branch's domain, bisected towards its fold.
+
+    For every pair of neighbouring samples where a branch has a minimum at one and not at the other (its fold, or
+    where a continuation left it, lies between), :func:`edge_of_branch` continues the minimum towards the other
+    sample in ``levels`` bisection steps (to 2^-levels of the spacing) and the last minimum on the branch joins it,
+    with its energy and stability margin. The fitted λ²_b then crosses zero next to the fold instead of being
+    extrapolated over a whole spacing (plank_3d, 17 × 17: λ² is concave there, and the extrapolated fold came
+    0.013 early, 3 path steps).
+
+    Returns
+    -------
+    Branches
+        The samples extended by the new configurations (each on one branch only; ``distinct`` 1 and ``lowest``
+        that branch there).
+    """
+    levels = opt.integer("levels", levels, minimum=1, maximum=12)
+    if len(branches.branches) < 2:
+        return branches
+    solver, Q = Solver(shape.mesh, shape.handles, energy=energy), branches.samples
+    extra_Q, out, lowest = [], [], []
+    t0 = time.process_time()
+    for b in branches.branches:
+        at = {int(k): i for i, k in enumerate(b.samples)}
+        found = []
+        for k, j in neighbour_pairs(Q, b.samples):
+            q, X, E = edge_of_branch(solver, shape, Q[k], Q[j], b.X[at[k]], levels)
+            if q is not None:
+                found.append((q, X, E, stability_margin(solver, X, branches.mode)))
+        idx = len(Q) + len(extra_Q) + np.arange(len(found), dtype=np.int64)
+        extra_Q += [f[0] for f in found]
+        lowest += [b.label] * len(found)
+        grow = [np.array([f[i] for f in found]).reshape((-1, *b.X.shape[1:]) if i == 1 else -1) for i in (1, 2, 3)]
+        out.append(
+            Branch(
+                b.label,
+                np.concatenate([b.samples, idx]),
+                np.concatenate([b.X, grow[0]]),
+                np.concatenate([b.energy, grow[1]]),
+                np.concatenate([b.margin, grow[2]]),
+                b.side,
+            )
+        )
+    seconds = time.process_time() - t0
+    samples = np.concatenate([Q, np.reshape(extra_Q, (-1, *Q.shape[1:]))])
+    return dataclasses.replace(
+        branches,
+        samples=samples,
+        branches=out,
+        distinct=np.concatenate([branches.distinct, np.ones(len(extra_Q), int)]),
+        lowest=np.concatenate([branches.lowest, lowest]).astype(branches.lowest.dtype),
+        margin_seconds=branches.margin_seconds + seconds,
+    )
 
 
 def plane(t, Q, P):
