@@ -47,7 +47,7 @@ def report(case, steps):
     for who in ("solver", "follow", "single"):
         j = c.jumps[who]
         print(f"  {who:6s} jumps at frames {j.tolist()}  (q - p = {[tuple(np.round(q[k], 3)) for k in j]})")
-    for where, frames in (("near the solver's jumps (±5 steps", c.near), ("elsewhere (", ~c.near)):
+    for where, frames in (("near the solver's jumps (±5 steps, ", c.near), ("elsewhere (", ~c.near)):
         if not frames.any():
             print(f"  error {where}0 frames): none")
             continue
