@@ -6,9 +6,7 @@ single-valued training keeps one minimum per Q_k; here every verified minimum we
 1. **starts** (:func:`discover`): at each Q_k the multi-start of the single-valued training
    (:meth:`defop.variational.solver.Solver.solve_best` from the rest pose, saddles escaped: source 0), plus the
    minima that **continuation** reaches: each sweep visits the samples in an order where consecutive samples are
-   neighbours and warm-starts every solve from the previous minimum (a user's drag; sources 1..), taking a step
-   again in halves where the minimum jumps (:func:`continue_to`: near a fold a whole step can skip a branch that
-   still exists).
+   neighbours and warm-starts every solve from the previous minimum (a user's drag; sources 1..).
 2. **grouping** (:func:`group`): minima closer than ``tol`` (M-norm RMS distance over the bounding-box diagonal)
    at one Q_k are one. Where a Q_k holds two distinct minima, their difference is the mode that separates the
    branches: u is the leading M-weighted principal direction of these differences (for the bar: the buckling
@@ -57,7 +55,6 @@ __all__ = [
     "Branch",
     "Branches",
     "Minima",
-    "continue_to",
     "scan_order",
     "discover",
     "fit_branched",
@@ -249,34 +246,9 @@ def _solve(solver, targets, X0, start):
     return np.asarray(r.X), float(r.energy), bool(r.converged)
 
 
-#: a continuation step whose minimum moves a vertex more than this many times the handles' step is taken again in
-#: halves (:func:`continue_to`): near a fold the basin shrinks, and a whole grid step from the last minimum can land
-#: in the other branch while the branch still exists there (plank_3d, 17 x 17: the sweeps lost branch 1 one sample
-#: before its fold, and follow's fold estimate came 3 path steps early)
+#: :func:`edge_of_branch`: a bisection step whose minimum moves a vertex more than this many times the handles' step
+#: left the branch (it jumped)
 FOLLOW_RATIO = 4.0
-#: :func:`continue_to` halves a step at most this many times
-FOLLOW_DEPTH = 3
-
-
-def continue_to(solver, shape, Qa, Qb, Xa, depth=FOLLOW_DEPTH):
-    """The minimum at Qb continued from the minimum Xa at Qa (one warm-started solve; a user's drag).
-
-    When the minimum moves a vertex by more than ``FOLLOW_RATIO`` × the handles' step, the step is taken again as
-    two halves, recursively up to ``depth`` times: the branch is followed as far as it exists, and a jump is left
-    to the half step where it happens.
-
-    Returns
-    -------
-    X : (n_vertices, d) numpy array
-    energy : float
-    converged : bool
-    """
-    X, E, ok = _solve(solver, shape.targets(Qb), Xa, "local")
-    if depth == 0 or np.abs(X - Xa).max() <= FOLLOW_RATIO * np.abs(Qb - Qa).max():
-        return X, E, ok
-    Qm = (Qa + Qb) / 2
-    Xm, _, ok_m = continue_to(solver, shape, Qa, Qm, Xa, depth - 1)
-    return continue_to(solver, shape, Qm, Qb, Xm, depth - 1) if ok_m else (X, E, ok)
 
 
 def _compute(shape, solver, samples, sweeps, progress):
@@ -293,7 +265,7 @@ def _compute(shape, solver, samples, sweeps, progress):
     for c, order in enumerate(sweeps, start=1):  # continuation: each solve warm-started from the previous
         X[order[0], c], E[order[0], c], conv[order[0], c] = X[order[0], 0], E[order[0], 0], conv[order[0], 0]
         for prev, k in zip(order[:-1], order[1:]):
-            X[k, c], E[k, c], conv[k, c] = continue_to(solver, shape, samples[prev], samples[k], X[prev, c])
+            X[k, c], E[k, c], conv[k, c] = _solve(solver, targets[k], X[prev, c], "local")
             bar and bar.update(1)
     t2 = time.process_time()
     bar and bar.close()
@@ -337,8 +309,7 @@ def discover(shape, samples, sweeps=(), energy="sarap", cache=True, progress=Fal
     key = None
     if store is not None:
         arrays = (shape.mesh.V, shape.mesh.F, np.asarray(shape.handles), np.asarray(shape.moving), samples)
-        policy = ("branch-minima-cpu", FOLLOW_RATIO, FOLLOW_DEPTH)
-        key = cache_mod.key(*policy, *arrays, *sweeps, energy, cache_mod.solver_settings(solver))
+        key = cache_mod.key("branch-minima-cpu", *arrays, *sweeps, energy, cache_mod.solver_settings(solver))
     m, s, n = len(samples), 1 + len(sweeps), shape.mesh.n_vertices
     d = shape.mesh.V.shape[1]
     expect = {"X": ((m, s, n, d), "f"), "energy": ((m, s), "f"), "converged": ((m, s), "b"), "seconds": ((2,), "f")}
