@@ -8,7 +8,8 @@ with the solver's warm-started continuation (the error of a frame: max vertex di
 branches, the training cost in CPU seconds of this process, where each jumps, the errors, the energy excess of
 ``global`` and issue 29's three targets with pass/fail, and the load average.
 
-Run: ``python benchmarks/bench_branches.py [--n 17] [--steps 100] [--cases bar u_shape plank_3d]``
+Run: ``python benchmarks/bench_branches.py [--n N] [--steps 100] [--cases bar u_shape plank_3d]`` (default n: the
+case's, :data:`defop.analysis.branches.CASES`: 17, 25, 17)
 (DEFOP_FAST=1: n = 9). plank_3d takes about 20 minutes from an empty cache on one core.
 """
 
@@ -66,7 +67,7 @@ def report(case, steps):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=dop.config.pick(17, 9))
+    ap.add_argument("--n", type=int, default=dop.config.pick(None, 9), help="samples per side (default: the case's n)")
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--cases", nargs="+", default=list(ab.CASES))
     args = ap.parse_args()
