@@ -161,7 +161,7 @@ def parse_integer(name, raw, default, minimum=1, maximum=MAX_INTEGER_SETTING, si
     if not in_range:
         if rule is None:
             bounds = [f">= {minimum}" if minimum is not None else "", f"<= {maximum}" if maximum is not None else ""]
-            rule = " ".join(["a whole number", *(b for b in bounds if b)])
+            rule = "a whole number " + " and ".join(b for b in bounds if b)
         raise ValueError(f"{name} must be {rule}, got {raw!r:.80}")
     return number
 

@@ -94,8 +94,9 @@ def test_a_3d_solve_under_auto_without_mkl_runs_on_qdldl(no_mkl, monkeypatch):
     V, T = r3.grid_tets(2)
     h = np.flatnonzero((V[:, 0] == 0) | (V[:, 0] == 1))
     targets = V[h] + 0.1 * np.where(V[h, :1] == 1, 1.0, 0.0) * np.array([0.0, 1.0, 0.0])
-    with pytest.warns(RuntimeWarning, match="MKL's library cannot load"):
+    with pytest.warns(RuntimeWarning, match="MKL's library cannot load") as record:
         solver = Solver(dop.Mesh(V, T), h, "sarap")
+    assert [w.filename for w in _fallbacks(record)] == [__file__]  # through Solver too, it points at the caller
     assert solver.hessian.backend == "qdldl"
     result = solver.solve(targets)
     assert result.converged and np.allclose(result.X[h], targets)
@@ -178,7 +179,7 @@ def test_an_integer_setting_is_valid_iff_ascii_digits_within_bounds(raw, minimum
     if not raw.strip(ASCII_SPACE):
         assert config.parse_integer("DEFOP_X", raw, 7, minimum=minimum, signed=signed) == 7  # unset: default
     elif expected is None:
-        with pytest.raises(ValueError, match=r"^DEFOP_X must be a whole number >= .*, got "):
+        with pytest.raises(ValueError, match=rf"^DEFOP_X must be a whole number >= {minimum} and <= 2147483647, got "):
             config.parse_integer("DEFOP_X", raw, 7, minimum=minimum, signed=signed)
     else:
         assert config.parse_integer("DEFOP_X", raw, 7, minimum=minimum, signed=signed) == expected
