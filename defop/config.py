@@ -9,6 +9,11 @@
     computation starts, before any work is done.
 ``DEFOP_N_JOBS``
     Default number of parallel workers for sample solves (default: all cores).
+``DEFOP_MKL_THREADS``, ``DEFOP_BACKEND``
+    MKL's threads and the factorisation back end (:mod:`defop.variational.problem`).
+
+Every integer setting is read by :func:`integer_setting`: ASCII decimal digits only (``'²'`` and ``'٣'`` pass
+``str.isdigit`` but are refused), the message naming the variable.
 ``DEFOP_FIGURES``
     Where notebooks write their figures (see :func:`figures_dir`). Only the main job
     (``python -m defop figures``, full mode) sets it, to the repository's ``figures/``; everything else (fast mode,
@@ -24,9 +29,12 @@ import shutil
 import tempfile
 from pathlib import Path
 
-__all__ = ["fast_mode", "cache_dir", "figures_dir", "n_jobs", "pick"]
+__all__ = ["fast_mode", "cache_dir", "figures_dir", "n_jobs", "pick", "integer_setting", "parse_integer"]
 
 _OFF = ("off", "0", "none", "false", "no")
+_ASCII_SPACE = " \t\n\r\f\v"
+#: the largest integer setting: a C int (MKL's thread count goes through ctypes.c_int, which wraps silently)
+MAX_INTEGER_SETTING = 2**31 - 1
 
 
 def fast_mode() -> bool:
@@ -109,21 +117,67 @@ def figures_dir() -> Path:
     return path
 
 
+def parse_integer(name, raw, default, minimum=1, maximum=MAX_INTEGER_SETTING, signed=False, nonzero=False,
+                  rule=None):
+    """The integer an environment setting's text ``raw`` names, checked before ``int()`` sees it.
+
+    Only ASCII decimal digits count (with one leading ``-`` when ``signed``), after stripping ASCII white space:
+    ``str.isdigit`` and ``int`` also accept ``'²'``, ``'٣'``, ``'+3'`` and ``'1_000'``, and ``int`` fails on
+    some of them without naming the variable. An empty value gives ``default``.
+
+    Parameters
+    ----------
+    name : str
+        The variable, named in the message.
+    raw : str or None
+    default : int
+    minimum, maximum : int or None
+        Inclusive bounds (the maximum also keeps ``int()`` off a 5,000-digit string).
+    signed : bool
+        Accept a leading minus sign.
+    nonzero : bool
+        Refuse 0.
+    rule : str, optional
+        What the value must be, for the message (default: ``"a whole number >= {minimum}"``).
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    ValueError
+        ``"{name} must be {rule}, got {raw!r}"``.
+    """
+    value = (raw or "").strip(_ASCII_SPACE)
+    if not value:
+        return default
+    digits = value[1:] if signed and value.startswith("-") else value
+    number = None
+    if digits and len(digits) <= len(str(MAX_INTEGER_SETTING)) and all("0" <= ch <= "9" for ch in digits):
+        number = int(value)
+    in_range = number is not None and (minimum is None or number >= minimum) and (
+        maximum is None or number <= maximum) and not (nonzero and number == 0)
+    if not in_range:
+        if rule is None:
+            bounds = [f">= {minimum}" if minimum is not None else "", f"<= {maximum}" if maximum is not None else ""]
+            rule = "a whole number " + " and ".join(b for b in bounds if b)
+        raise ValueError(f"{name} must be {rule}, got {raw!r:.80}")
+    return number
+
+
+def integer_setting(name, default, **kw):
+    """The integer setting ``name`` from the environment (:func:`parse_integer`'s rules), or ``default``."""
+    return parse_integer(name, os.environ.get(name), default, **kw)
+
+
 def n_jobs() -> int:
     """Default worker count for joblib: ``DEFOP_N_JOBS`` or every core (-1).
 
     Raises
     ------
     ValueError
-        ``DEFOP_N_JOBS`` is not a non-zero integer.
+        ``DEFOP_N_JOBS`` is not a non-zero integer (ASCII digits, an optional minus sign).
     """
-    value = os.environ.get("DEFOP_N_JOBS", "").strip()
-    if not value:
-        return -1
-    try:
-        jobs = int(value)
-    except ValueError:
-        jobs = 0
-    if jobs == 0:
-        raise ValueError(f"DEFOP_N_JOBS={value!r} must be a non-zero integer (-1: every core)")
-    return jobs
+    rule = "a non-zero integer (-1: every core)"
+    return integer_setting("DEFOP_N_JOBS", -1, minimum=-MAX_INTEGER_SETTING, signed=True, nonzero=True, rule=rule)

@@ -71,13 +71,41 @@ def n_jobs(value):
     return jobs
 
 
-def seed(value):
-    """A sampling seed: a non-negative integer (``numpy.random.default_rng(seed)``)."""
-    return integer("seed", value, minimum=0)
+def seed(value, name="seed"):
+    """A sampling seed: a non-negative integer (``numpy.random.default_rng(seed)``).
+
+    Raises
+    ------
+    ValueError
+        ``"{name} must be an integer >= 0, got ..."``: a string, float, None or negative seed (numpy's own
+        ``SeedSequence`` TypeError did not name the argument).
+    """
+    return integer(name, value, minimum=0)
 
 
-def real_array(name, value):
+def rng(value, name="rng"):
+    """A ``numpy.random.Generator``: ``value`` itself, or one seeded by it (a BitGenerator or SeedSequence too).
+
+    Raises
+    ------
+    ValueError
+        ``value`` is none of these nor a seed :func:`seed` accepts (the message names ``name``).
+    """
+    if isinstance(value, np.random.Generator):
+        return value
+    if isinstance(value, (np.random.BitGenerator, np.random.SeedSequence)):
+        return np.random.default_rng(value)
+    try:
+        return np.random.default_rng(seed(value, name))
+    except ValueError:
+        raise ValueError(f"{name} must be a numpy.random.Generator or a seed (an integer >= 0), got "
+                         f"{type(value).__name__} {value!r:.80}") from None
+
+
+def real_array(name, value, cast=True):
     """``value`` as a float numpy array, refusing what a float cast would silently mangle.
+
+    ``cast=False`` returns integer and float arrays as they are (checked, not copied).
 
     Raises
     ------
@@ -94,7 +122,7 @@ def real_array(name, value):
         raise ValueError(
             f"{name} must be an array of real numbers, got {what.get(arr.dtype.kind, f'dtype {arr.dtype}')}"
         )
-    return arr.astype(float, copy=False)
+    return arr.astype(float, copy=False) if cast else arr
 
 
 def positive(name, value, maximum=None):

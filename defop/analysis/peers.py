@@ -532,21 +532,36 @@ class Peer:
         Parameters
         ----------
         Q : (n_moving,d) or (k,n_moving,d) numpy array
-            d = ``mesh.dim``. A batch is evaluated frame by frame, in order.
+            d = ``mesh.dim``. A batch is evaluated frame by frame, in order; k = 0 (an empty batch) gives an
+            empty (0, n_vertices, d) result, as :class:`~defop.operator.defop.DefOp` does.
 
         Returns
         -------
         X : (n_vertices,d) or (k,n_vertices,d) numpy array
+
+        Raises
+        ------
+        ValueError
+            Q (any frame of a batch) of the wrong shape or with NaN, before any frame is evaluated: a stateful
+            peer (ARAP iterations) is left as it was.
         """
         Q = opt.real_array("Q", Q)
-        if Q.ndim == 3:
-            return np.stack([self(q) for q in Q])
         n, d = self.n_moving, self.mesh.dim
-        if Q.shape != (n, d):
+        if Q.shape[-2:] != (n, d) or Q.ndim not in (2, 3):
             raise ValueError(f"Q must have shape ({n}, {d}) or (k, {n}, {d}) for the {n} moving handles, "
                              f"got {Q.shape}{_dim_hint(Q, n, d)}")
         if not np.isfinite(Q).all():
-            raise ValueError("Q has NaN or infinite entries")
+            where = f" (frame {int(np.argwhere(~np.isfinite(Q))[0, 0])})" if Q.ndim == 3 else ""
+            raise ValueError(f"Q has NaN or infinite entries{where}")
+        if Q.ndim == 3:
+            X = np.empty((len(Q), self.n_vertices, d))
+            for k, q in enumerate(Q):
+                X[k] = self._frame(q)
+            return X
+        return self._frame(Q)
+
+    def _frame(self, Q):
+        """(n_vertices,d) positions for one checked (n_moving,d) Q."""
         T = self.mesh.V[self.handles].copy()
         T[self.moving] = Q
         return self._evaluate(T)

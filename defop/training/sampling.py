@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import options as opt
 from ..scene.regions import as_region
 
 
@@ -49,7 +50,7 @@ def sample_handles(P, regions, m, rng):
     m : int
         Number of samples.
     rng : numpy.random.Generator or int
-        Randomness (an int seeds ``numpy.random.default_rng``).
+        Randomness (an int >= 0 seeds ``numpy.random.default_rng``; anything else is a ValueError naming ``rng``).
 
     Returns
     -------
@@ -63,7 +64,7 @@ def sample_handles(P, regions, m, rng):
     if int(m) != m or m < 1:
         raise ValueError(f"m must be a positive integer, got {m!r}")
     regions = [as_region(r, f"region {i}") for i, r in enumerate(regions)]
-    rng = np.random.default_rng(rng)
+    rng = opt.rng(rng)
     Q = np.empty((int(m), *P.shape))
     for i, region in enumerate(regions):
         Q[:, i] = region.sample(rng, P[i], int(m), P, i)

@@ -12,7 +12,9 @@ or the solver's ``backend`` keyword. ``pardiso`` is MKL PARDISO through the opti
 extra, x86-64 only; pypardiso is BSD-3, MKL comes under Intel's Simplified Software Licence), a supernodal
 symmetric-indefinite LDLᵀ whose inertia (iparm[22]) feeds the saddle verification like qdldl's negative pivots.
 ``auto`` takes PARDISO for tetrahedral meshes of at least :data:`PARDISO_MIN_VERTICES_3D` vertices, where it wins
-(``benchmarks/bench_factor.py --real``), and qdldl everywhere else (2D stays bit-for-bit).
+(``benchmarks/bench_factor.py --real``), and qdldl everywhere else (2D stays bit-for-bit). Where pypardiso is
+installed but MKL's library cannot load, ``auto`` falls back to qdldl with one warning per process
+(:func:`choose_backend`), and an explicit ``pardiso`` is a ValueError naming ``DEFOP_BACKEND`` or ``backend``.
 """
 
 from __future__ import annotations
@@ -21,12 +23,15 @@ import copy
 import ctypes
 import importlib.util
 import os
+import sys
+import warnings
 import weakref
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from .. import config
 from .. import options as opt
 from . import energies as en
 
@@ -200,46 +205,126 @@ def check_targets(targets, handles, mesh=None, dim=2):
     return T
 
 
+#: MKL loaded once per process: "solver", the PyPardisoSolver every PardisoLDL copies, or "error", why it cannot load
+_MKL: dict = {}
+#: the slowdown ``auto`` costs where MKL cannot load (benchmarks/README.md, the 10k-vertex octopus_3d, one thread)
+FALLBACK_COST = "20x slower per factorisation and 7.7x per verified solve on the 10k-vertex octopus_3d"
+
+
+def _source(backend):
+    """Where the back-end name came from, for messages: the argument or the environment variable."""
+    return "DEFOP_BACKEND" if backend is None else "backend"
+
+
 def check_backend(backend=None):
     """The back-end name asked for: ``backend``, else ``DEFOP_BACKEND``, else ``"auto"``.
 
     Raises
     ------
     ValueError
-        Not one of :data:`BACKENDS`, or ``"pardiso"`` without pypardiso installed.
+        Not one of :data:`BACKENDS`; ``"pardiso"`` without pypardiso installed or with MKL's library that cannot
+        load (the message names the variable or argument, and the loader's error).
     """
-    source = "backend"
+    source = _source(backend)
     if backend is None:
-        backend, source = os.environ.get("DEFOP_BACKEND", "").strip() or "auto", "DEFOP_BACKEND"
+        backend = os.environ.get("DEFOP_BACKEND", "").strip() or "auto"
     if not isinstance(backend, str) or backend.lower() not in BACKENDS:
-        raise ValueError(f"{source} must be one of {', '.join(BACKENDS)}, got {backend!r}")
+        raise ValueError(f"{source} must be one of {', '.join(BACKENDS)}, got {backend!r:.80}")
     backend = backend.lower()
     if backend == "pardiso" and not HAVE_PARDISO:
         raise ValueError(
             f"{source}='pardiso' needs pypardiso (MKL, x86-64): pip install 'defop[mkl]', or use qdldl or auto"
         )
     mkl_threads()  # a bad DEFOP_MKL_THREADS is refused when the solver is built, not at its first factorisation
+    if backend == "pardiso" and mkl_error() is not None:
+        raise ValueError(
+            f"{source}='pardiso' but MKL's library cannot load ({mkl_error()}): reinstall it (pip install "
+            f"'defop[mkl]'), point PYPARDISO_MKL_RT at libmkl_rt, or set {source}=qdldl (auto falls back to it "
+            f"by itself)"
+        )
     return backend
 
 
 def mkl_threads():
     """MKL's thread count for PARDISO: ``DEFOP_MKL_THREADS`` (default 1), or a ValueError naming it."""
-    raw = os.environ.get("DEFOP_MKL_THREADS", "").strip() or "1"
-    if not raw.isdigit() or int(raw) < 1:
-        raise ValueError(f"DEFOP_MKL_THREADS must be a whole number of threads >= 1, got {raw!r}")
-    return int(raw)
+    return config.integer_setting("DEFOP_MKL_THREADS", 1, minimum=1, rule="a whole number of threads >= 1")
+
+
+def pardiso_solver():
+    """The PyPardisoSolver (MKL loaded) every :class:`PardisoLDL` copies, made once per process.
+
+    Raises
+    ------
+    ImportError, OSError, AttributeError
+        pypardiso's import or MKL's library fails to load (the same error on every later call; see
+        :func:`mkl_error`).
+    """
+    if "solver" not in _MKL:
+        if "error" in _MKL:
+            raise _MKL["error"]
+        # MKL's conditional numerical reproducibility: the same code path on every x86-64 CPU, so the same
+        # minima bit for bit across machines (measured: 10% slower on a nut solve than MKL's own choice)
+        os.environ.setdefault("MKL_CBWR", "COMPATIBLE")
+        try:
+            import pypardiso  # its import makes a solver: it loads libmkl_rt (ImportError or OSError without it)
+
+            _MKL["solver"] = pypardiso.PyPardisoSolver(mtype=-2)
+        except (ImportError, OSError, AttributeError) as exc:  # AttributeError: a libmkl_rt with no pardiso
+            _MKL["error"] = exc
+            raise
+    return _MKL["solver"]
+
+
+def mkl_error():
+    """Why MKL PARDISO cannot run in this process (``"OSError: ..."``), or None when it loads (tried once)."""
+    if not HAVE_PARDISO:
+        return "pypardiso is not installed"
+    try:
+        pardiso_solver()
+    except (ImportError, OSError, AttributeError) as exc:
+        return f"{type(exc).__name__}: {exc}"
+    return None
+
+
+def _caller_stacklevel():
+    """The ``stacklevel`` of the first frame outside the defop package, for the function that calls this."""
+    package = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    frame, level = sys._getframe(2), 2
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package + os.sep):
+        frame, level = frame.f_back, level + 1
+    return level
+
+
+def _warn_fallback(source):
+    """Warn once per process that ``auto`` factorises by qdldl because MKL cannot load."""
+    if _MKL.get("warned"):
+        return
+    _MKL["warned"] = True
+    silence = "set DEFOP_BACKEND=qdldl" if source == "DEFOP_BACKEND" else "pass backend='qdldl'"
+    warnings.warn(
+        f"{source}=auto: MKL's library cannot load ({mkl_error()}), so tet meshes from {PARDISO_MIN_VERTICES_3D} "
+        f"vertices are factorised by qdldl instead of PARDISO, {FALLBACK_COST} (benchmarks/README.md). Reinstall "
+        f"MKL (pip install 'defop[mkl]'), or {silence} to choose qdldl and silence this warning",
+        RuntimeWarning, stacklevel=_caller_stacklevel(),
+    )
 
 
 def choose_backend(backend, n_vertices, d):
     """The factorisation a mesh of ``n_vertices`` in ``d`` dimensions gets: "qdldl", "pardiso" or "splu".
 
     ``auto``: PARDISO when installed and d = 3 with at least :data:`PARDISO_MIN_VERTICES_3D` vertices, else
-    qdldl; SuperLU only when qdldl is missing (it gives no inertia).
+    qdldl; SuperLU only when qdldl is missing (it gives no inertia). Where pypardiso is installed but MKL's
+    library cannot load, ``auto`` takes qdldl and warns once per process (RuntimeWarning, with the slowdown and
+    ``DEFOP_BACKEND=qdldl`` to silence it).
     """
+    source = _source(backend)
     backend = check_backend(backend)
     if backend == "auto":
         big3d = d == 3 and n_vertices >= PARDISO_MIN_VERTICES_3D
         backend = "pardiso" if big3d and HAVE_PARDISO else "qdldl"
+        if backend == "pardiso" and mkl_error() is not None:
+            _warn_fallback(source)
+            backend = "qdldl"
     if backend == "qdldl" and qdldl is None:  # pragma: no cover - exercised only without the dependency
         backend = "splu"
     return backend
@@ -269,18 +354,10 @@ class PardisoLDL:
         The upper triangle (the pattern of every later ``factor``).
     """
 
-    #: a PyPardisoSolver whose loaded MKL the others share: finding and loading it takes about 0.7 s
-    _template = None
-
     def __init__(self, K):
-        if PardisoLDL._template is None:
-            # MKL's conditional numerical reproducibility: the same code path on every x86-64 CPU, so the same
-            # minima bit for bit across machines (measured: 10% slower on a nut solve than MKL's own choice)
-            os.environ.setdefault("MKL_CBWR", "COMPATIBLE")
-            import pypardiso
-
-            PardisoLDL._template = pypardiso.PyPardisoSolver(mtype=-2)
-        self._ps = copy.copy(PardisoLDL._template)  # fresh handle and parameters, the same library
+        # a copy of the one PyPardisoSolver whose loaded MKL all share (finding and loading it takes about 0.7 s):
+        # a fresh handle and parameters, the same library
+        self._ps = copy.copy(pardiso_solver())
         self._ps.pt = np.zeros_like(self._ps.pt)
         self._ps.iparm = np.zeros(64, dtype=np.int32)
         self._ps.libmkl.MKL_Set_Num_Threads(ctypes.c_int(mkl_threads()))

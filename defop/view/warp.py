@@ -13,8 +13,16 @@ import numpy as np
 
 from .. import options as opt
 
-#: outputs larger than this many pixels are refused (the rasteriser holds a few arrays of this size)
+#: outputs larger than this many pixels are refused: the output itself is a float64 array of this size per channel
 MAX_PIXELS = 10**8
+#: output pixels rasterised and sampled at once: :func:`warp_image`'s memory beyond its input and output is a few
+#: hundred bytes per tile pixel, whatever the output's size (measured at MAX_PIXELS, one uint8 channel: 82 MB
+#: above the 909 MB of the interpreter, the input and the float64 output; 27 CPU s)
+TILE_PIXELS = 2**18
+#: (triangle, pixel) pairs tested at once within a tile (about 15 float arrays of this length)
+CANDIDATE_BLOCK = 2**19
+#: image dtypes scipy's ``map_coordinates`` samples exactly as their float64 cast (other dtypes are cast first)
+_NATIVE = tuple(np.dtype(t) for t in ("u1", "u2", "i1", "i2", "i4", "f4", "f8"))
 
 
 def _check_points(name, X, n=None):
@@ -47,21 +55,86 @@ def _check_shape(shape):
     return h, w
 
 
-def _candidates(T, shape):
-    """All (triangle, pixel) pairs with the pixel centre in the triangle's bounding box, clipped to the image."""
+def _tiles(shape):
+    """Boxes (r0, r1, c0, c1) of at most :data:`TILE_PIXELS` pixels covering an image of ``shape``, row-major."""
     h, w = shape
+    cols = min(w, TILE_PIXELS)
+    rows = max(1, TILE_PIXELS // cols)
+    for r0 in range(0, h, rows):
+        for c0 in range(0, w, cols):
+            yield r0, min(r0 + rows, h), c0, min(c0 + cols, w)
+
+
+def _boxes(T, box):
+    """Per triangle, its first pixel (x, y) and pixel counts (nx, ny) of its bounding box clipped to ``box``."""
+    r0, r1, c0, c1 = box
     # clip before the integer cast: a vertex at 1e20 pixels overflowed int64 and the triangle drew nothing
-    lo = np.ceil(np.clip(T.min(axis=1), -1.0, [w, h])).astype(np.int64)
-    hi = np.floor(np.clip(T.max(axis=1), -1.0, [w, h])).astype(np.int64)
-    lo = np.maximum(lo, 0)
-    hi = np.minimum(hi, [w - 1, h - 1])
-    nx, ny = np.maximum(hi[:, 0] - lo[:, 0] + 1, 0), np.maximum(hi[:, 1] - lo[:, 1] + 1, 0)
+    lo = np.ceil(np.clip(T.min(axis=1), [c0 - 1.0, r0 - 1.0], [c1, r1])).astype(np.int64)
+    hi = np.floor(np.clip(T.max(axis=1), [c0 - 1.0, r0 - 1.0], [c1, r1])).astype(np.int64)
+    lo = np.maximum(lo, [c0, r0])
+    hi = np.minimum(hi, [c1 - 1, r1 - 1])
+    return lo, np.maximum(hi[:, 0] - lo[:, 0] + 1, 0), np.maximum(hi[:, 1] - lo[:, 1] + 1, 0)
+
+
+def _blocks(counts):
+    """Consecutive index ranges [a, b) whose counts sum to at most :data:`CANDIDATE_BLOCK` (or one index)."""
+    cum = np.concatenate([[0], np.cumsum(counts)])
+    a = 0
+    while a < len(counts):
+        b = max(a + 1, int(np.searchsorted(cum, cum[a] + CANDIDATE_BLOCK, side="right")) - 1)
+        yield a, b
+        a = b
+
+
+def _cover(T, det, box):
+    """Which triangle covers each pixel centre of ``box`` (the last one where they overlap), and where in it.
+
+    Parameters
+    ----------
+    T : (m,3,2) numpy array
+        The deformed triangles, in pixels.
+    det : (m,) numpy array
+        Twice their signed areas.
+    box : tuple of int
+        (r0, r1, c0, c1), rows and columns of the tile.
+
+    Returns
+    -------
+    face : (r1-r0,c1-c0) int numpy array
+        −1 where no triangle covers the pixel.
+    bary : (r1-r0,c1-c0,3) numpy array
+    """
+    r0, r1, c0, c1 = box
+    face = np.full((r1 - r0, c1 - c0), -1, dtype=np.int64)
+    bary = np.zeros((r1 - r0, c1 - c0, 3))
+    ok = np.flatnonzero(np.abs(det) > 1e-12)
+    lo, nx, ny = _boxes(T[ok], box)
     counts = nx * ny
-    tri = np.repeat(np.arange(len(T)), counts)
-    local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    px = lo[tri, 0] + local % nx[tri]
-    py = lo[tri, 1] + local // nx[tri]
-    return tri, px, py
+    hit = np.flatnonzero(counts)
+    ok, lo, nx, counts = ok[hit], lo[hit], nx[hit], counts[hit]
+    inv_det = 1.0 / det[ok]
+    e1, e2 = T[ok, 1] - T[ok, 0], T[ok, 2] - T[ok, 0]
+    for a, b in _blocks(counts):  # in triangle order: the last triangle over a pixel wins, as without tiles
+        c = counts[a:b]
+        i = np.repeat(np.arange(a, b), c)
+        local = np.arange(c.sum()) - np.repeat(np.cumsum(c) - c, c)
+        px, py = lo[i, 0] + local % nx[i], lo[i, 1] + local // nx[i]
+        # barycentric coordinates by Cramer's rule: [e1 e2] (l1, l2) = p − a
+        dx, dy = px - T[ok[i], 0, 0], py - T[ok[i], 0, 1]
+        l1 = (dx * e2[i, 1] - dy * e2[i, 0]) * inv_det[i]
+        l2 = (dy * e1[i, 0] - dx * e1[i, 1]) * inv_det[i]
+        l0 = 1.0 - l1 - l2
+        inside = (l0 >= -1e-9) & (l1 >= -1e-9) & (l2 >= -1e-9)
+        face[py[inside] - r0, px[inside] - c0] = ok[i[inside]]
+        bary[py[inside] - r0, px[inside] - c0] = np.column_stack([l0[inside], l1[inside], l2[inside]])
+    return face, bary
+
+
+def _triangles(X, F):
+    """The deformed triangles T (m,3,2) and twice their signed areas (m,)."""
+    T = X[F]
+    e1, e2 = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
+    return T, e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
 
 
 def rasterize(X, F, shape):
@@ -85,35 +158,25 @@ def rasterize(X, F, shape):
     X = _check_points("X", X)
     F = _check_faces(F, len(X))
     shape = _check_shape(shape)
-    T = X[F]  # (m,3,2)
-    e1, e2 = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    ok = np.flatnonzero(np.abs(det) > 1e-12)
-    tri, px, py = _candidates(T[ok], shape)
-    tri = ok[tri]
-    # barycentric coordinates by Cramer's rule: [e1 e2] (l1, l2) = p − a
-    inv_det = 1.0 / np.where(np.abs(det) > 1e-12, det, 1.0)
-    dx, dy = px - T[tri, 0, 0], py - T[tri, 0, 1]
-    l1 = (dx * e2[tri, 1] - dy * e2[tri, 0]) * inv_det[tri]
-    l2 = (dy * e1[tri, 0] - dx * e1[tri, 1]) * inv_det[tri]
-    l0 = 1.0 - l1 - l2
-    inside = (l0 >= -1e-9) & (l1 >= -1e-9) & (l2 >= -1e-9)
-    tri, px, py = tri[inside], px[inside], py[inside]
-    lam = np.column_stack([l0[inside], l1[inside], l2[inside]])
-    face = np.full(shape, -1, dtype=np.int64)
-    bary = np.zeros((*shape, 3))
-    face[py, px] = tri
-    bary[py, px] = lam
+    T, det = _triangles(X, F)
+    face = np.empty(shape, dtype=np.int64)
+    bary = np.empty((*shape, 3))
+    for r0, r1, c0, c1 in _tiles(shape):
+        face[r0:r1, c0:c1], bary[r0:r1, c0:c1] = _cover(T, det, (r0, r1, c0, c1))
     return face, bary
 
 
 def warp_image(image, V, X, F, shape=None, background=1.0):
     """Warp a picture by the map V → X, affine on each triangle.
 
+    The output is rasterised and sampled tile by tile (:data:`TILE_PIXELS`), so the memory beyond the input and
+    the output stays bounded up to :data:`MAX_PIXELS`; integer and float32 images are sampled without a float64
+    copy. Bit for bit the result of one tile.
+
     Parameters
     ----------
     image : (H,W) or (H,W,c) numpy array
-        The source picture, floats.
+        The source picture, real numbers (floats or integers).
     V : (n,2) numpy array
         Rest vertices in the source's pixels (x = column, y = row).
     X : (n,2) numpy array
@@ -126,25 +189,32 @@ def warp_image(image, V, X, F, shape=None, background=1.0):
 
     Returns
     -------
-    out : numpy array
+    out : float numpy array
         The warped picture, (height,width) or (height,width,c).
     """
     from scipy.ndimage import map_coordinates
 
-    image = opt.real_array("image", image)
+    image = opt.real_array("image", image, cast=False)
     if image.ndim not in (2, 3) or 0 in image.shape:
         raise ValueError(f"image must be a non-empty (H, W) or (H, W, c) array, got shape {image.shape}")
     V = _check_points("V", V)
     X = _check_points("X", X, len(V))
+    F = _check_faces(F, len(X))
     shape = _check_shape(image.shape[:2] if shape is None else shape)
-    face, bary = rasterize(X, F, shape)
-    inside = face >= 0
-    b, corners = bary[inside], V[np.asarray(F)[face[inside]]]  # (k,3), (k,3,2)
-    src = b[:, 0, None] * corners[:, 0] + b[:, 1, None] * corners[:, 1] + b[:, 2, None] * corners[:, 2]
+    T, det = _triangles(X, F)
     chans = image[..., None] if image.ndim == 2 else image
+    if chans.dtype not in _NATIVE:  # sampled as its float64 cast would be: cast once
+        chans = chans.astype(float)
     out = np.full((*shape, chans.shape[2]), float(background))
-    for c in range(chans.shape[2]):
-        out[inside, c] = map_coordinates(chans[..., c], [src[:, 1], src[:, 0]], order=1, mode="nearest")
+    for r0, r1, c0, c1 in _tiles(shape):
+        face, bary = _cover(T, det, (r0, r1, c0, c1))
+        inside = face >= 0
+        b, corners = bary[inside], V[F[face[inside]]]  # (k,3), (k,3,2)
+        src = b[:, 0, None] * corners[:, 0] + b[:, 1, None] * corners[:, 1] + b[:, 2, None] * corners[:, 2]
+        for c in range(chans.shape[2]):
+            out[r0:r1, c0:c1, c][inside] = map_coordinates(
+                chans[..., c], [src[:, 1], src[:, 0]], order=1, mode="nearest", output=np.float64
+            )
     return out[..., 0] if image.ndim == 2 else out
 
 
