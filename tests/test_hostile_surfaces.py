@@ -211,6 +211,11 @@ HOSTILE = [
     ("x.stl", b"solid x\n facet normal 0 0 0\n outer loop\n vertex 0 0 0\n vertex 1 0 0\n vertex 0 1 q\n endloop\n"
               b" endfacet\nendsolid\n", r"ASCII STL facet 0, coordinate 8 is not a number: 'q'"),
     ("x.vtk", b"# vtk DataFile", r"unknown format '\.vtk'"),
+    ("twice.ply", _ply_text(3, 1, "").replace(b"end_header", b"element face 0\nend_header"),
+     r"declares an element twice: vertex, face, face"),
+    ("vlist.ply", _ply_text(1, 1, "0 0 0 0\n3 0 0 0\n").replace(b"element face",
+                                                                 b"property list uchar int n\nelement face"),
+     r"the vertex element has list properties"),
 ]
 
 

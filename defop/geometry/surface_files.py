@@ -383,6 +383,8 @@ def _ply_header(data):
     if fmt is None:
         raise ValueError("the PLY header has no 'format ascii|binary_little_endian|binary_big_endian 1.0' line")
     names = [e[0] for e in elements]
+    if len(set(names)) < len(names):
+        raise ValueError(f"the PLY header declares an element twice: {', '.join(names)}")
     for need in ("vertex", "face"):
         if need not in names:
             raise ValueError(f"the PLY header declares no {need} element")
@@ -452,13 +454,16 @@ def _read_ply_ascii(data, elements, start, key, order):
             if name == "vertex":
                 names = [p for p, _ in props]
                 vals = _floats(tokens[pos : pos + n * k], lambda i, k=k: f"ASCII PLY vertex {i // k}, property {i % k}")
-                V = vals.reshape(n, k)[:, [names.index(c) for c in "xyz"]]
+                cols = [names.index(c) for c in "xyz"]  # rounded to the declared type, as binary PLY holds it
+                V = np.column_stack([vals[c::k].astype(props[c][1]).astype(np.float64) for c in cols])
             pos += n * k
         else:
             lists, pos = _ply_ascii_lists(tokens, pos, name, n, props, key)
             F = _fan(lists, lambda i: f"ASCII PLY face {i}") if name == "face" else F
     if pos != len(tokens):
         raise ValueError(f"ASCII PLY: {len(tokens) - pos:,} values are left after the elements its header declares")
+    if V is None:
+        raise ValueError("ASCII PLY: the vertex element has list properties (not read)")
     return V, F
 
 
