@@ -117,6 +117,7 @@ def test_every_format_reads_the_closed_box(tmp_path, name):
     assert s.V.shape == (12, 3) and s.F.shape == (20, 3) and _same_surface(s, ref)
     assert s.welded == (48 if name.endswith(".stl") else 0)  # STL: 60 corners, 12 points
     V, F = s  # unpacks like the (V, F) tuple it was
+    assert len(s) == 2 and s[0] is V and s[-1] is F
     surf.check_surface(V, F)
 
 
@@ -258,9 +259,9 @@ def test_paths_that_are_not_readable_files_say_what_they_are(tmp_path):
 
 _UNREADABLE = """
 import sys
-from defop.geometry.mesh import read_mesh
+from defop.geometry.mesh import Mesh
 from defop.geometry.volumetric.surface import read_surface
-for path, read in ((sys.argv[1], read_mesh), (sys.argv[2], read_surface)):
+for path, read in ((sys.argv[1], Mesh.load), (sys.argv[2], read_surface)):
     try:
         read(path)
     except ValueError as exc:

@@ -92,9 +92,8 @@ def signed_volumes(V, F):
         raise ValueError(f"F must have shape (m,{V.shape[-1] + 1}) for V of shape {V.shape}, got {F.shape}")
     if F.size and (F.dtype == bool or not np.issubdtype(F.dtype, np.integer)):
         raise ValueError(f"F must hold integer vertex indices, got dtype {F.dtype}")
-    bad = (F < 0) | (F >= len(V))
-    if bad.any():
-        t, j = (int(x) for x in np.argwhere(bad)[0])
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        t, j = (int(x) for x in np.argwhere((F < 0) | (F >= len(V)))[0])
         raise ValueError(f"element {t} of F indexes vertex {F[t, j].item()!r}, but V has {len(V)} vertices "
                          f"(valid indices 0 to {len(V) - 1})")
     P = V[F]

@@ -58,7 +58,7 @@ _COUNT = re.compile(r"[0-9]{1,19}")  # ASCII digits only: '²'.isdigit() is True
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class SurfaceFile:
-    """A triangle surface read from a file; unpacks as ``V, F = surface``.
+    """A triangle surface read from a file; it behaves as the tuple ``(V, F)`` (``V, F = surface``).
 
     Attributes
     ----------
@@ -82,6 +82,12 @@ class SurfaceFile:
 
     def __iter__(self):
         return iter((self.V, self.F))
+
+    def __len__(self):
+        return 2
+
+    def __getitem__(self, i):
+        return (self.V, self.F)[i]
 
 
 def check_file(path, what="file"):
