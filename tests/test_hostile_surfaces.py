@@ -172,7 +172,9 @@ def test_tolerance_welding_refuses_degenerate_or_non_manifold_results(tmp_path):
     two = np.vstack([V_BOX, V_BOX + [2 + 1e-9, 0, 0]])  # two boxes 1e-9 apart: their touching sides would fuse
     F2 = np.vstack([F_BOX, F_BOX + 12])
     path = write_obj(tmp_path / "two.obj", two, F2)
-    assert surf.read_surface(path, weld_tolerance=0).welded == 0
+    assert surf.read_surface(path, weld_tolerance=0).welded == 0  # 0: exact welding, in any format
+    assert surf.read_surface(write_obj(tmp_path / "dup.obj", np.vstack([V_BOX, V_BOX[:1]]), F_BOX),
+                             weld_tolerance=0).welded == 1
     with pytest.raises(ValueError, match=r"two\.obj: welding within 1e-06 × the diagonal puts edge \(\d+, \d+\) "
                                          r"in [34] triangles \(not a manifold\)"):
         surf.read_surface(path, weld_tolerance=1e-6)

@@ -129,8 +129,9 @@ def read_surface_file(path, weld_tolerance=None):
     path : str or pathlib.Path
         The format is chosen by the ending (:data:`SURFACE_FORMATS`, any case).
     weld_tolerance : float, optional
-        Also merge vertices closer than ``weld_tolerance`` × the bounding-box diagonal (:func:`weld`).
-        STL corners at exactly the same coordinates are always merged; other formats keep their vertices.
+        Also merge vertices closer than ``weld_tolerance`` × the bounding-box diagonal (:func:`weld`), in
+        any format; 0 merges exactly coincident ones. Without it, STL corners at exactly the same
+        coordinates are merged (STL shares no vertices) and the other formats keep their vertices.
 
     Returns
     -------
@@ -162,7 +163,7 @@ def read_surface_file(path, weld_tolerance=None):
             data = head + fh.read()
         V, F, fmt = parse_surface(data, ext)
         welded = 0
-        if ext == ".stl" or tol:
+        if ext == ".stl" or weld_tolerance is not None:
             V, F, welded = weld(V, F, tol)
     except ValueError as exc:
         raise ValueError(f"surface file {path}: {exc}") from None

@@ -71,7 +71,8 @@ def read_surface(path, weld_tolerance=None):
 #: least the lower. Within it, element volumes (diagonal³), squared distances and the solver's energies stay
 #: far inside float64's normal range (about 2.2e-308 to 1.8e308), and :func:`check_surface` judges a
 #: surface on coordinates normalised to a unit diagonal, so a box scaled by 1e-30 or 1e30 is judged like
-#: the unit box.
+#: the unit box. Scaling is free; distance from the origin is not: a surface about 1e15 of its diagonals
+#: from the origin has lost float64's precision there, and its collapsed triangles are called zero-area.
 COORDINATE_RANGE = (1e-50, 1e50)
 
 
