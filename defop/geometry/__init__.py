@@ -2,10 +2,11 @@
 
 :class:`Mesh` holds ``V (n, d)`` and ``F (m, d + 1)``. :mod:`.planar` makes planar meshes from polygons,
 implicit outlines and pictures (Triangle); :mod:`.volumetric` makes tetrahedral meshes of solids and closed
-surfaces (Kuhn cubes); :mod:`.fields` holds the implicit primitives both use.
+surfaces (Kuhn cubes); :mod:`.fields` holds the implicit primitives both use; :mod:`.surface_files` reads
+PLY, STL, OBJ and OFF files safely (counts checked before allocation, STL welded).
 """
 
-from . import fields, mesh, planar, volumetric
+from . import fields, mesh, planar, surface_files, volumetric
 from .mesh import Mesh, read_mesh, signed_areas, signed_volumes, write_mesh
 
 __all__ = [
@@ -13,6 +14,7 @@ __all__ = [
     "fields",
     "mesh",
     "planar",
+    "surface_files",
     "volumetric",
     "read_mesh",
     "signed_areas",

@@ -23,6 +23,8 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from .surface_files import MAX_FILE_ELEMENTS, check_file, parse_surface
+
 __all__ = [
     "Mesh",
     "read_mesh",
@@ -77,8 +79,23 @@ def signed_volumes(V, F):
     vol : (m,) numpy array
         Positive for counter-clockwise triangles and positively oriented tetrahedra (det J > 0),
         negative for flipped ones. Element-wise arithmetic: the same bits on every CPU.
+
+    Raises
+    ------
+    ValueError
+        F does not hold integer indices from 0 to n - 1 (a negative index would wrap around silently);
+        the message names the element, the index and the vertex count.
     """
     V = np.asarray(V, dtype=float)
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[1] != V.shape[-1] + 1:
+        raise ValueError(f"F must have shape (m,{V.shape[-1] + 1}) for V of shape {V.shape}, got {F.shape}")
+    if F.size and (F.dtype == bool or not np.issubdtype(F.dtype, np.integer)):
+        raise ValueError(f"F must hold integer vertex indices, got dtype {F.dtype}")
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        t, j = (int(x) for x in np.argwhere((F < 0) | (F >= len(V)))[0])
+        raise ValueError(f"element {t} of F indexes vertex {F[t, j].item()!r}, but V has {len(V)} vertices "
+                         f"(valid indices 0 to {len(V) - 1})")
     P = V[F]
     return _simplex_volumes(P[:, 0], P[:, 1:])
 
@@ -614,10 +631,6 @@ def write_mesh(path, mesh):
         raise ValueError(f"unknown mesh format {ext!r}; use .npz, .obj or .off")
 
 
-#: the most vertices or triangles a mesh file may declare (checked before anything is allocated)
-MAX_FILE_ELEMENTS = 10_000_000
-
-
 def read_mesh(path):
     """Read a mesh written by :func:`write_mesh` (or any planar OBJ/OFF).
 
@@ -639,9 +652,8 @@ def read_mesh(path):
     ext = path.suffix.lower()
     if ext not in (".npz", ".obj", ".off"):
         raise ValueError(f"mesh file {path}: unknown mesh format {ext!r}; use .npz, .obj or .off")
-    if not path.is_file():
-        raise ValueError(f"no such mesh file: {path}" if not path.exists() else f"mesh file {path} is not a file")
-    V, F = _read_npz(path) if ext == ".npz" else _read_igl(path, ext)
+    path = check_file(path, "mesh file")  # missing, a directory, a FIFO, no read permission: each said so
+    V, F = _read_npz(path) if ext == ".npz" else _read_text(path, ext)
     try:
         return Mesh(V, F)
     except ValueError as exc:
@@ -694,19 +706,15 @@ def _read_member(fh, path, key):
     return np.array(arr)
 
 
-def _read_igl(path, ext):
-    """V and F of an OBJ/OFF by libigl, after the OFF header's counts are checked against the file's size."""
+def _read_text(path, ext):
+    """V and F of an OBJ/OFF (numpy reader, :mod:`.surface_files`), the OFF header's counts checked first."""
     size = path.stat().st_size
     if ext == ".off":
         _check_off_header(path, size)
     try:
-        V, F = igl.read_triangle_mesh(str(path))
-    except (RuntimeError, ValueError, TypeError, MemoryError) as exc:
-        raise ValueError(f"mesh file {path} could not be read as {ext} ({type(exc).__name__}: {exc})") from None
-    V, F = np.asarray(V, dtype=float), np.asarray(F)
-    if V.ndim != 2 or F.ndim != 2 or len(V) == 0 or len(F) == 0:
-        raise ValueError(f"mesh file {path} holds no triangle mesh ({ext} read as {V.shape} vertices, "
-                         f"{F.shape} faces)")
+        V, F, _ = parse_surface(path.read_bytes(), ext)
+    except ValueError as exc:
+        raise ValueError(f"mesh file {path} could not be read as {ext} ({exc})") from None
     if V.shape[1] == 3:
         if np.abs(V[:, 2]).max(initial=0) > 0:
             raise ValueError(f"{path} is not planar (z is not 0)")

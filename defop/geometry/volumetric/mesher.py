@@ -118,7 +118,8 @@ def snap_boundary(V, T, target, h, min_volume=0.1, max_move=1.0, grow_rounds=6):
     """
     D = np.asarray(target, float) - V
     length = np.sqrt(D[:, 0] * D[:, 0] + D[:, 1] * D[:, 1] + D[:, 2] * D[:, 2])
-    D = D * np.minimum(1.0, max_move * h / np.maximum(length, 1e-300))[:, None]
+    reach = max_move * h  # longer moves are cut to this length (no division by a zero length: no overflow)
+    D = D * np.divide(reach, length, out=np.ones_like(length), where=length > reach)[:, None]
     floor = min_volume * h * h * h / 6
     t = _shrink_until_thick(V, T, D, np.ones(len(V)), floor)
     for _ in range(grow_rounds):  # then let the held-back vertices go further, where that stays thick

@@ -2,8 +2,11 @@
 
 A surface is ``V (n, 3)`` and ``F (k, 3)``. :func:`check_surface` rejects what cannot bound a solid:
 an open surface, an edge in more than two triangles, inconsistent orientation, a pinched vertex, and
-triangles that cross each other (:func:`self_intersections`). Inside is decided by libigl's
-generalised winding number (``igl.winding_number``, core libigl, MPL-2.0; exact, not the fast
+triangles that cross each other (:func:`self_intersections`); it judges the surface scaled to a unit
+bounding-box diagonal, so the supported coordinates (:data:`COORDINATE_RANGE`: magnitudes up to 1e50, a
+diagonal of at least 1e-50) are all judged alike. :func:`read_surface` reads PLY, STL, OBJ and OFF files
+(:mod:`defop.geometry.surface_files`: counts checked before anything is allocated, STL welded). Inside is
+decided by libigl's generalised winding number (``igl.winding_number``, core libigl, MPL-2.0; exact, not the fast
 approximation), the boundary of the tetrahedral mesh is snapped to the closest surface point
 (``igl.point_mesh_squared_distance``); :meth:`defop.geometry.mesh.Mesh.locate` gives each surface vertex
 its tetrahedron and barycentric coordinates, so the fine surface can be drawn deformed.
@@ -25,6 +28,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ..mesh import check_closed_surface, signed_volumes
+from ..surface_files import read_surface_file
 from .mesher import grid_spacing, tet_mesh
 
 __all__ = [
@@ -32,6 +36,8 @@ __all__ = [
     "self_intersections",
     "surface_mesh",
     "read_surface",
+    "normalised",
+    "COORDINATE_RANGE",
     "enclosed_volume",
     "inside_surface",
     "surface_projector",
@@ -40,16 +46,66 @@ __all__ = [
 ]
 
 
-def read_surface(path):
-    """A triangle surface from a file libigl reads (PLY, OBJ, OFF, STL, ...), without PyVista.
+def read_surface(path, weld_tolerance=None):
+    """A triangle surface from a PLY, STL, OBJ or OFF file (numpy readers, counts checked before allocation).
+
+    STL corners at exactly the same coordinates are welded (a closed STL reads as a closed surface);
+    ``weld_tolerance`` also merges vertices within that fraction of the bounding-box diagonal, and
+    refuses welding that creates degenerate or non-manifold triangles. See
+    :func:`defop.geometry.surface_files.read_surface_file`, which documents the checks.
 
     Returns
     -------
-    V : (n, 3) numpy array
-    F : (k, 3) int numpy array
+    surface : defop.geometry.surface_files.SurfaceFile
+        Unpacks as ``V (n, 3), F (k, 3) = surface``; ``surface.welded`` is how many vertices were merged.
+
+    Raises
+    ------
+    ValueError
+        A missing, unreadable, empty, malformed or oversized file, or a directory; the message names the file.
     """
-    V, F = igl.read_triangle_mesh(str(path))
-    return np.asarray(V, float), np.asarray(F, np.int64)
+    return read_surface_file(path, weld_tolerance=weld_tolerance)
+
+
+#: the supported coordinates: every |coordinate| at most the upper bound, the bounding-box diagonal at
+#: least the lower. Within it, element volumes (diagonal³), squared distances and the solver's energies stay
+#: far inside float64's normal range (about 2.2e-308 to 1.8e308), and :func:`check_surface` judges a
+#: surface on coordinates normalised to a unit diagonal, so a box scaled by 1e-30 or 1e30 is judged like
+#: the unit box. Scaling is free; distance from the origin is not: a surface about 1e15 of its diagonals
+#: from the origin has lost float64's precision there, and its collapsed triangles are called zero-area.
+COORDINATE_RANGE = (1e-50, 1e50)
+
+
+def normalised(V, what="the surface"):
+    """V moved and scaled to a unit bounding-box diagonal, centred at 0, after the range check.
+
+    Parameters
+    ----------
+    V : (n, 3) finite numpy array
+
+    Returns
+    -------
+    Vn : (n, 3) numpy array
+        ``(V - centre) / diagonal``.
+    diagonal : float
+
+    Raises
+    ------
+    ValueError
+        A coordinate above ``COORDINATE_RANGE[1]`` in magnitude or a diagonal below ``COORDINATE_RANGE[0]``
+        (also all vertices at one point).
+    """
+    lo, hi = COORDINATE_RANGE
+    big = float(np.abs(V).max(initial=0.0))
+    if big > hi:
+        raise ValueError(f"{what} has a coordinate of magnitude {big:.3g}; supported coordinates are at most "
+                         f"{hi:g} (defop.geometry.volumetric.surface.COORDINATE_RANGE): rescale it")
+    diag = big * float(np.linalg.norm(np.ptp(V / big, axis=0))) if big > 0 else 0.0
+    if not diag >= lo:
+        raise ValueError(f"{what} has a bounding-box diagonal of {diag:.3g}; the supported diagonal is at least "
+                         f"{lo:g} (defop.geometry.volumetric.surface.COORDINATE_RANGE): rescale it")
+    centre = 0.5 * (V.min(axis=0) + V.max(axis=0))
+    return (V - centre) / diag, diag
 
 
 def _as_surface(V, F):
@@ -187,23 +243,29 @@ def check_surface(V, F, self_intersection=True, overlapping_parts=False):
     Raises
     ------
     ValueError
-        Wrong shapes or indices, unused vertices, zero-area triangles, an open or non-manifold
-        surface, inconsistent orientation, a pinched vertex, or two triangles that cross; the
-        message names the edge, vertex or triangles.
+        Wrong shapes or indices, unused vertices, coordinates outside :data:`COORDINATE_RANGE`,
+        zero-area triangles, an open or non-manifold surface, inconsistent orientation, a pinched
+        vertex, or two triangles that cross; the message names the edge, vertex or triangles.
+
+    Notes
+    -----
+    The tests run on the surface moved and scaled to a unit bounding-box diagonal (:func:`normalised`),
+    so their tolerances are relative: a closed box scaled by 1e-30 or 1e30 passes like the unit box.
     """
     V, F = _as_surface(V, F)
-    a2 = _triangle_areas2(V, F)
-    ext = np.ptp(V, axis=0).max()
+    Vn = normalised(V)[0]  # every test below is on a unit diagonal: the same verdict at any supported scale
+    a2 = _triangle_areas2(Vn, F)
+    ext = np.ptp(Vn, axis=0).max()
     tiny = a2 <= (1e-12 * ext * ext) ** 2
     if tiny.any():
         raise ValueError(
             f"{int(tiny.sum())} surface triangles have zero area, first is triangle {int(np.flatnonzero(tiny)[0])}"
         )
     check_closed_surface(F, what="the surface")
-    if enclosed_volume(V, F) < 0:
+    if enclosed_volume(Vn, F) < 0:
         F = np.ascontiguousarray(F[:, [0, 2, 1]])
     if self_intersection:
-        bad = self_intersections(V, F, within_parts_only=overlapping_parts)
+        bad = self_intersections(Vn, F, within_parts_only=overlapping_parts)
         if len(bad):
             i, j = (int(x) for x in bad[0])
             hint = (
