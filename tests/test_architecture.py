@@ -8,6 +8,7 @@ public face, and that the core loads no plotting or widget library at run time.
 from __future__ import annotations
 
 import ast
+import functools
 import inspect
 import os
 import shutil
@@ -216,6 +217,7 @@ OVER_WITH_BASES = {"defop.variational.solver.Solver": 424, "defop.operator.handl
 MAX_CLASS_LINES = 300
 
 
+@functools.cache
 def _formatted_spans(path):
     """{top-level class name: its lines} of a file as ``ruff format`` writes it (the house's formatted source)."""
     ruff = shutil.which("ruff") or str(Path(sys.executable).with_name("ruff"))
@@ -238,6 +240,7 @@ def _formatted_spans(path):
     }
 
 
+@functools.lru_cache(maxsize=1)
 def class_sizes():
     """{class: (lines, defop bases)} of every class in defop, with its defop bases and mixins counted with it."""
     import importlib
