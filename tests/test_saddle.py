@@ -8,6 +8,8 @@ of ``verify`` sees that negative curvature (its shift is taken from the median d
 held triangles' stiff modes dominate).
 """
 
+import inspect
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -16,6 +18,7 @@ from hypothesis import strategies as st
 import defop as dop
 from defop.analysis import saddle as sd
 from defop.analysis.branches import one_moving
+from defop.variational import kink
 from defop.variational import problem as pb
 
 
@@ -162,3 +165,43 @@ def test_the_pass_refuses_a_tet_mesh():
         sd.mountain_pass(S, shape.targets(shape.P_moving), free, V, V + 0.01)
     with pytest.raises(ValueError, match="triangle Jacobians"):
         sd.held_constraints(S, V)
+
+
+def test_every_exact_factorisation_of_a_solve_takes_the_one_shift(bar):
+    """One inertia-shift policy (issue 35): besides Newton's own steps (``newton_direction``'s default), every
+    factorisation of a solve (check 5, the held set's pull in ``kink_active_set``, ``kink_gap``, the certificate)
+    shifts by :func:`defop.variational.inertia.inertia_shift`. The kink code used ``INERTIA_SHIFT`` of the mean."""
+    from defop.variational.inertia import INERTIA_SHIFT, inertia_shift
+
+    shape, _, T, _, _ = bar
+    S = dop.variational.solver.Solver(shape.mesh, shape.handles, "sarap")
+    V = shape.mesh.V
+    bump = np.sin(np.pi * (V[:, 0] - V[:, 0].min()) / np.ptp(V[:, 0]))
+    shifts, solve = [], S.hessian.solve
+
+    def spy(data, b, rel_shift):
+        shifts.append((rel_shift, inertia_shift(S, data)))
+        return solve(data, b, rel_shift)
+
+    S.hessian.solve = spy
+    assert S.solve(T, X0=V + np.column_stack([0 * bump, 0.1 * bump])).converged
+    newton = inspect.signature(S.newton_direction).parameters["rel_shift"].default
+    other = [(got, policy) for got, policy in shifts if got != newton]
+    assert len(other) >= 2  # the held set's pull and check 5 at least
+    assert all(got == policy for got, policy in other)
+    assert max(policy for _, policy in other) < 1e-3 * INERTIA_SHIFT  # held triangles: the mean's shift is far larger
+
+
+def test_the_held_hessian_at_the_saddle_shows_its_negative_curvature(bar, climb):
+    """With the held triangles on the kink (the system of ``kink_active_set`` and ``kink_gap``), the one policy's
+    shift keeps the saddle's negative eigenvalue that ``INERTIA_SHIFT`` of the mean hid."""
+    from defop.variational.inertia import INERTIA_SHIFT, inertia_shift
+
+    _, S, _, _, _ = bar
+    E, g, data, _ = S.grad_hess(climb[1].X, 0.0, project=False, kink=S._kink)
+    negative = {}
+    for name, shift in (("old", INERTIA_SHIFT), ("one", inertia_shift(S, data))):
+        S.newton_direction(g[S.free], data, rel_shift=shift)
+        negative[name] = S.hessian.inertia()
+    assert negative == {"old": 0, "one": 1}
+    assert kink.newton_decrement(S, climb[1].X, 0.0)[2] == 1  # the certificate's factorisation

@@ -7,6 +7,7 @@ saddle, and one regression test per case of the issue.
 
 from __future__ import annotations
 
+import inspect
 import warnings
 
 import numpy as np
@@ -486,3 +487,17 @@ def test_solve_best_skips_rejected_starts():
     assert any(lab.startswith("start 0 (rejected") for lab, _, _ in res.candidates)
     first = solver.solve_best(T, starts=[None, res.X], keep="first")
     assert first.converged and first.start == "start 1" and first.iterations <= 3  # one per μ stage
+
+
+def test_the_held_set_lives_below_newton_and_verify_keeps_its_names():
+    """Issue 35: held_on_kink, kink_pull and kink_gap moved to :mod:`defop.variational.kink` (newton uses them and no
+    longer imports verify, which imports newton); verify keeps the names. One shift: :mod:`.inertia`."""
+    import importlib
+
+    verify, kink, inertia = (importlib.import_module(f"defop.variational.{m}") for m in ("verify", "kink", "inertia"))
+    for name in ("held_on_kink", "kink_pull", "kink_gap"):
+        assert getattr(verify, name) is getattr(kink, name)
+    assert verify.inertia_shift is inertia.inertia_shift and verify.INERTIA_SHIFT == inertia.INERTIA_SHIFT
+    newton = importlib.import_module("defop.variational.newton")
+    assert not hasattr(newton, "verify")
+    assert "shift" not in inspect.signature(kink.newton_decrement).parameters  # the policy's, not the caller's

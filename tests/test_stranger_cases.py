@@ -265,7 +265,8 @@ def test_the_old_check_4_passed_star_3273_and_verify_now_rejects_that_point(monk
     mesh, h, T = _star_3273()
     solver = dop.variational.Solver(mesh, h, "sarap")
     no_pull = lambda solver, X, local, p, hold: (0.0, None, None, [], 0.0)  # noqa: E731
-    monkeypatch.setattr(dop.variational.verify, "kink_pull", no_pull)
+    monkeypatch.setattr(dop.variational.verify, "kink_pull", no_pull)  # check 4
+    monkeypatch.setattr(dop.variational.kink, "kink_pull", no_pull)  # the releases of kink_active_set, kink_gap
     old = solver.solve(T)
     assert old.converged and old.start == "rest"
     monkeypatch.undo()

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.planar.outlines import load_image
-from .state import reach_polygons
+from ..operator.defop import training_reach
+from .logic import reach_polygons
 
 JS_PATH = Path(__file__).with_name("static") / "defop_editor.js"
 _DTYPES = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u1": np.uint8}
@@ -65,9 +66,7 @@ def region_balls(P, regions=None, samples=None):
     balls : list of list of (4,) numpy array
     """
     P = np.asarray(P, float)
-    reach = None
-    if samples is not None and len(samples) > 1:
-        reach = np.linalg.norm(np.asarray(samples, float) - P, axis=-1).max(axis=0)
+    reach = training_reach(P, samples)  # the operator's one definition of the reach
     out = []
     for i, p in enumerate(P):
         region = regions[i] if regions is not None else None
@@ -92,7 +91,7 @@ def defop_to_payload(op, regions=None):
         Uses the compressed factors ``(A, B)`` of W_F when present, otherwise W_F (W[1:] with the handle
         columns zeroed) as a single factor: the page evaluates (★) of :mod:`defop.operator.defop`.
     regions : list of list of (k,2) numpy array, optional
-        Sampling-region polygons per moving handle (:func:`defop.editor.state.region_polygons`), or in 3D
+        Sampling-region polygons per moving handle (:func:`defop.editor.logic.region_polygons`), or in 3D
         balls ``[cx, cy, cz, r]`` (:func:`region_balls`); default: discs (balls) through the farthest
         training sample.
 
@@ -238,8 +237,10 @@ def image_payload(image, V_px):
     img = load_image(image)
     H, W = img.shape[:2]
     if max(H, W) > MAX_IMAGE_SIDE:
-        raise ValueError(f"the picture is {W} x {H} pixels; the page takes at most {MAX_IMAGE_SIDE} per side "
-                         f"(downscale it, e.g. skimage.transform.rescale, and its pixel frame with it)")
+        raise ValueError(
+            f"the picture is {W} x {H} pixels; the page takes at most {MAX_IMAGE_SIDE} per side "
+            f"(downscale it, e.g. skimage.transform.rescale, and its pixel frame with it)"
+        )
     V_px = np.asarray(V_px, dtype=float)
     if V_px.ndim != 2 or V_px.shape[1] != 2 or not np.isfinite(V_px).all():
         raise ValueError(f"V_px must be a finite (n_vertices, 2) array, got shape {V_px.shape}")
@@ -247,13 +248,17 @@ def image_payload(image, V_px):
     gap = np.maximum(lo - V_px, 0).max(axis=1) + np.maximum(V_px - hi, 0).max(axis=1)
     if gap.max() > 1.0:
         i = int(np.argmax(gap))
-        raise ValueError(f"vertex {i} maps to pixel ({V_px[i, 0]:.1f}, {V_px[i, 1]:.1f}), {gap[i]:.1f} px outside "
-                         f"the {W} x {H} picture: image_frame must map the mesh to this picture's pixels "
-                         f"(x = column, y = row down)")
+        raise ValueError(
+            f"vertex {i} maps to pixel ({V_px[i, 0]:.1f}, {V_px[i, 1]:.1f}), {gap[i]:.1f} px outside "
+            f"the {W} x {H} picture: image_frame must map the mesh to this picture's pixels "
+            f"(x = column, y = row down)"
+        )
     png = _png(img)
     if len(png) > MAX_IMAGE_BYTES:
-        raise ValueError(f"the picture is {len(png) / 2**20:.1f} MiB as PNG; the page takes at most "
-                         f"{MAX_IMAGE_BYTES / 2**20:.0f} MiB (downscale it)")
+        raise ValueError(
+            f"the picture is {len(png) / 2**20:.1f} MiB as PNG; the page takes at most "
+            f"{MAX_IMAGE_BYTES / 2**20:.0f} MiB (downscale it)"
+        )
     uv = ((V_px + 0.5) / [W, H]).astype(np.float32)
     return {"image_png": np.frombuffer(png, np.uint8), "uv": uv, "image_size": [int(W), int(H)]}
 

@@ -4,6 +4,10 @@ This is the pure part of the interactive editor (issue #18): a view (the in-page
 :mod:`defop.editor.browser`, or a matplotlib figure) draws it and calls its methods; tests drive the same
 methods. Nothing here imports matplotlib, ipywidgets or anywidget.
 
+The editor is split in two: this module holds the state (:class:`EditorState`, its setters and the readout), and
+:mod:`defop.editor.logic` the logic as pure functions (argument checks, the region tests, training a basis on first
+use, the distance to the ground truth, the restore of a rejected call), which stay importable from here.
+
 Example
 -------
 >>> state = EditorState("bar", m=40)                 # doctest: +SKIP
@@ -15,8 +19,6 @@ Example
 
 from __future__ import annotations
 
-import contextlib
-import numbers
 import time
 import warnings
 
@@ -25,105 +27,32 @@ import numpy as np
 from .. import options as opt
 from ..operator.defop import ExtrapolationWarning
 from ..operator.handle_bases import KINDS
-from ..scene.shapes import Shape
-from ..scene.shapes import load as load_shape
-from ..training.bootstrap import DEFAULT_M, min_samples, train
 from ..variational.solver import NotConvergedWarning, Solver
+from .logic import (
+    STATE,
+    check_flag,
+    check_index,
+    check_Q,
+    check_shape,
+    ground_truth_error,
+    inside_polygon,
+    outside_regions,
+    reach_polygons,
+    region_polygons,
+    restoring,
+    train_operator,
+)
 
-
-def region_polygons(P, regions, n=96):
-    """The sampling region of every moving handle as closed polygons (§3.3).
-
-    A handle is inside its region when it is inside any of its polygons: for a Gaussian region that is
-    the 2σ circle, for a mixture the union of its components.
-
-    Parameters
-    ----------
-    P : (n,2) numpy array
-        Rest positions of the moving handles.
-    regions : list of dict
-        One region per moving handle, as in :class:`defop.scene.shapes.Shape`.
-    n : int
-        Points per circle.
-
-    Returns
-    -------
-    polygons : list of list of (k,2) numpy array
-    """
-    from ..view.plot import region_outlines  # numpy only; plot.py is where the region outlines are defined today
-
-    P = np.asarray(P, float)
-    return [[poly for poly, _style in region_outlines(c, r, P, i, n) if len(poly) >= 3] for i, (c, r) in
-            enumerate(zip(P, regions, strict=True))]
-
-
-def reach_polygons(P, samples, n=96):
-    """Discs through the farthest training sample of each moving handle (when no regions are known).
-
-    Parameters
-    ----------
-    P : (n,2) numpy array
-    samples : (m,n,2) numpy array or None
-
-    Returns
-    -------
-    polygons : list of list of (k,2) numpy array
-        Empty lists when there are no samples.
-    """
-    P = np.asarray(P, float)
-    if samples is None or len(samples) < 2:
-        return [[] for _ in P]
-    reach = np.linalg.norm(np.asarray(samples, float) - P, axis=-1).max(axis=0)
-    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
-    unit = np.column_stack([np.cos(t), np.sin(t)])
-    return [[p + r * unit] for p, r in zip(P, reach)]
-
-
-def inside_polygon(q, poly):
-    """Even-odd point-in-polygon test (the same rule as ``insidePolygon`` in the page).
-
-    Parameters
-    ----------
-    q : (2,) numpy array
-    poly : (k,2) numpy array
-
-    Returns
-    -------
-    bool
-    """
-    x, y = opt.point("q", q)
-    poly = opt.points("poly", poly)
-    xi, yi = poly[:, 0], poly[:, 1]
-    xj, yj = np.roll(xi, 1), np.roll(yi, 1)
-    crosses = (yi > y) != (yj > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xs = (xj - xi) * (y - yi) / (yj - yi) + xi
-    return bool(np.count_nonzero(crosses & (x < xs)) % 2)
-
-
-def ground_truth_error(mesh, X, X_gt):
-    """Distance between the approximation and the ground truth, relative to the bounding-box diagonal.
-
-    Parameters
-    ----------
-    mesh : defop.geometry.mesh.Mesh
-    X, X_gt : (n,2) numpy array
-
-    Returns
-    -------
-    dict
-        ``rms``: the L2(Ω) distance / |Ω|^½ (lumped mass), ``max``: the largest vertex distance, both
-        divided by the diagonal; ``flips_gt``: flipped triangles of the ground truth.
-    """
-    d = np.asarray(X, float) - np.asarray(X_gt, float)
-    mass = np.asarray(mesh.mass_matrix.diagonal())
-    diag = mesh.bbox_diagonal
-    rms = float(np.sqrt(np.sum(mass * np.sum(d * d, axis=1)) / np.sum(mass)))
-    return {
-        "rms": rms / diag,
-        "max": float(np.max(np.linalg.norm(d, axis=1))) / diag,
-        "flips_gt": int(np.sum(mesh.flipped(X_gt))),
-    }
+#: the pure functions' home is :mod:`.logic` (the split of the editor: logic there, state here); importable from here
+__all__ = [
+    "EditorState",
+    "ground_truth_error",
+    "ground_truth_text",
+    "inside_polygon",
+    "reach_polygons",
+    "readout_text",
+    "region_polygons",
+]
 
 
 class EditorState:
@@ -177,17 +106,21 @@ class EditorState:
         :func:`ground_truth_error` of the last ground truth.
     """
 
-    def __init__(self, shape, operators=None, *, basis="tps", energy="sarap", m=None, kinds=KINDS, trainer=None,
-                 solver=None, pick_radius=0.05, train_kw=None):
-        if isinstance(shape, str):
-            shape = load_shape(shape)
-        elif not isinstance(shape, Shape):
-            raise ValueError(f"shape must be a Shape or the name of one (dop.shapes.names()), got "
-                             f"{type(shape).__name__} {shape!r:.80}")
-        if shape.mesh.dim != 2:
-            raise ValueError(f"shape must be a 2D shape for the editor (drags in the plane), got the {shape.mesh.dim}D "
-                             f"shape {shape.name!r}: write the 3D page instead, defop.editor.to_html(op, path, "
-                             f"shape=shape), and show it with IPython.display.IFrame(path)")
+    def __init__(
+        self,
+        shape,
+        operators=None,
+        *,
+        basis="tps",
+        energy="sarap",
+        m=None,
+        kinds=KINDS,
+        trainer=None,
+        solver=None,
+        pick_radius=0.05,
+        train_kw=None,
+    ):
+        shape = check_shape(shape)
         self.kinds = tuple(kinds)
         for kind in [basis, *(operators or {})]:
             if kind not in self.kinds:
@@ -195,8 +128,6 @@ class EditorState:
         pick_radius = opt.positive("pick_radius", pick_radius)
         if m is not None:
             m = opt.integer("m", m, minimum=1)
-        if shape.n_moving == 0:
-            raise ValueError(f"shape {shape.name!r} has no moving handle to drag")
         self.shape, self.mesh, self.energy, self.m = shape, shape.mesh, energy, m
         self.train_kw = dict(train_kw or {})
         self.operators = dict(operators or {})
@@ -228,11 +159,7 @@ class EditorState:
             if self.trainer is not None:
                 op = self.trainer(self.shape, kind)
             else:
-                kw = {"energy": self.energy, "basis": kind, "progress": False, **self.train_kw}
-                if "samples" not in kw:
-                    m = DEFAULT_M if self.m is None else int(self.m)
-                    kw["m"] = max(m, min_samples(kind, self.shape.n_moving))
-                op, _record = train(self.shape, **kw)
+                op = train_operator(self.shape, kind, self.energy, self.m, self.train_kw)
             op.check_mesh(self.mesh)
             self.operators[kind] = op
         return self.operators[kind]
@@ -242,20 +169,10 @@ class EditorState:
         """The DefOp of the current basis."""
         return self.get_operator(self.kind)
 
-    # every setter below runs inside _atomic: it validates first, and whatever fails later (an operator that
-    # returns NaN, a solver error) restores the state as it was, so a rejected call changes nothing
-    _STATE = ("Q", "X", "flipped", "eval_time", "kind", "gt_enabled", "X_gt", "Q_gt", "gt_result", "gt_error",
-              "gt_time", "active")
-
-    @contextlib.contextmanager
     def _atomic(self):
-        saved = {name: getattr(self, name, None) for name in self._STATE}
-        try:
-            yield
-        except BaseException:
-            for name, value in saved.items():
-                setattr(self, name, value)
-            raise
+        """Every setter runs inside this (:func:`.logic.restoring`): it validates first, and whatever fails later (an
+        operator that returns NaN, a solver error) restores :data:`.logic.STATE`, so a rejected call changes nothing."""
+        return restoring(self, STATE)
 
     def set_basis(self, kind):
         """Switch the handle basis Ψ (training it on first use) and re-evaluate at the same Q."""
@@ -269,34 +186,19 @@ class EditorState:
     # ------------------------------------------------------------------ handles
     def set_Q(self, Q):
         """Move all moving handles to ``Q (n,2)`` and re-evaluate (the ground truth too, when on)."""
-        Q = self._check_Q(Q)
+        Q = check_Q(Q, self.P)
         with self._atomic():
             self._move(Q)
             if self.gt_enabled:
                 self.update_ground_truth()
 
-    def _check_Q(self, Q):
-        Q = opt.real_array("Q", Q)
-        if Q.shape != self.P.shape:
-            raise ValueError(f"Q must have shape {self.P.shape} (the moving handles), got {Q.shape}")
-        bad = ~np.isfinite(Q).all(axis=1)
-        if bad.any():
-            raise ValueError(f"handle {int(np.flatnonzero(bad)[0])} has a NaN or infinite position")
-        return np.array(Q, dtype=float)
-
     def _move(self, Q):
-        self.Q = self._check_Q(Q)
+        self.Q = check_Q(Q, self.P)
         self._evaluate()
-
-    def _check_index(self, i):
-        i = opt.integer("handle index", i)  # 1.5 was truncated to 1
-        if not 0 <= i < len(self.P):
-            raise ValueError(f"handle index {i} is out of range 0..{len(self.P) - 1}")
-        return i
 
     def set_handle(self, i, q):
         """Move moving handle ``i`` to ``q (2,)`` and re-evaluate (a scalar ``q`` is refused, not broadcast)."""
-        i = self._check_index(i)
+        i = check_index(i, len(self.P))
         Q = self.Q.copy()
         Q[i] = opt.point("q", q)
         self.set_Q(Q)
@@ -365,8 +267,7 @@ class EditorState:
         -------
         list of int
         """
-        Q = self.Q if Q is None else opt.points("Q", Q, n=len(self.P))
-        return [i for i, polys in enumerate(self.regions) if polys and not any(inside_polygon(Q[i], p) for p in polys)]
+        return outside_regions(self.Q if Q is None else opt.points("Q", Q, n=len(self.P)), self.regions)
 
     def _evaluate(self):
         t0 = time.perf_counter()
@@ -389,11 +290,9 @@ class EditorState:
 
     def set_ground_truth(self, enabled):
         """Turn the ground truth on (solving it at the current Q) or off (``enabled``: True or False)."""
-        if not isinstance(enabled, (bool, np.bool_)) and not (
-                isinstance(enabled, numbers.Integral) and enabled in (0, 1)):
-            raise ValueError(f"enabled must be True or False, got {enabled!r}")  # bool("off") is True
+        enabled = check_flag("enabled", enabled)
         with self._atomic():
-            self.gt_enabled = bool(enabled)
+            self.gt_enabled = enabled
             if self.gt_enabled:
                 self.update_ground_truth()
             else:
@@ -449,8 +348,10 @@ def ground_truth_text(state):
         return ""
     e = state.gt_error
     conv = "" if getattr(state.gt_result, "converged", True) else " (solver NOT converged)"
-    return (f"ground truth: {1e3 * state.gt_time:.0f} ms{conv}, {e['flips_gt']} flips; error rms "
-            f"{100 * e['rms']:.2f}% / max {100 * e['max']:.2f}% of the diagonal")
+    return (
+        f"ground truth: {1e3 * state.gt_time:.0f} ms{conv}, {e['flips_gt']} flips; error rms "
+        f"{100 * e['rms']:.2f}% / max {100 * e['max']:.2f}% of the diagonal"
+    )
 
 
 def readout_text(state):
@@ -464,8 +365,10 @@ def readout_text(state):
     -------
     str
     """
-    parts = [f"{state.kind}: evaluation {1e3 * state.eval_time:.2f} ms",
-             f"flipped triangles: {int(state.flipped.sum())}"]
+    parts = [
+        f"{state.kind}: evaluation {1e3 * state.eval_time:.2f} ms",
+        f"flipped triangles: {int(state.flipped.sum())}",
+    ]
     outside = state.outside_regions()
     if outside:
         parts.append(f"handle {', '.join(map(str, outside))} outside its sampling region (extrapolation)")

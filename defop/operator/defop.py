@@ -54,6 +54,30 @@ class ExtrapolationWarning(UserWarning):
     """A handle configuration far outside the sampled region: the operator extrapolates."""
 
 
+def training_reach(P, samples):
+    """The reach of a trained operator: per moving handle, the distance from rest to its farthest training sample.
+
+    The one definition: :class:`DefOp` warns beyond :data:`EXTRAPOLATION_FACTOR` times it
+    (:func:`check_extrapolation`), and the editor draws it as the sampling region when none is known
+    (:func:`defop.editor.logic.reach_polygons`, :func:`defop.editor.payload.region_balls`).
+
+    Parameters
+    ----------
+    P : (n,d) numpy array
+        Rest positions of the moving handles.
+    samples : (m,n,d) numpy array or None
+        The training configurations Q_k.
+
+    Returns
+    -------
+    reach : (n,) numpy array or None
+        None without at least 2 samples.
+    """
+    if samples is None or len(samples) < 2:
+        return None
+    return np.linalg.norm(np.asarray(samples, float) - np.asarray(P, float), axis=-1).max(axis=0)
+
+
 class DefOp:
     """A trained closed-form deformation operator, evaluated as (★) in the module docstring.
 
@@ -103,11 +127,9 @@ class DefOp:
 
         self.meta = {"version": __version__, **(meta or {})}
         self.train_samples = None if train_samples is None else np.asarray(train_samples, float)
-        self._reach = None
+        self._reach = training_reach(self.P, self.train_samples)  # (n,) or None
         self._far2 = None  # per handle: |Q_j − P_j|² below this is not beyond 1.5x its reach (the fast check)
-        if self.train_samples is not None and len(self.train_samples) > 1:
-            self._reach = np.linalg.norm(self.train_samples - self.P, axis=-1).max(axis=0)  # (n,)
-            # the factor 1 − 1e-9 covers the rounding of the two ways of summing the squares
+        if self._reach is not None:  # the factor 1 − 1e-9 covers the rounding of the two ways of summing the squares
             self._far2 = (EXTRAPOLATION_FACTOR * self._reach) ** 2 * (1.0 - 1e-9)
         self.fit_time = self.fold_time = None
         # (★): x, the moving handles' coordinate columns, and W_F = W[1:] without the handle columns

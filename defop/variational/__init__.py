@@ -7,7 +7,9 @@ The modules, lowest first:
 - :mod:`.energies`: ψ of a Jacobian's singular values with its projected Hessian, one face over the closed forms
   of :mod:`.planar` (2×2);
 - :mod:`.problem`: problem (6) reduced to the free vertices, the Hessian's sparsity pattern and its LDLᵀ;
-- :mod:`.verify`: the five checks behind ``converged``; :mod:`.newton`: stages, line search, continuation;
+- :mod:`.inertia`: the one diagonal shift of an exact-Hessian factorisation; :mod:`.kink`: S-ARAP's kink (the held
+  set, its pull and certificates, the smoothing continuation);
+- :mod:`.newton`: stages, line search, continuation; :mod:`.verify`: the five checks behind ``converged``;
   :mod:`.saddle`: negative curvature and escapes;
 - :mod:`.solver`: the :class:`Solver` facade; :mod:`.baselines`: L-BFGS and libigl's ARAP.
 

@@ -19,6 +19,10 @@ local minimum, each by a Fenchel / smoothing argument rather than by a Newton de
   constraints than free dofs), so :func:`fenchel_gap` with the solver's split can exceed the true gap; this
   certificate needs no split.
 
+The held set itself: :func:`held_on_kink` (which elements sit on a kink set), :func:`kink_pull` (the pull of the
+rest of the mesh on them, from a Newton direction) and :func:`kink_gap` (check 4's bound), shared by the
+verification (:mod:`.verify`) and the solver's active set (:func:`defop.variational.newton.kink_active_set`).
+
 :func:`refine` is the solver's continuation: while the held point's Fenchel gap is above its target, smooth again
 with μ / 100 and re-run the held stage, down to the μ of :func:`certificate_mu`, whose smoothing costs at most
 0.3 · verify_tol · E, so that the smoothing certificate holds there.
@@ -33,6 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import energies as en
+from .inertia import inertia_shift
 
 #: the smallest μ of the continuation (:func:`refine`) and of :func:`smoothing_certificate`
 MU_MIN = 1e-13
@@ -175,8 +180,9 @@ def smoothing_certificate(stage, decrement, X, E, mu, tol):
     return max(E - E_mu + dec, 0.0)
 
 
-def newton_decrement(solver, X, mu, shift):
-    """E_μ(X), the Newton decrement λ²/2 of its exact reduced Hessian and that Hessian's negative pivots.
+def newton_decrement(solver, X, mu):
+    """E_μ(X), the Newton decrement λ²/2 of its exact reduced Hessian and that Hessian's negative pivots, its diagonal
+    shifted by the one policy of :func:`defop.variational.inertia.inertia_shift`.
 
     Parameters
     ----------
@@ -184,8 +190,6 @@ def newton_decrement(solver, X, mu, shift):
         Its ``_grad_hess``, ``_newton_direction``, ``free`` and ``_hess.inertia()``.
     X : (n,d) numpy array
     mu : float
-    shift : float
-        Relative diagonal shift of the factorisation (the solver's ``INERTIA_SHIFT``).
 
     Returns
     -------
@@ -195,7 +199,7 @@ def newton_decrement(solver, X, mu, shift):
     """
     E_mu, g, data, _ = solver.grad_hess(X, mu, project=False)
     gf = g[solver.free]
-    p = solver.newton_direction(gf, data, rel_shift=shift)
+    p = solver.newton_direction(gf, data, rel_shift=inertia_shift(solver, data))
     return E_mu, -float(gf @ p) / 2, solver.hessian.inertia()
 
 
@@ -236,3 +240,96 @@ def refine(stage, held, certificate, X, mu, target, mu_min):
     if extra:
         reason += f" (smoothing continued to μ = {mu:.0e})"
     return Xh, converged, reason
+
+
+def kink_gap(solver, X, target):
+    """Check 4's bound on (E(X) − min E) / E from the elements held on S-ARAP's kink
+    (:func:`kink_pull`, :func:`fenchel_gap`).
+
+    Offsets too small to matter (A φ(a) − P·a ≤ 2 A φ(a) while ‖P‖ ≤ A r, which the releases of
+    :func:`defop.variational.newton.kink_active_set` ensure; :func:`defop.variational.verify.verify_point` checks the
+    pull itself) are screened without a Newton system: below ``target`` the screen is returned. The Newton system's
+    diagonal shift is :func:`defop.variational.inertia.inertia_shift`'s.
+    """
+    _, S, on, held = held_on_kink(solver, X, solver._kink)
+    screen = 2 * offset_cost(S[held], on[held], solver.mesh.areas[held]) / solver.scale(solver.energy_of(X))
+    if screen <= target:
+        return screen
+    E, g, data, local = solver.grad_hess(X, 0.0, project=False, kink=solver._kink)
+    p = solver.newton_direction(g[solver.free], data, rel_shift=inertia_shift(solver, data))
+    gain, _, _, _, offset = kink_pull(solver, X, local, p, solver._kink)
+    return (gain + offset) / solver.scale(E)
+
+
+def held_on_kink(solver, X, hold):
+    """Singular values, kink sets and held elements of S-ARAP at X (the closed forms' ``svd_frame``, ``on_kink``).
+
+    Returns
+    -------
+    cf : module
+        :func:`defop.variational.energies.closed_forms` of the Jacobians.
+    S : (m,d) numpy array
+    on : (m,) or (m,2) bool numpy array
+        2D: on Eq. (11)'s kink Σ = σ; 3D: on σ₁ = σ₂ and on σ₂ = σ₃ (:func:`defop.variational.volumetric.on_kink`).
+    held : (m,) bool numpy array
+        On any kink set.
+    """
+    J = solver.mesh.jacobians(X)
+    cf = en.closed_forms(J)
+    S = cf.svd_frame(J)[0]
+    on = cf.on_kink(S, hold)
+    return cf, S, on, on.reshape(len(S), -1).any(axis=1)
+
+
+def kink_pull(solver, X, local, p, hold):
+    """S-ARAP elements held on a kink (check 4) that the rest of the mesh pulls off it.
+
+    Check 4 holds an element on a kink set (the closed forms' ``on_kink``): its anti-conformal modes there
+    (``kink_stiff_modes``; 2D: modes 1 and 3 of :func:`defop.variational.planar.eigensystem`) are stiff, so in
+    the Newton system K p = −g their amplitudes times their stiffness are the force F_t the rest of the mesh
+    puts on them. There ψ is a cone (``kink_cone``, :func:`defop.variational.planar.kink_radius`): the element is in
+    equilibrium only if ‖F_t‖ ≤ A_t r_t (‖·‖: ``kink_force``; 2D the Euclidean norm, 3D at σ₁ = σ₂ = σ₃ a dual
+    norm, :func:`defop.variational.volumetric.kink_force`). An element pulled harder moves off the kink, and the
+    quadratic model with its own branch curvature κ_t bounds the gain by (‖F_t‖ − A_t r_t)² / (2 A_t κ_t) when the
+    rest is convex.
+
+    Returns
+    -------
+    gain : float
+        Σ_t of that bound over the overloaded elements (0 if none).
+    worst : tuple
+        (element, ‖F_t‖ / (A_t r_t)) of the largest bound.
+    D : (n,d) numpy array or None
+        Descent direction: each overloaded element's held modes moved along its force, by the
+        model's amplitude (‖F_t‖ − A_t r_t)/(A_t κ_t); zero at the handles.
+    pulled : (k,) int numpy array
+        The overloaded elements.
+    offset : float
+        Σ_t A_t φ_t(a_t) − P_t·a_t over the held elements (at least 0): what their offsets cost
+        (:func:`fenchel_gap`); ``gain + offset`` bounds E(X) − min E.
+    """
+    cf, S, on, held = held_on_kink(solver, X, hold)
+    idx = np.flatnonzero(held)
+    if not len(idx):
+        return 0.0, None, None, idx, 0.0
+    S, on = S[idx], on[idx]
+    stiff = cf.kink_stiff_modes(on)
+    W, lamA = local[0][idx], local[1][idx]
+    dofs = solver.hessian.dofs[idx]
+    amp = np.einsum("tdk,td->tk", W, solver.full(p).ravel()[dofs]) * stiff  # held-mode amplitudes of the step
+    pull = lamA * amp
+    force = cf.kink_force(on, pull)
+    A = solver.mesh.areas[idx]
+    r, kappa = cf.kink_cone(S, on)
+    offset, gains = fenchel_gap(S, on, A, pull)
+    offset = max(float(offset.sum()), 0.0)
+    excess = np.maximum(force - A * r, 0.0)
+    if not gains.any():
+        return 0.0, None, None, idx[:0], offset
+    k = int(np.argmax(gains))
+    u = amp * (excess / (A * kappa) / np.maximum(cf.kink_force(on, amp), 1e-300))[:, None]
+    d = X.shape[1]
+    D = np.bincount(dofs.ravel(), np.einsum("tdk,tk->td", W, u).ravel(), minlength=d * solver.mesh.n_vertices)
+    D = D.reshape(-1, d)
+    D[solver.handles] = 0.0
+    return float(gains.sum()), (int(idx[k]), float(force[k] / (A[k] * r[k]))), D, idx[gains > 0], offset

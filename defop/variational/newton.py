@@ -24,7 +24,8 @@ import time
 import numpy as np
 
 from . import energies as en
-from . import kink, verify
+from . import kink
+from .inertia import inertia_shift
 
 #: at most this many triangles are released from the kink in one Newton solve (:func:`kink_active_set`)
 MAX_RELEASES = 64
@@ -162,7 +163,7 @@ def newton(solver, log, X, tol):
             return kink.refine(
                 lambda Y, m: newton_stage(solver, log, Y, max(tol, solver.stage_tol), m),
                 lambda Y: kink_active_set(solver, log, Y, tol),
-                lambda Y: verify.kink_gap(solver, Y, KINK_TARGET * solver.verify_tol),
+                lambda Y: kink.kink_gap(solver, Y, KINK_TARGET * solver.verify_tol),
                 X,
                 solver.mu_schedule[i - 1] if i else 0.0,
                 KINK_TARGET * solver.verify_tol,
@@ -179,7 +180,8 @@ def kink_active_set(solver, log, X, tol):
 
     Elements on the kink (the closed forms' ``on_kink``: :func:`defop.variational.planar.on_kink`, in 3D either of
     :func:`defop.variational.volumetric.on_kink`'s two sets) are held there; once Newton has converged, a
-    held element that the mesh pulls off harder than its cone bears (:func:`~defop.variational.verify.kink_pull`)
+    held element that the mesh pulls off harder than its cone bears (:func:`~defop.variational.kink.kink_pull`, from
+    the Newton direction of :func:`~defop.variational.inertia.inertia_shift`'s shift)
     is released (from both sets): the solve steps along the pull (a line search on the true energy) and Newton
     continues without holding it. Returns (X, converged, reason) like :func:`newton_stage`.
     """
@@ -190,8 +192,8 @@ def kink_active_set(solver, log, X, tol):
         if not converged or log.exhausted or released >= MAX_RELEASES:
             return X, converged, reason
         E, g, data, local = solver.grad_hess(X, 0.0, project=False, kink=hold)
-        p = solver.newton_direction(g[solver.free], data, rel_shift=verify.INERTIA_SHIFT)
-        gain, _, D, pulled, _ = verify.kink_pull(solver, X, local, p, hold)
+        p = solver.newton_direction(g[solver.free], data, rel_shift=inertia_shift(solver, data))
+        gain, _, D, pulled, _ = kink.kink_pull(solver, X, local, p, hold)
         Xs = None if gain <= tol * solver.scale(E) else step_off(solver, X, D)
         if Xs is None:
             return X, converged, reason + (f" ({released} triangle(s) released from the kink)" if released else "")
