@@ -4,8 +4,11 @@ a corrupt entry."""
 
 from __future__ import annotations
 
+import io
+import json
 import shutil
 import warnings
+import zipfile
 
 import numpy as np
 import pytest
@@ -297,3 +300,86 @@ def test_no_mutation_of_the_problem_reuses_another_problems_entries(bar, tmp_pat
     foreign = [w for w in caught if issubclass(w.category, cm.CacheWarning) and "another problem" in str(w.message)]
     assert len(foreign) == differ
     assert sum(calls) == sum(min(2, 5 - 2 * i) for i, (a, b) in enumerate(zip(keys_a, keys_b)) if a != b)
+
+
+# ------------------------------------------------------------------------------- operator files (io.py)
+@pytest.fixture(scope="module")
+def branched_file(bar, tmp_path_factory):
+    """A two-branch operator file (the bar's linear operator twice, sides +1 and -1) and its members."""
+    from defop.operator.branched import Branch, BranchedOperator
+
+    op, _ = dop.train(bar, "arap", "linear", m=4, seed=1, n_jobs=1, progress=False, cache=False)
+    z = np.zeros(op.handle_basis.size)
+    bop = BranchedOperator([Branch(0, op, z, z + 1, 1), Branch(1, op, z, z + 1, -1)], np.zeros_like(bar.mesh.V),
+                           np.zeros(1 + op.P.size))
+    path = tmp_path_factory.mktemp("branched") / "two.npz"
+    bop.save(path)
+    with zipfile.ZipFile(path) as zf:
+        members = {n: zf.read(n) for n in zf.namelist()}
+    with np.load(path) as f:
+        header = json.loads(str(f["header"]))
+    return path, members, header
+
+
+def _with_header(path, members, header):
+    buf = io.BytesIO()
+    np.save(buf, np.array(json.dumps(header)))
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, raw in {**members, "header.npy": buf.getvalue()}.items():
+            zf.writestr(name, raw)
+    return path
+
+
+BAD_INTEGERS = [1.5, -0.5, True, False, "²", "1", None, [1], {"v": 1}, 1e300, float("nan")]
+
+
+@pytest.mark.parametrize("value", BAD_INTEGERS + [2, 0, -3])
+def test_a_branch_side_that_is_not_plus_or_minus_one_is_refused(branched_file, tmp_path, value):
+    """``side: 1.5`` loaded as +1 (``int()`` ran before the check); now every non-integer or other integer is refused,
+    naming the file and the field."""
+    from defop.operator.branched import BranchedOperator
+
+    path, members, header = branched_file
+    bad = json.loads(json.dumps(header))
+    bad["branches"][1]["side"] = value
+    target = _with_header(tmp_path / "side.npz", members, bad)
+    with pytest.raises(ValueError, match=r"header's branches\[1\]\.side must be") as info:
+        BranchedOperator.load(target)
+    assert str(target) in str(info.value)
+
+
+@pytest.mark.parametrize("value", [1.0, -1.0])
+def test_an_integral_float_side_loads(branched_file, tmp_path, value):
+    from defop.operator.branched import BranchedOperator
+
+    path, members, header = branched_file
+    header = json.loads(json.dumps(header))
+    header["branches"][1]["side"] = value
+    got = BranchedOperator.load(_with_header(tmp_path / "side.npz", members, header))
+    assert got.branches[1].side == int(value) and type(got.branches[1].side) is int
+
+
+@pytest.mark.parametrize("field", ["label", "dim", "format_version"])
+@pytest.mark.parametrize("value", [0.5, True, "²", None])
+def test_other_integer_header_fields_are_checked_before_int(branched_file, tmp_path, field, value):
+    from defop.operator.branched import BranchedOperator
+
+    path, members, header = branched_file
+    header = json.loads(json.dumps(header))
+    if field == "label":
+        header["branches"][0]["label"] = False if value is True else value  # False == 0: once accepted
+    else:
+        header[field] = value
+    target = _with_header(tmp_path / "field.npz", members, header)
+    with pytest.raises(ValueError, match=f"header's (branches\\[0\\]\\.)?{field} must be an integer|label 0") as info:
+        BranchedOperator.load(target)
+    assert str(target) in str(info.value)
+
+
+def test_a_directory_is_called_a_directory(bar, tmp_path):
+    from defop.operator.branched import BranchedOperator
+
+    for load in (dop.DefOp.load, BranchedOperator.load):
+        with pytest.raises(ValueError, match="is a directory, not an operator file") as info:
+            load(tmp_path)
+        assert str(tmp_path) in str(info.value)
