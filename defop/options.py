@@ -67,7 +67,7 @@ def n_jobs(value):
     cores = cpu_count()
     if jobs > cores:
         warnings.warn(f"n_jobs={jobs} is more than the {cores} cores of this machine; using {cores}",
-                      RuntimeWarning, stacklevel=3)
+                      RuntimeWarning, stacklevel=user_stacklevel())
         jobs = cores
     return jobs
 
