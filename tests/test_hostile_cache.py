@@ -383,3 +383,17 @@ def test_a_directory_is_called_a_directory(bar, tmp_path):
         with pytest.raises(ValueError, match="is a directory, not an operator file") as info:
             load(tmp_path)
         assert str(tmp_path) in str(info.value)
+
+
+@pytest.mark.parametrize("value", [["0", "0", "0"], [True, False, False], "000", None, [[0], [0, 0]]])
+def test_a_threshold_that_is_not_numbers_is_refused(branched_file, tmp_path, value):
+    """Strings and booleans were cast to floats ("0" -> 0.0) before."""
+    from defop.operator.branched import BranchedOperator
+
+    path, members, header = branched_file
+    header = json.loads(json.dumps(header))
+    header["threshold"] = value
+    target = _with_header(tmp_path / "t.npz", members, header)
+    with pytest.raises(ValueError, match="threshold") as info:
+        BranchedOperator.load(target)
+    assert str(target) in str(info.value)

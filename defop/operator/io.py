@@ -216,7 +216,7 @@ def load_branched(path, cls, branch_cls, op_cls):
         meta = header["meta"]
         if not isinstance(meta, dict):
             raise TypeError("header 'meta' must be an object")
-        return cls(branches, mode, np.asarray(header["threshold"], dtype=float), meta)
+        return cls(branches, mode, opt.real_array("the header's threshold", header["threshold"]), meta)
     except (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError) as exc:
         what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or type(exc).__name__
         raise OperatorFileError(f"{path} is not a valid multi-valued operator file: {what}") from exc
