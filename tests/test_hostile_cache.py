@@ -272,11 +272,8 @@ def test_no_mutation_of_the_problem_reuses_another_problems_entries(bar, tmp_pat
     solves every sample itself and gets its own answers."""
     monkeypatch.setattr(batch, "CHUNK", 2)
     calls = _fake_solves(monkeypatch)
-    Q, energy = dop.training.sampling.sample_shape(bar, 5, 11), "arap"
-    handles, moving, energy_b, Q_b = bar.handles, bar.moving, energy, Q
-    for how in hows:
-        handles, moving, energy_b, Q_b = _mutate(_problem(bar, handles, moving), Q_b, energy_b, how, data)
-    mutated = _problem(bar, handles, moving, "mutated")
+    Q, mutated, energy_b, Q_b = _mutated(bar, data, hows)
+    energy = "arap"
     folder = tmp_path_factory.mktemp("cache")
     store = cm.Cache(folder)
     names = {}
@@ -300,6 +297,40 @@ def test_no_mutation_of_the_problem_reuses_another_problems_entries(bar, tmp_pat
     foreign = [w for w in caught if issubclass(w.category, cm.CacheWarning) and "another problem" in str(w.message)]
     assert len(foreign) == differ
     assert sum(calls) == sum(min(2, 5 - 2 * i) for i, (a, b) in enumerate(zip(keys_a, keys_b)) if a != b)
+
+
+def _mutated(bar, data, hows):
+    """The bar's problem (handles, moving, energy "arap", 5 samples) and a mutation of it: (Q, problem, energy, Q)."""
+    Q, energy = dop.training.sampling.sample_shape(bar, 5, 11), "arap"
+    handles, moving, energy_b, Q_b = bar.handles, bar.moving, energy, Q
+    for how in hows:
+        handles, moving, energy_b, Q_b = _mutate(_problem(bar, handles, moving), Q_b, energy_b, how, data)
+    return Q, _problem(bar, handles, moving, "mutated"), energy_b, Q_b
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data(), hows=st.lists(st.sampled_from(MUTATIONS), min_size=1, max_size=3, unique=True))
+def test_no_mutation_of_the_problem_reuses_another_problems_ground_truth(bar, tmp_path_factory, monkeypatch, data,
+                                                                          hows):
+    """As above for the whole ground truth of :func:`sample_ground_truth` (``gt``), the bar's entry renamed to the
+    mutated problem's name in a shared cache directory."""
+    monkeypatch.setattr(batch, "CHUNK", 2)
+    calls = _fake_solves(monkeypatch)
+    Q, mutated, energy_b, Q_b = _mutated(bar, data, hows)
+    folders = [tmp_path_factory.mktemp(name) for name in ("a", "b", "shared")]
+    got = []
+    for folder, (problem, e, q) in zip(folders, ((bar, "arap", Q), (mutated, energy_b, Q_b))):
+        monkeypatch.setenv("DEFOP_CACHE", str(folder))
+        got.append(bootstrap.sample_ground_truth(problem, q, e, n_jobs=1, progress=False)[0])
+    (a,), (b,) = (list(f.glob("gt-*.npz")) for f in folders[:2])
+    if a.name == b.name:  # the mutations cancelled: the same problem
+        return
+    shutil.copy(a, folders[2] / b.name)
+    monkeypatch.setenv("DEFOP_CACHE", str(folders[2]))
+    calls.clear()
+    with pytest.warns(cm.CacheWarning, match="another problem"):
+        X, _ = bootstrap.sample_ground_truth(mutated, Q_b, energy_b, n_jobs=1, progress=False)
+    assert np.array_equal(X, got[1]) and sum(calls) == 5  # every sample solved again
 
 
 # ------------------------------------------------------------------------------- operator files (io.py)
