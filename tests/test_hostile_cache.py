@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 import defop as dop
 from defop.analysis import trajectories as tr
-from defop.training import batch, bootstrap
+from defop.training import adaptive, batch, bootstrap
 from defop.training import branches as tb
 from defop.training import cache as cm
 
@@ -331,6 +331,37 @@ def test_no_mutation_of_the_problem_reuses_another_problems_ground_truth(bar, tm
     with pytest.warns(cm.CacheWarning, match="another problem"):
         X, _ = bootstrap.sample_ground_truth(mutated, Q_b, energy_b, n_jobs=1, progress=False)
     assert np.array_equal(X, got[1]) and sum(calls) == 5  # every sample solved again
+
+
+def test_a_resumed_adaptive_training_uses_no_entry_of_another_problem(bar, tmp_path, monkeypatch):
+    """Every entry an adaptive training of the bar under ARAP wrote (its initial ground truth and operator, each
+    batch's ground truth), renamed to the entry the S-ARAP training wrote at the same step: the S-ARAP training run
+    again solves every sample itself and returns what it returned the first time."""
+    calls = _fake_solves(monkeypatch)
+    written, real = [], cm.Cache.store_with
+
+    def recording(self, kind, key, write):
+        written.append((kind, key))
+        return real(self, kind, key, write)
+
+    monkeypatch.setattr(cm.Cache, "store_with", recording)
+    kw = dict(basis="linear", m=10, batch=2, seed=2, n_jobs=1, progress=False)
+    runs = {}
+    for energy, name in (("arap", "a"), ("sarap", "b")):
+        monkeypatch.setenv("DEFOP_CACHE", str(tmp_path / name))
+        written.clear()
+        op, rec = adaptive.train_adaptive(bar, energy, **kw)
+        runs[name] = (list(written), op, rec, sum(calls))
+        calls.clear()
+    assert [k for k, _ in runs["a"][0]] == [k for k, _ in runs["b"][0]] and len(runs["a"][0]) >= 3
+    for (kind, a), (_, b) in zip(runs["a"][0], runs["b"][0]):
+        shutil.copy(cm.Cache(tmp_path / "a").path(kind, a), cm.Cache(tmp_path / "b").path(kind, b))
+    monkeypatch.setenv("DEFOP_CACHE", str(tmp_path / "b"))
+    with pytest.warns(cm.CacheWarning, match="another problem"):
+        op, rec = adaptive.train_adaptive(bar, "sarap", **kw)
+    _, ref_op, ref, solved = runs["b"]
+    assert sum(calls) == solved  # nothing of the ARAP training was used
+    assert np.array_equal(rec.samples, ref.samples) and np.array_equal(rec.X, ref.X) and np.array_equal(op.W, ref_op.W)
 
 
 # ------------------------------------------------------------------------------- operator files (io.py)
