@@ -64,12 +64,17 @@ def test_defop_far_from_the_samples(op, k):
     _points_here(ExtrapolationWarning, lambda: op(_far(op, k)))
 
 
-def test_compressed_defop_far_from_the_samples(op, tmp_path):
+@pytest.mark.parametrize("compressed", [False, True])
+def test_defop_fast_paths_far_from_the_samples(op, tmp_path, compressed):
     op.save(tmp_path / "op.npz")
     c = dop.DefOp.load(tmp_path / "op.npz")
-    c.compress(rank=2)  # the factored fast paths
+    if compressed:
+        c.compress(rank=2)  # the factored fast paths (evaluate_fast, the interactive one, does not warn by design)
     _points_here(ExtrapolationWarning, lambda: c(_far(c)))
     _points_here(ExtrapolationWarning, lambda: c(_far(c, 3)))
+    _points_here(ExtrapolationWarning, lambda: c.evaluate_batch(_far(c, 3)))
+    near = c.P + 0.05 * (_far(c, 3) - c.P)  # 5 bar lengths: far, within the vectorised path's overflow guard
+    _points_here(ExtrapolationWarning, lambda: c.evaluate_batch(near))
 
 
 @pytest.mark.parametrize(
