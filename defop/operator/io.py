@@ -27,7 +27,8 @@ branch's arrays prefixed ``b<label>.`` (``W``, ``basis_centers``, ``train_sample
    most :data:`MAX_ARRAY_BYTES` and equals what the member declares ("declares a 60000×60000 float64 matrix,
    limit ...");
 4. the JSON header: at most :data:`MAX_HEADER_CHARS` characters and :data:`MAX_JSON_DEPTH` levels of nesting,
-   counted before it is parsed;
+   counted before it is parsed; its integer fields (``dim``, ``format_version``, a branch's ``label`` and ``side``)
+   checked to be integers before any ``int()`` (:func:`header_int`: ``side: 1.5`` is refused, not read as +1);
 5. the declared shapes against each other and against :data:`MAX_CENTERS` and the polynomial degree limit
    (:data:`defop.operator.handle_bases.MAX_DEGREE`), before an array is read;
 6. then the data, streamed into arrays of the declared size: decompression never produces more than the
@@ -404,7 +405,7 @@ def _check_declared(path, header, headers, version):
     if V is None or W is None or len(V) != 2 or len(W) != 2:
         return  # _build names what is missing or malformed (nothing large is read for it)
     d = V[1]
-    if isinstance(header, dict) and ("dim" in header or version >= 3):  # the basis' degree: PolynomialBasis
+    if isinstance(header, dict) and ("dim" in header or version >= 3):  # (PolynomialBasis checks the degree)
         _field(path, "dim", header.get("dim"))
     if version >= 3 and isinstance(header, dict) and header.get("dim") != d:
         raise OperatorFileError(f"{path}: the header says dim = {header.get('dim')!r}, but V is {V[0]}×{V[1]}")
