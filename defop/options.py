@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import numbers
 import os
+import sys
 import tempfile
 import warnings
 from pathlib import Path
@@ -66,7 +67,7 @@ def n_jobs(value):
     cores = cpu_count()
     if jobs > cores:
         warnings.warn(f"n_jobs={jobs} is more than the {cores} cores of this machine; using {cores}",
-                      RuntimeWarning, stacklevel=3)
+                      RuntimeWarning, stacklevel=user_stacklevel())
         jobs = cores
     return jobs
 
@@ -256,3 +257,25 @@ def write_atomic(path, data, name="path"):
             raise OSError(exc.errno, f"cannot write {name} ({exc.strerror})", str(path)) from exc
         raise
     return path
+
+
+_PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def user_stacklevel():
+    """The ``stacklevel`` for a ``warnings.warn`` in the calling function that names the user's line.
+
+    The one stacklevel policy of the package: a warning points at the first frame outside ``defop`` (the user's
+    call), however deep the library path that warns (a fixed ``stacklevel=2`` points into the library as soon as a
+    public function reaches the warning through another one). Python 3.12's ``skip_file_prefixes`` does this;
+    defop supports 3.11.
+
+    Returns
+    -------
+    int
+        1 for the caller's own line, +1 per ``defop`` frame above it.
+    """
+    frame, level = sys._getframe(1), 1
+    while frame.f_back is not None and frame.f_code.co_filename.startswith(_PACKAGE):
+        frame, level = frame.f_back, level + 1
+    return level

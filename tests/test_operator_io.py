@@ -146,7 +146,7 @@ def test_not_a_zip_missing_and_a_directory(tmp_path):
     (tmp_path / "junk.npz").write_bytes(b"hello")
     _expect_clear_error(tmp_path / "junk.npz", r"not a defop operator file \(not a zip archive\)")
     _expect_clear_error(tmp_path / "missing.npz", "no such operator file")
-    _expect_clear_error(tmp_path, "no such operator file")
+    _expect_clear_error(tmp_path, "is a directory, not an operator file")  # issue 35: not "no such file"
     (tmp_path / "empty.npz").write_bytes(b"")
     _expect_clear_error(tmp_path / "empty.npz", "not a zip archive")
 

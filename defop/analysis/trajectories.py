@@ -414,7 +414,7 @@ def ground_truth_trajectories(
         X, E, conv = (np.array([r[i] for r in res]) for i in range(3))
         if not conv.all():
             warnings.warn(f"{int((~conv).sum())} of {len(conv)} {mode} ground-truth solves did not converge",
-                          stacklevel=4)
+                          stacklevel=opt.user_stacklevel())
         conv = conv.reshape(ny, nx).astype(bool)
         return {"X": X.reshape(ny, nx, -1, 2), "energy": E.reshape(ny, nx), "converged": conv}
 

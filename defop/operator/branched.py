@@ -31,6 +31,7 @@ import warnings
 
 import numpy as np
 
+from .. import options as opt
 from . import compress as compress_policy
 from . import io as io_mod
 from .defop import DefOp, ExtrapolationWarning
@@ -262,7 +263,7 @@ def warn_far(far):
             f"{int(np.sum(far))} handle configuration(s) lie outside every branch's domain (beyond every fold or "
             "far from the samples): the nearest branch (largest estimated stability margin) extrapolates",
             ExtrapolationWarning,
-            stacklevel=3,
+            stacklevel=opt.user_stacklevel(),
         )
 
 

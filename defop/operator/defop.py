@@ -226,7 +226,7 @@ class DefOp:
             y = self.handle_basis.delta_raw(dz, zz, np.empty(self._q, f["dtype"]))
             X = k["apply"](y, k["A"], k["B"], self._x, self._hcols, f["xh"], dz)
         if warn and far:
-            check_extrapolation(self, Q, stacklevel=4)  # the full check decides (and words the warning)
+            check_extrapolation(self, Q)  # the full check decides (and words the warning)
         return X.reshape(-1, self.d)
 
     def check_mesh(self, mesh):
@@ -371,9 +371,9 @@ class DefOp:
         return io_mod.load(path, cls)
 
 
-def check_extrapolation(op, Q, stacklevel=3):
+def check_extrapolation(op, Q):
     """Warn (:class:`ExtrapolationWarning`) when a moving handle of Q is beyond 1.5x its farthest training sample
-    (``stacklevel`` of the warning: the user's call)."""
+    (pointing at the user's line, :func:`defop.options.user_stacklevel`)."""
     if op._reach is None:
         return
     dist = np.linalg.norm(Q - op.P, axis=-1)
@@ -385,7 +385,7 @@ def check_extrapolation(op, Q, stacklevel=3):
             f"moving handle {j} is {dist[tuple(idx)]:.3g} from rest, beyond 1.5x the farthest training sample "
             f"({op._reach[j]:.3g}): the operator extrapolates",
             ExtrapolationWarning,
-            stacklevel=stacklevel,
+            stacklevel=opt.user_stacklevel(),
         )
 
 

@@ -27,7 +27,8 @@ branch's arrays prefixed ``b<label>.`` (``W``, ``basis_centers``, ``train_sample
    most :data:`MAX_ARRAY_BYTES` and equals what the member declares ("declares a 60000×60000 float64 matrix,
    limit ...");
 4. the JSON header: at most :data:`MAX_HEADER_CHARS` characters and :data:`MAX_JSON_DEPTH` levels of nesting,
-   counted before it is parsed;
+   counted before it is parsed; its integer fields (``dim``, ``format_version``, a branch's ``label`` and ``side``)
+   checked to be integers before any ``int()`` (:func:`header_int`: ``side: 1.5`` is refused, not read as +1);
 5. the declared shapes against each other and against :data:`MAX_CENTERS` and the polynomial degree limit
    (:data:`defop.operator.handle_bases.MAX_DEGREE`), before an array is read;
 6. then the data, streamed into arrays of the declared size: decompression never produces more than the
@@ -174,7 +175,7 @@ def _branch_members():
 def _branch_view(header, data, k):
     """The header and arrays of branch k as a format-3 DefOp file's."""
     entry = header["branches"][k]
-    if not isinstance(entry, dict) or entry.get("label") != k:
+    if not isinstance(entry, dict) or header_int(f"branches[{k}].label", entry.get("label")) != k:
         raise ValueError(f"branch entry {k} must be an object with label {k}")
     sub = {name: data[name] for name in ("V", "F", "handles", "moving", "basis_P") if name in data}
     sub.update({n: data[f"b{k}.{n}"] for n in BRANCH_MEMBERS if f"b{k}.{n}" in data})
@@ -210,12 +211,13 @@ def load_branched(path, cls, branch_cls, op_cls):
             op = _build(op_cls, sub_head, sub, FORMAT_VERSION)
             energy = _array(data, f"b{k}.energy", 1, "f", (op.handle_basis.size,))
             margin = _array(data, f"b{k}.margin", 1, "f", (op.handle_basis.size,))
-            branches.append(branch_cls(k, op, energy, margin, entry["side"]))
+            side = header_int(f"branches[{k}].side", entry["side"], allowed=(1, -1))
+            branches.append(branch_cls(k, op, energy, margin, side))
         mode = _array(data, "mode", 2, "f", data["V"].shape)
         meta = header["meta"]
         if not isinstance(meta, dict):
             raise TypeError("header 'meta' must be an object")
-        return cls(branches, mode, np.asarray(header["threshold"], dtype=float), meta)
+        return cls(branches, mode, opt.real_array("the header's threshold", header["threshold"]), meta)
     except (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError) as exc:
         what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or type(exc).__name__
         raise OperatorFileError(f"{path} is not a valid multi-valued operator file: {what}") from exc
@@ -253,6 +255,8 @@ def _read(path, reads, members, max_members, check_declared):
     if isinstance(path, bytes):
         path = os.fsdecode(path)
     path = Path(path)
+    if path.is_dir():
+        raise OperatorFileError(f"{path} is a directory, not an operator file")
     if not path.is_file():
         raise OperatorFileError(f"no such operator file: {path}")
     try:
@@ -270,6 +274,8 @@ def _read(path, reads, members, max_members, check_declared):
                 if not isinstance(fmt, str) or fmt not in reads:
                     known = ", ".join(repr(f) for f in reads)
                     raise OperatorFileError(f"{path} has format {fmt!r}; this defop reads {known}")
+                if "format_version" in header:
+                    _field(path, "format_version", header["format_version"])
                 check_declared(path, header, headers, reads[fmt])
                 data = {name: _read_array(path, zf, name, h) for name, h in headers.items() if name != "header"}
     except OperatorFileError:
@@ -399,6 +405,8 @@ def _check_declared(path, header, headers, version):
     if V is None or W is None or len(V) != 2 or len(W) != 2:
         return  # _build names what is missing or malformed (nothing large is read for it)
     d = V[1]
+    if isinstance(header, dict) and ("dim" in header or version >= 3):  # (PolynomialBasis checks the degree)
+        _field(path, "dim", header.get("dim"))
     if version >= 3 and isinstance(header, dict) and header.get("dim") != d:
         raise OperatorFileError(f"{path}: the header says dim = {header.get('dim')!r}, but V is {V[0]}×{V[1]}")
     if version < 3 and d != 2:
@@ -409,6 +417,29 @@ def _check_declared(path, header, headers, version):
     degree = basis.get("degree") if isinstance(basis, dict) else None
     if isinstance(degree, (int, float)) and not isinstance(degree, bool) and degree > hb.MAX_DEGREE:
         raise OperatorFileError(f"{path} declares a handle basis of degree {degree}, limit {hb.MAX_DEGREE}")
+
+
+def _field(path, name, value):
+    """:func:`header_int` with the file named in the error (an :class:`OperatorFileError`)."""
+    try:
+        return header_int(name, value)
+    except ValueError as exc:
+        raise OperatorFileError(f"{path}: {exc}") from None
+
+
+def header_int(name, value, allowed=None):
+    """An integer field of a file's header, checked before any ``int()``: a JSON integer (an integral float is
+    accepted), never a bool, a fraction (``side: 1.5`` is not +1), a string (``'²'``) or null; in ``allowed`` if given.
+
+    Raises
+    ------
+    ValueError
+        ``"the header's {name} must be an integer, got {value!r}"`` (the callers add the file's name).
+    """
+    n = opt.integer(f"the header's {name}", value)
+    if allowed is not None and n not in allowed:
+        raise ValueError(f"the header's {name} must be one of {', '.join(map(str, allowed))}, got {value!r}")
+    return n
 
 
 def _size(n):
@@ -478,7 +509,7 @@ def _build(cls, header, data, version):
     op.meta = meta
     if version == 1:  # format 1 factors compressed Ψ W without (★): recompute them
         if "factor_A" in data:
-            op.compress(rank=int(meta.get("rank", 1)))
+            op.compress(rank=header_int("meta.rank", meta.get("rank", 1)))
         return op
     if "factor_A" in data:
         A = _array(data, "factor_A", 2, "f", (psi.size - 1, None))

@@ -288,7 +288,7 @@ def train_adaptive(
         warnings.warn(
             f"{int((~conv).sum())} of {m} sample solves did not converge; they are used as they are",
             NotConvergedWarning,
-            stacklevel=2,
+            stacklevel=opt.user_stacklevel(),
         )
     meta = {"shape": shape.name, "energy": energy, "seed": seed, "sampling": "adaptive"}
     op = fit(shape.mesh, shape.handles, shape.moving, Q, X, basis, spatial, k, meta=meta)

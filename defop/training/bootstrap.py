@@ -500,7 +500,7 @@ def train(
         warnings.warn(
             f"{int((~conv).sum())} of {m} sample solves did not converge; they are used as they are",
             NotConvergedWarning,
-            stacklevel=2,
+            stacklevel=opt.user_stacklevel(),
         )
     t0 = time.perf_counter()
     op = fit(shape.mesh, shape.handles, shape.moving, samples, X, basis, spatial, k, meta=meta)

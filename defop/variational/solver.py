@@ -26,6 +26,7 @@ import warnings
 
 import numpy as np
 
+from .. import options as opt
 from .newton import Log, continuation
 from .problem import ReducedProblem, check_handle_span, check_handles, check_max_iter, check_tol, count_flips
 from .saddle import escape
@@ -233,7 +234,8 @@ class Solver(ReducedProblem):
             raise ValueError(f"start must be 'local' or 'global', got {start!r}")
         result = self._local(targets, X0, tol, max_iter, max_stages, "rest" if X0 is None else "X0")
         if not result.converged:
-            warnings.warn(f"{self.energy} solve did not converge: {result.reason}", NotConvergedWarning, stacklevel=2)
+            warnings.warn(f"{self.energy} solve did not converge: {result.reason}", NotConvergedWarning,
+                          stacklevel=opt.user_stacklevel())
         return result
 
     def _local(self, targets, X0, tol, max_iter, max_stages, label):
@@ -329,7 +331,9 @@ class Solver(ReducedProblem):
         ]
         if not best.converged:
             warnings.warn(
-                f"{self.energy} solve did not converge from any start: {best.reason}", NotConvergedWarning, stacklevel=2
+                f"{self.energy} solve did not converge from any start: {best.reason}",
+                NotConvergedWarning,
+                stacklevel=opt.user_stacklevel(),
             )
         return best
 

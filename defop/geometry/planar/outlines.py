@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ... import options as opt
 from ..fields import capsule, chain, subtract, union  # noqa: F401  (dimension-generic; re-exported here)
 from .polygon import points_in_polygon, polygon_area
 
@@ -85,7 +86,7 @@ def outline_from_field(Z, x, y, level=0.0, min_area_frac=1e-3):
             f"the shape has {len(dropped) + 1} separate regions; kept the largest, dropped {len(dropped)} "
             f"(the largest dropped one has {max(dropped):.1%} of its area)",
             UserWarning,
-            stacklevel=2,
+            stacklevel=opt.user_stacklevel(),
         )
     return outer, holes
 
