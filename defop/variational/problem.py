@@ -23,7 +23,6 @@ import copy
 import ctypes
 import importlib.util
 import os
-import sys
 import warnings
 import weakref
 
@@ -286,15 +285,6 @@ def mkl_error():
     return None
 
 
-def _caller_stacklevel():
-    """The ``stacklevel`` of the first frame outside the defop package, for the function that calls this."""
-    package = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    frame, level = sys._getframe(2), 2
-    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package + os.sep):
-        frame, level = frame.f_back, level + 1
-    return level
-
-
 def _warn_fallback(source):
     """Warn once per process that ``auto`` factorises by qdldl because MKL cannot load."""
     if _MKL.get("warned"):
@@ -305,7 +295,7 @@ def _warn_fallback(source):
         f"{source}=auto: MKL's library cannot load ({mkl_error()}), so tet meshes from {PARDISO_MIN_VERTICES_3D} "
         f"vertices are factorised by qdldl instead of PARDISO, {FALLBACK_COST} (benchmarks/README.md). Reinstall "
         f"MKL (pip install 'defop[mkl]'), or {silence} to choose qdldl and silence this warning",
-        RuntimeWarning, stacklevel=_caller_stacklevel(),
+        RuntimeWarning, stacklevel=opt.user_stacklevel(),
     )
 
 
