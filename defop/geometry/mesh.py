@@ -31,6 +31,7 @@ __all__ = [
     "write_mesh",
     "signed_volumes",
     "signed_areas",
+    "cotangent_laplacian",
     "boundary_facets",
     "check_closed_surface",
     "ELEMENT",
@@ -102,6 +103,26 @@ def signed_volumes(V, F):
 
 #: the planar name of :func:`signed_volumes` (triangles: signed areas)
 signed_areas = signed_volumes
+
+
+#: a mesh whose bounding-box diagonal lies outside this range has its Laplacian computed on a copy scaled by a power
+#: of 4 into it: libigl's tetrahedral cotangent weights underflow to NaN at 1e-30 and to 0 from about 1e27
+SAFE_DIAGONAL = (2.0**-20, 2.0**20)
+
+
+def cotangent_laplacian(V, F):
+    """(n, n) scipy sparse CSR: the cotangent Laplacian (libigl's ``cotmatrix``), exact at any supported scale.
+
+    It scales as length^(d-2); outside :data:`SAFE_DIAGONAL` it is computed on ``V / 4^k`` and multiplied by
+    ``4^(k(d-2))``: exact powers of two, so inside the range nothing changes (bit for bit).
+    """
+    ext = np.ptp(V, axis=0)
+    diag = float(np.linalg.norm(ext / ext.max())) * float(ext.max()) if ext.max() > 0 else 1.0
+    k = 0 if SAFE_DIAGONAL[0] <= diag <= SAFE_DIAGONAL[1] else int(round(np.log2(diag) / 2))
+    if k == 0:
+        return igl.cotmatrix(V, F).tocsr()
+    s = 4.0**k
+    return (igl.cotmatrix(V / s, F) * s ** (V.shape[1] - 2)).tocsr()
 
 
 def _dim_of(V, F):
@@ -503,7 +524,7 @@ class Mesh:
     def cotmatrix(self):
         """(n,n) scipy sparse: cotangent Laplacian L (negative semi-definite, libigl; cotangent weights of
         dihedral angles times edge lengths on tetrahedra)."""
-        return igl.cotmatrix(self.V, self.F).tocsr()
+        return cotangent_laplacian(self.V, self.F)
 
     # -------------------------------------------------------------- lookup
     @cached_property
