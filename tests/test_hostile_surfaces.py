@@ -470,3 +470,15 @@ def test_a_surface_in_the_coordinate_range_also_solves(scale):
     assert np.allclose(got.X / scale, ref.X, rtol=0, atol=1e-12)
     L, L1 = mesh.cotmatrix, unit.cotmatrix
     assert np.allclose((L / scale).toarray(), L1.toarray(), rtol=1e-12, atol=1e-12 * abs(L1).max())
+
+
+@given(st.integers(-300, 300))
+@settings(max_examples=40, deadline=None)
+def test_one_overflow_free_bounding_diagonal(exponent):
+    """Welding, the coordinate range and the Laplacian's rescaling read one bounding-box diagonal (three copies of the
+    computation before the review of issue 35); it neither overflows nor underflows over float64's range."""
+    scale = 10.0**exponent
+    d = sf.bbox_diagonal(V_BOX * scale)
+    assert d == pytest.approx(np.sqrt(2**2 + 1 + 0.25) * scale, rel=1e-14)
+    if 1e-50 <= d and scale <= 1e50:
+        assert surf.normalised(V_BOX * scale)[1] == d

@@ -23,7 +23,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .surface_files import MAX_FILE_ELEMENTS, check_file, parse_surface
+from .surface_files import MAX_FILE_ELEMENTS, bbox_diagonal, check_file, parse_surface
 
 __all__ = [
     "Mesh",
@@ -116,9 +116,8 @@ def cotangent_laplacian(V, F):
     It scales as length^(d-2); outside :data:`SAFE_DIAGONAL` it is computed on ``V / 4^k`` and multiplied by
     ``4^(k(d-2))``: exact powers of two, so inside the range nothing changes (bit for bit).
     """
-    ext = np.ptp(V, axis=0)
-    diag = float(np.linalg.norm(ext / ext.max())) * float(ext.max()) if ext.max() > 0 else 1.0
-    k = 0 if SAFE_DIAGONAL[0] <= diag <= SAFE_DIAGONAL[1] else int(round(np.log2(diag) / 2))
+    diag = bbox_diagonal(V)
+    k = 0 if diag == 0 or SAFE_DIAGONAL[0] <= diag <= SAFE_DIAGONAL[1] else int(round(np.log2(diag) / 2))
     if k == 0:
         return igl.cotmatrix(V, F).tocsr()
     s = 4.0**k

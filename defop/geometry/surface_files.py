@@ -32,6 +32,7 @@ __all__ = [
     "MAX_FILE_ELEMENTS",
     "SURFACE_FORMATS",
     "SurfaceFile",
+    "bbox_diagonal",
     "check_file",
     "parse_surface",
     "read_surface_file",
@@ -494,8 +495,9 @@ def _ply_ascii_lists(tokens, pos, name, n, props, key):
 
 
 # ------------------------------------------------------------------------------------------------ welding
-def _diagonal(V):
-    """The bounding-box diagonal, computed without overflow (coordinates scaled by their largest magnitude)."""
+def bbox_diagonal(V):
+    """The bounding-box diagonal of V (n, d), computed without overflow or underflow (coordinates scaled by their
+    largest magnitude): the one such computation of the package (welding, the coordinate range, the Laplacian)."""
     s = float(np.abs(V).max(initial=0.0))
     return s * float(np.linalg.norm(np.ptp(V / s, axis=0))) if s > 0 else 0.0
 
@@ -530,7 +532,7 @@ def weld(V, F, tolerance=0.0):
     if not tolerance > 0:
         return exact
     # clusters of vertices linked by distances <= the tolerance (exact copies included)
-    pairs = cKDTree(V).query_pairs(tolerance * _diagonal(V), output_type="ndarray")
+    pairs = cKDTree(V).query_pairs(tolerance * bbox_diagonal(V), output_type="ndarray")
     G = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(V), len(V)))
     near = _merge(V, F, connected_components(G, directed=False)[1])
     _check_tolerance_weld(exact[1], near[1], tolerance)
