@@ -482,3 +482,16 @@ def test_one_overflow_free_bounding_diagonal(exponent):
     assert d == pytest.approx(np.sqrt(2**2 + 1 + 0.25) * scale, rel=1e-14)
     if 1e-50 <= d and scale <= 1e50:
         assert surf.normalised(V_BOX * scale)[1] == d
+
+
+@pytest.mark.parametrize("name", ["m.obj", "m.off"])
+def test_read_mesh_keeps_the_file_size_limit(tmp_path, monkeypatch, name):
+    """read_mesh read any OBJ/OFF whole: a 3 GiB one raised an empty MemoryError from pathlib (review of issue 35).
+    It now has read_surface's MAX_FILE_BYTES (lowered here, so that nothing large is written or read)."""
+    path = tmp_path / name
+    V, F = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]])
+    (write_obj if name.endswith(".obj") else write_off)(path, V, F)
+    read_mesh(path)  # within the limit
+    monkeypatch.setattr(sf, "MAX_FILE_BYTES", path.stat().st_size - 1)
+    with pytest.raises(ValueError, match=rf"^mesh file .*{re.escape(name)} has [0-9,]+ bytes, limit [0-9,]+ "):
+        read_mesh(path)

@@ -23,7 +23,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .surface_files import MAX_FILE_ELEMENTS, bbox_diagonal, check_file, parse_surface
+from .surface_files import MAX_FILE_ELEMENTS, bbox_diagonal, check_file, check_size, parse_surface
 
 __all__ = [
     "Mesh",
@@ -728,7 +728,7 @@ def _read_member(fh, path, key):
 
 def _read_text(path, ext):
     """V and F of an OBJ/OFF (numpy reader, :mod:`.surface_files`), the OFF header's counts checked first."""
-    size = path.stat().st_size
+    size = check_size(path, "mesh file")  # read whole below: a 3 GiB file raised an empty MemoryError
     if ext == ".off":
         _check_off_header(path, size)
     try:

@@ -34,6 +34,7 @@ __all__ = [
     "SurfaceFile",
     "bbox_diagonal",
     "check_file",
+    "check_size",
     "parse_surface",
     "read_surface_file",
     "weld",
@@ -122,6 +123,15 @@ def check_file(path, what="file"):
     return path
 
 
+def check_size(path, what="file"):
+    """The size of the file ``path`` in bytes; ValueError naming it above :data:`MAX_FILE_BYTES` (nothing is read)."""
+    size = Path(path).stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise ValueError(f"{what} {path} has {size:,} bytes, limit {MAX_FILE_BYTES:,} "
+                         "(defop.geometry.surface_files.MAX_FILE_BYTES)")
+    return size
+
+
 def read_surface_file(path, weld_tolerance=None):
     """Read a triangle surface from a PLY (ASCII or binary), STL (ASCII or binary), OBJ or OFF file.
 
@@ -152,10 +162,7 @@ def read_surface_file(path, weld_tolerance=None):
     if ext not in SURFACE_FORMATS:
         raise ValueError(f"surface file {path}: unknown format {ext!r}; use {', '.join(SURFACE_FORMATS)}")
     tol = _check_tolerance(weld_tolerance)
-    size = path.stat().st_size
-    if size > MAX_FILE_BYTES:
-        raise ValueError(f"surface file {path} has {size:,} bytes, limit {MAX_FILE_BYTES:,} "
-                         "(defop.geometry.surface_files.MAX_FILE_BYTES)")
+    size = check_size(path, "surface file")
     try:
         with open(path, "rb") as fh:
             head = fh.read(84)
