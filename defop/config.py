@@ -179,5 +179,5 @@ def n_jobs() -> int:
     ValueError
         ``DEFOP_N_JOBS`` is not a non-zero integer (ASCII digits, an optional minus sign).
     """
-    rule = "a non-zero integer (-1: every core)"
+    rule = f"a non-zero integer from -{MAX_INTEGER_SETTING} to {MAX_INTEGER_SETTING} (-1: every core)"
     return integer_setting("DEFOP_N_JOBS", -1, minimum=-MAX_INTEGER_SETTING, signed=True, nonzero=True, rule=rule)

@@ -213,7 +213,7 @@ def test_the_import_graph_holds_the_imports_inside_functions():
 #: classes whose size counts a base that is a class in its own right (not a mixin): ReducedProblem (problem (6),
 #: used alone) under Solver, HandleBasis (three kinds derive from it) under TPSBasis; measured with the base on the
 #: formatted source, a ceiling that may only go down. Their own lines are under the limit.
-OVER_WITH_BASES = {"defop.variational.solver.Solver": 424, "defop.operator.handle_bases.TPSBasis": 326}
+OVER_WITH_BASES = {"defop.variational.solver.Solver": 422, "defop.operator.handle_bases.TPSBasis": 326}
 MAX_CLASS_LINES = 300
 
 

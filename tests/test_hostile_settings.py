@@ -201,10 +201,20 @@ def test_defop_n_jobs_reads_ascii_integers(raw, jobs, monkeypatch):
 @pytest.mark.parametrize("raw", ["²", "٣", "-0", "0", "--1", "- 1", "+1", "1e3", "3\u2003"])
 def test_defop_n_jobs_refuses_non_ascii_and_zero(raw, monkeypatch):
     monkeypatch.setenv("DEFOP_N_JOBS", raw)
-    with pytest.raises(ValueError, match=r"^DEFOP_N_JOBS must be a non-zero integer \(-1: every core\), got "):
+    with pytest.raises(ValueError, match=r"^DEFOP_N_JOBS must be a non-zero integer from -2147483647 to 2147483647 "
+                                         r"\(-1: every core\), got "):
         config.n_jobs()
     with pytest.raises(ValueError, match="^DEFOP_N_JOBS"):  # and the public entry points check it first
         dop.options.n_jobs(None)
+
+
+@pytest.mark.parametrize("raw", ["99999999999", "-2147483648", "2147483648"])
+def test_defop_n_jobs_out_of_range_says_the_range(raw, monkeypatch):
+    """A non-zero integer beyond a C int was told "must be a non-zero integer" (review of issue 35)."""
+    monkeypatch.setenv("DEFOP_N_JOBS", raw)
+    with pytest.raises(ValueError, match=rf"^DEFOP_N_JOBS must be a non-zero integer from -2147483647 to 2147483647 .*"
+                                         rf"got '{raw}'"):
+        config.n_jobs()
 
 
 @pytest.fixture(scope="module")

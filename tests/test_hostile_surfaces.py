@@ -450,3 +450,48 @@ def test_read_mesh_reads_obj_and_off_without_libigl(tmp_path, capfd):
         f 1 2 3 4
     """))
     assert read_mesh(tmp_path / "ok.obj").F.tolist() == [[0, 1, 2], [0, 2, 3]]  # a quad as a fan, as libigl did
+
+
+@pytest.mark.parametrize("scale", [1e-45, 1e-30, 1e30, 1e45])
+def test_a_surface_in_the_coordinate_range_also_solves(scale):
+    """COORDINATE_RANGE promises the solver too: a box at 1e±30 passed from_surface, then libigl's 3D cotangent
+    Laplacian underflowed to NaN (1e-30) or 0 (from about 1e27) and the first solve raised scipy's 'Factor is exactly
+    singular' (review of issue 35). On the unit box's mesh scaled, the solve is the unit one's, scaled."""
+    H = np.array([[0.2, 0.2, 0.1], [1.8, 0.2, 0.1], [0.2, 0.8, 0.4], [1.8, 0.8, 0.4]])
+    shape = dop.scene.shapes.from_surface(V_BOX * scale, F_BOX, handles=H * scale, n_vertices=150)
+    assert shape.mesh.bbox_diagonal > 0.5 * scale
+    unit = dop.scene.shapes.from_surface(V_BOX, F_BOX, handles=H, n_vertices=150)
+    h, move = unit.handles, np.array([0.05, 0.0, 0.0])
+    for mesh, idx in ((shape.mesh, shape.handles), (Mesh(unit.mesh.V * scale, unit.mesh.F), h)):
+        got = dop.solve(mesh, idx, mesh.V[idx] + move * scale, energy="arap")
+        assert got.converged and np.isfinite(got.X).all()
+    unit = unit.mesh
+    ref = dop.solve(unit, h, unit.V[h] + move, energy="arap")
+    assert np.allclose(got.X / scale, ref.X, rtol=0, atol=1e-12)
+    L, L1 = mesh.cotmatrix, unit.cotmatrix
+    assert np.allclose((L / scale).toarray(), L1.toarray(), rtol=1e-12, atol=1e-12 * abs(L1).max())
+
+
+@given(st.integers(-300, 300))
+@settings(max_examples=40, deadline=None)
+def test_one_overflow_free_bounding_diagonal(exponent):
+    """Welding, the coordinate range and the Laplacian's rescaling read one bounding-box diagonal (three copies of the
+    computation before the review of issue 35); it neither overflows nor underflows over float64's range."""
+    scale = 10.0**exponent
+    d = sf.bbox_diagonal(V_BOX * scale)
+    assert d == pytest.approx(np.sqrt(2**2 + 1 + 0.25) * scale, rel=1e-14)
+    if 1e-50 <= d and scale <= 1e50:
+        assert surf.normalised(V_BOX * scale)[1] == d
+
+
+@pytest.mark.parametrize("name", ["m.obj", "m.off"])
+def test_read_mesh_keeps_the_file_size_limit(tmp_path, monkeypatch, name):
+    """read_mesh read any OBJ/OFF whole: a 3 GiB one raised an empty MemoryError from pathlib (review of issue 35).
+    It now has read_surface's MAX_FILE_BYTES (lowered here, so that nothing large is written or read)."""
+    path = tmp_path / name
+    V, F = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]])
+    (write_obj if name.endswith(".obj") else write_off)(path, V, F)
+    read_mesh(path)  # within the limit
+    monkeypatch.setattr(sf, "MAX_FILE_BYTES", path.stat().st_size - 1)
+    with pytest.raises(ValueError, match=rf"^mesh file .*{re.escape(name)} has [0-9,]+ bytes, limit [0-9,]+ "):
+        read_mesh(path)

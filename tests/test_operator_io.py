@@ -309,3 +309,12 @@ def test_path_as_bytes_and_str(op_file):
     op, path, Q = op_file
     for p in (bytes(path), str(path)):
         assert np.array_equal(DefOp.load(p)(Q), op(Q))
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this platform")
+def test_a_fifo_or_device_is_not_called_missing(tmp_path):
+    """A FIFO exists: it was called "no such operator file" (review of issue 35); it is said to be no regular file,
+    and nothing is opened (reading a FIFO would block)."""
+    os.mkfifo(tmp_path / "op.npz")
+    _expect_clear_error(tmp_path / "op.npz", r"op\.npz is not a regular file \(a FIFO, socket or device\)")
+    _expect_clear_error(Path("/dev/null"), r"/dev/null is not a regular file")

@@ -23,7 +23,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .surface_files import MAX_FILE_ELEMENTS, check_file, parse_surface
+from .surface_files import MAX_FILE_ELEMENTS, bbox_diagonal, check_file, check_size, parse_surface
 
 __all__ = [
     "Mesh",
@@ -31,6 +31,7 @@ __all__ = [
     "write_mesh",
     "signed_volumes",
     "signed_areas",
+    "cotangent_laplacian",
     "boundary_facets",
     "check_closed_surface",
     "ELEMENT",
@@ -102,6 +103,25 @@ def signed_volumes(V, F):
 
 #: the planar name of :func:`signed_volumes` (triangles: signed areas)
 signed_areas = signed_volumes
+
+
+#: a mesh whose bounding-box diagonal lies outside this range has its Laplacian computed on a copy scaled by a power
+#: of 4 into it: libigl's tetrahedral cotangent weights underflow to NaN at 1e-30 and to 0 from about 1e27
+SAFE_DIAGONAL = (2.0**-20, 2.0**20)
+
+
+def cotangent_laplacian(V, F):
+    """(n, n) scipy sparse CSR: the cotangent Laplacian (libigl's ``cotmatrix``), exact at any supported scale.
+
+    It scales as length^(d-2); outside :data:`SAFE_DIAGONAL` it is computed on ``V / 4^k`` and multiplied by
+    ``4^(k(d-2))``: exact powers of two, so inside the range nothing changes (bit for bit).
+    """
+    diag = bbox_diagonal(V)
+    k = 0 if diag == 0 or SAFE_DIAGONAL[0] <= diag <= SAFE_DIAGONAL[1] else int(round(np.log2(diag) / 2))
+    if k == 0:
+        return igl.cotmatrix(V, F).tocsr()
+    s = 4.0**k
+    return (igl.cotmatrix(V / s, F) * s ** (V.shape[1] - 2)).tocsr()
 
 
 def _dim_of(V, F):
@@ -503,7 +523,7 @@ class Mesh:
     def cotmatrix(self):
         """(n,n) scipy sparse: cotangent Laplacian L (negative semi-definite, libigl; cotangent weights of
         dihedral angles times edge lengths on tetrahedra)."""
-        return igl.cotmatrix(self.V, self.F).tocsr()
+        return cotangent_laplacian(self.V, self.F)
 
     # -------------------------------------------------------------- lookup
     @cached_property
@@ -708,7 +728,7 @@ def _read_member(fh, path, key):
 
 def _read_text(path, ext):
     """V and F of an OBJ/OFF (numpy reader, :mod:`.surface_files`), the OFF header's counts checked first."""
-    size = path.stat().st_size
+    size = check_size(path, "mesh file")  # read whole below: a 3 GiB file raised an empty MemoryError
     if ext == ".off":
         _check_off_header(path, size)
     try:

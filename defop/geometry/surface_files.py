@@ -32,7 +32,9 @@ __all__ = [
     "MAX_FILE_ELEMENTS",
     "SURFACE_FORMATS",
     "SurfaceFile",
+    "bbox_diagonal",
     "check_file",
+    "check_size",
     "parse_surface",
     "read_surface_file",
     "weld",
@@ -121,6 +123,15 @@ def check_file(path, what="file"):
     return path
 
 
+def check_size(path, what="file"):
+    """The size of the file ``path`` in bytes; ValueError naming it above :data:`MAX_FILE_BYTES` (nothing is read)."""
+    size = Path(path).stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise ValueError(f"{what} {path} has {size:,} bytes, limit {MAX_FILE_BYTES:,} "
+                         "(defop.geometry.surface_files.MAX_FILE_BYTES)")
+    return size
+
+
 def read_surface_file(path, weld_tolerance=None):
     """Read a triangle surface from a PLY (ASCII or binary), STL (ASCII or binary), OBJ or OFF file.
 
@@ -151,10 +162,7 @@ def read_surface_file(path, weld_tolerance=None):
     if ext not in SURFACE_FORMATS:
         raise ValueError(f"surface file {path}: unknown format {ext!r}; use {', '.join(SURFACE_FORMATS)}")
     tol = _check_tolerance(weld_tolerance)
-    size = path.stat().st_size
-    if size > MAX_FILE_BYTES:
-        raise ValueError(f"surface file {path} has {size:,} bytes, limit {MAX_FILE_BYTES:,} "
-                         "(defop.geometry.surface_files.MAX_FILE_BYTES)")
+    size = check_size(path, "surface file")
     try:
         with open(path, "rb") as fh:
             head = fh.read(84)
@@ -494,8 +502,9 @@ def _ply_ascii_lists(tokens, pos, name, n, props, key):
 
 
 # ------------------------------------------------------------------------------------------------ welding
-def _diagonal(V):
-    """The bounding-box diagonal, computed without overflow (coordinates scaled by their largest magnitude)."""
+def bbox_diagonal(V):
+    """The bounding-box diagonal of V (n, d), computed without overflow or underflow (coordinates scaled by their
+    largest magnitude): the one such computation of the package (welding, the coordinate range, the Laplacian)."""
     s = float(np.abs(V).max(initial=0.0))
     return s * float(np.linalg.norm(np.ptp(V / s, axis=0))) if s > 0 else 0.0
 
@@ -530,7 +539,7 @@ def weld(V, F, tolerance=0.0):
     if not tolerance > 0:
         return exact
     # clusters of vertices linked by distances <= the tolerance (exact copies included)
-    pairs = cKDTree(V).query_pairs(tolerance * _diagonal(V), output_type="ndarray")
+    pairs = cKDTree(V).query_pairs(tolerance * bbox_diagonal(V), output_type="ndarray")
     G = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(V), len(V)))
     near = _merge(V, F, connected_components(G, directed=False)[1])
     _check_tolerance_weld(exact[1], near[1], tolerance)

@@ -257,6 +257,8 @@ def _read(path, reads, members, max_members, check_declared):
     path = Path(path)
     if path.is_dir():
         raise OperatorFileError(f"{path} is a directory, not an operator file")
+    if path.exists() and not path.is_file():  # opening a FIFO would block
+        raise OperatorFileError(f"{path} is not a regular file (a FIFO, socket or device), not an operator file")
     if not path.is_file():
         raise OperatorFileError(f"no such operator file: {path}")
     try:

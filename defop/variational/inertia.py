@@ -10,7 +10,7 @@ One function, :func:`inertia_shift`, serves every exact-Hessian factorisation ou
 * the held set's pull (:func:`defop.variational.kink.kink_gap` and :func:`defop.variational.newton.kink_active_set`):
   the shift regularises the Newton direction whose held-mode amplitudes give the pull on the kink.
 
-Until solver VERSION 6 the last two used ``INERTIA_SHIFT`` of the *mean* |diagonal|, which the stiff held modes of
+Before issue 35 the last two used ``INERTIA_SHIFT`` of the *mean* |diagonal|, which the stiff held modes of
 S-ARAP triangles on the kink dominate (benchmarks/bench_inertia_shift.py compares both policies sample by sample).
 """
 

@@ -42,6 +42,11 @@ class NotConvergedWarning(RuntimeWarning):
     """A solve stopped before reaching a verified local minimum."""
 
 
+def _not_converged(message):
+    """Warn ``message`` as a :class:`NotConvergedWarning` at the user's line (:func:`defop.options.user_stacklevel`)."""
+    warnings.warn(message, NotConvergedWarning, stacklevel=opt.user_stacklevel())
+
+
 @dataclasses.dataclass
 class SolveResult:
     """Outcome of a solve.
@@ -234,8 +239,7 @@ class Solver(ReducedProblem):
             raise ValueError(f"start must be 'local' or 'global', got {start!r}")
         result = self._local(targets, X0, tol, max_iter, max_stages, "rest" if X0 is None else "X0")
         if not result.converged:
-            warnings.warn(f"{self.energy} solve did not converge: {result.reason}", NotConvergedWarning,
-                          stacklevel=opt.user_stacklevel())
+            _not_converged(f"{self.energy} solve did not converge: {result.reason}")
         return result
 
     def _local(self, targets, X0, tol, max_iter, max_stages, label):
@@ -330,11 +334,7 @@ class Solver(ReducedProblem):
             (f"{label} (rejected: {why})", np.inf, False) for label, why in skipped
         ]
         if not best.converged:
-            warnings.warn(
-                f"{self.energy} solve did not converge from any start: {best.reason}",
-                NotConvergedWarning,
-                stacklevel=opt.user_stacklevel(),
-            )
+            _not_converged(f"{self.energy} solve did not converge from any start: {best.reason}")
         return best
 
 

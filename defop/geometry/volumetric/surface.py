@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ..mesh import check_closed_surface, signed_volumes
-from ..surface_files import read_surface_file
+from ..surface_files import bbox_diagonal, read_surface_file
 from .mesher import grid_spacing, tet_mesh
 
 __all__ = [
@@ -100,7 +100,7 @@ def normalised(V, what="the surface"):
     if big > hi:
         raise ValueError(f"{what} has a coordinate of magnitude {big:.3g}; supported coordinates are at most "
                          f"{hi:g} (defop.geometry.volumetric.surface.COORDINATE_RANGE): rescale it")
-    diag = big * float(np.linalg.norm(np.ptp(V / big, axis=0))) if big > 0 else 0.0
+    diag = bbox_diagonal(V)
     if not diag >= lo:
         raise ValueError(f"{what} has a bounding-box diagonal of {diag:.3g}; the supported diagonal is at least "
                          f"{lo:g} (defop.geometry.volumetric.surface.COORDINATE_RANGE): rescale it")
