@@ -144,3 +144,54 @@ def test_branched_page_drag_in_chromium(bar, found, tmp_path):  # noqa: F811
         warnings.simplefilter("ignore")
         assert toggled == f"branch {bop.choose(Q_page[-1])} (global)"  # the toggle: global's branch at this Q
     assert after_reset[0].startswith("branch 0")
+
+
+REJECT = """(bad) => {
+  const op = window.defopEditor.st.op;
+  const snap = () => JSON.stringify([op.branch, op.frame, op.jumps, op.far, op.log.length, op.mode]);
+  const num = { NaN: NaN, inf: Infinity, "-inf": -Infinity };
+  const out = [];
+  for (const Q of bad) {
+    for (const call of ["step", "evaluate"]) {
+      const before = snap();
+      let error = "no error";
+      try { op[call](Q.map((v) => (v in num ? num[v] : v))); } catch (e) { error = e.name + ": " + e.message; }
+      out.push([call, error, before === snap()]);
+    }
+  }
+  return out;
+}"""
+
+
+@pytest.mark.browser
+def test_branched_page_rejected_frame_changes_nothing(bar, found, tmp_path):  # noqa: F811
+    """Issue 35: the page's follow validates Q before any state changes (branch, frame, jumps, log, far)."""
+    bop = found[3]
+    path = export.to_html(bop, tmp_path / "bar_branches.html", shape=bar)
+    Qs = seeded_path(bar.P_moving, 0)
+    with chromium_page() as page:
+        page.goto(path.as_uri())
+        page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
+        page.evaluate("() => window.defopEditor.st.op.reset()")
+        half = len(Qs) // 2 + 3  # past the first jump: a state with a jump in it
+        flat = [q.ravel().tolist() for q in Qs]
+        page.evaluate("(Qs) => { for (const Q of Qs) window.defopEditor.st.op.evaluate(Q); }", flat[:half])
+        mid = page.evaluate("() => { const o = window.defopEditor.st.op; return [o.branch, o.frame, o.jumps]; }")
+        P = bar.P_moving.ravel().tolist()
+        bad = [["NaN", P[1]], ["inf", P[1]], [P[0], "-inf"], [1e200, 1e200], [P[0]], [P[0], P[1], 0.0]]
+        results = page.evaluate(REJECT, bad)
+        rest = page.evaluate(
+            "(Qs) => Qs.map((Q) => window.defopEditor.st.op.evaluate(Q) && window.defopEditor.st.op.branch)",
+            flat[half:],
+        )
+        final = page.evaluate("() => { const o = window.defopEditor.st.op; return [o.frame, o.jumps]; }")
+        errors = page.errors
+    assert not errors, errors
+    assert mid[1] == half and len(mid[2]) == 1, mid
+    for call, error, unchanged in results:
+        assert error.startswith("RangeError") and "Q" in error, (call, error)
+        assert unchanged, (call, error)
+    # the rejected frames left no trace: the rest of the path gives the Python follow's labels and jumps
+    labels, jumps, _ = python_follow(bop, Qs)
+    assert rest == labels[half:].tolist()
+    assert final[0] == len(Qs) and [tuple(j) for j in final[1]] == jumps

@@ -31,9 +31,10 @@ import warnings
 
 import numpy as np
 
+from .. import options as opt
 from . import compress as compress_policy
 from . import io as io_mod
-from .defop import DefOp, ExtrapolationWarning
+from .defop import DefOp, ExtrapolationWarning, not_finite_error
 
 __all__ = ["Branch", "BranchedOperator", "FollowSession", "MODES"]
 
@@ -158,10 +159,14 @@ class BranchedOperator:
     def estimates(self, Q):
         """E_b(Q), λ²_b(Q), s_b(Q) for every branch: three (B,) arrays (one Q) or (k, B) arrays (a batch)."""
         psis = [b.op.psi(Q) for b in self.branches]  # validates Q (shape, NaN) like DefOp
-        out = [
-            np.stack([p @ getattr(b, w) for p, b in zip(psis, self.branches)], axis=-1)
-            for w in ("energy_w", "margin_w", "score_w")
-        ]
+        with np.errstate(over="ignore", invalid="ignore"):  # a far Q: the clear error below, not numpy's warning
+            out = [
+                np.stack([p @ getattr(b, w) for p, b in zip(psis, self.branches)], axis=-1)
+                for w in ("energy_w", "margin_w", "score_w")
+            ]
+        bad = ~np.all([np.isfinite(o).reshape(-1, len(self)).all(axis=1) for o in out], axis=0)
+        if bad.any():  # Ψ(Q) overflowed (inf, NaN): no estimate to choose from, no argmax over NaN
+            raise not_finite_error(self.branches[0].op, np.reshape(Q, (-1, *self.P.shape))[bad], "Ψ(Q) · (e, l, s)")
         return tuple(out)
 
     def exists(self, Q):
@@ -298,32 +303,57 @@ class FollowSession:
         """Move the drag to ``branch`` (a label) from the next frame on."""
         self.branch = self.op.check_label(branch, "branch").label
 
-    def step(self, Q):
-        """The label of the branch D is evaluated on at Q (one configuration (n_moving, d)), updating the state."""
-        Q = np.asarray(Q, dtype=float)
+    def _next(self, Q):
+        """(label, jump or None, far) at Q without changing the state: every check runs here (a rejected Q changes
+        nothing)."""
+        Q = opt.real_array("Q", Q)
         if Q.shape != self.op.P.shape:
             raise ValueError(
                 f"Q must have shape {self.op.P.shape} (one configuration of the moving handles), got {Q.shape}"
             )
-        E, lam2, side = self.op.estimates(Q)
+        E, lam2, side = self.op.estimates(Q)  # raises on NaN/inf Q or a non-finite Ψ(Q), before any state changes
         ok = existing(lam2, side)
-        if self.branch is None or not ok[self.branch]:
-            label, far = lowest_existing(E, lam2, side)
-            warn_far(far)
-            if self.branch is not None and int(label) != self.branch:
-                self.jumps.append((self.frame, self.branch, int(label)))
-            self.branch = int(label)
+        if self.branch is not None and ok[self.branch]:
+            return self.branch, None, False
+        label, far = lowest_existing(E, lam2, side)
+        label = int(label)
+        jump = (self.frame, self.branch, label) if self.branch is not None and label != self.branch else None
+        return label, jump, bool(far)
+
+    def _commit(self, label, jump):
+        if jump is not None:
+            self.jumps.append(jump)
+        self.branch = label
         self.frame += 1
-        return self.branch
+        return label
+
+    def step(self, Q):
+        """The label of the branch D is evaluated on at Q (one configuration (n_moving, d)), updating the state.
+
+        A Q that is rejected (wrong shape, NaN, inf, or so far that Ψ(Q) is not finite) raises ValueError and
+        changes nothing: branch, frame and jumps stay as they were.
+        """
+        label, jump, far = self._next(Q)
+        warn_far(far)
+        return self._commit(label, jump)
 
     def __call__(self, Q):
-        """D(·, Q) on the followed branch: (n_vertices, d)."""
-        return self.op.branches[self.step(Q)].op(Q)
+        """D(·, Q) on the followed branch: (n_vertices, d). A rejected Q changes nothing (:meth:`step`)."""
+        label, jump, far = self._next(Q)
+        X = self.op.branches[label].op(Q)  # may still raise (D(·, Q) not finite): the state is not yet changed
+        warn_far(far)
+        self._commit(label, jump)
+        return X
 
     def run(self, Qs):
         """Follow a path Qs (k, n_moving, d): (labels (k,), X (k, n_vertices, d))."""
-        Qs = np.asarray(Qs, dtype=float)
+        Qs = opt.real_array("Qs", Qs)
         if Qs.ndim != 3:
             raise ValueError(f"Qs must have shape (k, {self.op.n_moving}, d), got {Qs.shape}")
-        labels = np.array([self.step(q) for q in Qs], dtype=np.int64)
-        return labels, self.op.on_branches(labels, Qs)
+        state = (self.branch, self.frame, list(self.jumps))
+        try:  # one call: a rejected frame anywhere on the path changes nothing
+            labels = np.array([self.step(q) for q in Qs], dtype=np.int64)
+            return labels, self.op.on_branches(labels, Qs)
+        except ValueError:
+            self.branch, self.frame, self.jumps = state
+            raise

@@ -126,48 +126,66 @@ export function makeBranched(p) {
     ws.push([q.energy_w, q.margin_w, q.score_w]);
   }
   const E = new Float64Array(nb), lam2 = new Float64Array(nb), side = new Float64Array(nb);
-  function estimates(Q) {
+  const dq = (p.d || 2) * p.n_moving;
+  /** E_b, λ²_b, s_b at Q into fresh arrays, or a RangeError naming Q (wrong length, NaN, ±inf, Ψ(Q) overflowed). */
+  function estimatesAt(Q) {
+    if (!Q || Q.length !== dq) throw new RangeError(`Q must hold ${dq} numbers (the moving handles), got ${Q && Q.length}`);
+    for (let i = 0; i < dq; i++) if (!Number.isFinite(Q[i])) throw new RangeError(`Q must be finite, got Q[${i}] = ${Q[i]}`);
+    const e = new Float64Array(nb), l = new Float64Array(nb), s = new Float64Array(nb);
     for (let b = 0; b < nb; b++) {
       const psi = ops[b].psi(Q), out = [0, 0, 0];
-      for (let k = 0; k < 3; k++) { const w = ws[b][k]; let s = 0; for (let j = 0; j < w.length; j++) s += psi[j] * w[j]; out[k] = s; }
-      E[b] = out[0]; lam2[b] = out[1]; side[b] = out[2];
+      for (let k = 0; k < 3; k++) { const w = ws[b][k]; let t = 0; for (let j = 0; j < w.length; j++) t += psi[j] * w[j]; out[k] = t; }
+      if (!out.every(Number.isFinite)) throw new RangeError(`Ψ(Q) · (e, l, s) is not finite at Q = [${Array.from(Q)}]`);
+      e[b] = out[0]; l[b] = out[1]; s[b] = out[2];
     }
+    return { E: e, lam2: l, side: s };
+  }
+  /** E_b, λ²_b, s_b at Q (estimates() of Python), kept in bop's E, lam2, side only when Q is valid. */
+  function estimates(Q) {
+    const est = estimatesAt(Q);
+    E.set(est.E); lam2.set(est.lam2); side.set(est.side);
     return { E, lam2, side };
   }
-  function existing() {
+  function existing(est) {
     let top = -Infinity;
-    for (let b = 0; b < nb; b++) top = Math.max(top, side[b]);
-    return Array.from({ length: nb }, (_, b) => lam2[b] > 0 && (side[b] >= 0 || side[b] >= top));
+    for (let b = 0; b < nb; b++) top = Math.max(top, est.side[b]);
+    return Array.from({ length: nb }, (_, b) => est.lam2[b] > 0 && (est.side[b] >= 0 || est.side[b] >= top));
   }
-  function lowestExisting(ok) {
+  function lowestExisting(est, ok) {
     let best = -1;
-    for (let b = 0; b < nb; b++) if (ok[b] && (best < 0 || E[b] < E[best])) best = b;
+    for (let b = 0; b < nb; b++) if (ok[b] && (best < 0 || est.E[b] < est.E[best])) best = b;
     if (best >= 0) return { label: best, far: false };
-    for (let b = 0; b < nb; b++) if (best < 0 || lam2[b] > lam2[best]) best = b;
+    for (let b = 0; b < nb; b++) if (best < 0 || est.lam2[b] > est.lam2[best]) best = b;
     return { label: best, far: true };
   }
   const bop = { ops, n_branches: nb, labels: p.branch_labels || [...Array(nb).keys()], mode: "follow", branch: 0,
     far: false, frame: 0, jumps: [], log: [], estimates };
-  /** The label at Q in the current mode, updating the follow state (FollowSession.step). */
-  bop.step = (Q) => {
-    estimates(Q);
-    const ok = existing();
-    let far = false;
-    if (bop.mode === "global" || !ok[bop.branch]) {
-      const pick = lowestExisting(ok);
-      far = pick.far;
-      if (bop.mode === "follow" && pick.label !== bop.branch) bop.jumps.push([bop.frame, bop.branch, pick.label]);
-      bop.branch = pick.label;
-    }
-    bop.far = far;
+  /** The next state at Q without changing anything (FollowSession._next): every check runs here. */
+  function plan(Q) {
+    const est = estimatesAt(Q), ok = existing(est);
+    if (bop.mode !== "global" && ok[bop.branch]) return { est, label: bop.branch, far: false, jump: null };
+    const pick = lowestExisting(est, ok);
+    const jump = bop.mode === "follow" && pick.label !== bop.branch ? [bop.frame, bop.branch, pick.label] : null;
+    return { est, label: pick.label, far: pick.far, jump };
+  }
+  function commit(next) {
+    E.set(next.est.E); lam2.set(next.est.lam2); side.set(next.est.side);
+    if (next.jump) bop.jumps.push(next.jump);
+    bop.branch = next.label;
+    bop.far = next.far;
     bop.frame += 1;
     return bop.branch;
-  };
+  }
+  /** The label at Q in the current mode, updating the follow state (FollowSession.step); a rejected Q (a
+   * RangeError) changes nothing. */
+  bop.step = (Q) => commit(plan(Q));
   bop.evaluate = (Q) => {
-    const label = bop.step(Q);
-    bop.log.push({ Q: Array.from(Q), branch: label, mode: bop.mode });
+    const next = plan(Q); // throws before any state changes
+    const X = ops[next.label].evaluate(Q);
+    commit(next);
+    bop.log.push({ Q: Array.from(Q), branch: next.label, mode: bop.mode });
     if (bop.log.length > 10000) bop.log.shift();
-    return ops[label].evaluate(Q);
+    return X;
   };
   bop.reset = () => { bop.branch = 0; bop.frame = 0; bop.jumps = []; bop.log = []; bop.far = false; };
   bop.psi = (Q) => ops[bop.branch].psi(Q);
