@@ -286,7 +286,7 @@ class BranchedOperator:
     @classmethod
     def load(cls, path):
         """Load a file written by :meth:`save` (checked as :meth:`DefOp.load` checks its files)."""
-        return io_mod.load_branched(path, cls, Branch, DefOp)
+        return io_mod.load_branched(path, cls, Branch, DefOp, Domain)
 
 
 def existing(g, side):
@@ -365,6 +365,8 @@ class FollowSession:
             raise ValueError(
                 f"Q must have shape {self.op.P.shape} (one configuration of the moving handles), got {Q.shape}"
             )
+        if self.branch is not None and self._stays(Q):
+            return self.branch, None, False
         E, g, side = self.op.estimates(Q, _warn=depth + 2)  # raises on NaN/inf Q or a non-finite Ψ(Q)
         ok = existing(g, side)
         if self.branch is not None and ok[self.branch]:
@@ -373,6 +375,17 @@ class FollowSession:
         label = int(label)
         jump = (self.frame, self.branch, label) if self.branch is not None and label != self.branch else None
         return label, jump, bool(far)
+
+    def _stays(self, Q):
+        """The fast test of a frame inside the box: the current branch exists with s_b ≥ 0 (finite and positive
+        g_b; the other branches are not needed). False sends the frame to the full test."""
+        b = self.op.branches[self.branch]
+        if not np.isfinite(Q).all() or outside_box(self.op.box, self.op.P, Q):
+            return False
+        with np.errstate(over="ignore", invalid="ignore"):
+            psi = b.op.psi(Q)
+            g, s = b.domain(Q, None if b.domain.own else psi), psi @ b.score_w
+        return bool(g > 0 and s >= 0)  # NaN compares False
 
     def _commit(self, label, jump):
         if jump is not None:
@@ -406,7 +419,9 @@ class FollowSession:
             raise ValueError(f"Qs must have shape (k, {self.op.n_moving}, d), got {Qs.shape}")
         state = (self.branch, self.frame, list(self.jumps))
         try:  # one call: a rejected frame anywhere on the path changes nothing
-            labels = np.array([self.step(q, _depth=2) for q in Qs], dtype=np.int64)
+            labels = np.empty(len(Qs), dtype=np.int64)
+            for i, q in enumerate(Qs):  # a loop, not a comprehension (its own frame): the warnings' stacklevel
+                labels[i] = self.step(q, _depth=2)
             return labels, self.op._on_branches(labels, Qs)
         except ValueError:
             self.branch, self.frame, self.jumps = state
