@@ -29,7 +29,7 @@ import numpy as np
 from .fit import structure
 from .handle_bases import make_basis
 
-__all__ = ["Domain", "box_of", "domain_values", "fit_domain", "outside_box"]
+__all__ = ["Domain", "box_of", "domain_values", "fit_domain", "fold_pairs", "outside_box"]
 
 
 class Domain:
@@ -104,8 +104,57 @@ def outside_box(box, P, Q):
     return out if Q.ndim == 3 else bool(out[0])
 
 
-def domain_values(Q, present, folds):
-    """The points and values of a branch's domain function: the signed distance to its fold points.
+#: where on each segment of the edge the domain function is pinned to zero (besides its two fold points)
+SEGMENT_POINTS = (0.25, 0.5, 0.75)
+
+
+def _grid_coords(flat, h):
+    """Integer coordinates (m, 2) of samples (m, D) on a square grid of spacing h (its two edge directions)."""
+    D = flat[:, None] - flat[None]
+    dist = np.linalg.norm(D, axis=-1)
+    pairs = np.argwhere(np.abs(dist - h) <= 0.01 * h)
+    e1 = D[pairs[0][1], pairs[0][0]] / h
+    other = [D[j, i] / h for i, j in pairs if abs(np.dot(D[j, i] / h, e1)) < 0.5]
+    e2 = other[0] if other else np.zeros_like(e1)
+    X = flat - flat[0]
+    return np.stack([np.round(X @ e1 / h), np.round(X @ e2 / h)], axis=1).astype(np.int64)
+
+
+def fold_pairs(Q, folds, edges):
+    """The edge of a domain inside each grid cell (marching squares): pairs (i, j) of fold points on a cell's edges
+    (two per cell; with four, the pairing of least total length). ``edges`` (f, 2): the grid edge of each fold."""
+    flat = np.asarray(Q, dtype=float).reshape(len(Q), -1)
+    F = np.asarray(folds, dtype=float).reshape(len(folds), -1)
+    h = float(np.min([np.linalg.norm(flat[k] - flat[j]) for k, j in edges]))
+    ij = _grid_coords(flat, h)
+    at = {tuple(c): k for k, c in enumerate(ij.tolist())}
+    on = {frozenset((int(k), int(j))): f for f, (k, j) in enumerate(edges)}
+    pairs = []
+    for i, j in at:
+        c = [at.get((i + a, j + b)) for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))]
+        if None in c:
+            continue
+        fs = [on[e] for e in (frozenset((c[t], c[(t + 1) % 4])) for t in range(4)) if e in on]
+        if len(fs) == 2:
+            pairs.append((fs[0], fs[1]))
+        elif len(fs) == 4:
+            a = np.linalg.norm(F[fs[0]] - F[fs[1]]) + np.linalg.norm(F[fs[2]] - F[fs[3]])
+            b = np.linalg.norm(F[fs[1]] - F[fs[2]]) + np.linalg.norm(F[fs[3]] - F[fs[0]])
+            pairs += [(fs[0], fs[1]), (fs[2], fs[3])] if a <= b else [(fs[1], fs[2]), (fs[3], fs[0])]
+    return pairs
+
+
+def _distance(points, segs, F):
+    """Distance (m,) from points (m, D) to the segments (s, 2, D) and the points F (f, D)."""
+    d = np.linalg.norm(points[:, None] - F[None], axis=-1).min(axis=1)
+    for a, b in segs:
+        t = np.clip((points - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-300), 0.0, 1.0)
+        d = np.minimum(d, np.linalg.norm(points - (a + t[:, None] * (b - a)), axis=1))
+    return d
+
+
+def domain_values(Q, present, folds, segments=None):
+    """The points and values of a branch's domain function: the signed distance to its edge.
 
     Parameters
     ----------
@@ -115,20 +164,25 @@ def domain_values(Q, present, folds):
         Indices of the samples holding the branch.
     folds : (f, n_moving, d) numpy array
         Its fold points.
+    segments : (s, 2, n_moving, d) numpy array, optional
+        The edge between the fold points (:func:`defop.training.branch_domains.refine_segments`).
 
     Returns
     -------
-    points : (m + f, n_moving, d) numpy array
-        Every grid sample, then the fold points.
-    values : (m + f,) numpy array or None
-        + the distance to the nearest fold point at the samples holding the branch, − at every other sample,
-        0 at the fold points. None when there is no fold point (the branch is everywhere it was seen).
+    points : (m + f + 3 s, n_moving, d) numpy array
+        Every grid sample, the fold points, then :data:`SEGMENT_POINTS` on each segment.
+    values : (m + f + 3 s,) numpy array or None
+        + the distance to the edge (segments and fold points) at the samples holding the branch, − at every other
+        sample, 0 on the edge. None when there is no fold point (the branch is everywhere it was seen).
     """
     Q = np.asarray(Q, dtype=float)
     folds = np.asarray(folds, dtype=float).reshape(-1, *Q.shape[1:])
     if not len(folds):
         return Q, None
-    F = folds.reshape(len(folds), -1)
-    d = np.linalg.norm(Q.reshape(len(Q), -1)[:, None] - F[None], axis=-1).min(axis=1)
+    flat, F = Q.reshape(len(Q), -1), folds.reshape(len(folds), -1)
+    segs = np.zeros((0, 2, F.shape[1])) if segments is None else np.asarray(segments).reshape(-1, 2, F.shape[1])
+    pins = np.concatenate([(1 - t) * segs[:, 0] + t * segs[:, 1] for t in SEGMENT_POINTS])
+    d = _distance(flat, segs, F)
     sign = np.where(np.isin(np.arange(len(Q)), np.asarray(present)), 1.0, -1.0)
-    return np.concatenate([Q, folds]), np.concatenate([sign * d, np.zeros(len(F))])
+    points = np.concatenate([Q, folds, pins.reshape(-1, *Q.shape[1:])])
+    return points, np.concatenate([sign * d, np.zeros(len(F) + len(pins))])

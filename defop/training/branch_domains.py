@@ -32,6 +32,7 @@ import time
 import numpy as np
 
 from .. import options as opt
+from ..operator.domains import fold_pairs
 from ..variational.solver import Solver
 from .branches import FOLLOW_RATIO, _rms, _solve, grid_spacing, plane
 
@@ -70,6 +71,12 @@ class Certified:
         Bordering samples whose solve did not verify (neither label).
     folds : list of (n_moving, d) numpy arrays
         Fold points: midpoints of the bisected intervals between present and absent neighbours.
+    fold_edges : list of (int, int)
+        The grid edge (present sample, absent sample) of each fold point.
+    folds_inner : list of (n_moving, d) numpy arrays
+        Fold points bisected across the middle of a cell's segment (:func:`refine_segments`).
+    segments : (s, 2, n_moving, d) numpy array
+        The edge of b's domain between the fold points (:func:`refine_segments`).
     edges : list of (Q, X, E)
         The last point on b of each bisection (a minimum of b).
     found : int
@@ -83,6 +90,9 @@ class Certified:
     absent: list = dataclasses.field(default_factory=list)
     uncertified: list = dataclasses.field(default_factory=list)
     folds: list = dataclasses.field(default_factory=list)
+    fold_edges: list = dataclasses.field(default_factory=list)
+    folds_inner: list = dataclasses.field(default_factory=list)
+    segments: np.ndarray = None
     edges: list = dataclasses.field(default_factory=list)
     found: int = 0
     third: list = dataclasses.field(default_factory=list)
@@ -152,14 +162,47 @@ def _certify_branch(judge, shape, Q, nbrs, b, known, tol, levels):
         c.absent.append(j)
         if all(_rms(shape.mesh, X - Y) > tol * shape.mesh.bbox_diagonal for Y in known[j]) and len(known[j]) >= 2:
             c.third.append(j)
+    lows = []
     for j in c.absent:
         for k in nbrs[j]:
             if k in c.present:
-                fold, edge = bracket_fold(judge, Q[k], Q[j], *c.present[k], b.side, levels)
+                fold, low = bracket_fold(judge, Q[k], Q[j], *c.present[k], b.side, levels)
                 c.folds.append(fold)
-                if not np.array_equal(edge[0], Q[k]):
-                    c.edges.append(edge)
+                c.fold_edges.append((int(k), int(j)))
+                lows.append(low)
+                if not np.array_equal(low[0], Q[k]):
+                    c.edges.append(low)
+    c.segments = refine_segments(judge, Q, c, lows, b.side, levels)
     return c
+
+
+def refine_segments(judge, Q, c, lows, side, levels):
+    """The edge of b's domain as segments (s, 2, n_moving, d): in each grid cell the two fold points on its edges
+    (marching squares, :func:`defop.operator.domains.fold_segments`), split at one more fold point bisected across
+    the segment's middle (from h/4 inside to h/4 outside, ``levels`` solves, started from the nearer fold's last
+    minimum on b). Where that start leaves b, the segment stays whole."""
+    if not c.folds:
+        return np.zeros((0, 2, *Q.shape[1:]))
+    folds = np.asarray(c.folds)
+    flat = folds.reshape(len(folds), -1)
+    h = float(np.linalg.norm((Q[c.fold_edges[0][0]] - Q[c.fold_edges[0][1]]).ravel()))
+    out = []
+    for a, b in fold_pairs(Q, folds, c.fold_edges):
+        t = (flat[b] - flat[a]) / max(np.linalg.norm(flat[b] - flat[a]), 1e-300)
+        mid = (flat[a] + flat[b]) / 2
+        v = mid - Q[c.fold_edges[a][0]].ravel()  # from a's present corner: towards the absent side
+        n = v - (v @ t) * t
+        n /= max(np.linalg.norm(n), 1e-300)
+        qs, qe = ((mid + s * 0.25 * h * n).reshape(Q.shape[1:]) for s in (-1, 1))
+        q0, X0, _ = lows[a]
+        Xs, Es, stays = judge.step(q0, qs, X0, side)
+        if not stays:
+            out.append((folds[a], folds[b]))
+            continue
+        fold, _ = bracket_fold(judge, qs, qe, Xs, Es, side, levels)
+        c.folds_inner.append(fold)
+        out += [(folds[a], fold), (fold, folds[b])]
+    return np.asarray(out).reshape(-1, 2, *Q.shape[1:])
 
 
 def certify(shape, branches, levels=3, tol=1e-3, energy="sarap"):
@@ -235,7 +278,8 @@ def certify_branches(shape, branches, levels=3, edges=True, tol=1e-3, energy="sa
                 X=X,
                 energy=E,
                 margin=margin,
-                folds=folds,
+                folds=np.concatenate([folds, np.reshape(c.folds_inner, (-1, *Q.shape[1:]))]),
+                segments=c.segments,
                 absent=absent,
                 uncertified=unc,
             )

@@ -348,6 +348,8 @@ class Branch:
         +1 when the branch's scores are above the threshold t, −1 below.
     folds : (f, n_moving, d) numpy array or None
         After :func:`certify_branches`: the fold points (bisected edge of the domain); None before.
+    segments : (s, 2, n_moving, d) numpy array or None
+        The edge of the domain between the fold points (marching squares, refined across each cell).
     absent, uncertified : (·,) numpy int arrays
         After :func:`certify_branches`: grid samples certified absent, and bordering samples left uncertified.
     """
@@ -359,6 +361,7 @@ class Branch:
     margin: np.ndarray
     side: int
     folds: np.ndarray = None
+    segments: np.ndarray = None
     absent: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
     uncertified: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
 
@@ -671,7 +674,7 @@ def fit_branched(shape, branches, energy="sarap", basis="tps", spatial="hat", k=
             lam = fit_values(op, _at_train(op, np.asarray(b.margin) ** 2, lam_rest**2, Q))
             out.append(OperatorBranch(b.label, op, e, lam, b.side))
             continue
-        points, values = domain_values(grid, b.samples[b.samples < len(grid)], b.folds)
+        points, values = domain_values(grid, b.samples[b.samples < len(grid)], b.folds, b.segments)
         domain = fit_domain(op.P, op.handle_basis.scale, points, values)
         out.append(OperatorBranch(b.label, op, e, None, b.side, domain=domain))
     meta = {"shape": shape.name, "energy": energy, "conflicts": branches.conflicts}
