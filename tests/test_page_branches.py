@@ -70,6 +70,32 @@ def test_page_follow_matches_python_follow(bar, found, seed, tmp_path):  # noqa:
         assert np.array_equal(np.array(out["global"]), bop.choose(Qs))
 
 
+@needs_node
+@pytest.mark.parametrize("seed", [0, 1])
+def test_page_evaluates_the_certified_domain_like_python(seed, tmp_path):
+    """Issue 37: the page's follow and global on an operator whose domains g_b were fitted from certified labels
+    (its own TPS per branch, format 2) and whose box warns: the same branch as Python at every frame of a loop."""
+    from test_branches_domains import certified
+
+    shape, _, _, _, _, bop = certified()
+    assert all(b.domain.own for b in bop.branches)
+    Qs = seeded_path(shape.P_moving, seed, steps=40)
+    Qs = np.concatenate([Qs, shape.P_moving + [[[0.5, 0.0]]]])  # and one frame outside the box
+    out = node_branched(bop, Qs, tmp_path)
+    labels, jumps, X = python_follow(bop, Qs)
+    page = np.array([f["branch"] for f in out["follow"]])
+    assert np.array_equal(page, labels), (page, labels)
+    assert [tuple(j) for j in out["jumps"]] == jumps and len(jumps) >= 2
+    X_js = np.array([f["X"] for f in out["follow"]]).reshape(X.shape)
+    assert np.abs(X_js - X).max() < 1e-5 * shape.mesh.bbox_diagonal
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert np.array_equal(np.array(out["global"]), bop.choose(Qs))
+        _, g, _ = bop.estimates(Qs)
+    assert np.allclose(np.array(out["g"]), g, rtol=1e-9, atol=1e-12)  # g_b itself, every frame and branch
+    assert out["outside"] == [False] * (len(Qs) - 1) + [True]  # the box, as Python's warning
+
+
 def test_branched_page_bad_input(bar, found, tmp_path):  # noqa: F811
     bop = found[3]
     with pytest.raises(ValueError, match="op must be a trained DefOp or BranchedOperator"):
