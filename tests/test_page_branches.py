@@ -140,7 +140,8 @@ def test_branched_page_drag_in_chromium(bar, found, tmp_path):  # noqa: F811
         log = page.evaluate("() => window.defopEditor.st.op.log")
         X = np.array(page.evaluate("() => Array.from(window.defopEditor.st.X)")).reshape(-1, 2)
         toggled = page.evaluate(
-            "() => { const e = window.defopEditor; e.ui.globalMode.click(); return e.ui.branch.textContent; }")
+            "() => { const e = window.defopEditor; e.ui.globalMode.click(); return e.ui.branch.textContent; }"
+        )
         page.evaluate("() => window.defopEditor.ui.reset.click()")
         after_reset = page.evaluate("() => [window.defopEditor.ui.branch.textContent, window.defopEditor.st.op.mode]")
         errors = page.errors
