@@ -379,13 +379,16 @@ class FollowSession:
     def _stays(self, Q):
         """The fast test of a frame inside the box: the current branch exists with s_b ≥ 0 (finite and positive
         g_b; the other branches are not needed). False sends the frame to the full test."""
-        b = self.op.branches[self.branch]
-        if not np.isfinite(Q).all() or outside_box(self.op.box, self.op.P, Q):
+        b, box = self.op.branches[self.branch], self.op.box
+        dz = (Q - b.op.handle_basis.P).ravel()
+        if not ((dz >= box[0]).all() and (dz <= box[1]).all()):  # NaN compares False: the full test raises
             return False
-        with np.errstate(over="ignore", invalid="ignore"):
-            psi = b.op.psi(Q)
-            g, s = b.domain(Q, None if b.domain.own else psi), psi @ b.score_w
-        return bool(g > 0 and s >= 0)  # NaN compares False
+        psi = b.op.handle_basis.evaluate_one(dz / b.op.handle_basis.scale)  # inside the box: Ψ is finite
+        if b.domain.own:
+            g = b.domain.basis.evaluate_one(dz / b.domain.basis.scale) @ b.domain.w
+        else:
+            g = psi @ b.domain.w
+        return bool(g > 0 and psi @ b.score_w >= 0)
 
     def _commit(self, label, jump):
         if jump is not None:
@@ -401,14 +404,16 @@ class FollowSession:
         changes nothing: branch, frame and jumps stay as they were.
         """
         label, jump, far = self._next(Q, _depth + 1)
-        warn_far(far, _depth + 2)
+        if far:
+            warn_far(far, _depth + 2)
         return self._commit(label, jump)
 
     def __call__(self, Q):
         """D(·, Q) on the followed branch: (n_vertices, d). A rejected Q changes nothing (:meth:`step`)."""
         label, jump, far = self._next(Q, 2)
         X = self.op.branches[label].op(Q)  # may still raise (D(·, Q) not finite): the state is not yet changed
-        warn_far(far, 3)
+        if far:
+            warn_far(far, 3)
         self._commit(label, jump)
         return X
 
