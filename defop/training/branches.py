@@ -21,9 +21,11 @@ single-valued training keeps one minimum per Q_k; here every verified minimum we
    is one branch. Label 0 is the branch holding the rest pose (the side of s(x) = 0), so labels are stable.
    Each kept minimum gets its **stability margin** (:func:`stability_margin`): the reduced Hessian's eigenvalue
    of the eigenvector most parallel to u, which vanishes at the branch's fold.
-3. **domains**: branch b exists at the samples where it has a minimum (``Branch.samples``); between samples
-   :mod:`defop.operator.branched` estimates the domain in closed form from λ²_b(Q) (zero at a fold: a
-   saddle-node's smallest eigenvalue vanishes like the square root of the distance) and the side score.
+3. **domains** (:mod:`defop.training.branch_domains`): every sample bordering branch b's domain is certified
+   present or absent by a solve warm-started from b, the edge between them is bisected towards the fold, and
+   :mod:`defop.operator.domains` fits b's domain function g_b from both sides (the signed distance to the edge).
+   Without certification (format 1) the domain is estimated from λ²_b(Q), fitted on b's own samples (zero at a
+   fold: a saddle-node's smallest eigenvalue vanishes like the square root of the distance), and the side score.
 
 :func:`fit_branched` fits one DefOp per branch (:func:`defop.operator.fit.fit`, same bases and constraints:
 Prop. 2 everywhere, (8b) on every branch since the fit always includes the rest pose) and E_b, λ²_b with the same
