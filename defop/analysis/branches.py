@@ -221,7 +221,10 @@ def targets_met(c, catalogue=True, cost=None, window=5):
     out = {
         "jumps: as many as the solver, each within 1 step": (dist, len(jf) == len(js) and all(d <= 1 for d in dist)),
         "near the jumps: follow mean error / diagonal <= 1e-2": (f_near, f_near <= 1e-2),
-        f"elsewhere: follow / single mean error <= {bound}": (f_far / max(s_far, 1e-300), f_far <= bound * s_far),
+        "elsewhere: follow / single mean error <= 1.1 (catalogue), 1.5 (random)": (
+            f_far / max(s_far, 1e-300),
+            f_far <= bound * s_far,
+        ),
     }
     if cost is not None:
         out["training cost multi / single <= 3"] = (cost, cost <= 3.0)
