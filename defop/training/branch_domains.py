@@ -251,8 +251,9 @@ def certify_branches(shape, branches, levels=3, edges=True, tol=1e-3, energy="sa
     -------
     defop.training.branches.Branches
         ``grid`` the number of grid samples (edge minima after them, each on one branch: ``distinct`` 1 and
-        ``lowest`` that branch there), ``certify_seconds`` the CPU seconds of the solves, ``third`` the samples
-        with more than two minima seen, ``found`` the samples discovery had missed.
+        ``lowest`` that branch there; on the grid ``distinct`` counts the branches certified present too),
+        ``certify_seconds`` the CPU seconds of the solves, ``third`` the samples with more than two minima seen,
+        ``found`` the samples discovery had missed.
     """
     certified, seconds = certify(shape, branches, levels, tol, energy)
     Q = np.asarray(branches.samples)
@@ -285,11 +286,14 @@ def certify_branches(shape, branches, levels=3, edges=True, tol=1e-3, energy="sa
             )
         )
     third = sorted(set(branches.third.tolist()) | {j for c in certified for j in c.third})
+    seen = np.zeros(grid, int)  # distinct minima per grid sample: certification adds the branches discovery missed
+    for c in certified:
+        seen[list(c.present)] += 1
     return dataclasses.replace(
         branches,
         samples=np.concatenate([Q[:grid], np.reshape(extra_Q, (-1, *Q.shape[1:]))]),
         branches=out,
-        distinct=np.concatenate([branches.distinct[:grid], np.ones(len(extra_Q), int)]),
+        distinct=np.concatenate([np.maximum(branches.distinct[:grid], seen), np.ones(len(extra_Q), int)]),
         lowest=np.concatenate([branches.lowest[:grid], lowest]).astype(branches.lowest.dtype),
         certify_seconds=branches.certify_seconds + seconds,
         grid=grid,
