@@ -70,6 +70,32 @@ def test_page_follow_matches_python_follow(bar, found, seed, tmp_path):  # noqa:
         assert np.array_equal(np.array(out["global"]), bop.choose(Qs))
 
 
+@needs_node
+@pytest.mark.parametrize("seed", [0, 1])
+def test_page_evaluates_the_certified_domain_like_python(seed, tmp_path):
+    """Issue 37: the page's follow and global on an operator whose domains g_b were fitted from certified labels
+    (its own TPS per branch, format 2) and whose box warns: the same branch as Python at every frame of a loop."""
+    from test_branches_domains import certified
+
+    shape, _, _, _, _, bop = certified()
+    assert all(b.domain.own for b in bop.branches)
+    Qs = seeded_path(shape.P_moving, seed, steps=40)
+    Qs = np.concatenate([Qs, shape.P_moving + [[[0.5, 0.0]]]])  # and one frame outside the box
+    out = node_branched(bop, Qs, tmp_path)
+    labels, jumps, X = python_follow(bop, Qs)
+    page = np.array([f["branch"] for f in out["follow"]])
+    assert np.array_equal(page, labels), (page, labels)
+    assert [tuple(j) for j in out["jumps"]] == jumps and len(jumps) >= 2
+    X_js = np.array([f["X"] for f in out["follow"]]).reshape(X.shape)
+    assert np.abs(X_js - X).max() < 1e-5 * shape.mesh.bbox_diagonal
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert np.array_equal(np.array(out["global"]), bop.choose(Qs))
+        _, g, _ = bop.estimates(Qs)
+    assert np.allclose(np.array(out["g"]), g, rtol=1e-9, atol=1e-12)  # g_b itself, every frame and branch
+    assert out["outside"] == [False] * (len(Qs) - 1) + [True]  # the box, as Python's warning
+
+
 def test_branched_page_bad_input(bar, found, tmp_path):  # noqa: F811
     bop = found[3]
     with pytest.raises(ValueError, match="op must be a trained DefOp or BranchedOperator"):
@@ -114,7 +140,8 @@ def test_branched_page_drag_in_chromium(bar, found, tmp_path):  # noqa: F811
         log = page.evaluate("() => window.defopEditor.st.op.log")
         X = np.array(page.evaluate("() => Array.from(window.defopEditor.st.X)")).reshape(-1, 2)
         toggled = page.evaluate(
-            "() => { const e = window.defopEditor; e.ui.globalMode.click(); return e.ui.branch.textContent; }")
+            "() => { const e = window.defopEditor; e.ui.globalMode.click(); return e.ui.branch.textContent; }"
+        )
         page.evaluate("() => window.defopEditor.ui.reset.click()")
         after_reset = page.evaluate("() => [window.defopEditor.ui.branch.textContent, window.defopEditor.st.op.mode]")
         errors = page.errors
@@ -144,3 +171,54 @@ def test_branched_page_drag_in_chromium(bar, found, tmp_path):  # noqa: F811
         warnings.simplefilter("ignore")
         assert toggled == f"branch {bop.choose(Q_page[-1])} (global)"  # the toggle: global's branch at this Q
     assert after_reset[0].startswith("branch 0")
+
+
+REJECT = """(bad) => {
+  const op = window.defopEditor.st.op;
+  const snap = () => JSON.stringify([op.branch, op.frame, op.jumps, op.far, op.log.length, op.mode]);
+  const num = { NaN: NaN, inf: Infinity, "-inf": -Infinity };
+  const out = [];
+  for (const Q of bad) {
+    for (const call of ["step", "evaluate"]) {
+      const before = snap();
+      let error = "no error";
+      try { op[call](Q.map((v) => (v in num ? num[v] : v))); } catch (e) { error = e.name + ": " + e.message; }
+      out.push([call, error, before === snap()]);
+    }
+  }
+  return out;
+}"""
+
+
+@pytest.mark.browser
+def test_branched_page_rejected_frame_changes_nothing(bar, found, tmp_path):  # noqa: F811
+    """Issue 35: the page's follow validates Q before any state changes (branch, frame, jumps, log, far)."""
+    bop = found[3]
+    path = export.to_html(bop, tmp_path / "bar_branches.html", shape=bar)
+    Qs = seeded_path(bar.P_moving, 0)
+    with chromium_page() as page:
+        page.goto(path.as_uri())
+        page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
+        page.evaluate("() => window.defopEditor.st.op.reset()")
+        half = len(Qs) // 2 + 3  # past the first jump: a state with a jump in it
+        flat = [q.ravel().tolist() for q in Qs]
+        page.evaluate("(Qs) => { for (const Q of Qs) window.defopEditor.st.op.evaluate(Q); }", flat[:half])
+        mid = page.evaluate("() => { const o = window.defopEditor.st.op; return [o.branch, o.frame, o.jumps]; }")
+        P = bar.P_moving.ravel().tolist()
+        bad = [["NaN", P[1]], ["inf", P[1]], [P[0], "-inf"], [1e200, 1e200], [P[0]], [P[0], P[1], 0.0]]
+        results = page.evaluate(REJECT, bad)
+        rest = page.evaluate(
+            "(Qs) => Qs.map((Q) => window.defopEditor.st.op.evaluate(Q) && window.defopEditor.st.op.branch)",
+            flat[half:],
+        )
+        final = page.evaluate("() => { const o = window.defopEditor.st.op; return [o.frame, o.jumps]; }")
+        errors = page.errors
+    assert not errors, errors
+    assert mid[1] == half and len(mid[2]) == 1, mid
+    for call, error, unchanged in results:
+        assert error.startswith("RangeError") and "Q" in error, (call, error)
+        assert unchanged, (call, error)
+    # the rejected frames left no trace: the rest of the path gives the Python follow's labels and jumps
+    labels, jumps, _ = python_follow(bop, Qs)
+    assert rest == labels[half:].tolist()
+    assert final[0] == len(Qs) and [tuple(j) for j in final[1]] == jumps

@@ -146,8 +146,9 @@ def branched_to_payload(bop, regions=None):
 
     Branch 0's :func:`defop_to_payload` (the mesh, regions and, unprefixed, its operator), then for every branch
     b its operator's own keys as ``branch{b}.name`` (Ψ, factors) and the coefficients of its closed forms
-    ``branch{b}.energy_w``, ``.margin_w``, ``.score_w`` (E_b, λ²_b, s_b = ψ_b(Q) · w, float64: the domain test
-    of :mod:`defop.operator.branched`, ported as ``makeBranched`` in ``static/defop_editor.js``).
+    ``branch{b}.energy_w``, ``.score_w`` (E_b, s_b = ψ_b(Q) · w, float64), its domain g_b (:func:`domain_payload`)
+    and ``box`` (the samples' box, enlarged by one spacing): the domain test of :mod:`defop.operator.branched`,
+    ported as ``makeBranched`` in ``static/defop_editor.js``.
 
     Parameters
     ----------
@@ -169,9 +170,22 @@ def branched_to_payload(bop, regions=None):
         for name, value in own.items():
             if name not in _SHARED:
                 p[f"branch{b.label}.{name}"] = value
-        for name in ("energy_w", "margin_w", "score_w"):
+        for name in ("energy_w", "score_w"):
             p[f"branch{b.label}.{name}"] = np.asarray(getattr(b, name), np.float64)
+        p.update({f"branch{b.label}.{k}": v for k, v in domain_payload(b.domain).items()})
+    p["box"] = np.asarray(bop.box, np.float64)
     return p
+
+
+def domain_payload(domain):
+    """The keys of a branch's domain g_b (:class:`defop.operator.domains.Domain`): ``domain_w`` and, for its own
+    TPS, ``domain_own`` 1, ``domain_size``, ``domain_scale``, ``domain_kernel`` and ``domain_centers`` (z, (m, dn))."""
+    out = {"domain_w": np.asarray(domain.w, np.float64), "domain_own": int(domain.own)}
+    if domain.own:
+        basis = domain.basis
+        out.update(domain_size=int(basis.size), domain_scale=float(basis.scale), domain_kernel=basis.kernel,
+                   domain_centers=np.asarray(basis.z(basis.centers), np.float64))
+    return out
 
 
 def pixel_coordinates(mesh, image_frame):

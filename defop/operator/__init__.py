@@ -6,7 +6,7 @@ operator (one DefOp per branch of D^E), :mod:`.compress` its
 compression and :mod:`.io` its files. Never imports :mod:`defop.variational`.
 """
 
-from . import branched, compress, defop, fit, handle_bases, io, spatial
+from . import branched, compress, defop, domains, fit, handle_bases, io, spatial
 from .branched import BranchedOperator
 from .defop import DefOp, ExtrapolationWarning
 
@@ -17,6 +17,7 @@ __all__ = [
     "branched",
     "compress",
     "defop",
+    "domains",
     "fit",
     "handle_bases",
     "io",

@@ -2,27 +2,30 @@
 
 Problem (6) is non-convex, so D^E is multi-valued: the bar of Fig. 10, pushed in, buckles up or down. A
 single-valued D_{Φ,Ψ} fitted to the lowest minimum at each Q_k averages across the jump. Here every branch b
-(a sheet of local minima, found by :mod:`defop.training.branches`) gets its own operator and three scalar closed
-forms with the same Ψ (:func:`defop.operator.fit.fit_values`):
+(a sheet of local minima, found by :mod:`defop.training.branches`) gets its own operator, two scalar closed forms
+with the same Ψ (:func:`defop.operator.fit.fit_values`) and its domain:
 
     D_b(·, Q) = Ψ_b(Q) W_b                   (Eq. 3 on the branch's samples; Prop. 2 and (8b) as for DefOp)
     E_b(Q)    = Ψ_b(Q) · e_b                 (the energy of the branch's minimum)
-    λ²_b(Q)   = Ψ_b(Q) · l_b                 (the square of the smallest eigenvalue of the reduced Hessian)
     s_b(Q)    = σ_b (⟨D_b(·, Q) − x, u⟩_M − t(Q))   (the side of the branch's mode score; exact, linear in D_b)
+    g_b(Q)    = Ψ_D(Q) · w_D                 (b's domain: > 0 where b exists, :mod:`defop.operator.domains`)
 
-At a fold (saddle-node) a branch's smallest Hessian eigenvalue vanishes like the square root of the distance to
-it, so λ² is smooth and crosses zero there: λ²_b(Q) > 0 estimates where b exists as a local minimum. Where two
-branches meet without a fold (one minimum), the score on the mode u of the branches' difference crosses its
-threshold t(Q) (a plane in Q) continuously: b is on its side there when s_b(Q) ≥ 0 or s_b is the largest of the
-branches' sides (the nearest sheet). So
+g_b interpolates the signed distance to b's fold points, fitted from both sides: + where b was found or certified
+present, − where a solve warm-started from b left it (certified absent, :mod:`defop.training.branch_domains`), 0 at
+the bisected edge between them. (Files of format 1 carry λ²_b(Q) = Ψ_b(Q) · l_b, the square of b's smallest
+Hessian eigenvalue along the mode, fitted on b's own samples only, as g_b.) Where two branches meet without a fold
+(one minimum), the score on the mode u of the branches' difference crosses its threshold t(Q) (a plane in Q)
+continuously: b is on its side there when s_b(Q) ≥ 0 or s_b is the largest of the branches' sides (the nearest
+sheet). So
 
-    exists_b(Q)  ⇔  λ²_b(Q) > 0  and  (s_b(Q) ≥ 0 or b = argmax_c s_c(Q)).
+    exists_b(Q)  ⇔  g_b(Q) > 0  and  (s_b(Q) ≥ 0 or b = argmax_c s_c(Q)).
 
 Modes: ``global`` takes the existing branch of lowest E_b(Q) (no history); :class:`FollowSession` stays on its
 branch while it exists and jumps to the existing branch of lowest E_b when it leaves (the solver's warm-started
-drag, hysteresis included). A Q where no branch exists (beyond every fold, or far outside the samples) takes the
-branch with the largest λ²_b (the nearest) and an :class:`ExtrapolationWarning`. Every path is a DefOp
-evaluation plus three dot products: closed-form speed.
+drag, hysteresis included). A Q where no branch exists takes the branch with the largest g_b (the nearest) and an
+:class:`ExtrapolationWarning`; so does every path at a Q outside the samples' box enlarged by one grid spacing,
+whatever g_b says there. Every path is a DefOp evaluation plus a few dot products: closed-form speed. A rejected
+Q (NaN, inf, a wrong shape, Ψ(Q) not finite) raises ValueError and changes no session's state.
 """
 
 from __future__ import annotations
@@ -34,7 +37,8 @@ import numpy as np
 from .. import options as opt
 from . import compress as compress_policy
 from . import io as io_mod
-from .defop import DefOp, ExtrapolationWarning
+from .defop import DefOp, ExtrapolationWarning, not_finite_error
+from .domains import Domain, box_of, outside_box
 
 __all__ = ["Branch", "BranchedOperator", "FollowSession", "MODES"]
 
@@ -42,34 +46,44 @@ MODES = ("global", "follow")
 
 
 class Branch:
-    """One branch b: its DefOp D_b and the coefficients of E_b, λ²_b and the side score s_b (module docstring).
+    """One branch b: its DefOp D_b, the coefficients of E_b and s_b, and its domain g_b (module docstring).
 
     Parameters
     ----------
     label : int
         Stable label (0 holds the rest pose).
     op : DefOp
-    energy, margin : (|Ψ_b|,) numpy arrays
-        e_b and l_b.
+    energy : (|Ψ_b|,) numpy array
+        e_b.
+    margin : (|Ψ_b|,) numpy array or None
+        l_b, the coefficients of λ²_b (format 1's domain function); None with ``domain``.
     side : int
         σ_b, +1 or −1.
+    domain : defop.operator.domains.Domain, optional
+        g_b fitted from both sides (:func:`defop.operator.domains.fit_domain`); default λ²_b on Ψ_b.
     """
 
-    def __init__(self, label, op, energy, margin, side):
+    def __init__(self, label, op, energy, margin, side, domain=None):
         self.label = int(label)
         self.op = op
         self.energy_w = np.asarray(energy, dtype=float)
-        self.margin_w = np.asarray(margin, dtype=float)
+        self.margin_w = None if margin is None else np.asarray(margin, dtype=float)
         self.side = int(side)
         for name, w in (("energy", self.energy_w), ("margin", self.margin_w)):
-            if w.shape != (op.handle_basis.size,) or not np.isfinite(w).all():
-                raise ValueError(f"{name} must be {op.handle_basis.size} finite coefficients, got {w.shape}")
+            if w is None and domain is not None:
+                continue
+            if w is None or w.shape != (op.handle_basis.size,) or not np.isfinite(w).all():
+                got = None if w is None else w.shape
+                raise ValueError(f"{name} must be {op.handle_basis.size} finite coefficients, got {got}")
         if self.side not in (1, -1):
             raise ValueError(f"side must be +1 or -1, got {side!r}")
+        if domain is not None and not np.array_equal(domain.basis.P, op.P):
+            raise ValueError(f"branch {label}'s domain is a function of other handles than its operator")
+        self.domain = domain if domain is not None else Domain(op.handle_basis, self.margin_w, own=False)
         self.score_w = None  # set by BranchedOperator (needs u, t)
 
     def __repr__(self):
-        return f"Branch({self.label}, {self.op.n_samples} samples, side {self.side:+d})"
+        return f"Branch({self.label}, {self.op.n_samples} samples, side {self.side:+d}, {self.domain})"
 
 
 class BranchedOperator:
@@ -84,13 +98,17 @@ class BranchedOperator:
     threshold : (1 + d n_moving,) numpy array
         t(Q) = t[0] + t[1:] · (Q − P), the plane separating the branches' scores.
     meta : dict, optional
+    box : (2, d n_moving) numpy array, optional
+        The lowest and highest Q − P of the samples' grid, enlarged by one spacing
+        (:func:`defop.operator.domains.box_of`); beyond it every path warns. Default: the box of every branch's
+        training samples, enlarged by their smallest distance.
 
     Attributes
     ----------
     labels : tuple of int
     """
 
-    def __init__(self, branches, mode, threshold, meta=None):
+    def __init__(self, branches, mode, threshold, meta=None, box=None):
         if not branches:
             raise ValueError("branches must hold at least one Branch")
         got = [b.label for b in branches]
@@ -113,6 +131,9 @@ class BranchedOperator:
         if self.threshold.shape != (1 + ref.P.size,) or not np.isfinite(self.threshold).all():
             raise ValueError(f"threshold must be {1 + ref.P.size} finite numbers, got {self.threshold.shape}")
         self.meta = dict(meta or {})
+        self.box = default_box(self.branches) if box is None else np.asarray(box, dtype=float)
+        if self.box.shape != (2, ref.P.size) or not np.isfinite(self.box).all() or (self.box[0] > self.box[1]).any():
+            raise ValueError(f"box must be (2, {ref.P.size}) finite lower and upper bounds, got {self.box.shape}")
         mass = np.repeat(ref.mesh.mass_matrix.diagonal(), ref.d)
         mu = (mass * self.mode.ravel()).ravel()
         x_u = float(ref.mesh.V.ravel() @ mu)
@@ -156,25 +177,45 @@ class BranchedOperator:
         return self.branches[int(label)]
 
     # ------------------------------------------------------------------ scalar closed forms
-    def estimates(self, Q):
-        """E_b(Q), λ²_b(Q), s_b(Q) for every branch: three (B,) arrays (one Q) or (k, B) arrays (a batch)."""
+    def estimates(self, Q, _warn=2):
+        """E_b(Q), g_b(Q), s_b(Q) for every branch: three (B,) arrays (one Q) or (k, B) arrays (a batch).
+
+        g_b is the domain function (:mod:`defop.operator.domains`; λ²_b in format-1 files). A Q outside the box
+        warns (:class:`ExtrapolationWarning`); a Q whose estimates are not finite raises ValueError naming Q.
+        """
         psis = [b.op.psi(Q) for b in self.branches]  # validates Q (shape, NaN) like DefOp
-        out = [
-            np.stack([p @ getattr(b, w) for p, b in zip(psis, self.branches)], axis=-1)
-            for w in ("energy_w", "margin_w", "score_w")
-        ]
+        with np.errstate(over="ignore", invalid="ignore"):  # a far Q: the clear error below, not numpy's warning
+            out = [np.stack([p @ b.energy_w for p, b in zip(psis, self.branches)], axis=-1)]
+            out.append(np.stack([b.domain(Q, None if b.domain.own else p) for p, b in zip(psis, self.branches)], -1))
+            out.append(np.stack([p @ b.score_w for p, b in zip(psis, self.branches)], axis=-1))
+        bad = ~np.all([np.isfinite(o).reshape(-1, len(self)).all(axis=1) for o in out], axis=0)
+        if bad.any():  # Ψ(Q) overflowed (inf, NaN): no estimate to choose from, no argmax over NaN
+            raise not_finite_error(self.branches[0].op, np.reshape(Q, (-1, *self.P.shape))[bad], "Ψ(Q) · (e, g, s)")
+        if _warn:
+            self.warn_box(Q, _warn + 1)
         return tuple(out)
+
+    def warn_box(self, Q, stacklevel=2):
+        """The ExtrapolationWarning of a Q (or batch) outside the samples' box enlarged by one spacing."""
+        far = np.atleast_1d(outside_box(self.box, self.P, Q))
+        if far.any():
+            warnings.warn(
+                f"{int(far.sum())} handle configuration(s) lie outside the box of the branches' samples enlarged by "
+                "one grid spacing: every branch's operator and domain extrapolate there",
+                ExtrapolationWarning,
+                stacklevel=stacklevel,
+            )
 
     def exists(self, Q):
         """(B,) or (k, B) bool: where each branch exists (module docstring)."""
-        _, lam2, side = self.estimates(Q)
-        return existing(lam2, side)
+        _, g, side = self.estimates(Q, _warn=3)
+        return existing(g, side)
 
-    def choose(self, Q):
+    def choose(self, Q, _warn=2):
         """The ``global`` branch label at each Q: the existing branch of lowest E_b. (k,) int or int."""
-        E, lam2, side = self.estimates(Q)
-        labels, far = lowest_existing(E, lam2, side)
-        warn_far(far)
+        E, g, side = self.estimates(Q, _warn=_warn + 1)
+        labels, far = lowest_existing(E, g, side)
+        warn_far(far, _warn + 1)
         return labels if np.ndim(labels) else int(labels)
 
     # ------------------------------------------------------------------ evaluation
@@ -198,11 +239,13 @@ class BranchedOperator:
         if mode == "follow":
             raise ValueError("mode 'follow' depends on the drag's history: use op.session() and session(Q)")
         if branch is not None:
-            return self.check_label(branch, "branch").op(Q)
-        labels = self.choose(Q)
+            X = self.check_label(branch, "branch").op(Q)  # validates Q
+            self.warn_box(Q, 3)
+            return X
+        labels = self.choose(Q, _warn=3)
         if np.ndim(labels) == 0:
             return self.branches[labels].op(Q)
-        return self.on_branches(labels, Q)
+        return self._on_branches(labels, Q)
 
     def on_branches(self, labels, Qs):
         """D_{labels[i]}(·, Qs[i]) for a batch: (k, n_vertices, d), one batch evaluation per branch."""
@@ -213,6 +256,11 @@ class BranchedOperator:
         unknown = sorted(set(labels.tolist()) - set(self.labels))
         if unknown:
             raise ValueError(f"labels must be branch labels {self.labels}, got {unknown}")
+        X = self._on_branches(labels, Qs)
+        self.warn_box(Qs, 3)
+        return X
+
+    def _on_branches(self, labels, Qs):
         out = np.empty((len(Qs), self.mesh.n_vertices, self.branches[0].op.d))
         for b in self.branches:
             rows = labels == b.label
@@ -238,30 +286,40 @@ class BranchedOperator:
     @classmethod
     def load(cls, path):
         """Load a file written by :meth:`save` (checked as :meth:`DefOp.load` checks its files)."""
-        return io_mod.load_branched(path, cls, Branch, DefOp)
+        return io_mod.load_branched(path, cls, Branch, DefOp, Domain)
 
 
-def existing(lam2, side):
-    """exists_b from λ²_b and s_b (B,) or (k, B): λ² > 0 and (s ≥ 0 or s is the largest side)."""
-    lam2, side = np.asarray(lam2), np.asarray(side)
+def existing(g, side):
+    """exists_b from g_b and s_b (B,) or (k, B): g > 0 and (s ≥ 0 or s is the largest side)."""
+    g, side = np.asarray(g), np.asarray(side)
     nearest = side >= side.max(axis=-1, keepdims=True)
-    return (lam2 > 0) & ((side >= 0) | nearest)
+    return (g > 0) & ((side >= 0) | nearest)
 
 
-def lowest_existing(E, lam2, side):
-    """(labels, far): the existing branch of lowest E at each row; where none exists, the largest λ² (far = True)."""
-    ok = existing(lam2, side)
+def lowest_existing(E, g, side):
+    """(labels, far): the existing branch of lowest E at each row; where none exists, the largest g (far = True)."""
+    ok = existing(g, side)
     far = ~ok.any(axis=-1)
-    labels = np.where(far, np.argmax(lam2, axis=-1), np.argmin(np.where(ok, E, np.inf), axis=-1))
+    labels = np.where(far, np.argmax(g, axis=-1), np.argmin(np.where(ok, E, np.inf), axis=-1))
     return labels, far
 
 
-def warn_far(far):
+def default_box(branches):
+    """The box of every branch's training samples, enlarged by their smallest distance (format-1 files)."""
+    op = branches[0].op
+    Qs = np.concatenate([b.op.train_samples for b in branches if b.op.train_samples is not None] or [op.P[None]])
+    flat = (Qs - op.P).reshape(len(Qs), -1)
+    D = np.abs(flat[:, None] - flat[None]).max(axis=-1)
+    spacing = float(D[D > 0].min()) if (D > 0).any() else op.mesh.bbox_diagonal
+    return box_of(op.P, Qs, spacing)
+
+
+def warn_far(far, stacklevel=3):
     """The ExtrapolationWarning of a Q where no branch exists."""
     if np.any(far):
         warnings.warn(
             f"{int(np.sum(far))} handle configuration(s) lie outside every branch's domain (beyond every fold or "
-            "far from the samples): the nearest branch (largest estimated stability margin) extrapolates",
+            "far from the samples): the nearest branch (largest domain function g_b) extrapolates",
             ExtrapolationWarning,
             stacklevel=opt.user_stacklevel(),
         )
@@ -299,32 +357,77 @@ class FollowSession:
         """Move the drag to ``branch`` (a label) from the next frame on."""
         self.branch = self.op.check_label(branch, "branch").label
 
-    def step(self, Q):
-        """The label of the branch D is evaluated on at Q (one configuration (n_moving, d)), updating the state."""
-        Q = np.asarray(Q, dtype=float)
+    def _next(self, Q, depth):
+        """(label, jump or None, far) at Q without changing the state: every check runs here (a rejected Q changes
+        nothing). ``depth``: frames between the user's call and this one (for the warnings' stacklevel)."""
+        Q = opt.real_array("Q", Q)
         if Q.shape != self.op.P.shape:
             raise ValueError(
                 f"Q must have shape {self.op.P.shape} (one configuration of the moving handles), got {Q.shape}"
             )
-        E, lam2, side = self.op.estimates(Q)
-        ok = existing(lam2, side)
-        if self.branch is None or not ok[self.branch]:
-            label, far = lowest_existing(E, lam2, side)
-            warn_far(far)
-            if self.branch is not None and int(label) != self.branch:
-                self.jumps.append((self.frame, self.branch, int(label)))
-            self.branch = int(label)
+        if self.branch is not None and self._stays(Q):
+            return self.branch, None, False
+        E, g, side = self.op.estimates(Q, _warn=depth + 2)  # raises on NaN/inf Q or a non-finite Ψ(Q)
+        ok = existing(g, side)
+        if self.branch is not None and ok[self.branch]:
+            return self.branch, None, False
+        label, far = lowest_existing(E, g, side)
+        label = int(label)
+        jump = (self.frame, self.branch, label) if self.branch is not None and label != self.branch else None
+        return label, jump, bool(far)
+
+    def _stays(self, Q):
+        """The fast test of a frame inside the box: the current branch exists with s_b ≥ 0 (finite and positive
+        g_b; the other branches are not needed). False sends the frame to the full test."""
+        b, box = self.op.branches[self.branch], self.op.box
+        dz = (Q - b.op.handle_basis.P).ravel()
+        if not ((dz >= box[0]).all() and (dz <= box[1]).all()):  # NaN compares False: the full test raises
+            return False
+        psi = b.op.handle_basis.evaluate_one(dz / b.op.handle_basis.scale)  # inside the box: Ψ is finite
+        if b.domain.own:
+            g = b.domain.basis.evaluate_one(dz / b.domain.basis.scale) @ b.domain.w
+        else:
+            g = psi @ b.domain.w
+        return bool(g > 0 and psi @ b.score_w >= 0)
+
+    def _commit(self, label, jump):
+        if jump is not None:
+            self.jumps.append(jump)
+        self.branch = label
         self.frame += 1
-        return self.branch
+        return label
+
+    def step(self, Q, _depth=1):
+        """The label of the branch D is evaluated on at Q (one configuration (n_moving, d)), updating the state.
+
+        A Q that is rejected (wrong shape, NaN, inf, or so far that Ψ(Q) is not finite) raises ValueError and
+        changes nothing: branch, frame and jumps stay as they were.
+        """
+        label, jump, far = self._next(Q, _depth + 1)
+        if far:
+            warn_far(far, _depth + 2)
+        return self._commit(label, jump)
 
     def __call__(self, Q):
-        """D(·, Q) on the followed branch: (n_vertices, d)."""
-        return self.op.branches[self.step(Q)].op(Q)
+        """D(·, Q) on the followed branch: (n_vertices, d). A rejected Q changes nothing (:meth:`step`)."""
+        label, jump, far = self._next(Q, 2)
+        X = self.op.branches[label].op(Q)  # may still raise (D(·, Q) not finite): the state is not yet changed
+        if far:
+            warn_far(far, 3)
+        self._commit(label, jump)
+        return X
 
     def run(self, Qs):
         """Follow a path Qs (k, n_moving, d): (labels (k,), X (k, n_vertices, d))."""
-        Qs = np.asarray(Qs, dtype=float)
+        Qs = opt.real_array("Qs", Qs)
         if Qs.ndim != 3:
             raise ValueError(f"Qs must have shape (k, {self.op.n_moving}, d), got {Qs.shape}")
-        labels = np.array([self.step(q) for q in Qs], dtype=np.int64)
-        return labels, self.op.on_branches(labels, Qs)
+        state = (self.branch, self.frame, list(self.jumps))
+        try:  # one call: a rejected frame anywhere on the path changes nothing
+            labels = np.empty(len(Qs), dtype=np.int64)
+            for i, q in enumerate(Qs):  # a loop, not a comprehension (its own frame): the warnings' stacklevel
+                labels[i] = self.step(q, _depth=2)
+            return labels, self.op._on_branches(labels, Qs)
+        except ValueError:
+            self.branch, self.frame, self.jumps = state
+            raise

@@ -10,7 +10,8 @@ and, when compressed, ``factor_A`` and ``factor_B``; plus ``header``, a JSON obj
 | ``defop-operator-1`` | before (★) | 2 | W only; old factors are recomputed |
 | ``defop-operator-2`` | 7c4dc5f and before this change | 2 | as saved (d = 2 is implied) |
 | ``defop-operator-3`` | this version | 2 or 3 (``dim``) | as saved |
-| ``defop-branched-1`` | this version, kind ``branched`` | 2 or 3 | :func:`load_branched` (one DefOp per branch) |
+| ``defop-branched-2`` | this version, kind ``branched`` | 2 or 3 | :func:`load_branched` (one DefOp per branch, g_b) |
+| ``defop-branched-1`` | kind ``branched`` (issue 29) | 2 or 3 | :func:`load_branched`: λ²_b as the domain, no box |
 
 A multi-valued operator (:mod:`defop.operator.branched`) is one archive: the mesh, handles and ``mode`` once, each
 branch's arrays prefixed ``b<label>.`` (``W``, ``basis_centers``, ``train_samples``, the factors, ``energy`` and
@@ -86,12 +87,16 @@ MEMBERS = (
 )
 #: the multi-valued kind (:class:`defop.operator.branched.BranchedOperator`): shared arrays once, per-branch arrays
 #: prefixed ``b<label>.``, the header's ``branches`` list (label, side, meta, basis of each)
-BRANCHED_FORMAT = "defop-branched-1"
-BRANCHED_READS = {BRANCHED_FORMAT: 1}
+#: version 2 (issue 37) adds each branch's domain function g_b (its own TPS: ``domain_w``, ``domain_centers``, the
+#: header's ``domain`` entry) and the samples' ``box``; version 1 files load with λ²_b (``margin``) as g_b
+BRANCHED_FORMAT = "defop-branched-2"
+BRANCHED_READS = {"defop-branched-1": 1, BRANCHED_FORMAT: 2}
 #: the most branches a file may hold
 MAX_BRANCHES = 8
-BRANCH_MEMBERS = ("W", "basis_centers", "train_samples", "factor_A", "factor_B", "energy", "margin")
-SHARED_MEMBERS = ("header", "V", "F", "handles", "moving", "basis_P", "mode")
+BRANCH_MEMBERS = (
+    "W", "basis_centers", "train_samples", "factor_A", "factor_B", "energy", "margin", "domain_w", "domain_centers"
+)
+SHARED_MEMBERS = ("header", "V", "F", "handles", "moving", "basis_P", "mode", "box")
 _NPY_HEADER_MAX = 65_536 + 16  # numpy's own limit on a .npy header
 #: what a damaged archive can make zipfile, zlib or numpy's header parser raise while we read it
 _DAMAGED = (zipfile.BadZipFile, zlib.error, EOFError, struct.error, NotImplementedError, SyntaxError, UnicodeError)
@@ -159,10 +164,17 @@ def save_branched(bop, path):
         own, basis = _arrays(b.op)
         for name in ("V", "F", "handles", "moving", "basis_P"):
             arrays[name] = own.pop(name)
-        own["energy"], own["margin"] = b.energy_w, b.margin_w
+        own["energy"], own["domain_w"] = b.energy_w, b.domain.w
+        if b.margin_w is not None:
+            own["margin"] = b.margin_w
+        domain = {"own": b.domain.own}
+        if b.domain.own:
+            own["domain_centers"] = b.domain.basis.centers
+            domain.update(scale=b.domain.basis.scale, kernel=b.domain.basis.kernel)
         arrays.update({f"b{b.label}.{name}": a for name, a in own.items()})
-        entries.append({"label": b.label, "side": b.side, "meta": b.op.meta, "basis": basis})
-    header = {"format": BRANCHED_FORMAT, "format_version": 1, "kind": "branched", "dim": bop.branches[0].op.d,
+        entries.append({"label": b.label, "side": b.side, "meta": b.op.meta, "basis": basis, "domain": domain})
+    arrays["box"] = bop.box
+    header = {"format": BRANCHED_FORMAT, "format_version": 2, "kind": "branched", "dim": bop.branches[0].op.d,
               "meta": bop.meta, "threshold": bop.threshold.tolist(), "branches": entries}
     arrays["header"] = np.array(json.dumps(header))
     _write(path, arrays)
@@ -194,7 +206,22 @@ def _check_declared_branched(path, header, headers, version):
         _check_declared(path, sub_head, sub, FORMAT_VERSION)
 
 
-def load_branched(path, cls, branch_cls, op_cls):
+def _domain(entry, data, k, op, domain_cls):
+    """Branch k's domain g_b of a version-2 file (None: λ²_b on Ψ_b, from ``margin``)."""
+    d = entry["domain"]
+    if not isinstance(d, dict) or not isinstance(d.get("own"), bool):
+        raise TypeError(f"branch entry {k}'s 'domain' must be an object with a boolean 'own'")
+    if not d["own"]:
+        return None
+    n, dim = op.P.shape
+    if d.get("kernel") != hb.KERNELS[dim]:
+        raise ValueError(f"the {dim}D domain TPS uses the kernel {hb.KERNELS[dim]!r}, the file says {d.get('kernel')!r}"
+                         )
+    basis = hb.TPSBasis(op.P, _array(data, f"b{k}.domain_centers", 3, "f", (None, n, dim)), float(d["scale"]))
+    return domain_cls(basis, _array(data, f"b{k}.domain_w", 1, "f", (basis.size,)))
+
+
+def load_branched(path, cls, branch_cls, op_cls, domain_cls=None):
     """Read a file written by :func:`save_branched`, with the checks of :func:`load`; build a ``cls``.
 
     Raises
@@ -203,21 +230,25 @@ def load_branched(path, cls, branch_cls, op_cls):
         (:class:`OperatorFileError`) naming the file and the problem, as :func:`load`.
     """
     members = _branch_members()
-    header, data, _ = _read(path, BRANCHED_READS, members, len(members), _check_declared_branched)
+    header, data, version = _read(path, BRANCHED_READS, members, len(members), _check_declared_branched)
     try:
         branches = []
         for k, entry in enumerate(header["branches"]):
             sub_head, sub = _branch_view(header, data, k)
             op = _build(op_cls, sub_head, sub, FORMAT_VERSION)
             energy = _array(data, f"b{k}.energy", 1, "f", (op.handle_basis.size,))
-            margin = _array(data, f"b{k}.margin", 1, "f", (op.handle_basis.size,))
+            domain = _domain(entry, data, k, op, domain_cls) if version >= 2 else None
+            margin = None
+            if domain is None or f"b{k}.margin" in data:
+                margin = _array(data, f"b{k}.margin", 1, "f", (op.handle_basis.size,))
             side = header_int(f"branches[{k}].side", entry["side"], allowed=(1, -1))
-            branches.append(branch_cls(k, op, energy, margin, side))
+            branches.append(branch_cls(k, op, energy, margin, side, domain=domain))
         mode = _array(data, "mode", 2, "f", data["V"].shape)
         meta = header["meta"]
         if not isinstance(meta, dict):
             raise TypeError("header 'meta' must be an object")
-        return cls(branches, mode, opt.real_array("the header's threshold", header["threshold"]), meta)
+        box = _array(data, "box", 2, "f", (2, branches[0].op.P.size)) if version >= 2 else None
+        return cls(branches, mode, opt.real_array("the header's threshold", header["threshold"]), meta, box=box)
     except (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError) as exc:
         what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or type(exc).__name__
         raise OperatorFileError(f"{path} is not a valid multi-valued operator file: {what}") from exc

@@ -2,10 +2,11 @@
 
 :mod:`.sampling` draws the Q_k, :mod:`.cache` stores ground truths and operators on disk and
 :mod:`.bootstrap` runs the pipeline (:func:`train`); :mod:`.adaptive` chooses the samples where the operator is
-least certain (:func:`train_adaptive`); :mod:`.branches` finds every branch of D^E and fits a multi-valued operator.
+least certain (:func:`train_adaptive`); :mod:`.branches` finds every branch of D^E and fits a multi-valued operator,
+:mod:`.branch_domains` certifies where each branch is present and absent.
 """
 
-from . import adaptive, bootstrap, branches, cache, sampling
+from . import adaptive, bootstrap, branch_domains, branches, cache, sampling
 from .adaptive import train_adaptive
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
 
@@ -13,6 +14,7 @@ __all__ = [
     "TrainingRecord",
     "adaptive",
     "bootstrap",
+    "branch_domains",
     "branches",
     "cache",
     "held_out",

@@ -21,9 +21,11 @@ single-valued training keeps one minimum per Q_k; here every verified minimum we
    is one branch. Label 0 is the branch holding the rest pose (the side of s(x) = 0), so labels are stable.
    Each kept minimum gets its **stability margin** (:func:`stability_margin`): the reduced Hessian's eigenvalue
    of the eigenvector most parallel to u, which vanishes at the branch's fold.
-3. **domains**: branch b exists at the samples where it has a minimum (``Branch.samples``); between samples
-   :mod:`defop.operator.branched` estimates the domain in closed form from λ²_b(Q) (zero at a fold: a
-   saddle-node's smallest eigenvalue vanishes like the square root of the distance) and the side score.
+3. **domains** (:mod:`defop.training.branch_domains`): every sample bordering branch b's domain is certified
+   present or absent by a solve warm-started from b, the edge between them is bisected towards the fold, and
+   :mod:`defop.operator.domains` fits b's domain function g_b from both sides (the signed distance to the edge).
+   Without certification (format 1) the domain is estimated from λ²_b(Q), fitted on b's own samples (zero at a
+   fold: a saddle-node's smallest eigenvalue vanishes like the square root of the distance), and the side score.
 
 :func:`fit_branched` fits one DefOp per branch (:func:`defop.operator.fit.fit`, same bases and constraints:
 Prop. 2 everywhere, (8b) on every branch since the fit always includes the rest pose) and E_b, λ²_b with the same
@@ -44,6 +46,7 @@ import scipy.sparse.linalg as spla
 from .. import options as opt
 from ..operator.branched import Branch as OperatorBranch
 from ..operator.branched import BranchedOperator
+from ..operator.domains import box_of, domain_values, fit_domain
 from ..operator.fit import fit_shape, fit_values
 from ..variational.energies import check_energy
 from ..variational.solver import NotConvergedWarning, Solver
@@ -342,9 +345,15 @@ class Branch:
         Indices of the samples Q_k where the branch has a minimum (its domain on the samples).
     X : (k, n_vertices, d) numpy array
     energy, margin : (k,) numpy arrays
-        E and the stability margin (:func:`stability_margin` along u) of each minimum.
+        E and the stability margin (:func:`stability_margin` along u) of each minimum (NaN where not computed).
     side : int
         +1 when the branch's scores are above the threshold t, −1 below.
+    folds : (f, n_moving, d) numpy array or None
+        After :func:`certify_branches`: the fold points (bisected edge of the domain); None before.
+    segments : (s, 2, n_moving, d) numpy array or None
+        The edge of the domain between the fold points (marching squares, refined across each cell).
+    absent, uncertified : (·,) numpy int arrays
+        After :func:`certify_branches`: grid samples certified absent, and bordering samples left uncertified.
     """
 
     label: int
@@ -353,6 +362,10 @@ class Branch:
     energy: np.ndarray
     margin: np.ndarray
     side: int
+    folds: np.ndarray = None
+    segments: np.ndarray = None
+    absent: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
+    uncertified: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
 
     def report(self, Q):
         """count, domain extent (min and max of each coordinate of Q over the branch's samples), energy range."""
@@ -387,6 +400,15 @@ class Branches:
         The label of the lowest minimum at each sample (the single-valued training's choice).
     margin_seconds : float
         CPU seconds of the stability margins (``time.process_time``).
+    certify_seconds : float
+        CPU seconds of :func:`certify_branches` (certification and bisection solves).
+    grid : int or None
+        The number of grid samples (the first ``grid`` of ``samples``; edge minima follow); None: all.
+    third : (·,) numpy int array
+        Samples where more than two distinct minima were seen (discovery or certification): reported, not
+        resolved (two branches, the lower minimum kept on each side).
+    found : int
+        Samples certification found on a branch that discovery had missed.
     """
 
     samples: np.ndarray
@@ -397,6 +419,10 @@ class Branches:
     conflicts: int
     lowest: np.ndarray
     margin_seconds: float = 0.0
+    certify_seconds: float = 0.0
+    grid: int = None
+    third: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
+    found: int = 0
 
     def reports(self):
         """Per branch: :meth:`Branch.report`."""
@@ -427,7 +453,7 @@ def separating_mode(mesh, minima, pairs):
     return u / np.sqrt(np.einsum("v,vc->", mesh.mass_matrix.diagonal(), u**2))
 
 
-def group(shape, minima, tol=1e-3, energy="sarap"):
+def group(shape, minima, tol=1e-3, energy="sarap", margins=True):
     """Group the verified minima into branches by the side of the separating mode's score (module docstring).
 
     Parameters
@@ -438,6 +464,9 @@ def group(shape, minima, tol=1e-3, energy="sarap"):
         Minima at one sample closer than ``tol`` × bbox diagonal (M-weighted RMS) are one.
     energy : str
         The energy of the minima (for their stability margins, :func:`stability_margin` along u).
+    margins : bool
+        Compute the stability margins (λ²_b, the domain of format 1); False leaves them NaN (the domain is then
+        fitted from :func:`certify_branches`' labels).
 
     Returns
     -------
@@ -484,10 +513,20 @@ def group(shape, minima, tol=1e-3, energy="sarap"):
     for label, pts in members.items():
         ks = np.array([k for k, _ in pts], dtype=np.int64)
         cs = np.array([c for _, c in pts], dtype=np.int64)
-        margin = np.array([stability_margin(solver, minima.X[k, c], u if pairs else None) for k, c in pts])
+        margin = np.array(
+            [stability_margin(solver, minima.X[k, c], u if pairs else None) if margins else np.nan for k, c in pts]
+        )
         branches.append(Branch(label, ks, minima.X[ks, cs], minima.energy[ks, cs], margin, sides[label]))
     distinct = np.array([len(c) for c in kept])
-    return Branches(minima.samples, branches, u, t, distinct, conflicts, lowest, time.process_time() - t0)
+    third = np.flatnonzero(distinct > 2)
+    return Branches(minima.samples, branches, u, t, distinct, conflicts, lowest, time.process_time() - t0, third=third)
+
+
+def grid_spacing(Q):
+    """h: the smallest distance between two samples Q (m, n_moving, d) (flattened); 0 for fewer than two."""
+    flat = np.asarray(Q).reshape(len(Q), -1)
+    D = np.linalg.norm(flat[:, None] - flat[None], axis=-1)
+    return float(D[D > 0].min()) if (D > 0).any() else 0.0
 
 
 def neighbour_pairs(Q, members):
@@ -621,18 +660,28 @@ def fit_branched(shape, branches, energy="sarap", basis="tps", spatial="hat", k=
     defop.operator.branched.BranchedOperator
     """
     solver = Solver(shape.mesh, shape.handles, energy=energy)
-    lam_rest = stability_margin(solver, shape.mesh.V, branches.mode if len(branches.branches) > 1 else None)
+    old_model = any(b.folds is None for b in branches.branches)
+    lam_rest = old_model and stability_margin(
+        solver, shape.mesh.V, branches.mode if len(branches.branches) > 1 else None
+    )
     out = []
     user_meta = kw.pop("meta", None) or {}  # every branch's operator carries the caller's meta
+    grid = branches.samples[: branches.grid] if branches.grid else branches.samples
     for b in branches.branches:
         Q = branches.samples[b.samples]
         meta = {"energy": energy, "branch": b.label, **user_meta}
         op = fit_shape(shape, Q, b.X, basis, spatial, k, meta=meta, **kw)
         e = fit_values(op, _at_train(op, b.energy, 0.0, Q))
-        lam = fit_values(op, _at_train(op, np.asarray(b.margin) ** 2, lam_rest**2, Q))
-        out.append(OperatorBranch(b.label, op, e, lam, b.side))
+        if b.folds is None:  # format 1's domain: λ²_b fitted on b's own samples
+            lam = fit_values(op, _at_train(op, np.asarray(b.margin) ** 2, lam_rest**2, Q))
+            out.append(OperatorBranch(b.label, op, e, lam, b.side))
+            continue
+        points, values = domain_values(grid, b.samples[b.samples < len(grid)], b.folds, b.segments)
+        domain = fit_domain(op.P, op.handle_basis.scale, points, values)
+        out.append(OperatorBranch(b.label, op, e, None, b.side, domain=domain))
     meta = {"shape": shape.name, "energy": energy, "conflicts": branches.conflicts}
-    return BranchedOperator(out, branches.mode, branches.threshold, meta)
+    box = box_of(shape.P_moving, grid, grid_spacing(grid)) if branches.grid else None
+    return BranchedOperator(out, branches.mode, branches.threshold, meta, box=box)
 
 
 def fit_single(shape, minima, energy="sarap", basis="tps", spatial="hat", k=100):

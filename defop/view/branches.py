@@ -4,6 +4,8 @@ solver's, errors per frame."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from matplotlib import pyplot as plt
 
@@ -83,8 +85,11 @@ def plot_pass(profiles, saddles, probes, ts, size=3.6):
     return fig
 
 
-def plot_domains(samples_xy, branches, grid_xy, exists, path_xy=None, size=3.6):
-    """The branches in the handle plane: samples where each has a minimum, and its estimated domain.
+def plot_domains(
+    samples_xy, branches, grid_xy, exists, path_xy=None, size=3.6, absent=None, edges=None, axes=None, title=""
+):
+    """The branches in the handle plane: samples where each has a minimum, where it is certified absent, its edge,
+    and its estimated domain.
 
     Parameters
     ----------
@@ -96,14 +101,25 @@ def plot_domains(samples_xy, branches, grid_xy, exists, path_xy=None, size=3.6):
     exists : (gy, gx, B) numpy bool array
         The operator's domain estimate on the grid.
     path_xy : (k, 2) numpy array, optional
+    absent : list of (a,) int arrays, optional
+        Per branch: the samples certified absent (a solve from the branch left it), drawn as crosses.
+    edges : list of (s, 2, 2) numpy arrays, optional
+        Per branch: the segments of its edge (bisected fold points), in displacements.
+    axes : sequence of matplotlib Axes, optional
+        One per branch (default: a new figure with one row).
+    title : str
+        Prefix of each panel's title.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
     B = len(branches)
-    fig, axes = plt.subplots(1, B, figsize=(size * B, size), squeeze=False)
-    for ax, (label, idx), b in zip(axes[0], branches, range(B)):
+    if axes is None:
+        fig, ax_row = plt.subplots(1, B, figsize=(size * B, size), squeeze=False)
+        axes = ax_row[0]
+    fig = axes[0].figure
+    for b, (ax, (label, idx)) in enumerate(zip(axes, branches)):
         color = BRANCH_COLORS[b % len(BRANCH_COLORS)]
         ax.contourf(
             grid_xy[..., 0], grid_xy[..., 1], exists[..., b].astype(float), levels=[0.5, 1.5], colors=[color], alpha=0.2
@@ -111,12 +127,17 @@ def plot_domains(samples_xy, branches, grid_xy, exists, path_xy=None, size=3.6):
         ax.contour(grid_xy[..., 0], grid_xy[..., 1], exists[..., b].astype(float), levels=[0.5], colors=[color])
         ax.plot(samples_xy[:, 0], samples_xy[:, 1], ".", color="0.75", ms=3)
         ax.plot(samples_xy[idx, 0], samples_xy[idx, 1], "o", color=color, ms=3.5)
+        if absent is not None:
+            ax.plot(samples_xy[absent[b], 0], samples_xy[absent[b], 1], "x", color="k", ms=4.5, mew=1.2)
+        if edges is not None:
+            for seg in edges[b]:
+                ax.plot(seg[:, 0], seg[:, 1], "-", color="k", lw=1.4)
         if path_xy is not None:
             ax.plot(path_xy[:, 0], path_xy[:, 1], "k--", lw=0.8)
-        ax.set_title(f"branch {label}: {len(idx)} samples")
+        ax.set_title(f"{title}branch {label}: {len(idx)} samples" + ("" if absent is None else f", {len(absent[b])} ✕"))
         ax.set_xlabel("q_x − p_x")
         ax.set_aspect("equal")
-    axes[0, 0].set_ylabel("q_y − p_y")
+    axes[0].set_ylabel("q_y − p_y")
     fig.tight_layout()
     return fig
 
@@ -161,5 +182,40 @@ def plot_hysteresis(t, solver, operator, labels, errors, names=("solver (warm-st
     axes[2].set_ylabel("error / bbox diagonal")
     axes[2].legend(fontsize=7)
     axes[2].set_title("error against the solver")
+    fig.tight_layout()
+    return fig
+
+
+def case_domains(case, n=61):
+    """The inputs of :func:`plot_domains` for a :class:`defop.analysis.branches.Case` with certified branches: a dict
+    of samples_xy, branches, grid_xy, exists (on an n × n grid over the samples' box), path_xy, absent, edges."""
+    B, bop, P = case.branches, case.operator, case.shape.P_moving[0]
+    disp = B.samples[: B.grid, 0, :2] - P[:2]
+    lo, hi = disp.min(axis=0), disp.max(axis=0)
+    gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], n), np.linspace(lo[1], hi[1], n))
+    grid_xy = np.stack([gx, gy], axis=-1)
+    Qg = np.repeat(case.shape.P_moving[None], n * n, axis=0)
+    Qg[:, 0, :2] += grid_xy.reshape(-1, 2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        exists = bop.exists(Qg).reshape(n, n, -1)
+    return {
+        "samples_xy": disp,
+        "branches": [(b.label, b.samples[b.samples < B.grid]) for b in B.branches],
+        "grid_xy": grid_xy,
+        "exists": exists,
+        "path_xy": case.comparison.Qs[:, 0, :2] - P[:2],
+        "absent": [b.absent for b in B.branches],
+        "edges": [np.asarray(b.segments)[:, :, 0, :2] - P[:2] for b in B.branches],
+    }
+
+
+def plot_case_domains(cases, titles, size=3.4):
+    """:func:`plot_domains` of several certified cases, one row each (:func:`case_domains`)."""
+    rows = [case_domains(c) for c in cases]
+    B = max(len(r["branches"]) for r in rows)
+    fig, axes = plt.subplots(len(rows), B, figsize=(size * B, size * len(rows)), squeeze=False)
+    for r, ax_row, title in zip(rows, axes, titles):
+        plot_domains(**r, axes=ax_row[: len(r["branches"])], title=title)
     fig.tight_layout()
     return fig

@@ -43,19 +43,14 @@ export function fromBase64(text) {
 }
 
 /**
- * The closed-form operator: psi(Q) and evaluate(Q) with the same formulas as defop.operator.handle_bases / DefOp.
- * Q is a flat array (D·n, D = 2 or 3) of the moving handles, row-major; evaluate returns a Float64Array
- * (D·n_vertices) that is reused between calls.
+ * Ψ(Q) of defop.operator.handle_bases from a payload's basis keys (kind, P, scale, size, n_moving, d; centers and
+ * kernel for "tps", parent/factor for the monomials): a function Q -> Float64Array(size), reused between calls.
  */
-export function makeOperator(p) {
-  const D = p.d || 2, n = p.n_moving, d = D * n, size = p.size, nc = D * p.n_vertices;
+export function makePsi(p) {
+  const D = p.d || 2, d = D * p.n_moving, size = p.size, P = p.P, scale = p.scale;
   const cubic = p.kernel === "r3"; // φ(r) = r³ (3D) instead of r² log r
-  const P = p.P, scale = p.scale, A = p.A, B = p.B || null, r = B ? p.rank : nc, x = p.V;
-  const z = new Float64Array(d), psi = new Float64Array(size), dpsi = new Float64Array(size - 1);
-  const tmp = new Float64Array(r), out = new Float64Array(nc);
-  const movingVertices = Array.from(p.handles).filter((_, i) => p.moving[i]); // row l of Q is vertex movingVertices[l]
-
-  function fillPsi(Q) {
+  const z = new Float64Array(d), psi = new Float64Array(size);
+  return function fillPsi(Q) {
     for (let i = 0; i < d; i++) z[i] = (Q[i] - P[i]) / scale;
     psi[0] = 1;
     if (p.kind === "tps") {
@@ -72,7 +67,21 @@ export function makeOperator(p) {
       for (let j = 1; j < size; j++) psi[j] = psi[parent[j - 1]] * z[factor[j - 1]];
     }
     return psi;
-  }
+  };
+}
+
+/**
+ * The closed-form operator: psi(Q) and evaluate(Q) with the same formulas as defop.operator.handle_bases / DefOp.
+ * Q is a flat array (D·n, D = 2 or 3) of the moving handles, row-major; evaluate returns a Float64Array
+ * (D·n_vertices) that is reused between calls.
+ */
+export function makeOperator(p) {
+  const D = p.d || 2, n = p.n_moving, size = p.size, nc = D * p.n_vertices;
+  const P = p.P, A = p.A, B = p.B || null, r = B ? p.rank : nc, x = p.V;
+  const fillPsi = makePsi(p);
+  const dpsi = new Float64Array(size - 1);
+  const tmp = new Float64Array(r), out = new Float64Array(nc);
+  const movingVertices = Array.from(p.handles).filter((_, i) => p.moving[i]); // row l of Q is vertex movingVertices[l]
   const psi0 = Float64Array.from(fillPsi(P)).subarray(1); // Ψ(P)[1:], by the same code as every frame
 
   function rowCombination(w, M, rows, cols, res) { // res = w @ M, M row-major (rows × cols)
@@ -89,7 +98,7 @@ export function makeOperator(p) {
   // (★) of defop.operator.defop: D(·, Q) = x + δψ(Q) W_F, then the moving handles' columns get Q − P exactly.
   // δψ(P) = 0 bit for bit (rest pose exact, 8b); W_F is zero on every handle column (Prop. 2).
   function evaluate(Q) {
-    fillPsi(Q);
+    const psi = fillPsi(Q);
     for (let j = 0; j < size - 1; j++) dpsi[j] = psi[j + 1] - psi0[j];
     if (B) rowCombination(rowCombination(dpsi, A, size - 1, r, tmp), B, r, nc, out);
     else rowCombination(dpsi, A, size - 1, nc, out);
@@ -113,63 +122,94 @@ export function branchPayload(p, b) {
 
 /**
  * The multi-valued operator of defop.operator.branched (a port of its closed forms, one makeOperator per branch):
- * E_b, λ²_b and s_b are ψ_b(Q) · (energy_w, margin_w, score_w); b exists where λ²_b > 0 and (s_b ≥ 0 or s_b is
+ * E_b and s_b are ψ_b(Q) · (energy_w, score_w), the domain g_b is ψ_D(Q) · domain_w (its own TPS, or ψ_b for a
+ * format-1 operator's λ²_b); b exists where g_b > 0 and (s_b ≥ 0 or s_b is
  * the largest side); `global` takes the existing branch of lowest E_b, `follow` (FollowSession.step) stays on its
- * branch while it exists and otherwise jumps there; where none exists, the largest λ² (far). evaluate(Q) steps
+ * branch while it exists and otherwise jumps there; where none exists, the largest g (far); outside the samples'
+ * box, `outside`. evaluate(Q) steps
  * the current mode and evaluates that branch's D_b; reset() goes back to branch 0 (the rest pose's).
  */
 export function makeBranched(p) {
-  const nb = p.n_branches, ops = [], ws = [];
+  const nb = p.n_branches, ops = [], ws = [], doms = [];
   for (let b = 0; b < nb; b++) {
     const q = branchPayload(p, b);
     ops.push(makeOperator(q));
-    ws.push([q.energy_w, q.margin_w, q.score_w]);
+    ws.push([q.energy_w, q.domain_w, q.score_w]);
+    // g_b: its own TPS (defop.operator.domains, format 2) or λ²_b on the branch's Ψ_b (format 1: null)
+    doms.push(q.domain_own ? makePsi({ kind: "tps", d: q.d, n_moving: q.n_moving, P: q.P, size: q.domain_size,
+      scale: q.domain_scale, centers: q.domain_centers, kernel: q.domain_kernel }) : null);
   }
-  const E = new Float64Array(nb), lam2 = new Float64Array(nb), side = new Float64Array(nb);
-  function estimates(Q) {
+  const box = p.box || null; // (2, D·n): lowest and highest Q − P of the samples, ± one spacing
+  function outsideBox(Q) {
+    if (!box) return false;
+    for (let i = 0; i < dq; i++) { const t = Q[i] - p.P[i]; if (t < box[i] || t > box[dq + i]) return true; }
+    return false;
+  }
+  function dot(a, w) { let t = 0; for (let j = 0; j < w.length; j++) t += a[j] * w[j]; return t; }
+  const E = new Float64Array(nb), g = new Float64Array(nb), side = new Float64Array(nb);
+  const dq = (p.d || 2) * p.n_moving;
+  /** E_b, λ²_b, s_b at Q into fresh arrays, or a RangeError naming Q (wrong length, NaN, ±inf, Ψ(Q) overflowed). */
+  function estimatesAt(Q) {
+    if (!Q || Q.length !== dq) throw new RangeError(`Q must hold ${dq} numbers (the moving handles), got ${Q && Q.length}`);
+    for (let i = 0; i < dq; i++) if (!Number.isFinite(Q[i])) throw new RangeError(`Q must be finite, got Q[${i}] = ${Q[i]}`);
+    const e = new Float64Array(nb), l = new Float64Array(nb), s = new Float64Array(nb);
     for (let b = 0; b < nb; b++) {
-      const psi = ops[b].psi(Q), out = [0, 0, 0];
-      for (let k = 0; k < 3; k++) { const w = ws[b][k]; let s = 0; for (let j = 0; j < w.length; j++) s += psi[j] * w[j]; out[k] = s; }
-      E[b] = out[0]; lam2[b] = out[1]; side[b] = out[2];
+      const psi = ops[b].psi(Q), out = [dot(psi, ws[b][0]), 0, dot(psi, ws[b][2])];
+      out[1] = doms[b] ? dot(doms[b](Q), ws[b][1]) : dot(psi, ws[b][1]);
+      if (!out.every(Number.isFinite)) throw new RangeError(`Ψ(Q) · (e, g, s) is not finite at Q = [${Array.from(Q)}]`);
+      e[b] = out[0]; l[b] = out[1]; s[b] = out[2];
     }
-    return { E, lam2, side };
+    return { E: e, g: l, side: s };
   }
-  function existing() {
+  /** E_b, g_b, s_b at Q (estimates() of Python), kept in bop's E, g, side only when Q is valid. */
+  function estimates(Q) {
+    const est = estimatesAt(Q);
+    E.set(est.E); g.set(est.g); side.set(est.side);
+    return { E, g, side };
+  }
+  function existing(est) {
     let top = -Infinity;
-    for (let b = 0; b < nb; b++) top = Math.max(top, side[b]);
-    return Array.from({ length: nb }, (_, b) => lam2[b] > 0 && (side[b] >= 0 || side[b] >= top));
+    for (let b = 0; b < nb; b++) top = Math.max(top, est.side[b]);
+    return Array.from({ length: nb }, (_, b) => est.g[b] > 0 && (est.side[b] >= 0 || est.side[b] >= top));
   }
-  function lowestExisting(ok) {
+  function lowestExisting(est, ok) {
     let best = -1;
-    for (let b = 0; b < nb; b++) if (ok[b] && (best < 0 || E[b] < E[best])) best = b;
+    for (let b = 0; b < nb; b++) if (ok[b] && (best < 0 || est.E[b] < est.E[best])) best = b;
     if (best >= 0) return { label: best, far: false };
-    for (let b = 0; b < nb; b++) if (best < 0 || lam2[b] > lam2[best]) best = b;
+    for (let b = 0; b < nb; b++) if (best < 0 || est.g[b] > est.g[best]) best = b;
     return { label: best, far: true };
   }
   const bop = { ops, n_branches: nb, labels: p.branch_labels || [...Array(nb).keys()], mode: "follow", branch: 0,
-    far: false, frame: 0, jumps: [], log: [], estimates };
-  /** The label at Q in the current mode, updating the follow state (FollowSession.step). */
-  bop.step = (Q) => {
-    estimates(Q);
-    const ok = existing();
-    let far = false;
-    if (bop.mode === "global" || !ok[bop.branch]) {
-      const pick = lowestExisting(ok);
-      far = pick.far;
-      if (bop.mode === "follow" && pick.label !== bop.branch) bop.jumps.push([bop.frame, bop.branch, pick.label]);
-      bop.branch = pick.label;
-    }
-    bop.far = far;
+    far: false, outside: false, frame: 0, jumps: [], log: [], estimates };
+  /** The next state at Q without changing anything (FollowSession._next): every check runs here. */
+  function plan(Q) {
+    const est = estimatesAt(Q), ok = existing(est), outside = outsideBox(Q);
+    if (bop.mode !== "global" && ok[bop.branch]) return { est, label: bop.branch, far: false, outside, jump: null };
+    const pick = lowestExisting(est, ok);
+    const jump = bop.mode === "follow" && pick.label !== bop.branch ? [bop.frame, bop.branch, pick.label] : null;
+    return { est, label: pick.label, far: pick.far, outside, jump };
+  }
+  function commit(next) {
+    E.set(next.est.E); g.set(next.est.g); side.set(next.est.side);
+    if (next.jump) bop.jumps.push(next.jump);
+    bop.branch = next.label;
+    bop.far = next.far;
+    bop.outside = next.outside;
     bop.frame += 1;
     return bop.branch;
-  };
+  }
+  /** The label at Q in the current mode, updating the follow state (FollowSession.step); a rejected Q (a
+   * RangeError) changes nothing. */
+  bop.step = (Q) => commit(plan(Q));
   bop.evaluate = (Q) => {
-    const label = bop.step(Q);
-    bop.log.push({ Q: Array.from(Q), branch: label, mode: bop.mode });
+    const next = plan(Q); // throws before any state changes
+    const X = ops[next.label].evaluate(Q);
+    commit(next);
+    bop.log.push({ Q: Array.from(Q), branch: next.label, mode: bop.mode });
     if (bop.log.length > 10000) bop.log.shift();
-    return ops[label].evaluate(Q);
+    return X;
   };
-  bop.reset = () => { bop.branch = 0; bop.frame = 0; bop.jumps = []; bop.log = []; bop.far = false; };
+  bop.reset = () => { bop.branch = 0; bop.frame = 0; bop.jumps = []; bop.log = []; bop.far = false; bop.outside = false; };
   bop.psi = (Q) => ops[bop.branch].psi(Q);
   return bop;
 }
@@ -568,6 +608,8 @@ function readout(ui, st) {
     ui.branch.dataset.branch = String(b);
     if (st.op.far) ui.warn.textContent = (ui.warn.textContent ? ui.warn.textContent + "; " : "") +
       "outside every branch's domain: the nearest branch extrapolates";
+    if (st.op.outside) ui.warn.textContent = (ui.warn.textContent ? ui.warn.textContent + "; " : "") +
+      "beyond the branches' samples (their box enlarged by one spacing): every branch extrapolates";
   }
 }
 
