@@ -1,0 +1,156 @@
+"""The fused numba kernels (defop.variational.fused) against the numpy closed forms, the reference path.
+
+E, ∇E, the Hessian's CSC values and the per-element modes (``local``) of ``ReducedProblem.grad_hess`` and the line
+search's energies must agree to round-off (1e-12 relative) on random, near-flip and kink-held deformations, and the
+solver must reach the same verified minima with either kernel.
+"""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+import defop as dop
+from defop.variational.problem import KERNELS, ReducedProblem, check_kernel
+from defop.variational.solver import Solver
+
+TOL = 1e-12
+
+
+@pytest.fixture(scope="module")
+def bar():
+    return dop.shapes.load("bar")
+
+
+def _rel(a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    assert np.array_equal(np.isfinite(a), np.isfinite(b))
+    ok = np.isfinite(a)
+    return float(np.abs(a[ok] - b[ok]).max() / max(np.abs(a[ok]).max(), 1e-300)) if ok.any() else 0.0
+
+
+def _both(problem, X, mu, project, kink):
+    """grad_hess and energies under each kernel."""
+    out = {}
+    for k in KERNELS:
+        problem.kernel = k
+        E, g, data, local = problem.grad_hess(X, mu, project, kink)
+        out[k] = (E, g, data, local, problem.energies(X, mu), problem.energy_of(X, mu))
+    problem.kernel = "numba"
+    return out["numpy"], out["numba"]
+
+
+def _agree(problem, X, mu, project, kink):
+    (E0, g0, d0, l0, e0, f0), (E1, g1, d1, l1, e1, f1) = _both(problem, X, mu, project, kink)
+    assert _rel([E0], [E1]) <= TOL and _rel(e0, e1) <= TOL and _rel([f0], [f1]) <= TOL
+    assert _rel(g0, g1) <= TOL
+    assert _rel(d0, d1) <= TOL
+    assert _rel(l0[0], l1[0]) <= TOL and _rel(l0[1], l1[1]) <= TOL  # the modes verify.kink_pull reads
+    H = problem.hessian
+    for proj in (True, False):  # the numpy assembly of the numba modes, and the numba one of the numpy modes
+        H.kernel = "numpy"
+        ref = H.assemble(l0, proj)
+        H.kernel = "numba"
+        assert _rel(ref, H.assemble(l0, proj)) <= TOL and _rel(ref, H.assemble(l1, proj)) <= TOL
+    return E0
+
+
+def _smooth_field(V, rng, amp):
+    """A random smooth displacement (a few sines) of amplitude ``amp`` (of the bounding box)."""
+    size = np.ptp(V, axis=0).max()
+    k = rng.normal(size=(3, V.shape[1])) * 4 / size
+    ph = rng.uniform(0, 2 * np.pi, size=(3, V.shape[1]))
+    return amp * size * sum(np.sin(V @ k[i][:, None] + ph[i]) for i in range(3))
+
+
+@pytest.mark.parametrize("energy", ["arap", "sarap", "isometric"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_random_deformations_agree(bar, energy, seed):
+    rng = np.random.default_rng(seed)
+    handles = rng.choice(bar.mesh.n_vertices, rng.integers(1, 6), replace=False)
+    problem = ReducedProblem(bar.mesh, handles, energy)
+    V = bar.mesh.V
+    angle = rng.uniform(-3, 3)
+    R = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    X = V @ R.T * rng.uniform(0.5, 2) + _smooth_field(V, rng, 0.05) + rng.uniform(-1, 1, 2)
+    for mu, project in [(0.0, True), (0.0, False), (1e-5, True), (1e-2, False)]:
+        _agree(problem, X, mu, project, 0.0)
+    # noise that flips some triangles: barrier energies are +inf there, on both paths
+    Y = X + 0.02 * np.ptp(V) * rng.normal(size=V.shape)
+    E = _agree(problem, Y, 0.0, True, 0.0)
+    assert np.isinf(E) == (energy != "arap" and problem.mesh.flipped(Y).any())
+
+
+@pytest.mark.parametrize("energy", ["sarap", "isometric"])
+def test_near_flip_agrees(bar, energy):
+    """Triangles squashed to det J ~ 1e-6: the barrier terms are ~1e12 and still agree to round-off."""
+    problem = ReducedProblem(bar.mesh, [0, 1], energy)
+    X = bar.mesh.V @ np.diag([1.0, 1e-3]) + 1e-6 * np.sin(50 * bar.mesh.V)
+    assert not problem.mesh.flipped(X).any()
+    for mu, project in [(0.0, True), (1e-5, False)]:
+        E = _agree(problem, X, mu, project, 0.0)
+        assert E > 1e5
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_kink_held_modes_agree(bar, seed):
+    """S-ARAP at μ = 0 on conformal maps (Σ = σ: Eq. 11's kink): the held modes and the released (−1) elements."""
+    rng = np.random.default_rng(seed)
+    problem = ReducedProblem(bar.mesh, [0], "sarap")
+    V = bar.mesh.V
+    X = 1.3 * V + 1e-7 * rng.normal(size=V.shape)  # every triangle within 1e-4 of the kink
+    X[: len(X) // 3] += _smooth_field(V[: len(X) // 3], rng, 0.01)  # and a third of them off it
+    J = bar.mesh.jacobians(X)
+    on = dop.variational.planar.on_kink(dop.variational.planar.svd_frame(J)[0], 1e-4)
+    assert 0 < on.sum() < len(on)
+    hold = np.full(len(J), 1e-4)
+    hold[rng.choice(len(J), len(J) // 4, replace=False)] = -1.0
+    for kink in (1e-4, hold, 0.0):
+        _agree(problem, X, 0.0, False, kink)
+        _agree(problem, X, 0.0, True, kink)
+
+
+@pytest.mark.parametrize("energy", ["arap", "sarap"])
+def test_solver_reaches_the_same_minima(bar, energy):
+    """Both kernels: the same verified minima, to the solver's tolerance (energies 1e-10, positions 1e-7 diag)."""
+    Qs = dop.training.sampling.sample_shape(bar, 3, np.random.default_rng(5))
+    results = {}
+    for k in KERNELS:
+        solver = Solver(bar.mesh, bar.handles, energy)
+        solver.kernel = k
+        results[k] = [solver.solve(bar.targets(Q)) for Q in Qs]
+    for a, b in zip(results["numpy"], results["numba"]):
+        assert a.converged and b.converged
+        assert abs(a.energy - b.energy) <= 1e-10 * max(a.energy, 1e-12)
+        assert np.abs(a.X - b.X).max() <= 1e-7 * bar.mesh.bbox_diagonal
+
+
+def test_kernel_choice(bar, monkeypatch):
+    problem = ReducedProblem(bar.mesh, [0], "sarap")
+    assert problem.kernel == "numba" and problem.hessian.kernel == "numba"
+    problem.kernel = "numpy"
+    assert problem.hessian.kernel == "numpy"
+    with pytest.raises(ValueError, match="kernel must be one of numba, numpy, got 'cuda'"):
+        problem.kernel = "cuda"
+    assert problem.kernel == "numpy"  # unchanged
+    monkeypatch.setenv("DEFOP_KERNEL", "numpy")
+    assert check_kernel(None) == "numpy" and ReducedProblem(bar.mesh, [0], "arap").kernel == "numpy"
+    monkeypatch.setenv("DEFOP_KERNEL", "fortran")
+    with pytest.raises(ValueError, match="DEFOP_KERNEL must be one of numba, numpy, got 'fortran'"):
+        check_kernel(None)
+    # the isometric_max energy has no fused kernel: the numpy path runs whatever the setting
+    problem = ReducedProblem(bar.mesh, [0], "isometric_max", kernel="numba")
+    assert problem._fused() is None
+
+
+def test_pickled_solver_rebuilds_the_slot_map(bar):
+    solver = Solver(bar.mesh, bar.handles, "sarap")
+    X = bar.mesh.V * 1.1
+    ref = solver.grad_hess(X, 1e-5)
+    assert solver.hessian._slot is not None
+    clone = pickle.loads(pickle.dumps(solver))
+    assert clone.hessian._slot is None and clone.kernel == "numba"
+    out = clone.grad_hess(X, 1e-5)
+    assert out[0] == ref[0] and np.array_equal(out[2], ref[2])
