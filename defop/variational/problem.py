@@ -575,7 +575,7 @@ class ReducedProblem:
         return None if code is None or self.dim not in fused.DIMS else (fused, code)
 
     def _vertex_order(self, fused):
-        """The fused kernels' summation order of each element's vertices (:func:`defop.variational.fused.vertex_order`)."""
+        """Each element's vertices in the fused kernels' order of summation (``fused.vertex_order``)."""
         if self._order is None:
             self._order = fused.vertex_order(self.mesh.F)
         return self._order
@@ -630,17 +630,17 @@ class ReducedProblem:
         return E, g, self.hessian.assemble(local, project), local
 
     def _grad_hess_fused(self, fk, X, mu, project, kink):
+        """:meth:`grad_hess` by :func:`defop.variational.fused.grad_hess`."""
         fused, code = fk
         mesh, H, d = self.mesh, self.hessian, self.dim
         m = mesh.n_faces
         kink = np.asarray(kink, dtype=float)
         hold = bool(self.energy == "sarap" and mu == 0 and np.any(kink > 0))
-        kink = np.ascontiguousarray(np.broadcast_to(kink, (m,)) if kink.ndim == 0 else kink, dtype=float)
+        kink = np.ascontiguousarray(np.broadcast_to(kink[:, None] if kink.ndim == 1 else kink, (m, 2)))
         g, data = np.empty(d * mesh.n_vertices), np.empty(H._nnz)
         W, lamA = np.empty((m, (d + 1) * d, d * d)), np.empty((m, d * d))
         args = (mesh.F, mesh.local_gradients, self._vertex_order(fused), mesh.areas, code, float(mu), kink, hold)
-        args = (*args, bool(project), H.slot)
-        E = fused.grad_hess(self._map(X), *args, g, data, W, lamA)
+        E = fused.grad_hess(self._map(X), *args, bool(project), H.slot, g, data, W, lamA)
         return E, g, data, (W, lamA)
 
     def newton_direction(self, g_free, data, rel_shift=1e-10):
