@@ -74,11 +74,18 @@ def _jacobian(X, F, D, order, t, d, J):
 
 
 @njit(**_JIT)
+def _hypot(x, y):
+    """√(x² + y²) for the eigenvalues of ψ's σ-Hessian (libm's hypot guards against overflow at several times the
+    cost; the singular values keep it, whose difference Qn − Rn cancels near a flip)."""
+    return math.sqrt(x * x + y * y)
+
+
+@njit(**_JIT)
 def _frame2(J):
     """Signed singular values and frame of a 2×2 J (:func:`defop.variational.planar.svd_frame`)."""
     a, b, c, d = J[0, 0], J[0, 1], J[1, 0], J[1, 1]
     E, F, G, H = (a + d) / 2, (a - d) / 2, (c + b) / 2, (c - b) / 2
-    Qn, Rn = math.hypot(E, H), math.hypot(F, G)
+    Qn, Rn = math.hypot(E, H), math.hypot(F, G)  # as numpy: σ = Qn − Rn cancels near a flip
     ca, sa = (E / Qn, H / Qn) if Qn > 0 else (1.0, 0.0)
     cb, sb = (F / Rn, G / Rn) if Rn > 0 else (1.0, 0.0)
     return Qn + Rn, Qn - Rn, ca, sa, cb, sb
@@ -174,11 +181,18 @@ def _finite(x):
 
 @njit(**_JIT)
 def _half_angle(y, x):
-    """(cos θ/2, sin θ/2) of θ = atan2(y, x), exact where the scaling modes are already diagonal (y = 0, x > 0)."""
+    """(cos θ/2, sin θ/2) of θ = atan2(y, x) without trigonometry; exact where the scaling modes are already diagonal
+    (y = 0, x > 0), and within a few ulps of ``planar.eigensystem``'s cos, sin of atan2(y, x)/2 elsewhere."""
     if y == 0.0 and x > 0.0:
         return 1.0, 0.0
-    ang = 0.5 * math.atan2(y, x)
-    return math.cos(ang), math.sin(ang)
+    R = _hypot(x, y)
+    if R == 0.0:
+        return 1.0, 0.0
+    if x >= 0.0:  # the half-angle formulas, each where it is well conditioned
+        c = math.sqrt((1 + x / R) / 2)
+        return c, y / (2 * R * c)
+    s = math.copysign(math.sqrt((1 - x / R) / 2), y)
+    return y / (2 * R * s), s
 
 
 @njit(**_JIT)
@@ -198,7 +212,7 @@ def eigen2(J, code, mu, kink, hold, project, grad, lam, modes):
     u, v = (p1 + p2) * r, (p1 - p2) * r
     p11, p22, p12 = _finite(p11), _finite(p22), _finite(p12)
     mean, half = (p11 + p22) / 2, (p11 - p22) / 2
-    rad = math.hypot(half, p12)
+    rad = _hypot(half, p12)
     c, s = _half_angle(2 * p12, p11 - p22)
     x1, y1, x2, y2 = (c + s) * r, (c - s) * r, (c - s) * r, -(c + s) * r
     lam[0], lam[1], lam[2], lam[3] = mean + rad, mean - rad, twist if np.isfinite(twist) else -np.inf, flip

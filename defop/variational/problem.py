@@ -633,11 +633,11 @@ class ReducedProblem:
         """:meth:`grad_hess` by :func:`defop.variational.fused.grad_hess`."""
         fused, code = fk
         mesh, H, d = self.mesh, self.hessian, self.dim
-        m = mesh.n_faces
+        m = len(mesh.F)
         kink = np.asarray(kink, dtype=float)
         hold = bool(self.energy == "sarap" and mu == 0 and np.any(kink > 0))
         kink = np.ascontiguousarray(np.broadcast_to(kink[:, None] if kink.ndim == 1 else kink, (m, 2)))
-        g, data = np.empty(d * mesh.n_vertices), np.empty(H._nnz)
+        g, data = np.empty(d * len(mesh.V)), np.empty(H._nnz)
         W, lamA = np.empty((m, (d + 1) * d, d * d)), np.empty((m, d * d))
         args = (mesh.F, mesh.local_gradients, self._vertex_order(fused), mesh.areas, code, float(mu), kink, hold)
         E = fused.grad_hess(self._map(X), *args, bool(project), H.slot, g, data, W, lamA)
