@@ -233,3 +233,22 @@ def test_pickled_solver_rebuilds_the_slot_map(bar):
     assert clone.hessian._slot is None and clone.kernel == "numba"
     out = clone.grad_hess(X, 1e-5)
     assert out[0] == ref[0] and np.array_equal(out[2], ref[2])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_flip_free_step_is_the_numpy_one(seed):
+    """energies.max_flip_free_step runs the compiled pass in 2D: the same step as planar's numpy formulas, bit for bit,
+    with linear (det dJ = 0), root-free and degenerate rows mixed in."""
+    from defop.variational import energies, fused, planar
+
+    rng = np.random.default_rng(seed)
+    J = np.eye(2) + 0.3 * rng.normal(size=(500, 2, 2))
+    J = J[np.linalg.det(J) > 0.05]
+    dJ = rng.normal(size=J.shape) * rng.uniform(0.01, 3, size=(len(J), 1, 1))
+    dJ[:50, 1] = 0.0  # det dJ = 0: linear in t
+    dJ[50:60] = 0.0  # no motion: no root
+    dJ[60:70] = -J[60:70]  # det(J(1 − t)): a double root at 1
+    for safety in (0.9, 1.0):
+        ref = planar.max_flip_free_step(J, dJ, safety)
+        assert fused.flip_free_step2(J, dJ, safety) == ref == energies.max_flip_free_step(J, dJ, safety)
+        assert energies.max_flip_free_step(J[50:60], dJ[50:60], safety) == 1.0

@@ -25,7 +25,8 @@ import math
 import numpy as np
 from numba import njit
 
-_JIT = {"cache": True, "nogil": True, "boundscheck": False}
+#: error_model "numpy": a division by zero gives inf or nan, as in the numpy path (and costs no check)
+_JIT = {"cache": True, "nogil": True, "boundscheck": False, "error_model": "numpy"}
 
 #: the energies with a fused kernel, and their codes
 CODES = {"arap": 0, "sarap": 1, "isometric": 2}
@@ -680,3 +681,29 @@ def grad_hess(X, F, D, order, A, code, mu, kink, hold, project, slot, g, data, W
             lp[q] = max(lamA[t, q], 0.0) if project else lamA[t, q]
         _scatter_one(W, lp, slot, t, data)
     return E
+
+
+@njit(**_JIT)
+def flip_free_step2(J, dJ, safety):
+    """:func:`defop.variational.planar.max_flip_free_step` in one pass: the smallest positive root of
+    det(J + t dJ) = c + b t + a t² over the triangles (the same formulas), times ``safety``, capped at 1."""
+    t_min = np.inf
+    for k in range(J.shape[0]):
+        a = dJ[k, 0, 0] * dJ[k, 1, 1] - dJ[k, 0, 1] * dJ[k, 1, 0]
+        b = J[k, 0, 0] * dJ[k, 1, 1] + dJ[k, 0, 0] * J[k, 1, 1] - J[k, 0, 1] * dJ[k, 1, 0] - dJ[k, 0, 1] * J[k, 1, 0]
+        c = J[k, 0, 0] * J[k, 1, 1] - J[k, 0, 1] * J[k, 1, 0]
+        root = np.inf
+        if abs(a) <= 1e-14 * (abs(a) + abs(b) + abs(c)):
+            if b != 0.0:
+                tl = -c / b
+                if tl > 0:
+                    root = tl
+        else:
+            disc = b * b - 4 * a * c
+            if disc >= 0:
+                q = -0.5 * (b + math.copysign(math.sqrt(disc), b))
+                for r in (q / a, c / q):
+                    if r > 0 and r < root:
+                        root = r
+        t_min = min(t_min, root)
+    return min(1.0, safety * t_min)
