@@ -75,6 +75,29 @@ def _jacobian(X, F, D, order, t, d, J):
 
 
 @njit(**_JIT)
+def _jacobian2(X, F, D, order, t, J):
+    """:func:`_jacobian` for triangles, unrolled (the same sums in the same order)."""
+    i0, i1, i2 = order[t, 0], order[t, 1], order[t, 2]
+    v0, v1, v2 = F[t, i0], F[t, i1], F[t, i2]
+    for a in range(2):
+        x0, x1, x2 = X[v0, a], X[v1, a], X[v2, a]
+        for b in range(2):
+            v = 0.0
+            v += x0 * D[t, i0, b]
+            v += x1 * D[t, i1, b]
+            v += x2 * D[t, i2, b]
+            J[a, b] = v
+
+
+@njit(**_JIT)
+def _sigma2(J):
+    """The signed singular values (Σ, σ) of a 2×2 J alone (:func:`_frame2` without the frame)."""
+    a, b, c, d = J[0, 0], J[0, 1], J[1, 0], J[1, 1]
+    Qn, Rn = math.hypot((a + d) / 2, (c - b) / 2), math.hypot((a - d) / 2, (c + b) / 2)
+    return Qn + Rn, Qn - Rn
+
+
+@njit(**_JIT)
 def _hypot(x, y):
     """√(x² + y²) for the eigenvalues of ψ's σ-Hessian (libm's hypot guards against overflow at several times the
     cost; the singular values keep it, whose difference Qn − Rn cancels near a flip)."""
@@ -269,6 +292,30 @@ def _local(D, t, d, At, grad, modes, g, F, W):
                 for b in range(d):
                     w += D[t, i, b] * modes[a * d + b, q]
                 W[t, d * i + a, q] = w
+
+
+@njit(**_JIT)
+def _local2(D, t, At, grad, modes, g, F, W):
+    """:func:`_local` for triangles, with constant loop bounds (unrolled)."""
+    for i in range(3):
+        vi = F[t, i]
+        for a in range(2):
+            g[2 * vi + a] += At * (D[t, i, 0] * grad[2 * a] + D[t, i, 1] * grad[2 * a + 1])
+            for q in range(4):
+                W[t, 2 * i + a, q] = D[t, i, 0] * modes[2 * a, q] + D[t, i, 1] * modes[2 * a + 1, q]
+
+
+@njit(**_JIT)
+def _scatter2(W, lp, slot, t, data):
+    """:func:`_scatter_one` for triangles, with constant loop bounds (unrolled)."""
+    for i in range(6):
+        for j in range(6):
+            p = slot[t, i, j]
+            if p >= 0:
+                v = 0.0
+                for q in range(4):
+                    v += W[t, i, q] * lp[q] * W[t, j, q]
+                data[p] += v
 
 
 @njit(**_JIT)
@@ -638,11 +685,12 @@ def energies(X, F, D, order, A, code, mu):
     T, d1, d2 = np.empty(3), np.empty(3), np.empty((3, 3))
     Es, Ee = 0.0, 0.0
     for t in range(m):
-        _jacobian(X, F, D, order, t, d, J)
         if d == 2:
-            s1, s2 = _frame2(J)[:2]
+            _jacobian2(X, F, D, order, t, J)
+            s1, s2 = _sigma2(J)
             smooth, exact = _value2(code, s1, s2, mu)
         else:
+            _jacobian(X, F, D, order, t, d, J)
             svd3(J, U, S, V)
             smooth, exact = _sigma3(code, S, mu, T, d1, d2)
         Es += A[t] * smooth
@@ -668,18 +716,25 @@ def grad_hess(X, F, D, order, A, code, mu, kink, hold, project, slot, g, data, W
     data[:] = 0.0
     E = 0.0
     for t in range(m):
-        _jacobian(X, F, D, order, t, d, J)
         if d == 2:
+            _jacobian2(X, F, D, order, t, J)
             psi = eigen2(J, code, mu, kink[t, 0], hold, False, grad, lam, modes)
         else:
+            _jacobian(X, F, D, order, t, d, J)
             svd3(J, U, S, V)
             psi = eigen3(U, S, V, code, mu, kink[t, 0], kink[t, 1], hold, grad, lam, modes, v3, m3)
         E += A[t] * psi
-        _local(D, t, d, A[t], grad, modes, g, F, W)
+        if d == 2:
+            _local2(D, t, A[t], grad, modes, g, F, W)
+        else:
+            _local(D, t, d, A[t], grad, modes, g, F, W)
         for q in range(nm):
             lamA[t, q] = lam[q] * A[t]
             lp[q] = max(lamA[t, q], 0.0) if project else lamA[t, q]
-        _scatter_one(W, lp, slot, t, data)
+        if d == 2:
+            _scatter2(W, lp, slot, t, data)
+        else:
+            _scatter_one(W, lp, slot, t, data)
     return E
 
 
