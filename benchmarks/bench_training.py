@@ -119,6 +119,9 @@ def report(results):
             f"{r['error'] / base['error']:9.3f} {r['converged']:>5}/{len(r['energies'])} {len(moved):6d}  "
             f"{r['load'][0]:.1f}/{r['load'][1]:.1f}"
         )
+    if "numpy" in results and "kernel" in results:
+        saved = 1 - results["kernel"]["cpu"] / results["numpy"]["cpu"]
+        print(f"the fused kernels save {100 * saved:.0f}% of the training's CPU seconds against this tree's numpy path")
     for name, r in results.items():
         for k in r["moved"]:
             E = r["energies"][k]
