@@ -252,3 +252,26 @@ def test_flip_free_step_is_the_numpy_one(seed):
         ref = planar.max_flip_free_step(J, dJ, safety)
         assert fused.flip_free_step2(J, dJ, safety) == ref == energies.max_flip_free_step(J, dJ, safety)
         assert energies.max_flip_free_step(J[50:60], dJ[50:60], safety) == 1.0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_3d_flip_free_step_screen_changes_nothing(seed, monkeypatch):
+    """volumetric.max_flip_free_step solves the cubic only where det(J + t dJ) may drop below det J / 2 before the
+    step cap: the same step as solving every tetrahedron, for small and large moves, near-double roots included."""
+    from defop.variational import volumetric
+
+    rng = np.random.default_rng(seed)
+    J = np.eye(3) + 0.3 * rng.normal(size=(400, 3, 3))
+    J = J[np.linalg.det(J) > 0.05]
+    steps = []
+    for scale in (1e-3, 0.1, 1.0, 10.0):
+        dJ = scale * rng.normal(size=J.shape)
+        if scale > 1e-3:
+            dJ[:20] = -J[:20] * rng.uniform(0.5, 2.0)  # det(J (1 − a t)): a triple root at 1/a
+        for safety in (0.9, 1.0):
+            screened = volumetric.max_flip_free_step(J, dJ, safety)
+            monkeypatch.setattr(volumetric, "STEP_SCREEN", np.inf)
+            assert screened == volumetric.max_flip_free_step(J, dJ, safety)
+            monkeypatch.setattr(volumetric, "STEP_SCREEN", 0.5)
+            steps.append(screened)
+    assert min(steps) < 0.5 and max(steps) == 1.0  # both regimes were exercised
