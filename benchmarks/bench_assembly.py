@@ -1,93 +1,107 @@
-"""Is numba worth it for the Hessian assembly (issue 15)? numpy (``ReducedHessian.assemble``) against a numba loop.
+"""Cheaper Newton iterations (issues 15, 36): the fused numba kernels against the numpy closed forms, per iteration.
 
-On aleph-like meshes of 3k, 10k and 30k vertices, one BLAS thread, median / best of 7: the assembly of the
-PSD-projected S-ARAP Hessian into the fixed CSC pattern from the per-triangle eigensystems, (1) as the solver
-does it (numpy: a batched 6×4·4×6 product per triangle and one ``bincount``), (2) as a numba loop over the
-triangles that adds each element's kept upper-triangle entries straight into the CSC values. Beside them, one
-qdldl numeric factorisation of the same matrix, the step each assembly feeds. numba is not a dependency of
-defop: without it only the numpy and qdldl columns are printed. Run: ``python benchmarks/bench_assembly.py``.
+One Newton iteration of the S-ARAP solver is: the element work (E, ∇E, per-element eigensystems, assembly into the
+fixed CSC pattern: ``ReducedProblem.grad_hess``), one factorisation and solve, and the line search's energies. The
+numpy path (``kernel="numpy"``, the reference) does the element work in about 70 numpy calls; the fused kernels
+(:mod:`defop.variational.fused`, the default) in one loop over the elements. Per shape (bar, U, aleph; bar_3d in
+3D), one BLAS thread, CPU seconds (``time.process_time``), median of ``--repeats``:
+
+* the parts, at a solved configuration: element work with each kernel, one energy evaluation with each, one
+  factorisation + solve (qdldl in 2D; ``auto``'s back end in 3D);
+* whole solves: ``--samples`` verified S-ARAP solves from the rest pose with each kernel, CPU per Newton iteration
+  (total CPU over the iterations, continuation and verification included), and whether both kernels reach the same
+  minima (largest relative energy difference, largest vertex distance over the bounding-box diagonal).
+
+Run: ``python benchmarks/bench_assembly.py [--shapes bar u_shape aleph bar_3d] [--samples 4]``.
 """
 
 from __future__ import annotations
 
+import argparse
+import os
 import time
+import warnings
 
 import numpy as np
 
-SIZES = (3000, 10000, 30000)
 
-
-def _times(f, repeats=7):
+def _cpu_ms(f, repeats):
     out = []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         f()
-        out.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(out)), 1e3 * float(np.min(out))
+        out.append(time.process_time() - t0)
+    return 1e3 * float(np.median(out))
 
 
-def _numba_kernel():
-    try:
-        import numba
-    except ImportError:
-        return None
-
-    @numba.njit(cache=False)
-    def assemble(W, lamA, slot, nnz):
-        out = np.zeros(nnz)
-        lam = np.empty(4)
-        for t in range(W.shape[0]):
-            for k in range(4):
-                lam[k] = max(lamA[t, k], 0.0)
-            for i in range(6):
-                for j in range(6):
-                    p = slot[t, i, j]
-                    if p >= 0:
-                        v = 0.0
-                        for k in range(4):
-                            v += W[t, i, k] * lam[k] * W[t, j, k]
-                        out[p] += v
-        return out
-
-    return assemble
+def parts(solver, X, repeats):
+    """CPU ms of the element work and one energy evaluation per kernel, and of one factorisation + solve."""
+    row = {}
+    for k in ("numpy", "numba"):
+        solver.kernel = k
+        solver.grad_hess(X, 1e-5)  # warm: compiled kernels, slot map
+        row[f"grad_hess {k}"] = _cpu_ms(lambda: solver.grad_hess(X, 1e-5), repeats)
+        row[f"energy {k}"] = _cpu_ms(lambda: solver.energies(X, 1e-5), repeats)
+    _, g, data, _ = solver.grad_hess(X, 1e-5)
+    gf = g[solver.free]
+    solver.newton_direction(gf, data)
+    row["factor+solve"] = _cpu_ms(lambda: solver.newton_direction(gf, data), repeats)
+    return row
 
 
-def one(n, kernel):
-    """One size: the row of timings (ms) and the relative disagreement of the numba assembly."""
-    import qdldl
-    from threadpoolctl import threadpool_limits
-
+def solves(shape, Qs, kernel):
+    """Verified solves of the samples with one kernel: (CPU s, Newton iterations, results)."""
     import defop as dop
 
-    shape = dop.shapes.load("aleph", n_vertices=n)
-    mesh = shape.mesh
-    solver = dop.variational.Solver(mesh, shape.handles, "sarap")
-    Q = dop.training.sampling.sample_shape(shape, 1, np.random.default_rng(0))[0]
-    X = solver.solve(shape.targets(Q)).X  # a solved configuration: realistic eigensystems
-    with threadpool_limits(limits=1):
-        local = solver.grad_hess(X, 1e-5)[3]
-        H = solver.hessian
-        ref = H.assemble(local, True)
-        np_ms = _times(lambda: H.assemble(local, True))
-        K = H.matrix(ref, 1e-10)
-        fac = qdldl.Solver(K, upper=True)
-        qd_ms = _times(lambda: fac.update(K, upper=True))
-        row = f"{mesh.n_vertices:6d} vertices: numpy {np_ms[0]:6.1f} / {np_ms[1]:6.1f}"
-        if kernel is not None:
-            slot = -np.ones(mesh.n_faces * 36, np.int64)
-            slot[H._keep] = H._inv
-            args = (*local, slot.reshape(-1, 6, 6), H._nnz)
-            diff = np.abs(kernel(*args) - ref).max() / np.abs(ref).max()
-            nb_ms = _times(lambda: kernel(*args))
-            row += f"   numba {nb_ms[0]:6.1f} / {nb_ms[1]:6.1f} ({np_ms[1] / nb_ms[1]:.1f}x, agree to {diff:.1e})"
-    return row + f"   qdldl factorisation {qd_ms[0]:6.1f} / {qd_ms[1]:6.1f}"
+    solver = dop.variational.Solver(shape.mesh, shape.handles, "sarap")
+    solver.kernel = kernel
+    solver.solve(shape.targets(Qs[0]))  # warm: factorisation's symbolic analysis, compiled kernels
+    t0 = time.process_time()
+    res = [solver.solve(shape.targets(Q)) for Q in Qs]
+    return time.process_time() - t0, sum(r.iterations for r in res), res
+
+
+def one(name, n_samples, repeats):
+    import defop as dop
+
+    shape = dop.shapes.load(name)
+    Qs = dop.training.sampling.sample_shape(shape, n_samples + 1, np.random.default_rng(0))
+    solver = dop.variational.Solver(shape.mesh, shape.handles, "sarap")
+    X = solver.solve(shape.targets(Qs[0])).X
+    row = parts(solver, X, repeats)
+    runs = {k: solves(shape, Qs, k) for k in ("numpy", "numba")}
+    (c0, i0, r0), (c1, i1, r1) = runs["numpy"], runs["numba"]
+    dE = max(abs(a.energy - b.energy) / max(a.energy, 1e-12) for a, b in zip(r0, r1))
+    dX = max(float(np.abs(a.X - b.X).max()) for a, b in zip(r0, r1)) / shape.mesh.bbox_diagonal
+    ok = all(a.converged and b.converged for a, b in zip(r0, r1))
+    print(
+        f"{name:>9} {shape.mesh.n_vertices:6d} v {solver.hessian.backend:>7}: element work "
+        f"{row['grad_hess numpy']:6.2f}"
+        f" -> {row['grad_hess numba']:5.2f} ms ({row['grad_hess numpy'] / row['grad_hess numba']:4.1f}x), energy "
+        f"{row['energy numpy']:5.2f} -> {row['energy numba']:5.2f} ms, factor+solve {row['factor+solve']:6.2f} ms | "
+        f"per iteration {1e3 * c0 / i0:6.2f} -> {1e3 * c1 / i1:6.2f} ms ({c0 / i0 / (c1 / i1):4.2f}x; iterations "
+        f"{i0}/{i1}); verified {ok}; same minima: dE/E {dE:.1e}, dX/diag {dX:.1e}",
+        flush=True,
+    )
 
 
 def main():
-    kernel = _numba_kernel()
-    print("S-ARAP Hessian assembly on aleph-like meshes; one BLAS thread; median / best of 7 (ms)")
-    for n in SIZES:
-        print(one(n, kernel), flush=True)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--shapes", nargs="+", default=["bar", "u_shape", "aleph", "bar_3d"])
+    ap.add_argument("--samples", type=int, default=4)
+    ap.add_argument("--repeats", type=int, default=15)
+    args = ap.parse_args()
+    from threadpoolctl import threadpool_limits
+
+    warnings.simplefilter("ignore")
+    print(
+        f"S-ARAP Newton iteration, numpy -> fused numba kernels; one BLAS thread; CPU ms (median of {args.repeats}); "
+        f"{time.strftime('%Y-%m-%d %H:%M')}, load average {os.getloadavg()[0]:.1f}"
+    )
+    with threadpool_limits(limits=1):
+        for name in args.shapes:
+            one(name, args.samples, args.repeats)
+    print(f"load average after: {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

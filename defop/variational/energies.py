@@ -207,4 +207,10 @@ def max_flip_free_step(J, dJ, safety=0.9):
     -------
     t : float
     """
-    return closed_forms(J).max_flip_free_step(J, dJ, safety)
+    cf = closed_forms(J)
+    if np.shape(J)[-1] == 2 and np.shape(dJ) == np.shape(J):  # one compiled pass, the same formulas
+        from . import fused
+
+        J, dJ = np.ascontiguousarray(J, dtype=float), np.ascontiguousarray(dJ, dtype=float)
+        return float(fused.flip_free_step2(J, dJ, float(safety)))
+    return cf.max_flip_free_step(J, dJ, safety)

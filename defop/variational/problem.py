@@ -54,6 +54,21 @@ PARDISO_MIN_VERTICES_3D = 1000
 #: targets farther than this many bounding-box diagonals from the mesh are rejected (the energy overflows)
 MAX_TARGET_DISTANCE = 1e6
 
+#: the element kernels of E, ∇E and the Hessian: "numba" (fused, :mod:`defop.variational.fused`; where it has the
+#: energy) or "numpy" (the closed forms of :mod:`defop.variational.energies`, the reference); ``DEFOP_KERNEL``
+KERNELS = ("numba", "numpy")
+
+
+def check_kernel(kernel):
+    """A kernel of :data:`KERNELS` (None: ``DEFOP_KERNEL``, else "numba"), or a ValueError naming it."""
+    if kernel is None:
+        kernel = os.environ.get("DEFOP_KERNEL", "").strip() or "numba"
+        if kernel not in KERNELS:
+            raise ValueError(f"DEFOP_KERNEL must be one of {', '.join(KERNELS)}, got {kernel!r}")
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
+    return kernel
+
 
 def count_flips(mesh, X):
     """Number of elements with det J ≤ 0 (flipped or collapsed).
@@ -442,15 +457,33 @@ class ReducedHessian:
         self._ptr = np.concatenate([[0], np.cumsum(np.bincount(uniq // nf, minlength=nf))]).astype(np.int32)
         self._nnz = len(uniq)
         self._diag = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
-        self._K = self._factor = None
+        self._K = self._factor = self._slot = None
+        #: "numba": :meth:`assemble` runs :func:`defop.variational.fused.scatter`; "numpy": the reference
+        self.kernel = "numba"
 
     def __getstate__(self):
-        return {**self.__dict__, "_K": None, "_factor": None}
+        return {**self.__dict__, "_K": None, "_factor": None, "_slot": None}
+
+    @property
+    def slot(self):
+        """(m, (d+1)d, (d+1)d) element → CSC slot map of the fused kernels (−1: not kept), built on first use."""
+        if self._slot is None:
+            from . import fused
+
+            k = self.dofs.shape[1]
+            self._slot = fused.slot_map(self._keep, self._inv, len(self.dofs), k)
+        return self._slot
 
     def assemble(self, local, project=True):
         """Values in the pattern from per-element modes W (m, (d+1)d, d²) and A_t·λ (m, d²); ``project`` clamps
         the element eigenvalues at 0 (the PSD projection)."""
         W, lamA = local
+        if self.kernel == "numba":
+            from . import fused
+
+            data = np.empty(self._nnz)
+            fused.scatter(W, lamA, self.slot, bool(project), data)
+            return data
         if project:
             lamA = np.maximum(lamA, 0.0)
         K_loc = np.matmul(W * lamA[:, None, :], np.swapaxes(W, 1, 2))  # (m, (d+1)d, (d+1)d)
@@ -511,6 +544,9 @@ class ReducedProblem:
     backend : str, optional
         The factorisation, one of :data:`BACKENDS` (default ``DEFOP_BACKEND``, else ``"auto"``); every back end
         gives the same minima (tests/test_backend.py), so it is not a setting of the solutions.
+    kernel : str, optional
+        The element kernels, one of :data:`KERNELS` (default ``DEFOP_KERNEL``, else ``"numba"``); both give the same
+        values to round-off (tests/test_fused_kernel.py). Settable later as the ``kernel`` attribute.
 
     Attributes
     ----------
@@ -522,7 +558,7 @@ class ReducedProblem:
     hessian : ReducedHessian
     """
 
-    def __init__(self, mesh, handles, energy="sarap", backend=None):
+    def __init__(self, mesh, handles, energy="sarap", backend=None, kernel=None):
         self.mesh = mesh
         self.energy = en.check_energy(energy)
         self.barrier = en.is_barrier(energy)
@@ -537,19 +573,29 @@ class ReducedProblem:
         self.free_vertices = np.flatnonzero(~is_handle)
         self.free = (d * self.free_vertices[:, None] + np.arange(d)).ravel()
         self.hessian = ReducedHessian(mesh, self.free, backend)
-        self._biharmonic = None
+        self.kernel = check_kernel(kernel)
+        self._biharmonic = self._order = None
         #: energies below this (1e-12 · area) count as zero in relative tests (ARAP and S-ARAP vanish at rest)
         self._energy_floor = 1e-12 * float(mesh.areas.sum())
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_biharmonic"] = None
+        state["_biharmonic"] = state["_order"] = None
         return state
 
     @property
     def dim(self) -> int:
         """d: 2 for triangles, 3 for tetrahedra."""
         return self.mesh.V.shape[1]
+
+    @property
+    def kernel(self) -> str:
+        """The element kernels in use, "numba" or "numpy" (:data:`KERNELS`); setting it switches the assembly too."""
+        return self._kernel
+
+    @kernel.setter
+    def kernel(self, kernel):
+        self._kernel = self.hessian.kernel = check_kernel(kernel)
 
     def scale(self, E):
         """E as the scale of relative tests: at least 1e-12 · area (ARAP and S-ARAP vanish at rest)."""
@@ -586,14 +632,41 @@ class ReducedProblem:
         d = self.dim
         return (self.mesh.jacobian_operator @ np.asarray(X, dtype=float).ravel()).reshape(-1, d, d)
 
+    def _fused(self):
+        """The fused kernels' module and this energy's code, or None where the numpy path runs."""
+        if self._kernel != "numba":
+            return None
+        from . import fused
+
+        code = fused.CODES.get(self.energy)
+        return None if code is None or self.dim not in fused.DIMS else (fused, code)
+
+    def _vertex_order(self, fused):
+        """Each element's vertices in the fused kernels' order of summation (``fused.vertex_order``)."""
+        if self._order is None:
+            self._order = fused.vertex_order(self.mesh.F)
+        return self._order
+
+    def _map(self, X):
+        """X as a C-contiguous float (n, d) array; ValueError (as ``Mesh.jacobians``) on another shape."""
+        X = np.ascontiguousarray(X, dtype=float)
+        if X.shape != self.mesh.V.shape:
+            raise ValueError(f"X must have shape {self.mesh.V.shape}, got {X.shape}")
+        return X
+
     def energy_of(self, X, mu=0.0):
         """E(X) (+inf for a flipped element under a barrier energy); ``mu`` smooths S-ARAP's kink."""
-        return en.total_energy(self.mesh, X, self.energy, mu)
+        return self.energies(X, mu)[0] if mu else self.energies(X, 0.0)[1]
 
     def energies(self, X, mu):
         """(E_μ(X), E(X)): the smoothed energy Newton minimises and the true one, from one SVD."""
+        fk = self._fused()
+        if fk is not None:
+            mesh = self.mesh
+            args = (mesh.F, mesh.local_gradients, self._vertex_order(fk[0]), mesh.areas, fk[1], float(mu))
+            return fk[0].energies(self._map(X), *args)
         if not mu:
-            E = self.energy_of(X)
+            E = en.total_energy(self.mesh, X, self.energy)
             return E, E
         smooth, exact = en.density(self.mesh.jacobians(X), self.energy, mu, both=True)
         return float(self.mesh.areas @ smooth), float(self.mesh.areas @ exact)
@@ -604,7 +677,11 @@ class ReducedProblem:
         Per element, K_t = A_t Σ_k λ_k w_k w_kᵀ with w_k = B_tᵀ vec(M_k) for the eigenpairs (λ_k, M_k)
         of :func:`defop.variational.energies.eigensystem`: no d²×d² Hessian is formed. Also returns ``local``,
         with which :meth:`ReducedHessian.assemble` rebuilds the projected Hessian without a second eigensystem.
+        With the "numba" kernel, one fused loop over the elements (:func:`defop.variational.fused.grad_hess`).
         """
+        fk = self._fused()
+        if fk is not None:
+            return self._grad_hess_fused(fk, X, mu, project, kink)
         mesh = self.mesh
         G = mesh.jacobian_operator
         J = self.jacobians(X)
@@ -618,6 +695,20 @@ class ReducedProblem:
         Mb = np.ascontiguousarray(modes.reshape(m, d, d, k).transpose(0, 2, 1, 3)).reshape(m, d, d * k)
         local = (np.matmul(D, Mb).reshape(m, (d + 1) * d, k), lam * A[:, None])
         return E, g, self.hessian.assemble(local, project), local
+
+    def _grad_hess_fused(self, fk, X, mu, project, kink):
+        """:meth:`grad_hess` by :func:`defop.variational.fused.grad_hess`."""
+        fused, code = fk
+        mesh, H, d = self.mesh, self.hessian, self.dim
+        m = len(mesh.F)
+        kink = np.asarray(kink, dtype=float)
+        hold = bool(self.energy == "sarap" and mu == 0 and np.any(kink > 0))
+        kink = np.ascontiguousarray(np.broadcast_to(kink[:, None] if kink.ndim == 1 else kink, (m, 2)))
+        g, data = np.empty(d * len(mesh.V)), np.empty(H._nnz)
+        W, lamA = np.empty((m, (d + 1) * d, d * d)), np.empty((m, d * d))
+        args = (mesh.F, mesh.local_gradients, self._vertex_order(fused), mesh.areas, code, float(mu), kink, hold)
+        E = fused.grad_hess(self._map(X), *args, bool(project), H.slot, g, data, W, lamA)
+        return E, g, data, (W, lamA)
 
     def newton_direction(self, g_free, data, rel_shift=1e-10):
         """−K⁻¹ g on the free dofs. A tiny relative diagonal shift keeps the projected (PSD) Hessian definite;
