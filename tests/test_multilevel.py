@@ -236,3 +236,28 @@ def test_same_operator_for_any_n_jobs(bar):
     Q = dop.training.sampling.sample_shape(bar, 20, np.random.default_rng(99))
     assert np.abs(a(Q) - b(Q)).max() <= 1e-9 * bar.mesh.bbox_diagonal
     assert ra.multilevel["rule"] == rb.multilevel["rule"]
+
+
+def test_interrupted_multilevel_training_resumes_where_it_stopped(bar, monkeypatch):
+    """The fine runs are checkpointed every 25 samples under the policy's key: a run killed at sample 27 refines
+    only the last 5 again, and returns what an uninterrupted one does."""
+    _, ref = dop.train(bar, m=30, seed=8, n_jobs=1, progress=False, policy="multilevel", cache=False)
+    calls, real = [], ml.refine_one
+
+    class Killed(RuntimeError):
+        pass
+
+    def flaky(*args, **kw):
+        calls.append(1)
+        if len(calls) == 27:
+            raise Killed
+        return real(*args, **kw)
+
+    monkeypatch.setattr(ml, "refine_one", flaky)
+    with pytest.raises(Killed):
+        dop.train(bar, m=30, seed=8, n_jobs=1, progress=False, policy="multilevel")
+    calls.clear()
+    _, rec = dop.train(bar, m=30, seed=8, n_jobs=1, progress=False, policy="multilevel")
+    assert len(calls) == 5 and rec.cache == "none"
+    assert np.array_equal(rec.X, ref.X) and rec.multilevel["rule"] == ref.multilevel["rule"]
+    assert rec.multilevel["iterations"] == ref.multilevel["iterations"]
