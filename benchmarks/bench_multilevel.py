@@ -13,6 +13,9 @@ target: at most 2 in 200 higher by more than 1e-6 and none higher by 1%.
     python benchmarks/bench_multilevel.py --shape aleph --reference /tmp/ref_aleph.npz --policies multilevel
     python benchmarks/bench_multilevel.py --shape aleph --n-vertices 12000 --m 40 --policies full multilevel
 
+``--round2 M`` measures round 2 alone on M samples in one process: re-solving the current solution (main) against
+verifying it (this branch), in CPU s and Newton solves (calls of ``ReducedHessian.solve``), and compares the minima.
+
 ``--held-out N`` adds the paper's (8a)/n over N held-out samples (``dop.training.held_out``, seed 5000, main's full
 policy, outside the timed span) for each operator.
 """
@@ -124,6 +127,46 @@ def held_out_truth(shape, n, n_jobs):
     return Q, X
 
 
+def round_two(shape, m):
+    """Round 2 alone, one process: the incumbent re-solved (main) against verified (this branch)."""
+    import warnings
+
+    from defop.operator.fit import fit
+    from defop.operator.handle_bases import basis_size
+    from defop.training import bootstrap as bs
+    from defop.training.sampling import sample_shape
+    from defop.variational import problem
+
+    warnings.simplefilter("ignore")
+    os.environ["DEFOP_CACHE"] = "off"
+    Q = sample_shape(shape, m, np.random.default_rng(0))
+    X, _ = bs.solve_samples(shape, Q, n_jobs=1, progress=False)
+    smooth = "quadratic" if m + 1 >= basis_size("quadratic", shape.n_moving, d=shape.mesh.dim) else "linear"
+    W = bs._warm_starts(fit(shape.mesh, shape.handles, shape.moving, Q, X, smooth, "hat"), Q, shape.mesh, "sarap")
+    count, real = [0], problem.ReducedHessian.solve
+
+    def counted(self, *args, **kw):
+        count[0] += 1
+        return real(self, *args, **kw)
+
+    problem.ReducedHessian.solve = counted
+    out = []
+    for kw in (dict(X0=[[x, w] for x, w in zip(X, W)]), dict(X0=W, incumbents=X)):
+        t, count[0] = time.process_time(), 0
+        Xr, c = bs.solve_samples(shape, Q, "sarap", n_jobs=1, progress=False, rest=False, **kw)
+        out.append((time.process_time() - t, count[0], Xr, c))
+    problem.ReducedHessian.solve = real
+    (to, fo, Xo, co), (tn, fn, Xn, cn) = out
+    Eo, En = energies(shape, Xo), energies(shape, Xn)
+    rel = np.abs(En - Eo) / np.maximum(Eo, 1e-3 * np.median(Eo))
+    dist = np.abs(Xn - Xo).max() / shape.mesh.bbox_diagonal
+    print(
+        f"round 2 alone, {m} samples, one process: re-solve {to:.1f} CPU s, {fo} Newton solves; verify {tn:.1f} CPU s, "
+        f"{fn} Newton solves ({to / tn:.2f}x); verified {int(co.sum())} and {int(cn.sum())}; energies within "
+        f"{rel.max():.1e}, {int((rel > REL).sum())} samples beyond {REL:g}; positions within {dist:.1e} of the diagonal"
+    )
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shape", default="aleph")
@@ -134,12 +177,15 @@ def main():
     ap.add_argument("--reference", default=None, help="an .npz written by --save (main's policy)")
     ap.add_argument("--save", default=None, help="write the first policy's samples, X and energies here")
     ap.add_argument("--held-out", type=int, default=0)
+    ap.add_argument("--round2", type=int, default=0, help="measure round 2 alone on this many samples, then stop")
     a = ap.parse_args()
 
     import defop as dop
 
     shape = dop.shapes.load(a.shape, a.n_vertices)
     print(f"{a.shape}: {shape.mesh.n_vertices} vertices, m = {a.m}, n_jobs = {a.n_jobs}, S-ARAP, TPS")
+    if a.round2:
+        return round_two(shape, a.round2)
     ref = None
     if a.reference:
         z = np.load(a.reference)

@@ -65,8 +65,10 @@ __all__ = [
 
 #: the policies of ``train(policy=...)``
 POLICIES = ("full", "multilevel", "auto")
-#: ``policy="auto"`` trains on two levels from this many fine vertices on (below it a coarse mesh of 1/8 the size
-#: is too coarse to decide and the per-iteration overhead, not the factorisation, dominates a Newton step)
+#: ``policy="auto"`` trains on two levels from this many fine vertices on. Kept above every catalogue model, so the
+#: lessons' ground truth is main's. Measured (benchmarks/README.md, bench_multilevel): multilevel took 1.8-2.2x fewer
+#: CPU s than main at 596-3,910 vertices (m = 200, no sample higher, 2 of 200 aleph samples lower) and 1.28x at
+#: 29,739 (m = 40): lowering this constant is the lever, and it needs the main job re-run.
 AUTO_VERTICES = 10_000
 #: the coarse mesh has about n / COARSE_FACTOR vertices ...
 COARSE_FACTOR = 8
