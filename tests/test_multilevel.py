@@ -261,3 +261,16 @@ def test_interrupted_multilevel_training_resumes_where_it_stopped(bar, monkeypat
     assert len(calls) == 5 and rec.cache == "none"
     assert np.array_equal(rec.X, ref.X) and rec.multilevel["rule"] == ref.multilevel["rule"]
     assert rec.multilevel["iterations"] == ref.multilevel["iterations"]
+
+
+def test_same_operator_with_dask(bar):
+    pytest.importorskip("dask.distributed")
+    import joblib
+    from dask.distributed import Client, LocalCluster
+
+    a, ra = dop.train(bar, m=12, seed=6, n_jobs=1, progress=False, policy="multilevel", cache=False)
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+        with Client(cluster), joblib.parallel_backend("dask"):
+            b, rb = dop.train(bar, m=12, seed=6, n_jobs=-1, progress=False, policy="multilevel", cache=False)
+    Q = dop.training.sampling.sample_shape(bar, 20, np.random.default_rng(99))
+    assert np.abs(a(Q) - b(Q)).max() <= 1e-9 * bar.mesh.bbox_diagonal and ra.multilevel["rule"] == rb.multilevel["rule"]
