@@ -35,6 +35,7 @@ from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning, Solver
 from . import batch
 from . import cache as cache_mod
+from . import multilevel as ml
 from .sampling import sample_shape
 
 DEFAULT_M = 200
@@ -56,6 +57,13 @@ class TrainingRecord:
     cache : str
         ``"operator"`` (loaded trained operator), ``"ground truth"`` (loaded samples, refitted) or ``"none"``.
     params : dict
+    policy : str
+        The policy that ran: ``"full"`` or ``"multilevel"`` (``params["policy"]`` is the one asked for).
+    multilevel : dict
+        ``"fallback"``: why one level ran where two were asked for ("" otherwise). After a multilevel training
+        also, per sample: ``"rule"`` (the safeguard rule that fired, "" for none:
+        :data:`defop.training.multilevel.RULES`), ``"iterations"`` (of the single fine run), ``"minima"`` (distinct
+        verified coarse minima), ``"coarse_energy"`` (the coarse winner's); and ``"coarse_vertices"``.
     """
 
     samples: np.ndarray
@@ -64,6 +72,14 @@ class TrainingRecord:
     stage_times: dict
     cache: str
     params: dict
+    policy: str = "full"
+    multilevel: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def safeguard(self) -> dict:
+        """How often each safeguard rule fired (rule -> count; empty unless the multilevel policy ran)."""
+        rules = self.multilevel.get("rule") or []
+        return {r: rules.count(r) for r in ml.RULES if r in rules}
 
     @property
     def total_time(self) -> float:
@@ -169,16 +185,38 @@ def _operator_reader(shape, basis, spatial, n_samples):
 
 
 def _solve_chunk(solver, jobs, rest=True):
-    """:meth:`Solver.solve_best` per (targets, starts) job: its starts (None, one map or a list of maps) and the rest
-    pose."""
+    """:meth:`Solver.solve_best` per (targets, starts, incumbent) job: its starts (None, one map or a list of maps) and
+    the rest pose; an incumbent (a previous verified minimum, or None) is verified, not re-solved
+    (:func:`_with_incumbent`)."""
     out = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotConvergedWarning)
-        for T, X0 in jobs:
+        for T, X0, incumbent in jobs:
             extra = [] if X0 is None else list(X0) if isinstance(X0, (list, tuple)) else [X0]
-            r = solver.solve_best(T, starts=extra, rest=rest)
-            out.append((r.X, r.converged))
+            out.append(_with_incumbent(solver, T, extra, incumbent, rest))
     return out
+
+
+def _with_incumbent(solver, T, starts, incumbent, rest):
+    """(X, converged): the lowest verified minimum of the local solves from ``starts`` (and the rest pose if
+    ``rest``) and of ``incumbent`` as it is.
+
+    Re-solving a verified minimum can only move it within the solver's tolerance, so the incumbent is verified
+    (:meth:`Solver.verify`: one factorisation and the kink checks, against about four factorisations for a
+    re-solve) and competes as it is; it wins ties. An incumbent that fails verification is re-solved like a start
+    (before the others), as before.
+    """
+    check = None
+    if incumbent is not None:
+        check = solver.verify(incumbent, solver.targets_of(T))
+        if not check.ok:
+            starts, check = [incumbent, *starts], None
+    if check is not None and not starts and not rest:
+        return incumbent, True
+    r = solver.solve_best(T, starts=starts, rest=rest)
+    if check is not None and (not r.converged or check.energy <= r.energy):
+        return incumbent, True
+    return r.X, r.converged
 
 
 def _starts_parts(starts):
@@ -191,10 +229,10 @@ def _starts_parts(starts):
     return parts
 
 
-def _chunk_cache(checkpoint, shape, energy, samples, starts, rest):
+def _chunk_cache(checkpoint, shape, energy, samples, starts, rest, incumbents):
     """The ``chunk`` callable of :func:`defop.training.batch.map_checkpointed` for :func:`solve_samples`: a chunk's
     entry is keyed by everything that determines its solves (mesh, handles, energy, solver settings, its samples,
-    their starts and ``rest``)."""
+    their starts, ``rest`` and the incumbents)."""
     if checkpoint is None:
         return None
     mesh, settings = shape.mesh, _solver_key(shape, energy)
@@ -212,6 +250,8 @@ def _chunk_cache(checkpoint, shape, energy, samples, starts, rest):
             samples[a:b],
             *_starts_parts(starts[a:b]),
             rest,
+            "incumbents",
+            *_starts_parts(incumbents[a:b]),
         )
 
         def arrays():
@@ -225,7 +265,16 @@ def _chunk_cache(checkpoint, shape, energy, samples, starts, rest):
 
 
 def solve_samples(
-    shape, samples, energy="sarap", X0=None, n_jobs=None, progress=True, desc="solving", rest=True, checkpoint=None
+    shape,
+    samples,
+    energy="sarap",
+    X0=None,
+    n_jobs=None,
+    progress=True,
+    desc="solving",
+    rest=True,
+    checkpoint=None,
+    incumbents=None,
 ):
     """Solve problem (6) at every sample, in parallel: the lowest verified minimum over the starts
     (:meth:`defop.variational.solver.Solver.solve_best`).
@@ -246,6 +295,9 @@ def solve_samples(
     checkpoint : defop.training.batch.Checkpoints, optional
         Cache every :data:`~defop.training.batch.CHUNK` finished samples, so that a run interrupted midway
         (killed, Ctrl-C) and started again solves only the samples it had not finished, and returns the same.
+    incumbents : (m,n_vertices,d) numpy array or list, optional
+        A previous solution per sample (or None): verified, not re-solved, and kept where it is the lowest verified
+        minimum (:func:`_with_incumbent`).
 
     Returns
     -------
@@ -259,16 +311,19 @@ def solve_samples(
     m = len(samples)
     if X0 is not None and len(X0) != m:
         raise ValueError(f"X0 must give one warm start (or None) per sample: {len(X0)} for {m} samples")
+    if incumbents is not None and len(incumbents) != m:
+        raise ValueError(f"incumbents must give one map (or None) per sample: {len(incumbents)} for {m} samples")
     targets = [shape.targets(q) for q in samples]
     starts = list(X0) if X0 is not None else [None] * m
+    held = list(incumbents) if incumbents is not None else [None] * m
     solver = Solver(shape.mesh, shape.handles, energy)
     results = batch.map_checkpointed(
         functools.partial(_solve_chunk, solver, rest=rest),
-        list(zip(targets, starts)),
+        list(zip(targets, starts, held)),
         n_jobs,
         progress,
         desc,
-        _chunk_cache(checkpoint, shape, energy, samples, starts, rest),
+        _chunk_cache(checkpoint, shape, energy, samples, starts, rest, held),
     )
     X = np.array([r[0] for r in results])
     conv = np.array([r[1] for r in results], dtype=bool)
@@ -367,6 +422,67 @@ def _warm_starts(op, samples, mesh, energy):
     return starts
 
 
+def _full_ground_truth(shape, samples, energy, n_jobs, progress, rounds, ck, meta):
+    """Main's one-level policy: (X, converged, times) of every sample.
+
+    The first dn + 1 samples from the rest pose, a linear fit to them; every other sample from the rest pose and
+    that fit's prediction; then ``rounds - 1`` rounds from a smooth fit's prediction, the current solution verified
+    as the incumbent (:func:`_with_incumbent`), the lowest verified minimum kept.
+    """
+    mesh, m, n, times = shape.mesh, len(samples), shape.n_moving, {}
+    nb = min(m, min_samples("linear", n, mesh.V.shape[1]) + 1)  # dn + 1: the linear bootstrap fit
+    t0 = time.perf_counter()
+    Xb, cb = solve_samples(shape, samples[:nb], energy, None, n_jobs, progress, desc="bootstrap solves", checkpoint=ck)
+    lin = fit(shape.mesh, shape.handles, shape.moving, samples[:nb], Xb, "linear", "hat", meta=meta)
+    times["bootstrap"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    X, conv = Xb, cb
+    if m > nb:
+        starts = _warm_starts(lin, samples[nb:], shape.mesh, energy)
+        Xr, cr = solve_samples(
+            shape, samples[nb:], energy, starts, n_jobs, progress, desc="sample solves", checkpoint=ck
+        )
+        X, conv = np.concatenate([Xb, Xr]), np.concatenate([cb, cr])
+    for _ in range(rounds - 1):
+        # a smooth predictor (not an interpolant, which would reproduce a bad local minimum)
+        smooth = "quadratic" if m + 1 >= hb.basis_size("quadratic", n, d=mesh.V.shape[1]) else "linear"
+        inter = fit(shape.mesh, shape.handles, shape.moving, samples, X, smooth, "hat", meta=meta)
+        # the smooth fit's predictions against the current solutions, verified as they are
+        starts = _warm_starts(inter, samples, shape.mesh, energy)
+        X, conv = solve_samples(
+            shape, samples, energy, starts, n_jobs, progress, desc="re-solves", rest=False, checkpoint=ck, incumbents=X
+        )
+    times["solve"] = time.perf_counter() - t0
+    return X, conv, times
+
+
+def _multilevel_ground_truth(lv, samples, energy, n_jobs, progress, rounds, ck, key_parts):
+    """The multilevel policy (:mod:`defop.training.multilevel`): (X, converged, times, info)."""
+    t0 = time.perf_counter()
+    cands = ml.coarse_portfolio(lv, samples, energy, n_jobs, progress, rounds)
+    times = {"coarse": time.perf_counter() - t0}
+    t0 = time.perf_counter()
+    key_of = None if ck is None else lambda a, b: cache_mod.key("ml-fine", *key_parts, a, b)
+    X, conv, info = ml.refine(lv, samples, energy, cands, n_jobs, progress, ck, key_of)
+    times["fine"] = time.perf_counter() - t0
+    info["coarse_vertices"] = lv.coarse.mesh.n_vertices
+    return X, conv, times, info
+
+
+def _gt_key(shape, energy, samples, rounds, used, lv):
+    """The ground truth's cache key: mesh, handles, energy, the solver's settings, the samples, ``rounds`` and the
+    policy that runs (with the multilevel constants and the coarse mesh)."""
+    mesh, settings = shape.mesh, _solver_key(shape, energy)
+    policy = {"policy": used, "round 2": "verified incumbent"}
+    coarse = []
+    if lv is not None:
+        policy.update(ml.constants())
+        coarse = [lv.coarse.mesh.V, lv.coarse.mesh.F, lv.coarse.handles]
+    return cache_mod.key(
+        "gt-train", mesh.V, mesh.F, shape.handles, shape.moving, energy, settings, samples, rounds, policy, *coarse
+    )
+
+
 def train(
     shape,
     energy="sarap",
@@ -380,6 +496,7 @@ def train(
     cache=True,
     progress=True,
     rounds=2,
+    policy="auto",
 ):
     """Train a DefOp for a shape: sample, bootstrap, solve, fit (§3.3).
 
@@ -408,29 +525,39 @@ def train(
     progress : bool
         tqdm progress bars.
     rounds : int
-        How many times the solve stage runs. Rounds after the first re-solve every sample warm-started
-        from a smooth (quadratic, or linear) fit of the current samples and keep whichever solution has
-        the lower energy: this moves samples that landed in a higher local minimum (measured on the bar:
-        1 of 17 samples at 1.5x the energy of the branch its neighbours are on) back onto the branch.
+        How many times the solve stage runs. Rounds after the first solve every sample warm-started from a
+        smooth (quadratic, or linear) fit of the current samples and keep whichever of that and the current
+        solution (verified again, not re-solved) has the lower energy: this moves samples that landed in a
+        higher local minimum (measured on the bar: 1 of 17 samples at 1.5x the energy of the branch its
+        neighbours are on) back onto the branch.
+    policy : str
+        ``"full"``: every start on the mesh itself. ``"multilevel"``: the starts run on a coarse mesh of the same
+        shape, the fine mesh gets one verified run per sample from the prolongated coarse winner, and a safeguard
+        falls back to the full portfolio per sample (:mod:`defop.training.multilevel`; where no coarse mesh exists,
+        e.g. in 3D, it runs ``"full"`` with a :class:`~defop.training.multilevel.MultilevelWarning`). ``"auto"``
+        (default): ``"multilevel"`` from :data:`~defop.training.multilevel.AUTO_VERTICES` vertices on.
 
     Returns
     -------
     defop : defop.operator.DefOp
+        ``defop.meta["policy"]`` is the policy that ran.
     record : TrainingRecord
 
     Raises
     ------
     ValueError
-        Before any solve, naming the option: an unknown energy, handle basis or spatial basis; ``m``,
+        Before any solve, naming the option: an unknown energy, handle basis, spatial basis or policy; ``m``,
         ``seed``, ``k``, ``rounds`` or ``n_jobs`` that is not an integer in range; fewer samples than
         the handle basis needs (:func:`min_samples`, the message names the basis); ``samples`` of the
         wrong shape or not finite; a ``DEFOP_CACHE`` or ``DEFOP_N_JOBS`` that cannot be used.
     """
     en.check_energy(energy)
+    opt.choice("policy", policy, ml.POLICIES)
     m, samples = _check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds)
     store = cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
     if samples is None:
         samples = sample_shape(shape, m, np.random.default_rng(seed))
+    used, lv, why = ml.choose(shape, policy)
     params = dict(
         shape=shape.name,
         energy=energy,
@@ -440,14 +567,13 @@ def train(
         k=k if spatial == "reduced" else None,
         seed=seed,
         rounds=rounds,
+        policy=policy,
+        policy_used=used,
     )
     mesh = shape.mesh
     gt_key = op_key = None
     if store is not None:
-        settings = _solver_key(shape, energy)
-        gt_key = cache_mod.key(
-            "gt-train", mesh.V, mesh.F, shape.handles, shape.moving, energy, settings, samples, rounds
-        )
+        gt_key = _gt_key(shape, energy, samples, rounds, used, lv)
         op_key = cache_mod.key("op", gt_key, basis, spatial, params["k"])
     times = {}
     t0 = time.perf_counter()
@@ -456,46 +582,28 @@ def train(
         times["load"] = time.perf_counter() - t0
         gt = _load_gt(store, gt_key, m, mesh.n_vertices, mesh.V.shape[1])
         X, conv = (None, None) if gt is None else gt[:2]
-        return op, TrainingRecord(samples, X, conv, times, "operator", params)
+        info = _levels_info(used, why, None if gt is None else gt[2].get("multilevel"))
+        return op, TrainingRecord(samples, X, conv, times, "operator", params, used, info)
 
-    meta = {"shape": shape.name, "energy": energy, "seed": seed}
+    meta = {"shape": shape.name, "energy": energy, "seed": seed, "policy": used}
     gt = _load_gt(store, gt_key, m, mesh.n_vertices, mesh.V.shape[1])
     if gt is not None:
         X, conv = gt[0], gt[1]
         times.update(gt[2].get("times", {}))  # how long the cached solves took when they ran
-        cache_state = "ground truth"
+        info, cache_state = gt[2].get("multilevel"), "ground truth"
     else:
         cache_state = "none"
         ck = None if store is None else batch.Checkpoints(store)  # resume an interrupted run where it stopped
-        n = shape.n_moving
-        nb = min(m, min_samples("linear", n, mesh.V.shape[1]) + 1)  # dn + 1: the linear bootstrap fit
-        t0 = time.perf_counter()
-        Xb, cb = solve_samples(
-            shape, samples[:nb], energy, None, n_jobs, progress, desc="bootstrap solves", checkpoint=ck
-        )
-        lin = fit(shape.mesh, shape.handles, shape.moving, samples[:nb], Xb, "linear", "hat", meta=meta)
-        times["bootstrap"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        X, conv = Xb, cb
-        if m > nb:
-            starts = _warm_starts(lin, samples[nb:], shape.mesh, energy)
-            Xr, cr = solve_samples(
-                shape, samples[nb:], energy, starts, n_jobs, progress, desc="sample solves", checkpoint=ck
-            )
-            X, conv = np.concatenate([Xb, Xr]), np.concatenate([cb, cr])
-        for _ in range(rounds - 1):
-            # a smooth predictor (not an interpolant, which would reproduce a bad local minimum)
-            smooth = "quadratic" if m + 1 >= hb.basis_size("quadratic", n, d=mesh.V.shape[1]) else "linear"
-            inter = fit(shape.mesh, shape.handles, shape.moving, samples, X, smooth, "hat", meta=meta)
-            # the current solutions and the smooth fit's predictions: the lower verified minimum of the two
-            starts = [[x, w] for x, w in zip(X, _warm_starts(inter, samples, shape.mesh, energy))]
-            X, conv = solve_samples(
-                shape, samples, energy, starts, n_jobs, progress, desc="re-solves", rest=False, checkpoint=ck
-            )
-        times["solve"] = time.perf_counter() - t0
+        info = None
+        if lv is None:
+            X, conv, t = _full_ground_truth(shape, samples, energy, n_jobs, progress, rounds, ck, meta)
+        else:
+            X, conv, t, info = _multilevel_ground_truth(lv, samples, energy, n_jobs, progress, rounds, ck, [gt_key])
+        times.update(t)
         if store is not None:
-            store.store("gt", gt_key, {"X": X, "converged": conv}, meta={"times": times})
+            store.store("gt", gt_key, {"X": X, "converged": conv}, meta={"times": times, "multilevel": info})
             ck.discard()  # the whole ground truth is cached
+    info = _levels_info(used, why, info)
     if not conv.all():
         warnings.warn(
             f"{int((~conv).sum())} of {m} sample solves did not converge; they are used as they are",
@@ -507,6 +615,15 @@ def train(
     times["fit"] = op.fit_time
     times["fold"] = time.perf_counter() - t0 - op.fit_time
     op.meta["stage_times"] = dict(times)  # kept with the cached operator (Table 1's preprocess column)
+    if info.get("rule") is not None:
+        op.meta["safeguard_fired"] = int(sum(1 for r in info["rule"] if r))
     if store is not None:
         store.store_with("op", op_key, op.save)
-    return op, TrainingRecord(samples, X, conv, times, cache_state, params)
+    return op, TrainingRecord(samples, X, conv, times, cache_state, params, used, info)
+
+
+def _levels_info(used, why, info):
+    """``TrainingRecord.multilevel``: the per-sample decisions (or {}), and why one level ran where it did."""
+    out = dict(info or {})
+    out["fallback"] = why
+    return out
