@@ -133,6 +133,7 @@ def round_two(shape, m):
 
     from defop.operator.fit import fit
     from defop.operator.handle_bases import basis_size
+    from defop.training import batch
     from defop.training import bootstrap as bs
     from defop.training.sampling import sample_shape
     from defop.variational import problem
@@ -142,7 +143,7 @@ def round_two(shape, m):
     Q = sample_shape(shape, m, np.random.default_rng(0))
     X, _ = bs.solve_samples(shape, Q, n_jobs=1, progress=False)
     smooth = "quadratic" if m + 1 >= basis_size("quadratic", shape.n_moving, d=shape.mesh.dim) else "linear"
-    W = bs._warm_starts(fit(shape.mesh, shape.handles, shape.moving, Q, X, smooth, "hat"), Q, shape.mesh, "sarap")
+    W = batch.warm_starts(fit(shape.mesh, shape.handles, shape.moving, Q, X, smooth, "hat"), Q, shape.mesh, "sarap")
     count, real = [0], problem.ReducedHessian.solve
 
     def counted(self, *args, **kw):

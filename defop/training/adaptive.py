@@ -279,7 +279,7 @@ def train_adaptive(
         scores[taken] = 0.0
         new = select_batch(scores, candidates, Q, min(batch, m - len(Q)))
         taken[new] = True
-        starts = bootstrap._warm_starts(current, candidates[new], shape.mesh, energy)
+        starts = batch.warm_starts(current, candidates[new], shape.mesh, energy)
         Xn, cn = bootstrap.sample_ground_truth(shape, candidates[new], energy, starts, n_jobs, progress, cache)
         Q, X, conv = np.concatenate([Q, candidates[new]]), np.concatenate([X, Xn]), np.concatenate([conv, cn])
         counts.append(len(Q))

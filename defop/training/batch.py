@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import config
 from .. import options as opt
+from ..variational import energies as en
 from .cache import CacheWarning
 
 __all__ = ["CHUNK", "Checkpoints", "load_or_compute", "map_checkpointed", "parallel_map", "progress"]
@@ -216,3 +217,28 @@ def load_or_compute(store, kind, key, expect, compute):
     if store is not None:
         store.store(kind, key, arrays)
     return arrays
+
+
+def warm_starts(op, samples, mesh, energy):
+    """The warm-start rule of every training policy: an operator's predictions at ``samples``, None where flipped.
+
+    Parameters
+    ----------
+    op : callable
+        A fitted operator (``op(samples)`` -> (k, n, d)); its ExtrapolationWarning is silenced, the solver corrects
+        a start that extrapolates.
+    samples : (k, handles, d) array
+    mesh : Mesh
+    energy : str
+        For a barrier energy a prediction that flips an element is no start (None).
+
+    Returns
+    -------
+    list of (n, d) arrays or None
+    """
+    from ..operator.defop import ExtrapolationWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        predictions = op(samples)
+    return [None if en.is_barrier(energy) and np.any(mesh.flipped(X)) else X for X in predictions]

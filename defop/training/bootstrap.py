@@ -405,21 +405,9 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
     X, conv = sample_ground_truth(shape, Q, energy, None, n_jobs, progress, cache)
     if like is not None:
         # the rest-pose solutions (cached) and like's predictions as the starts of one multi-start solve
-        starts = [[x, w] for x, w in zip(X, _warm_starts(like, Q, shape.mesh, energy))]
+        starts = [[x, w] for x, w in zip(X, batch.warm_starts(like, Q, shape.mesh, energy))]
         X, conv = solve_samples(shape, Q, energy, starts, n_jobs, progress, desc="warm test solves", rest=False)
     return Q, X, conv
-
-
-def _warm_starts(op, samples, mesh, energy):
-    from ..operator.defop import ExtrapolationWarning
-
-    starts = []
-    with warnings.catch_warnings():  # a warm start may extrapolate: the solver corrects it
-        warnings.simplefilter("ignore", ExtrapolationWarning)
-        predictions = op(samples)
-    for X in predictions:
-        starts.append(None if en.is_barrier(energy) and np.any(mesh.flipped(X)) else X)
-    return starts
 
 
 def _full_ground_truth(shape, samples, energy, n_jobs, progress, rounds, ck, meta):
@@ -438,7 +426,7 @@ def _full_ground_truth(shape, samples, energy, n_jobs, progress, rounds, ck, met
     t0 = time.perf_counter()
     X, conv = Xb, cb
     if m > nb:
-        starts = _warm_starts(lin, samples[nb:], shape.mesh, energy)
+        starts = batch.warm_starts(lin, samples[nb:], shape.mesh, energy)
         Xr, cr = solve_samples(
             shape, samples[nb:], energy, starts, n_jobs, progress, desc="sample solves", checkpoint=ck
         )
@@ -448,7 +436,7 @@ def _full_ground_truth(shape, samples, energy, n_jobs, progress, rounds, ck, met
         smooth = "quadratic" if m + 1 >= hb.basis_size("quadratic", n, d=mesh.V.shape[1]) else "linear"
         inter = fit(shape.mesh, shape.handles, shape.moving, samples, X, smooth, "hat", meta=meta)
         # the smooth fit's predictions against the current solutions, verified as they are
-        starts = _warm_starts(inter, samples, shape.mesh, energy)
+        starts = batch.warm_starts(inter, samples, shape.mesh, energy)
         X, conv = solve_samples(
             shape, samples, energy, starts, n_jobs, progress, desc="re-solves", rest=False, checkpoint=ck, incumbents=X
         )

@@ -193,8 +193,6 @@ def coarse_portfolio(lv, samples, energy, n_jobs=None, progress=True, rounds=2):
     -------
     candidates : list of m lists of (X (n_c, d), energy, converged)
     """
-    from .bootstrap import _warm_starts  # the prediction rule of the one-level policy (a barrier drops flipped ones)
-
     cs = lv.coarse
     mesh, d, m = cs.mesh, cs.mesh.dim, len(samples)
     solver = Solver(mesh, cs.handles, energy)
@@ -206,7 +204,7 @@ def coarse_portfolio(lv, samples, energy, n_jobs=None, progress=True, rounds=2):
     if m > nb:
         X = np.array([_winner(c)[0] for c in cands])
         lin = fit(mesh, cs.handles, cs.moving, samples[:nb], X, "linear", "hat", meta=meta)
-        starts = _warm_starts(lin, samples[nb:], mesh, energy)
+        starts = batch.warm_starts(lin, samples[nb:], mesh, energy)
         cands += batch.parallel_map(
             run, [(T[nb + i], [s], True) for i, s in enumerate(starts)], n_jobs, progress, "coarse solves"
         )
@@ -214,7 +212,7 @@ def coarse_portfolio(lv, samples, energy, n_jobs=None, progress=True, rounds=2):
         X = np.array([_winner(c)[0] for c in cands])
         smooth = "quadratic" if m + 1 >= hb.basis_size("quadratic", cs.n_moving, d=d) else "linear"
         inter = fit(mesh, cs.handles, cs.moving, samples, X, smooth, "hat", meta=meta)
-        starts = _warm_starts(inter, samples, mesh, energy)
+        starts = batch.warm_starts(inter, samples, mesh, energy)
         more = batch.parallel_map(
             run, [(t, [s], False) for t, s in zip(T, starts)], n_jobs, progress, "coarse re-solves"
         )
