@@ -26,8 +26,8 @@ The policy, beside the one-level policy of :func:`defop.training.bootstrap.train
 
 ``policy="auto"`` (the default of ``train``) takes this path for meshes of at least :data:`AUTO_VERTICES`
 vertices. Where no coarse mesh exists (a 3D mesh: the coarse Kuhn grid is not built yet; a mesh without an
-outline; a coarse mesh that would lose a part or a handle), training runs on one level and says so with a
-:class:`MultilevelWarning` (and ``record.multilevel["fallback"]``).
+outline; a coarse mesh that would lose a part or a handle), training runs on one level and says so in
+``record.multilevel["fallback"]``, and with a :class:`MultilevelWarning` when ``"multilevel"`` was asked for.
 """
 
 from __future__ import annotations
@@ -153,8 +153,9 @@ def choose(shape, policy):
         return "full", None, f"auto: {n} vertices, fewer than {AUTO_VERTICES}"
     try:
         lv = levels(shape)
-    except CoarseningError as exc:
-        warnings.warn(f"{policy} training of {shape.name!r} runs on one level: {exc}", MultilevelWarning, stacklevel=3)
+    except CoarseningError as exc:  # asked for: a warning; chosen by auto: the record says it (no noise in lessons)
+        if policy == "multilevel":
+            warnings.warn(f"multilevel training of {shape.name!r} runs on one level: {exc}", MultilevelWarning, 3)
         return "full", None, str(exc)
     return "multilevel", lv, ""
 
