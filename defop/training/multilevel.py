@@ -67,8 +67,8 @@ __all__ = [
 POLICIES = ("full", "multilevel", "auto")
 #: ``policy="auto"`` trains on two levels from this many fine vertices on. Kept above every catalogue model, so the
 #: lessons' ground truth is main's. Measured (benchmarks/README.md, bench_multilevel): multilevel took 1.8-2.2x fewer
-#: CPU s than main at 596-3,910 vertices (m = 200, no sample higher, 2 of 200 aleph samples lower) and 1.28x at
-#: 29,739 (m = 40): lowering this constant is the lever, and it needs the main job re-run.
+#: CPU s than main at 596-3,910 vertices (m = 200, no sample higher, 2 of 200 aleph samples lower), 2.23x at 9,873
+#: and 1.28x at 29,739 (m = 40): lowering this constant is the lever, and it needs the main job re-run.
 AUTO_VERTICES = 10_000
 #: the coarse mesh has about n / COARSE_FACTOR vertices ...
 COARSE_FACTOR = 8
