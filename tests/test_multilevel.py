@@ -107,6 +107,18 @@ def test_policy_falls_back_to_one_level_and_says_so(bar):
         dop.train(bar, m=10, policy="coarse", progress=False)
 
 
+def test_auto_falls_back_in_3d_without_a_warning_and_records_why(monkeypatch):
+    """``auto`` above the threshold on a tet mesh: one level, the reason in the record, no warning in a lesson."""
+    solid = dop.shapes.load("bar_3d", n_vertices=300)
+    monkeypatch.setattr(ml, "AUTO_VERTICES", 100)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ml.MultilevelWarning)
+        op, rec = dop.train(
+            solid, "arap", "linear", m=13, n_jobs=1, progress=False, policy="auto", cache=False, rounds=1
+        )
+    assert rec.policy == "full" and "tetrahedral" in rec.multilevel["fallback"] and op.meta["policy"] == "full"
+
+
 # ---------------------------------------------------------------- the policy
 def _verified(shape, rec):
     s = Solver(shape.mesh, shape.handles, "sarap")
