@@ -210,10 +210,11 @@ def test_the_import_graph_holds_the_imports_inside_functions():
     assert missing == []
 
 
-#: classes whose size counts a base that is a class in its own right (not a mixin): ReducedProblem (problem (6),
-#: used alone) under Solver, HandleBasis (three kinds derive from it) under TPSBasis; measured with the base on the
-#: formatted source, a ceiling that may only go down. Their own lines are under the limit.
-OVER_WITH_BASES = {"defop.variational.solver.Solver": 422, "defop.operator.handle_bases.TPSBasis": 326}
+#: classes whose size counts a base that is a class in its own right, not a mixin: HandleBasis, the abstract base of
+#: all four handle bases (TPSBasis overrides 8 of its methods and is 155 lines alone). Measured with the base on the
+#: formatted source, a ceiling that may only go down. Solver with ReducedProblem (422 when this list was made) is
+#: 294 since the element kernels (variational.elements), the starts and the multi-start policy became functions.
+OVER_WITH_BASES = {"defop.operator.handle_bases.TPSBasis": 326}
 MAX_CLASS_LINES = 300
 
 

@@ -221,7 +221,7 @@ def test_kernel_choice(bar, monkeypatch):
         check_kernel(None)
     # the isometric_max energy has no fused kernel: the numpy path runs whatever the setting
     problem = ReducedProblem(bar.mesh, [0], "isometric_max", kernel="numba")
-    assert problem._fused() is None
+    assert problem.elements._fused() is None
 
 
 def test_pickled_solver_rebuilds_the_slot_map(bar):

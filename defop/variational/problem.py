@@ -33,6 +33,7 @@ import scipy.sparse.linalg as sla
 from .. import config
 from .. import options as opt
 from . import energies as en
+from .elements import KERNELS, ElementKernels, check_kernel  # noqa: F401 (KERNELS, check_kernel: public here too)
 
 try:  # QDLDL reuses the symbolic factorisation (AMD ordering, elimination tree) across updates
     import qdldl
@@ -53,22 +54,6 @@ PARDISO_MIN_VERTICES_3D = 1000
 
 #: targets farther than this many bounding-box diagonals from the mesh are rejected (the energy overflows)
 MAX_TARGET_DISTANCE = 1e6
-
-#: the element kernels of E, ∇E and the Hessian: "numba" (fused, :mod:`defop.variational.fused`; where it has the
-#: energy) or "numpy" (the closed forms of :mod:`defop.variational.energies`, the reference); ``DEFOP_KERNEL``
-KERNELS = ("numba", "numpy")
-
-
-def check_kernel(kernel):
-    """A kernel of :data:`KERNELS` (None: ``DEFOP_KERNEL``, else "numba"), or a ValueError naming it."""
-    if kernel is None:
-        kernel = os.environ.get("DEFOP_KERNEL", "").strip() or "numba"
-        if kernel not in KERNELS:
-            raise ValueError(f"DEFOP_KERNEL must be one of {', '.join(KERNELS)}, got {kernel!r}")
-    if kernel not in KERNELS:
-        raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
-    return kernel
-
 
 def count_flips(mesh, X):
     """Number of elements with det J ≤ 0 (flipped or collapsed).
@@ -573,14 +558,14 @@ class ReducedProblem:
         self.free_vertices = np.flatnonzero(~is_handle)
         self.free = (d * self.free_vertices[:, None] + np.arange(d)).ravel()
         self.hessian = ReducedHessian(mesh, self.free, backend)
-        self.kernel = check_kernel(kernel)
-        self._biharmonic = self._order = None
+        self.elements = ElementKernels(mesh, self.energy, self.hessian, kernel)
+        self._biharmonic = None
         #: energies below this (1e-12 · area) count as zero in relative tests (ARAP and S-ARAP vanish at rest)
         self._energy_floor = 1e-12 * float(mesh.areas.sum())
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_biharmonic"] = state["_order"] = None
+        state["_biharmonic"] = None
         return state
 
     @property
@@ -591,11 +576,11 @@ class ReducedProblem:
     @property
     def kernel(self) -> str:
         """The element kernels in use, "numba" or "numpy" (:data:`KERNELS`); setting it switches the assembly too."""
-        return self._kernel
+        return self.elements.kernel
 
     @kernel.setter
     def kernel(self, kernel):
-        self._kernel = self.hessian.kernel = check_kernel(kernel)
+        self.elements.kernel = kernel
 
     def scale(self, E):
         """E as the scale of relative tests: at least 1e-12 · area (ARAP and S-ARAP vanish at rest)."""
@@ -626,89 +611,22 @@ class ReducedProblem:
             )
         return T
 
-    # ------------------------------------------------------------------ energy pieces
+    # ------------------------------------------------------------------ energy pieces (:class:`ElementKernels`)
     def jacobians(self, X):
         """(m, d, d) Jacobians of the map X (n, d), from the mesh's sparse operator."""
-        d = self.dim
-        return (self.mesh.jacobian_operator @ np.asarray(X, dtype=float).ravel()).reshape(-1, d, d)
-
-    def _fused(self):
-        """The fused kernels' module and this energy's code, or None where the numpy path runs."""
-        if self._kernel != "numba":
-            return None
-        from . import fused
-
-        code = fused.CODES.get(self.energy)
-        return None if code is None or self.dim not in fused.DIMS else (fused, code)
-
-    def _vertex_order(self, fused):
-        """Each element's vertices in the fused kernels' order of summation (``fused.vertex_order``)."""
-        if self._order is None:
-            self._order = fused.vertex_order(self.mesh.F)
-        return self._order
-
-    def _map(self, X):
-        """X as a C-contiguous float (n, d) array; ValueError (as ``Mesh.jacobians``) on another shape."""
-        X = np.ascontiguousarray(X, dtype=float)
-        if X.shape != self.mesh.V.shape:
-            raise ValueError(f"X must have shape {self.mesh.V.shape}, got {X.shape}")
-        return X
+        return self.elements.jacobians(X)
 
     def energy_of(self, X, mu=0.0):
         """E(X) (+inf for a flipped element under a barrier energy); ``mu`` smooths S-ARAP's kink."""
         return self.energies(X, mu)[0] if mu else self.energies(X, 0.0)[1]
 
     def energies(self, X, mu):
-        """(E_μ(X), E(X)): the smoothed energy Newton minimises and the true one, from one SVD."""
-        fk = self._fused()
-        if fk is not None:
-            mesh = self.mesh
-            args = (mesh.F, mesh.local_gradients, self._vertex_order(fk[0]), mesh.areas, fk[1], float(mu))
-            return fk[0].energies(self._map(X), *args)
-        if not mu:
-            E = en.total_energy(self.mesh, X, self.energy)
-            return E, E
-        smooth, exact = en.density(self.mesh.jacobians(X), self.energy, mu, both=True)
-        return float(self.mesh.areas @ smooth), float(self.mesh.areas @ exact)
+        """(E_μ(X), E(X)): :meth:`ElementKernels.energies`."""
+        return self.elements.energies(X, mu)
 
     def grad_hess(self, X, mu=0.0, project=True, kink=0.0):
-        """E, the gradient (d·n,) and the Hessian values in the fixed upper-triangular CSC pattern.
-
-        Per element, K_t = A_t Σ_k λ_k w_k w_kᵀ with w_k = B_tᵀ vec(M_k) for the eigenpairs (λ_k, M_k)
-        of :func:`defop.variational.energies.eigensystem`: no d²×d² Hessian is formed. Also returns ``local``,
-        with which :meth:`ReducedHessian.assemble` rebuilds the projected Hessian without a second eigensystem.
-        With the "numba" kernel, one fused loop over the elements (:func:`defop.variational.fused.grad_hess`).
-        """
-        fk = self._fused()
-        if fk is not None:
-            return self._grad_hess_fused(fk, X, mu, project, kink)
-        mesh = self.mesh
-        G = mesh.jacobian_operator
-        J = self.jacobians(X)
-        psi, grad, lam, modes = en.eigensystem(J, self.energy, project=False, mu=mu, kink=kink)
-        A = mesh.areas
-        E = float(A @ psi)
-        g = G.T @ (A[:, None] * grad).ravel()
-        D = mesh.local_gradients  # (m, d+1, d)
-        m, d, k = len(D), J.shape[-1], modes.shape[-1]
-        # w_k[d·i+a] = Σ_b ∇φ_i[b] M_k[a,b]: one (d+1, d) @ (d, d·k) product per element
-        Mb = np.ascontiguousarray(modes.reshape(m, d, d, k).transpose(0, 2, 1, 3)).reshape(m, d, d * k)
-        local = (np.matmul(D, Mb).reshape(m, (d + 1) * d, k), lam * A[:, None])
-        return E, g, self.hessian.assemble(local, project), local
-
-    def _grad_hess_fused(self, fk, X, mu, project, kink):
-        """:meth:`grad_hess` by :func:`defop.variational.fused.grad_hess`."""
-        fused, code = fk
-        mesh, H, d = self.mesh, self.hessian, self.dim
-        m = len(mesh.F)
-        kink = np.asarray(kink, dtype=float)
-        hold = bool(self.energy == "sarap" and mu == 0 and np.any(kink > 0))
-        kink = np.ascontiguousarray(np.broadcast_to(kink[:, None] if kink.ndim == 1 else kink, (m, 2)))
-        g, data = np.empty(d * len(mesh.V)), np.empty(H._nnz)
-        W, lamA = np.empty((m, (d + 1) * d, d * d)), np.empty((m, d * d))
-        args = (mesh.F, mesh.local_gradients, self._vertex_order(fused), mesh.areas, code, float(mu), kink, hold)
-        E = fused.grad_hess(self._map(X), *args, bool(project), H.slot, g, data, W, lamA)
-        return E, g, data, (W, lamA)
+        """E, ∇E (d·n,), the Hessian values in the fixed CSC pattern and ``local``: :meth:`ElementKernels.grad_hess`."""
+        return self.elements.grad_hess(X, mu, project, kink)
 
     def newton_direction(self, g_free, data, rel_shift=1e-10):
         """−K⁻¹ g on the free dofs. A tiny relative diagonal shift keeps the projected (PSD) Hessian definite;
@@ -722,47 +640,81 @@ class ReducedProblem:
         return P.reshape(-1, self.dim)
 
     # ------------------------------------------------------------------ starts
-    def _biharmonic_solver(self):
-        if self._biharmonic is None:
-            L = self.mesh.cotmatrix
-            Minv = sp.diags(1.0 / self.mesh.mass_matrix.diagonal())
-            Q = (L.T @ Minv @ L).tocsc()
-            fv, hv = self.free_vertices, self.handles
-            self._biharmonic = (sla.splu(Q[fv][:, fv].tocsc()), Q[fv][:, hv].tocsc())
-        return self._biharmonic
-
     def extend(self, displacement):
-        """Biharmonic extension of handle displacements to the whole mesh.
-
-        Parameters
-        ----------
-        displacement : (u, d) numpy array
-            Displacement of each unique handle vertex, in the order of ``self.handles`` (sorted).
-
-        Returns
-        -------
-        D : (n, d) numpy array
-            Zero-Laplacian-squared displacement field equal to ``displacement`` at the handles.
-        """
-        lu, Qfh = self._biharmonic_solver()
-        D = np.zeros((self.mesh.n_vertices, self.dim))
-        D[self.handles] = displacement
-        D[self.free_vertices] = -lu.solve(np.asarray(Qfh @ displacement))
-        return D
+        """Biharmonic extension (n, d) of the unique handles' displacements (u, d): :func:`biharmonic_extension`."""
+        if self._biharmonic is None:
+            self._biharmonic = biharmonic_factors(self.mesh, self.free_vertices, self.handles)
+        return biharmonic_extension(self._biharmonic, self.mesh, self.free_vertices, self.handles, displacement)
 
     def check_start(self, X0):
-        """A copy of the start X0 (n, d), or of the rest pose when None; ValueError if it is not a valid start."""
-        if X0 is None:
-            return self.mesh.V.copy()
-        X = opt.real_array("X0", X0).copy()
-        if X.shape != self.mesh.V.shape:
-            raise ValueError(f"X0 must have shape {self.mesh.V.shape}, got {X.shape}")
-        if not np.isfinite(X).all():
-            raise ValueError("X0 has NaN or infinite entries")
-        if self.barrier and np.any(self.mesh.flipped(X)):
-            bad = np.flatnonzero(self.mesh.flipped(X))
-            raise ValueError(
-                f"X0 has {len(bad)} flipped triangle(s) (first: triangle {int(bad[0])}); "
-                f"the {self.energy} energy is a barrier and needs a flip-free start"
-            )
-        return X
+        """A copy of the start X0 (n, d), or of the rest pose when None: :func:`check_start`."""
+        return check_start(self.mesh, X0, self.energy)
+
+
+def biharmonic_factors(mesh, free_vertices, handles):
+    """The factorised bi-Laplacian L M⁻¹ L on the free vertices and its handle columns (:func:`biharmonic_extension`).
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    free_vertices, handles : int numpy arrays
+        A partition of the vertices.
+
+    Returns
+    -------
+    factors : (scipy SuperLU of the free block, (n_free, u) sparse matrix)
+    """
+    L = mesh.cotmatrix
+    Minv = sp.diags(1.0 / mesh.mass_matrix.diagonal())
+    Q = (L.T @ Minv @ L).tocsc()
+    return sla.splu(Q[free_vertices][:, free_vertices].tocsc()), Q[free_vertices][:, handles].tocsc()
+
+
+def biharmonic_extension(factors, mesh, free_vertices, handles, displacement):
+    """Biharmonic extension of handle displacements to the whole mesh.
+
+    Parameters
+    ----------
+    factors : tuple
+        :func:`biharmonic_factors` of the same partition.
+    mesh : defop.geometry.mesh.Mesh
+    free_vertices, handles : int numpy arrays
+    displacement : (u, d) numpy array
+        Displacement of each handle vertex, in the order of ``handles``.
+
+    Returns
+    -------
+    D : (n, d) numpy array
+        Zero-Laplacian-squared displacement field equal to ``displacement`` at the handles.
+    """
+    lu, Qfh = factors
+    D = np.zeros(mesh.V.shape)
+    D[handles] = displacement
+    D[free_vertices] = -lu.solve(np.asarray(Qfh @ displacement))
+    return D
+
+
+def check_start(mesh, X0, energy):
+    """A copy of the start X0 (n, d), or of the rest pose when None; ValueError if it is not a valid start.
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    X0 : (n, d) array-like or None
+    energy : str
+        A barrier energy (:func:`defop.variational.energies.is_barrier`) needs a start without flipped elements.
+    """
+    if X0 is None:
+        return mesh.V.copy()
+    X = opt.real_array("X0", X0).copy()
+    if X.shape != mesh.V.shape:
+        raise ValueError(f"X0 must have shape {mesh.V.shape}, got {X.shape}")
+    if not np.isfinite(X).all():
+        raise ValueError("X0 has NaN or infinite entries")
+    if en.is_barrier(energy) and np.any(mesh.flipped(X)):
+        bad = np.flatnonzero(mesh.flipped(X))
+        raise ValueError(
+            f"X0 has {len(bad)} flipped triangle(s) (first: triangle {int(bad[0])}); "
+            f"the {energy} energy is a barrier and needs a flip-free start"
+        )
+    return X

@@ -181,20 +181,8 @@ class Solver(ReducedProblem):
         self.max_escapes = 4
 
     def verify(self, X, T, tol=None):
-        """The five checks behind ``converged`` at X: :func:`defop.variational.verify.verify_point`.
-
-        Parameters
-        ----------
-        X : (n, d) numpy array
-        T : (u, d) numpy array
-            Targets per unique handle (:meth:`targets_of`).
-        tol : float, optional
-            Check 4's tolerance (default ``verify_tol``).
-
-        Returns
-        -------
-        check : defop.variational.verify.Verification
-        """
+        """The five checks behind ``converged`` at X (n, d), targets T (u, d) per unique handle (:meth:`targets_of`),
+        check 4 at ``tol`` (default ``verify_tol``): a :class:`defop.variational.verify.Verification`."""
         return verify_point(self, X, T, tol)
 
     # ------------------------------------------------------------------ solve
@@ -257,85 +245,96 @@ class Solver(ReducedProblem):
         return self.finish(log, X, T, reason, label, ok and reached, check)
 
     def finish(self, log, X, T, reason, label, ok, check=None):
-        """The :class:`SolveResult` of a solve ended at X: ``converged`` when ``ok`` and X passes :meth:`verify`."""
-        check = self.verify(X, T) if check is None else check
-        converged = bool(ok and check.ok)
-        if not check.ok:
-            reason = f"{reason}; check failed: {check.reason}"
-        return SolveResult(
-            X=X,
-            energy=check.energy,
-            energy_history=np.array(log.E),
-            time_history=np.array(log.t),
-            iterations=log.iters,
-            time=time.perf_counter() - log.t0,
-            converged=converged,
-            reason=reason,
-            flips=count_flips(self.mesh, X),
-            start=label,
-            candidates=list(log.candidates),
-        )
+        """The :class:`SolveResult` of a solve ended at X: :func:`finish`."""
+        return finish(self, log, X, T, reason, label, ok, check)
 
     # ------------------------------------------------------------------ the one multi-start policy
     def solve_best(self, targets, starts=(), rest=True, keep="lowest", tol=None, max_iter=None):
-        """Local solves from several starts; the lowest-energy verified minimum (the one multi-start policy).
+        """Local solves from several starts; the lowest-energy verified minimum: :func:`solve_best`."""
+        return solve_best(self, targets, starts, rest, keep, tol, max_iter)
 
-        Every local solve escapes saddles along negative curvature (both directions), so the candidates
-        are: each given start, the rest pose (for barrier energies reached through flip-free continuation),
-        and the escapes from any saddle on the way.
 
-        Parameters
-        ----------
-        targets : (h, d) numpy array
-            One row per handle given to the constructor.
-        starts : sequence of (n, d) numpy arrays or None
-            Extra starts (a bootstrap prediction, a previous solution); None entries are ignored, and
-            starts that are flipped (barrier energies) or otherwise rejected are skipped.
-        rest : bool
-            Also solve from the rest pose (tried after ``starts``; also used when every start is rejected).
-        keep : {"lowest", "first"}
-            ``"lowest"``: run every start and keep the lowest verified minimum (global). ``"first"``: stop at
-            the first start that yields a verified minimum (warm, path-following: the interactive editor).
-        tol, max_iter : optional
-            As in :meth:`solve` (``max_iter`` per start).
+def finish(solver, log, X, T, reason, label, ok, check=None):
+    """The :class:`SolveResult` of a solve ended at X: ``converged`` when ``ok`` and X passes :meth:`Solver.verify`."""
+    check = solver.verify(X, T) if check is None else check
+    converged = bool(ok and check.ok)
+    if not check.ok:
+        reason = f"{reason}; check failed: {check.reason}"
+    return SolveResult(
+        X=X,
+        energy=check.energy,
+        energy_history=np.array(log.E),
+        time_history=np.array(log.t),
+        iterations=log.iters,
+        time=time.perf_counter() - log.t0,
+        converged=converged,
+        reason=reason,
+        flips=count_flips(solver.mesh, X),
+        start=label,
+        candidates=list(log.candidates),
+    )
 
-        Returns
-        -------
-        result : SolveResult
-            ``start`` names the winning start (``"start k"`` or ``"rest"``, plus any escapes);
-            ``candidates`` lists (start, energy, converged) for every end point reached.
-        """
-        if keep not in ("lowest", "first"):
-            raise ValueError(f"keep must be 'lowest' or 'first', got {keep!r}")
-        self.targets_of(targets)  # bad targets raise here, not once per start
-        runs = [(f"start {k}", X0) for k, X0 in enumerate(starts) if X0 is not None]
-        runs += [("rest", None)] if rest else []
-        results, skipped = [], []
-        for label, X0 in runs:
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", NotConvergedWarning)
-                    r = self.solve(targets, X0=X0, tol=tol, max_iter=max_iter)
-            except ValueError as exc:  # a rejected start (flipped, wrong shape): the next one
-                skipped.append((label, str(exc)))
-                continue
-            if X0 is not None:  # "X0 > escape ..." -> "start k > escape ..."
-                r.start = label + r.start[2:]
-                r.candidates = [(label + lab[2:], E, ok) for lab, E, ok in r.candidates]
-            results.append(r)
-            if keep == "first" and r.converged:
-                break
-        if not results:  # every given start was rejected (flipped): the rest pose is always a valid start
+
+def solve_best(solver, targets, starts=(), rest=True, keep="lowest", tol=None, max_iter=None):
+    """Local solves from several starts; the lowest-energy verified minimum (the one multi-start policy).
+
+    Every local solve escapes saddles along negative curvature (both directions), so the candidates
+    are: each given start, the rest pose (for barrier energies reached through flip-free continuation),
+    and the escapes from any saddle on the way.
+
+    Parameters
+    ----------
+    solver : Solver
+    targets : (h, d) numpy array
+        One row per handle given to the constructor.
+    starts : sequence of (n, d) numpy arrays or None
+        Extra starts (a bootstrap prediction, a previous solution); None entries are ignored, and
+        starts that are flipped (barrier energies) or otherwise rejected are skipped.
+    rest : bool
+        Also solve from the rest pose (tried after ``starts``; also used when every start is rejected).
+    keep : {"lowest", "first"}
+        ``"lowest"``: run every start and keep the lowest verified minimum (global). ``"first"``: stop at
+        the first start that yields a verified minimum (warm, path-following: the interactive editor).
+    tol, max_iter : optional
+        As in :meth:`Solver.solve` (``max_iter`` per start).
+
+    Returns
+    -------
+    result : SolveResult
+        ``start`` names the winning start (``"start k"`` or ``"rest"``, plus any escapes);
+        ``candidates`` lists (start, energy, converged) for every end point reached.
+    """
+    if keep not in ("lowest", "first"):
+        raise ValueError(f"keep must be 'lowest' or 'first', got {keep!r}")
+    solver.targets_of(targets)  # bad targets raise here, not once per start
+    runs = [(f"start {k}", X0) for k, X0 in enumerate(starts) if X0 is not None]
+    runs += [("rest", None)] if rest else []
+    results, skipped = [], []
+    for label, X0 in runs:
+        try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", NotConvergedWarning)
-                results.append(self.solve(targets, tol=tol, max_iter=max_iter))
-        best = min(results, key=lambda r: (not r.converged, r.energy if np.isfinite(r.energy) else np.inf))
-        best.candidates = [c for r in results for c in r.candidates] + [
-            (f"{label} (rejected: {why})", np.inf, False) for label, why in skipped
-        ]
-        if not best.converged:
-            _not_converged(f"{self.energy} solve did not converge from any start: {best.reason}")
-        return best
+                r = solver.solve(targets, X0=X0, tol=tol, max_iter=max_iter)
+        except ValueError as exc:  # a rejected start (flipped, wrong shape): the next one
+            skipped.append((label, str(exc)))
+            continue
+        if X0 is not None:  # "X0 > escape ..." -> "start k > escape ..."
+            r.start = label + r.start[2:]
+            r.candidates = [(label + lab[2:], E, ok) for lab, E, ok in r.candidates]
+        results.append(r)
+        if keep == "first" and r.converged:
+            break
+    if not results:  # every given start was rejected (flipped): the rest pose is always a valid start
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotConvergedWarning)
+            results.append(solver.solve(targets, tol=tol, max_iter=max_iter))
+    best = min(results, key=lambda r: (not r.converged, r.energy if np.isfinite(r.energy) else np.inf))
+    best.candidates = [c for r in results for c in r.candidates] + [
+        (f"{label} (rejected: {why})", np.inf, False) for label, why in skipped
+    ]
+    if not best.converged:
+        _not_converged(f"{solver.energy} solve did not converge from any start: {best.reason}")
+    return best
 
 
 def solve(mesh, handles, targets, energy="sarap", X0=None, backend=None, **kw):
