@@ -103,8 +103,8 @@ def run_row(name, args, truth_path):
 
 
 def report(results):
-    """The table, ratios against the first row, and the samples that moved."""
-    base = results[next(iter(results))]
+    """The table, ratios against main's row (else the first), and the samples that moved."""
+    base = results.get("main", results[next(iter(results))])
     E0 = np.array(base["energies"])
     scale = np.maximum(E0, 1e-3 * np.median(E0))
     print(
