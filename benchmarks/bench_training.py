@@ -15,7 +15,8 @@ Rows (one function each, :data:`ROWS`; a row returns the code path, extra enviro
 
 * ``main``: main at d79f472 (``--base``: ``git worktree add /tmp/base d79f472``);
 * ``numpy``: this tree with the numpy element kernels (``DEFOP_KERNEL=numpy``), the reference path;
-* ``kernel``: this tree with the fused numba kernels (:mod:`defop.variational.fused`, the default).
+* ``kernel``: this tree with the fused numba kernels (:mod:`defop.variational.fused`, the default);
+* ``multilevel``: the fused kernels and ``policy="multilevel"`` (``auto`` takes it from 10,000 vertices only).
 
 Printed: per row CPU s, wall s, CPU ratio against main, held-out error and its ratio against main, verified samples,
 and every training sample whose energy moved by more than 1e-6 relative to max(E_main, 1e-3 × median E_main).
@@ -56,7 +57,12 @@ def row_kernel(args):
     return {"path": REPO, "env": {"DEFOP_KERNEL": "numba"}, "train": {}}
 
 
-ROWS = {"main": row_main, "numpy": row_numpy, "kernel": row_kernel}
+def row_multilevel(args):
+    """This tree, fused kernels and the multilevel policy (:mod:`defop.training.multilevel`) whatever the size."""
+    return {"path": REPO, "env": {"DEFOP_KERNEL": "numba"}, "train": {"policy": "multilevel"}}
+
+
+ROWS = {"main": row_main, "numpy": row_numpy, "kernel": row_kernel, "multilevel": row_multilevel}
 
 
 def _env(path, extra, cache):
