@@ -1,0 +1,321 @@
+"""Handles that move at rest: the operator D(x; P, Q) (§5's last open question, issue 38).
+
+The rest positions of the *movable* handles (:mod:`defop.scene.placement`) are inputs. The operator is
+
+    D(·; P, Q) = x + δψ(P, Q) W_F + Σ_ℓ g_{v_ℓ} r_ℓ,     δψ(P, Q) = Ψ(z(P, Q)) − Ψ(z(P, P))            (M)
+
+* Ψ is the thin-plate spline basis (:class:`defop.operator.handle_bases.TPSBasis`, kernel r² log r in 2D) on the
+  joint space z = [(P_b − P_b⁰)/s_P, (Q − P)/s_Q] ∈ R^{d(b + n)}: the b movable handles' rest offsets from
+  their nominal vertices and the n moving handles' displacements. Its centres are the training pairs
+  (P_k, Q_k) *and* their rest poses (P_k, P_k) (and the nominal rest), with data the displacements X_k − x and 0,
+  so the interpolant f = Ψ W is 0 at every sampled rest pose and reproduces every training pair (Prop. 1).
+* δψ subtracts Ψ at (P, P) from the same code on the same bits: at Q = P the two are equal and δψ = 0, so
+  D(·; P, P) = x bit for bit (8b), whatever precision W_F is stored in; the rows of a batch at rest are also set
+  to x explicitly (a gemm does not promise equal rows equal bits).
+* r_ℓ = (q_ℓ − p_ℓ) − u(v_ℓ) is handle ℓ's residual at its vertex v_ℓ, computed in float64 from the same u the
+  frame adds (float32 products are cast first), and g_v the placement's bump (1 at v, 0 at the other regions'
+  vertices and at every handle that is not movable). Then the handle rows are written as q_ℓ exactly (Prop. 2,
+  bit for bit), as are non-movable moving handles (q) and fixed handles (x); W_F is 0 on their columns.
+* Affine precision: a displacement field affine in (Q − P) with coefficients independent of P is reproduced
+  (the affine part of Ψ); the P-affine part cancels in δψ. Elsewhere between samples D interpolates.
+
+Batch semantics: one P per call; Q (n, d) or a batch (k, n, d) at that P. P is given for the movable handles
+only: (b,) vertex indices or (b, d) points (snapped within :data:`defop.scene.placement.SNAP_TOL` of the bbox
+diagonal). Extrapolation is judged on Q − P against the training offsets Q_k − P_k. When a rest handle moves while
+the shape is deformed, :func:`retarget` keeps q − p (the handle's displacement travels with it); the operator
+itself is a function of (P, Q) and keeps no state.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from .. import options as opt
+from ..scene.placement import PlacementRegions
+from . import compress as compress_mod
+from . import handle_bases as hb
+from .defop import EXTRAPOLATION_FACTOR, ExtrapolationWarning, fast_matrices, kernel_state
+from .fit import structure
+
+
+def joint_z(V, nominal, idx, handles_moving, Q, s_p, s_q):
+    """The joint coordinates z (k, b + n, d) of rest vertices ``idx`` (b,) and Q (k, n, d).
+
+    ``handles_moving`` (n,) are the moving handles' vertices with the movable ones at ``idx``.
+    """
+    a = (V[idx] - V[nominal]) / s_p  # (b, d)
+    bq = (Q - V[handles_moving]) / s_q  # (k, n, d)
+    return np.concatenate([np.broadcast_to(a, (len(bq), *a.shape)), bq], axis=1)
+
+
+def rest_centres(zs, b):
+    """The distinct rest poses (P_k, P_k) of joint samples zs (m, b + n, d), the nominal (0) first: (r, b + n, d)."""
+    z0 = zs.copy()
+    z0[:, b:] = 0.0
+    flat = np.unique(z0.reshape(len(z0), -1), axis=0)
+    flat = flat[np.any(flat != 0.0, axis=1)]
+    return np.concatenate([np.zeros((1, *zs.shape[1:])), flat.reshape(-1, *zs.shape[1:])])
+
+
+def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None):
+    """Fit (M): TPS interpolation of the displacements over the joint space.
+
+    Parameters
+    ----------
+    mesh : defop.geometry.mesh.Mesh
+    handles, moving : (h,) arrays of the nominal shape
+    placement : defop.scene.placement.PlacementRegions
+    idx : (m, b) int numpy array
+        The movable handles' rest vertices of each sample.
+    Q : (m, n, d) numpy array
+    X : (m, n_vertices, d) numpy array
+        The verified solutions of problem (6) with the handles at those vertices.
+
+    Returns
+    -------
+    MovableOp
+    """
+    idx = np.asarray(idx, np.int64)
+    Q, X = np.asarray(Q, float), np.asarray(X, float)
+    m, n, d = Q.shape
+    if idx.shape != (m, placement.n_movable) or X.shape != (m, mesh.n_vertices, d):
+        raise ValueError(f"idx must be (m, {placement.n_movable}) and X (m, {mesh.n_vertices}, {d}) for m = {m}")
+    hm = np.array([placement.handles_at(i)[moving] for i in idx])  # (m, n)
+    off_p = mesh.V[idx] - mesh.V[placement.nominal]
+    off_q = Q - mesh.V[hm]
+    s_p = float(np.sqrt(np.mean(np.sum(off_p**2, axis=-1)))) or 1.0
+    s_q = float(np.sqrt(np.mean(np.sum(off_q**2, axis=-1)))) or 1.0
+    zs = np.concatenate([off_p / s_p, off_q / s_q], axis=1)
+    rc = rest_centres(zs, placement.n_movable)
+    centres = np.concatenate([rc, zs])
+    Y = np.concatenate([np.zeros((len(rc), mesh.n_vertices * d)), (X - mesh.V).reshape(m, -1)])
+    psi = hb.TPSBasis(np.zeros(zs.shape[1:]), centres, 1.0)
+    G, _ = structure(psi, centres)
+    W = G @ Y  # the rest pose's data is 0: β Y[0] drops
+    meta = {**(meta or {}), "basis": "tps-joint", "n_samples": m, "n_rest_centres": len(rc)}
+    return MovableOp(mesh, handles, moving, placement, psi, W, (s_p, s_q), meta, reach_of(off_q))
+
+
+def reach_of(off_q):
+    """Per moving handle, the farthest training offset |Q_k − P_k| (n,)."""
+    return np.linalg.norm(off_q, axis=-1).max(axis=0)
+
+
+def retarget(Q, placement, old, new):
+    """Q after movable rest handles move from vertices ``old`` to ``new`` (b,) while deformed: q − p stays.
+
+    Returns
+    -------
+    Q : (n, d) numpy array
+    """
+    Q = np.array(Q, float)
+    Q[placement.moving_rows()] += placement.mesh.V[new] - placement.mesh.V[old]
+    return Q
+
+
+class MovableOp:
+    """D(x; P, Q) of (M) in the module docstring: a closed-form operator whose movable rest handles are inputs.
+
+    Parameters
+    ----------
+    mesh, handles, moving
+        The nominal shape's mesh and handles.
+    placement : defop.scene.placement.PlacementRegions
+    basis : defop.operator.handle_bases.TPSBasis
+        Ψ on the joint space (pseudo-handles (b + n, d) at 0, scale 1).
+    W : (|Ψ|, d n_vertices) numpy array
+    scales : (s_P, s_Q)
+    meta : dict
+    reach : (n,) numpy array
+        The farthest training offset per moving handle (the extrapolation warning).
+    """
+
+    def __init__(self, mesh, handles, moving, placement, basis, W, scales, meta=None, reach=None):
+        from .. import __version__
+
+        self.mesh, self.placement, self.basis = mesh, placement, basis
+        self.handles = np.asarray(handles, np.int64)
+        self.moving = np.asarray(moving, bool)
+        self.d = mesh.dim
+        self.W = np.ascontiguousarray(W, float)
+        self.scales = (float(scales[0]), float(scales[1]))
+        self.meta = {"version": __version__, **(meta or {})}
+        self.reach = None if reach is None else np.asarray(reach, float)
+        self.factors = None
+        self._x = np.ascontiguousarray(mesh.V, float).ravel()
+        still = np.setdiff1d(np.arange(len(self.handles)), placement.movable)
+        self._still = self.handles[still]  # handles that never leave their vertex
+        self._WF = self.W[1:].copy()
+        self._WF[:, self.columns(self._still)] = 0.0
+        self._fast = None
+        self._at = None  # (idx bytes, state) of the last rest placement
+
+    def columns(self, vertices):
+        """Columns (row-major x, y[, z] per vertex) of ``vertices`` (k,): (k d,) int array."""
+        return (self.d * np.asarray(vertices, np.int64)[:, None] + np.arange(self.d)).ravel()
+
+    @property
+    def n_moving(self):
+        return int(self.moving.sum())
+
+    @property
+    def n_vertices(self):
+        return self.mesh.n_vertices
+
+    @property
+    def rank(self):
+        return None if self.factors is None else self.factors[0].shape[1]
+
+    def __repr__(self):
+        comp = f", rank {self.rank}" if self.factors is not None else ""
+        return (f"MovableOp({self.meta.get('shape', '?')}, {self.placement.n_movable} movable of {self.n_moving} "
+                f"moving handles, |Ψ|={self.basis.size}, {self.meta.get('n_samples')} samples{comp})")
+
+    # ------------------------------------------------------------------ the rest placement
+    def at(self, P=None):
+        """The state of rest placement P (:meth:`PlacementRegions.resolve`), kept until P changes: its vertices,
+        the moving handles' rest positions, z(P, P) and the kernel's frame at (P, P)."""
+        idx = self.placement.resolve(P)
+        if self._at is not None and np.array_equal(self._at["idx"], idx) and self._at["key"] is self.factors:
+            return self._at
+        hm = self.placement.handles_at(idx)[self.moving]
+        Pm = self.mesh.V[hm]
+        z0 = joint_z(self.mesh.V, self.placement.nominal, idx, hm, Pm[None], *self.scales)[0]
+        st = {"idx": idx, "key": self.factors, "hm": hm, "P": Pm, "z0": z0, "rows": self.placement.bump_rows(idx)}
+        st["psi0"] = self.basis.delta_z(z0.reshape(1, -1))  # (1, |Ψ|−1), float64
+        k = self._fast_state()["kernel"]
+        st["X0"] = self._kernel(z0, k)
+        self._at = st
+        return st
+
+    def _fast_state(self):
+        if self._fast is None or self._fast["key"] is not self.factors:
+            f = fast_matrices(self.basis, self._WF, self.factors)
+            f["kernel"] = kernel_state(self.basis, f["mats"], None)
+            self._fast = f
+        return self._fast
+
+    def _kernel(self, z, k):
+        """x + (ψ_raw(z) − ℓ(0)) A' B by the compiled frame (empty when beyond the overflow guard)."""
+        return k["tps_frame"](z, np.zeros_like(z), self._fast["R2"], k["far2"], *k["tps"], k["A"], k["B"], self._x,
+                              np.zeros(0, np.int64), np.zeros(0))[0]
+
+    # ------------------------------------------------------------------ evaluation
+    def _check_Q(self, Q, st):
+        Q = opt.real_array("Q", Q)
+        n, d = self.n_moving, self.d
+        if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, d):
+            raise ValueError(f"Q must have shape ({n}, {d}) or (k, {n}, {d}) for {n} moving handles, got {Q.shape}")
+        if not np.isfinite(Q).all():
+            raise ValueError(f"Q has NaN or infinite entries: {np.array2string(Q, threshold=20)}")
+        if self.reach is not None:
+            dist = np.linalg.norm(Q - st["P"], axis=-1).reshape(-1, n).max(axis=0)
+            far = np.flatnonzero(dist > EXTRAPOLATION_FACTOR * self.reach + 1e-12)
+            if len(far):
+                j = int(far[0])
+                warnings.warn(f"moving handle {j} is {dist[j]:.3g} from its rest position P, beyond 1.5x the farthest "
+                              f"training offset ({self.reach[j]:.3g}): the operator extrapolates",
+                              ExtrapolationWarning, stacklevel=3)
+        return Q
+
+    def __call__(self, Q, P=None):
+        """D(·; P, Q): (n_vertices, d), or (k, n_vertices, d) for a batch Q (k, n, d) at one P, in float64.
+
+        Uncompressed: float64 W_F. Compressed: the factors (one frame by the compiled kernel).
+        """
+        st = self.at(P)
+        Q = self._check_Q(Q, st)
+        if self.factors is not None:
+            return self.evaluate_batch(Q, P) if Q.ndim == 3 else self.evaluate_fast(Q, P)
+        Q2 = Q.reshape(-1, self.n_moving, self.d)
+        z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Q2, *self.scales)
+        dpsi = self.basis.delta_z(z.reshape(len(z), -1)) - st["psi0"]
+        out = self._finish(dpsi @ self._WF, st, Q2)
+        return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
+
+    def evaluate_fast(self, Q, P=None):
+        """One frame by the compiled kernel: float32 W_F (or the factors), the correction in float64."""
+        st = self.at(P)
+        Q = self._check_Q(Q, st)
+        if Q.shape != st["P"].shape:
+            raise ValueError(f"Q must have shape {st['P'].shape} (one frame), got {Q.shape}")
+        z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Q[None], *self.scales)[0]
+        Xz = self._kernel(z, self._fast_state()["kernel"])
+        if not Xz.size or not st["X0"].size:
+            return self._slow(Q[None], st)[0]
+        return self._finish((Xz - st["X0"])[None], st, Q[None])[0].reshape(self.n_vertices, self.d)
+
+    def evaluate_batch(self, Qs, P=None):
+        """D(·; P, Q_k) for a batch Qs (k, n, d) at one P: float32 products, the correction in float64."""
+        st = self.at(P)
+        Qs = self._check_Q(Qs, st)
+        if Qs.ndim != 3:
+            raise ValueError(f"Qs must have shape (k, {self.n_moving}, {self.d}), got {Qs.shape}")
+        if len(Qs) == 0:
+            return np.empty((0, self.n_vertices, self.d))
+        return self._slow(Qs, st).reshape(len(Qs), self.n_vertices, self.d)
+
+    def _slow(self, Qs, st):
+        """The fast matrices applied to the raw values of k rows (numpy), the correction in float64."""
+        f = self._fast_state()
+        z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Qs, *self.scales)
+        dpsi = (self.basis.delta_z(z.reshape(len(z), -1)) - st["psi0"]) / self.basis.raw_scale
+        s = np.maximum(np.abs(dpsi).max(axis=1, keepdims=True), 1.0)  # scaled into float32's range and back
+        y = (dpsi / s).astype(f["mats"][0].dtype)
+        for M in f["mats"]:
+            y = y @ M
+        return self._finish(y.astype(float) * s, st, Qs)
+
+    def _finish(self, u, st, Qs):
+        """x + u, the residual correction Σ g r in float64, the handles written exactly, rest rows = x."""
+        k, d = len(Qs), self.d
+        X = (self._x + u).reshape(k, self.n_vertices, d)
+        nb = self.placement.moving_rows()
+        disp = Qs - st["P"]  # (k, n, d)
+        r = disp[:, nb] - u.reshape(k, self.n_vertices, d)[:, st["idx"]]  # (k, b, d)
+        g = self.placement.g
+        for ell, row in enumerate(st["rows"]):
+            a, b = g.indptr[row], g.indptr[row + 1]
+            X[:, g.indices[a:b]] += g.data[a:b, None] * r[:, ell, None, :]
+        X[:, st["hm"]] = Qs  # Prop. 2: every moving handle on its target, bit for bit
+        fixed = self.handles[~self.moving]
+        X[:, fixed] = self.mesh.V[fixed]
+        rest = ~np.any(disp.reshape(k, -1) != 0.0, axis=1)
+        X[rest] = self.mesh.V  # (8b): D(·; P, P) = x bit for bit on every path
+        return X.reshape(k, -1)
+
+    # ------------------------------------------------------------------ compression and files
+    def compress(self, rank=None, tol=compress_mod.TOL, dtype=np.float32, samples=None):
+        """W_F ≈ A B (:func:`defop.operator.compress.principal_factors`), the directions of δψ at ``samples``
+        (joint z rows, (m, |Ψ|−1) δψ; default the basis' centres); the guarantees stay exact. Returns self."""
+        dtype = compress_mod.check_options(rank, tol, dtype)
+        free = np.setdiff1d(np.arange(self.d * self.n_vertices), self.columns(self._still))
+        C = self.basis.centers.reshape(len(self.basis.centers), -1)
+        S = self.basis.delta_z(C) if samples is None else samples
+        mass = np.repeat(self.mesh.mass_matrix.diagonal(), self.d)
+        A, Bf = compress_mod.principal_factors(self._WF[:, free], mass[free], S, rank, tol)
+        B = np.zeros((A.shape[1], self.d * self.n_vertices))
+        B[:, free] = Bf
+        self.factors = (np.ascontiguousarray(A, dtype=dtype), np.ascontiguousarray(B, dtype=dtype))
+        self.meta["rank"] = A.shape[1]
+        return self
+
+    def decompress(self):
+        self.factors = None
+        self.meta.pop("rank", None)
+        return self
+
+    def save(self, path):
+        """Save to ``path`` (.npz, kind ``movable``): :func:`defop.operator.io.save_movable`."""
+        from . import io as io_mod
+
+        io_mod.save_movable(self, path)
+
+    @classmethod
+    def load(cls, path):
+        """Load a file written by :meth:`save`, checked as every operator file (:func:`defop.operator.io.load`)."""
+        from . import io as io_mod
+
+        return io_mod.load_movable(path, cls, PlacementRegions)
