@@ -115,6 +115,38 @@ def retarget(Q, placement, old, new):
     return Q
 
 
+def correct(mesh, placement, handles, moving, st, u, Qs):
+    """x + u, the residual correction Σ_ℓ g_{v_ℓ} r_ℓ in float64, the handles written exactly, rest rows = x.
+
+    ``st``: the placement state (``idx``, ``hm``, ``P``, ``rows`` as :meth:`MovableOp.at` makes it); u (k, d n)
+    float64, Qs (k, n, d). Returns (k, d n_vertices).
+    """
+    k, d, n_vertices = len(Qs), mesh.dim, mesh.n_vertices
+    X = (mesh.V.ravel() + u).reshape(k, n_vertices, d)
+    disp = Qs - st["P"]  # (k, n, d)
+    r = disp[:, placement.moving_rows()] - u.reshape(k, n_vertices, d)[:, st["idx"]]  # (k, b, d)
+    g = placement.g
+    for ell, row in enumerate(st["rows"]):
+        a, b = g.indptr[row], g.indptr[row + 1]
+        X[:, g.indices[a:b]] += g.data[a:b, None] * r[:, ell, None, :]
+    X[:, st["hm"]] = Qs  # Prop. 2: every moving handle on its target, bit for bit
+    fixed = handles[~moving]
+    X[:, fixed] = mesh.V[fixed]
+    rest = ~np.any(disp.reshape(k, -1) != 0.0, axis=1)
+    X[rest] = mesh.V  # (8b): D(·; P, P) = x bit for bit on every path
+    return X.reshape(k, -1)
+
+
+def residual(op, Q, P=None):
+    """The largest |r_ℓ| (before the correction) of one frame, relative to the bbox diagonal: how far the fitted
+    part alone misses the handles."""
+    st = op.at(P)
+    Q = np.asarray(Q, float)[None]
+    u = op.displacement(Q, st)
+    r = (Q - st["P"])[:, op.placement.moving_rows()] - u.reshape(1, op.n_vertices, op.d)[:, st["idx"]]
+    return float(np.abs(r).max() / op.mesh.bbox_diagonal)
+
+
 class MovableOp:
     """D(x; P, Q) of (M) in the module docstring: a closed-form operator whose movable rest handles are inputs.
 
@@ -227,13 +259,38 @@ class MovableOp:
         """
         st = self.at(P)
         Q = self._check_Q(Q, st)
-        if self.factors is not None:
-            return self.evaluate_batch(Q, P) if Q.ndim == 3 else self.evaluate_fast(Q, P)
         Q2 = Q.reshape(-1, self.n_moving, self.d)
-        z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Q2, *self.scales)
-        dpsi = self.basis.delta_z(z.reshape(len(z), -1)) - st["psi0"]
-        out = self._finish(dpsi @ self._WF, st, Q2)
+        if self.factors is not None and Q.ndim == 2:
+            return self._frame(Q, st)
+        out = self._finish(self.displacement(Q2, st), st, Q2)
         return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
+
+    def displacement(self, Qs, st):
+        """u = δψ(P, Q_k) W_F (k, d n_vertices) in float64 (the factors' product when compressed), no correction."""
+        z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Qs, *self.scales)
+        dpsi = self.basis.delta_z(z.reshape(len(z), -1)) - st["psi0"]
+        if self.factors is None:
+            return dpsi @ self._WF
+        return self._product(dpsi)
+
+    def _product(self, dpsi):
+        """δψ (k, |Ψ|−1) times the fast matrices (float32 W_F or the factors), cast to float64."""
+        mats = self._fast_state()["mats"]
+        dpsi = dpsi / self.basis.raw_scale
+        s = np.maximum(np.abs(dpsi).max(axis=1, keepdims=True), 1.0)  # scaled into float32's range and back
+        y = (dpsi / s).astype(mats[0].dtype)
+        for M in mats:
+            y = y @ M
+        return y.astype(float) * s
+
+    def _frame(self, Q, st):
+        z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Q[None], *self.scales)[0]
+        Xz = self._kernel(z, self._fast_state()["kernel"])
+        if not Xz.size or not st["X0"].size:  # beyond the float32 guard: numpy with scaling
+            u = self._product(self.basis.delta_z(z.reshape(1, -1)) - st["psi0"])
+        else:
+            u = (Xz - st["X0"])[None]
+        return self._finish(u, st, Q[None])[0].reshape(self.n_vertices, self.d)
 
     def evaluate_fast(self, Q, P=None):
         """One frame by the compiled kernel: float32 W_F (or the factors), the correction in float64."""
@@ -241,11 +298,7 @@ class MovableOp:
         Q = self._check_Q(Q, st)
         if Q.shape != st["P"].shape:
             raise ValueError(f"Q must have shape {st['P'].shape} (one frame), got {Q.shape}")
-        z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Q[None], *self.scales)[0]
-        Xz = self._kernel(z, self._fast_state()["kernel"])
-        if not Xz.size or not st["X0"].size:
-            return self._slow(Q[None], st)[0]
-        return self._finish((Xz - st["X0"])[None], st, Q[None])[0].reshape(self.n_vertices, self.d)
+        return self._frame(Q, st)
 
     def evaluate_batch(self, Qs, P=None):
         """D(·; P, Q_k) for a batch Qs (k, n, d) at one P: float32 products, the correction in float64."""
@@ -255,36 +308,12 @@ class MovableOp:
             raise ValueError(f"Qs must have shape (k, {self.n_moving}, {self.d}), got {Qs.shape}")
         if len(Qs) == 0:
             return np.empty((0, self.n_vertices, self.d))
-        return self._slow(Qs, st).reshape(len(Qs), self.n_vertices, self.d)
-
-    def _slow(self, Qs, st):
-        """The fast matrices applied to the raw values of k rows (numpy), the correction in float64."""
-        f = self._fast_state()
         z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Qs, *self.scales)
-        dpsi = (self.basis.delta_z(z.reshape(len(z), -1)) - st["psi0"]) / self.basis.raw_scale
-        s = np.maximum(np.abs(dpsi).max(axis=1, keepdims=True), 1.0)  # scaled into float32's range and back
-        y = (dpsi / s).astype(f["mats"][0].dtype)
-        for M in f["mats"]:
-            y = y @ M
-        return self._finish(y.astype(float) * s, st, Qs)
+        u = self._product(self.basis.delta_z(z.reshape(len(z), -1)) - st["psi0"])
+        return self._finish(u, st, Qs).reshape(len(Qs), self.n_vertices, self.d)
 
     def _finish(self, u, st, Qs):
-        """x + u, the residual correction Σ g r in float64, the handles written exactly, rest rows = x."""
-        k, d = len(Qs), self.d
-        X = (self._x + u).reshape(k, self.n_vertices, d)
-        nb = self.placement.moving_rows()
-        disp = Qs - st["P"]  # (k, n, d)
-        r = disp[:, nb] - u.reshape(k, self.n_vertices, d)[:, st["idx"]]  # (k, b, d)
-        g = self.placement.g
-        for ell, row in enumerate(st["rows"]):
-            a, b = g.indptr[row], g.indptr[row + 1]
-            X[:, g.indices[a:b]] += g.data[a:b, None] * r[:, ell, None, :]
-        X[:, st["hm"]] = Qs  # Prop. 2: every moving handle on its target, bit for bit
-        fixed = self.handles[~self.moving]
-        X[:, fixed] = self.mesh.V[fixed]
-        rest = ~np.any(disp.reshape(k, -1) != 0.0, axis=1)
-        X[rest] = self.mesh.V  # (8b): D(·; P, P) = x bit for bit on every path
-        return X.reshape(k, -1)
+        return correct(self.mesh, self.placement, self.handles, self.moving, st, u, Qs)
 
     # ------------------------------------------------------------------ compression and files
     def compress(self, rank=None, tol=compress_mod.TOL, dtype=np.float32, samples=None):
@@ -319,3 +348,55 @@ class MovableOp:
         from . import io as io_mod
 
         return io_mod.load_movable(path, cls, PlacementRegions)
+
+
+class CarryOp:
+    """The second design of issue 38: the nominal fixed-P operator, carried with the rest handles.
+
+    A rest-space warp w_P(x) = x + Σ_ℓ g_{v_ℓ}(x) (p_ℓ⁰ − p_ℓ) (the placement bumps) takes each movable handle's
+    vertex to its nominal position; the nominal operator D⁰ is evaluated with the same handle displacements,
+    Q' = Q − P + P⁰, and its displacement field is read at w_P(x) (barycentric, in the rest mesh):
+    D(x; P, Q) = x + u⁰(w_P(x); Q'), then the correction of (M). No joint training: one fixed-P operator.
+    (8b) holds as for (M) (u⁰ = 0 at Q' = P⁰, and rest rows are x), Prop. 2 by the exact handle rows.
+
+    Parameters
+    ----------
+    op0 : defop.operator.defop.DefOp
+        Trained at the nominal placement.
+    placement : defop.scene.placement.PlacementRegions
+    """
+
+    def __init__(self, op0, placement):
+        self.op0, self.placement, self.mesh = op0, placement, op0.mesh
+        self.handles, self.moving, self.d = op0.handles, op0.moving, op0.d
+        self.n_vertices, self._at = op0.n_vertices, None
+
+    def at(self, P=None):
+        import scipy.sparse as sp
+
+        idx = self.placement.resolve(P)
+        if self._at is not None and np.array_equal(self._at["idx"], idx):
+            return self._at
+        hm = self.placement.handles_at(idx)[self.moving]
+        y = self.mesh.V.copy()
+        g, rows = self.placement.g, self.placement.bump_rows(idx)
+        for ell, row in enumerate(rows):
+            a, b = g.indptr[row], g.indptr[row + 1]
+            y[g.indices[a:b]] += g.data[a:b, None] * (self.mesh.V[self.placement.nominal[ell]] - self.mesh.V[idx[ell]])
+        elem, bary = self.mesh.locate(y)
+        n = self.n_vertices
+        S = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(n), self.d + 1), self.mesh.F[elem].ravel())), (n, n))
+        self._at = {"idx": idx, "hm": hm, "P": self.mesh.V[hm], "rows": rows, "S": S,
+                    "shift": self.op0.P - self.mesh.V[hm]}
+        return self._at
+
+    def __call__(self, Q, P=None, fast=False):
+        """D(·; P, Q) for Q (n, d) or (k, n, d) at one P; ``fast``: the nominal operator's fast path."""
+        st = self.at(P)
+        Q = opt.real_array("Q", Q)
+        Qs = Q.reshape(-1, *st["P"].shape)
+        Qn = Qs + st["shift"]
+        X0 = np.stack([self.op0.evaluate_fast(q) for q in Qn]) if fast else self.op0(Qn)
+        u = np.stack([st["S"] @ (x - self.mesh.V) for x in X0]).reshape(len(Qs), -1)
+        out = correct(self.mesh, self.placement, self.handles, self.moving, st, u, Qs)
+        return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
