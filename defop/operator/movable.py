@@ -33,9 +33,11 @@ import warnings
 import numpy as np
 
 from .. import options as opt
+from ..geometry.mesh import Mesh
 from ..scene.placement import PlacementRegions
 from . import compress as compress_mod
 from . import handle_bases as hb
+from . import io as io_mod
 from .defop import EXTRAPOLATION_FACTOR, ExtrapolationWarning, fast_matrices, kernel_state
 from .fit import structure
 
@@ -337,17 +339,13 @@ class MovableOp:
         return self
 
     def save(self, path):
-        """Save to ``path`` (.npz, kind ``movable``): :func:`defop.operator.io.save_movable`."""
-        from . import io as io_mod
-
-        io_mod.save_movable(self, path)
+        """Save to ``path`` (.npz, format ``defop-movable-1``, placement regions included): :func:`save_movable`."""
+        save_movable(self, path)
 
     @classmethod
     def load(cls, path):
-        """Load a file written by :meth:`save`, checked as every operator file (:func:`defop.operator.io.load`)."""
-        from . import io as io_mod
-
-        return io_mod.load_movable(path, cls, PlacementRegions)
+        """Load a file written by :meth:`save`, checked before any work (:func:`load_movable`)."""
+        return load_movable(path, cls)
 
 
 class CarryOp:
@@ -400,3 +398,67 @@ class CarryOp:
         u = np.stack([st["S"] @ (x - self.mesh.V) for x in X0]).reshape(len(Qs), -1)
         out = correct(self.mesh, self.placement, self.handles, self.moving, st, u, Qs)
         return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
+
+
+# ---------------------------------------------------------------------- files
+#: the movable-handle operator's file format (an .npz archive checked as every operator file, :mod:`.io`)
+FORMAT = "defop-movable-1"
+MEMBERS = ("header", "V", "F", "handles", "moving", "joint_W", "joint_centers", "reach", "placement_movable",
+           "placement_vertices", "placement_sizes", "placement_reach", "factor_A", "factor_B")
+
+
+def save_movable(op, path):
+    """Write ``op`` (:class:`MovableOp`) to ``path`` atomically: arrays, placement regions, JSON header."""
+    import json
+
+    arrays = {"V": op.mesh.V, "F": op.mesh.F, "handles": op.handles, "moving": op.moving, "joint_W": op.W,
+              "joint_centers": op.basis.centers, **op.placement.to_arrays()}
+    if op.reach is not None:
+        arrays["reach"] = op.reach
+    if op.factors is not None:
+        arrays["factor_A"], arrays["factor_B"] = op.factors
+    header = {"format": FORMAT, "format_version": 1, "kind": "movable", "dim": op.d, "meta": op.meta,
+              "scales": list(op.scales)}
+    arrays["header"] = np.array(json.dumps(header))
+    io_mod._write(path, arrays)
+
+
+def _check_declared(path, header, headers, version):
+    C = headers.get("joint_centers", (None,))[0]
+    if C is not None and len(C) >= 1 and C[0] > io_mod.MAX_CENTERS:
+        raise io_mod.OperatorFileError(f"{path} declares {C[0]} TPS centres, limit {io_mod.MAX_CENTERS}")
+
+
+def load_movable(path, cls=None):
+    """Read a file of :func:`save_movable`, checked before any work (:func:`defop.operator.io.load`'s steps 1-6),
+    then every array against the others; a ValueError (``OperatorFileError``) names the file and the problem."""
+    header, data, _ = io_mod._read(path, {FORMAT: 1}, MEMBERS, len(MEMBERS), _check_declared)
+    A = io_mod._array
+    try:
+        V = A(data, "V", 2, "f")
+        d = V.shape[1]
+        mesh = Mesh(V, A(data, "F", 2, "iu", (None, d + 1)))
+        handles = A(data, "handles", 1, "iu")
+        moving = A(data, "moving", 1, "b", handles.shape)
+        pr = PlacementRegions.from_arrays(mesh, handles, moving, {k: A(data, k, 1, "iuf") for k in (
+            "placement_movable", "placement_vertices", "placement_sizes", "placement_reach")})
+        C = A(data, "joint_centers", 3, "f", (None, pr.n_movable + int(moving.sum()), d))
+        basis = hb.TPSBasis(np.zeros(C.shape[1:]), C, 1.0)
+        W = A(data, "joint_W", 2, "f", (basis.size, d * len(V)))
+        reach = A(data, "reach", 1, "f", (int(moving.sum()),)) if "reach" in data else None
+        s = [float(x) for x in header["scales"]]
+        if len(s) != 2 or not all(np.isfinite(s)) or min(s) <= 0:
+            raise ValueError(f"header 'scales' must be two positive numbers, got {s}")
+        op = (cls or MovableOp)(mesh, handles, moving, pr, basis, W, s, header["meta"], reach)
+        op.meta = header["meta"]
+        if "factor_A" in data:
+            fa = A(data, "factor_A", 2, "f", (basis.size - 1, None))
+            fb = A(data, "factor_B", 2, "f", (fa.shape[1], d * len(V)))
+            if fa.dtype != fb.dtype or np.any(fb[:, op.columns(op._still)] != 0):
+                raise ValueError("factor_B must be zero on the columns of the handles that are not movable, "
+                                 "in the dtype of factor_A")
+            op.factors = (fa, fb)
+        return op
+    except (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError) as exc:
+        what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or type(exc).__name__
+        raise io_mod.OperatorFileError(f"{path} is not a valid movable-handle operator file: {what}") from exc

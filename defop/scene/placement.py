@@ -184,6 +184,13 @@ def check(pr):
     """Raise ValueError unless the regions of ``pr`` follow the module's rules."""
     n = pr.mesh.n_vertices
     h, mv = pr.handles, pr.movable
+    if pr.mesh.dim != 2:
+        raise ValueError(
+            "placement regions (movable rest handles) are implemented on triangle meshes only, not on this "
+            f"{pr.mesh.dim}D mesh: a tetrahedral handle is a patch of vertices (bar_3d's end is 4) that would have "
+            "to move at rest together, by one shared offset, which one placement region per handle vertex does "
+            "not express, and the joint training was not validated in 3D"
+        )
     if mv.ndim != 1 or len(mv) == 0 or len(np.unique(mv)) != len(mv) or np.any(np.diff(mv) < 0):
         raise ValueError(f"movable must be increasing, distinct indices into the {len(h)} handles, got {mv}")
     if mv.min() < 0 or mv.max() >= len(h):
