@@ -1,4 +1,4 @@
-"""Handles that move at rest (issue 38): the joint operator D(x; P, Q) against retraining, MLS and biharmonic coordinates.
+"""Handles that move at rest (issue 38): the joint operator D(x; P, Q) vs retraining, MLS and biharmonic coordinates.
 
 Per shape (the aleph, all 5 handles movable; the octopus, 3 of its 9 movable): placement regions of radius 5% of the
 bounding-box diagonal; held-out placements drawn uniformly over the region vertices, × ``N_Q`` configurations Q
