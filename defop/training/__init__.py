@@ -5,9 +5,10 @@
 least certain (:func:`train_adaptive`); :mod:`.branches` finds every branch of D^E and fits a multi-valued operator.
 """
 
-from . import adaptive, bootstrap, branches, cache, sampling
+from . import adaptive, bootstrap, branches, cache, movable, sampling
 from .adaptive import train_adaptive
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
+from .movable import train_movable
 
 __all__ = [
     "TrainingRecord",
@@ -17,8 +18,10 @@ __all__ = [
     "cache",
     "held_out",
     "min_samples",
+    "movable",
     "sampling",
     "solve_samples",
     "train",
     "train_adaptive",
+    "train_movable",
 ]
