@@ -127,10 +127,8 @@ def correct(mesh, placement, handles, moving, st, u, Qs):
     X = (mesh.V.ravel() + u).reshape(k, n_vertices, d)
     disp = Qs - st["P"]  # (k, n, d)
     r = disp[:, placement.moving_rows()] - u.reshape(k, n_vertices, d)[:, st["idx"]]  # (k, b, d)
-    g = placement.g
-    for ell, row in enumerate(st["rows"]):
-        a, b = g.indptr[row], g.indptr[row + 1]
-        X[:, g.indices[a:b]] += g.data[a:b, None] * r[:, ell, None, :]
+    sup, wt = st["bumps"]
+    X[:, sup] += np.matmul(wt, r)  # (s, b) @ (k, b, d): Σ_ℓ g_{v_ℓ} r_ℓ on the bumps' support
     X[:, st["hm"]] = Qs  # Prop. 2: every moving handle on its target, bit for bit
     fixed = handles[~moving]
     X[:, fixed] = mesh.V[fixed]
@@ -211,13 +209,20 @@ class MovableOp:
     def at(self, P=None):
         """The state of rest placement P (:meth:`PlacementRegions.resolve`), kept until P changes: its vertices,
         the moving handles' rest positions, z(P, P) and the kernel's frame at (P, P)."""
+        last = self._at
+        if last is not None and last["key"] is self.factors and (
+                (P is None and last["nominal"]) or (type(P) is np.ndarray and P.dtype.kind in "iu"
+                                                    and P.shape == last["idx"].shape and (P == last["idx"]).all())):
+            return last  # the placement of the last frame (an interactive drag): nothing to resolve
         idx = self.placement.resolve(P)
         if self._at is not None and np.array_equal(self._at["idx"], idx) and self._at["key"] is self.factors:
             return self._at
         hm = self.placement.handles_at(idx)[self.moving]
         Pm = self.mesh.V[hm]
         z0 = joint_z(self.mesh.V, self.placement.nominal, idx, hm, Pm[None], *self.scales)[0]
-        st = {"idx": idx, "key": self.factors, "hm": hm, "P": Pm, "z0": z0, "rows": self.placement.bump_rows(idx)}
+        st = {"idx": idx, "key": self.factors, "hm": hm, "P": Pm, "z0": z0, "bumps": self.placement.bumps_at(idx),
+              "rows": self.placement.moving_rows(), "fixed": self.handles[~self.moving],
+              "nominal": bool(np.array_equal(idx, self.placement.nominal))}
         st["psi0"] = self.basis.delta_z(z0.reshape(1, -1))  # (1, |Ψ|−1), float64
         k = self._fast_state()["kernel"]
         st["X0"] = self._kernel(z0, k)
@@ -228,26 +233,31 @@ class MovableOp:
         if self._fast is None or self._fast["key"] is not self.factors:
             f = fast_matrices(self.basis, self._WF, self.factors)
             f["kernel"] = kernel_state(self.basis, f["mats"], None)
+            f["kernel"].update(zero=np.zeros(self.basis.P.shape), none=np.zeros(0, np.int64), nothing=np.zeros(0))
+            from .movable_kernels import finish_frame  # numba: compiled (or loaded from its cache) on first use
+
+            f["finish"] = finish_frame
             self._fast = f
         return self._fast
 
     def _kernel(self, z, k):
         """x + (ψ_raw(z) − ℓ(0)) A' B by the compiled frame (empty when beyond the overflow guard)."""
-        return k["tps_frame"](z, np.zeros_like(z), self._fast["R2"], k["far2"], *k["tps"], k["A"], k["B"], self._x,
-                              np.zeros(0, np.int64), np.zeros(0))[0]
+        return k["tps_frame"](z, k["zero"], self._fast["R2"], k["far2"], *k["tps"], k["A"], k["B"], self._x,
+                              k["none"], k["nothing"])[0]
 
     # ------------------------------------------------------------------ evaluation
     def _check_Q(self, Q, st):
-        Q = opt.real_array("Q", Q)
+        if not (type(Q) is np.ndarray and Q.dtype == np.float64):
+            Q = opt.real_array("Q", Q)
         n, d = self.n_moving, self.d
         if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, d):
             raise ValueError(f"Q must have shape ({n}, {d}) or (k, {n}, {d}) for {n} moving handles, got {Q.shape}")
         if not np.isfinite(Q).all():
             raise ValueError(f"Q has NaN or infinite entries: {np.array2string(Q, threshold=20)}")
         if self.reach is not None:
-            dist = np.linalg.norm(Q - st["P"], axis=-1).reshape(-1, n).max(axis=0)
+            dist = np.sqrt(np.square(Q - st["P"]).sum(axis=-1).reshape(-1, n).max(axis=0))
             far = np.flatnonzero(dist > EXTRAPOLATION_FACTOR * self.reach + 1e-12)
-            if len(far):
+            if far.size:
                 j = int(far[0])
                 warnings.warn(f"moving handle {j} is {dist[j]:.3g} from its rest position P, beyond 1.5x the farthest "
                               f"training offset ({self.reach[j]:.3g}): the operator extrapolates",
@@ -290,9 +300,11 @@ class MovableOp:
         Xz = self._kernel(z, self._fast_state()["kernel"])
         if not Xz.size or not st["X0"].size:  # beyond the float32 guard: numpy with scaling
             u = self._product(self.basis.delta_z(z.reshape(1, -1)) - st["psi0"])
-        else:
-            u = (Xz - st["X0"])[None]
-        return self._finish(u, st, Q[None])[0].reshape(self.n_vertices, self.d)
+            return self._finish(u, st, Q[None])[0].reshape(self.n_vertices, self.d)
+        sup, wt = st["bumps"]
+        out = self._fast["finish"](Xz, st["X0"], self._x, Q, st["P"], st["idx"], st["rows"], st["hm"], sup, wt,
+                                   st["fixed"])
+        return out.reshape(self.n_vertices, self.d)
 
     def evaluate_fast(self, Q, P=None):
         """One frame by the compiled kernel: float32 W_F (or the factors), the correction in float64."""
@@ -384,7 +396,7 @@ class CarryOp:
         elem, bary = self.mesh.locate(y)
         n = self.n_vertices
         S = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(n), self.d + 1), self.mesh.F[elem].ravel())), (n, n))
-        self._at = {"idx": idx, "hm": hm, "P": self.mesh.V[hm], "rows": rows, "S": S,
+        self._at = {"idx": idx, "hm": hm, "P": self.mesh.V[hm], "bumps": self.placement.bumps_at(idx), "S": S,
                     "shift": self.op0.P - self.mesh.V[hm]}
         return self._at
 

@@ -88,6 +88,9 @@ class PlacementRegions:
         self.reach = np.asarray(reach, float)
         self.g = bumps(self)  # (Σ k_ℓ, n_vertices) CSR, rows in region order
         self.offset = np.cumsum([0] + [len(v) for v in self.vertices])
+        self.owner = np.full(mesh.n_vertices, -1, np.int64)  # the region of each vertex (-1: none)
+        for ell, v in enumerate(self.vertices):
+            self.owner[v] = ell
 
     @property
     def n_movable(self):
@@ -139,8 +142,9 @@ class PlacementRegions:
         else:
             raise ValueError(f"P must be ({b},) vertex indices or ({b}, {d}) rest positions of the {b} movable "
                              f"handles, got {P.dtype} {P.shape}")
+        own = self.owner[np.clip(idx, 0, len(self.owner) - 1)]
         for ell, (v, verts) in enumerate(zip(idx, self.vertices)):
-            if not np.isin(v, verts):
+            if own[ell] != ell or v < 0 or v >= len(self.owner):
                 raise ValueError(f"P[{ell}] is vertex {int(v)}, outside movable handle {ell}'s placement region "
                                  f"({len(verts)} vertices around vertex {int(self.nominal[ell])})")
         return idx
@@ -152,6 +156,12 @@ class PlacementRegions:
             raise ValueError(f"points must be finite, shape ({self.n_movable}, {self.mesh.dim}), got {points.shape}")
         return np.array([v[np.argmin(np.linalg.norm(self.mesh.V[v] - p, axis=1))]
                          for p, v in zip(points, self.vertices)], np.int64)
+
+    def bumps_at(self, idx):
+        """The bumps of the region vertices ``idx`` (b,) on their joint support: (sup (s,) int, weights (s, b))."""
+        G = self.g[self.bump_rows(idx)].tocsc()
+        sup = np.flatnonzero(np.diff(G.indptr))
+        return sup, np.ascontiguousarray(G[:, sup].toarray().T)
 
     def bump_rows(self, idx):
         """Rows of :attr:`g` of the region vertices ``idx`` (b,)."""
