@@ -61,7 +61,7 @@ def rest_centres(zs, b):
     return np.concatenate([np.zeros((1, *zs.shape[1:])), flat.reshape(-1, *zs.shape[1:])])
 
 
-def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None):
+def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight=1.0):
     """Fit (M): TPS interpolation of the displacements over the joint space.
 
     Parameters
@@ -87,7 +87,7 @@ def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None):
     hm = np.array([placement.handles_at(i)[moving] for i in idx])  # (m, n)
     off_p = mesh.V[idx] - mesh.V[placement.nominal]
     off_q = Q - mesh.V[hm]
-    s_p = float(np.sqrt(np.mean(np.sum(off_p**2, axis=-1)))) or 1.0
+    s_p = (float(np.sqrt(np.mean(np.sum(off_p**2, axis=-1)))) or 1.0) / p_weight
     s_q = float(np.sqrt(np.mean(np.sum(off_q**2, axis=-1)))) or 1.0
     zs = np.concatenate([off_p / s_p, off_q / s_q], axis=1)
     rc = rest_centres(zs, placement.n_movable)
