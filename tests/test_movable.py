@@ -190,3 +190,33 @@ def test_retarget_keeps_displacement(shape, placement):
     Q2 = retarget(Q, placement, old, new)
     rows = placement.moving_rows()
     np.testing.assert_allclose(Q2[rows] - shape.mesh.V[new], Q[rows] - shape.mesh.V[old], atol=1e-15)
+
+
+def test_batch_rows_at_rest_are_exact_and_far_rows_finite(shape, placement):
+    op = _synthetic(shape, placement)
+    P = np.array([placement.vertices[0][1], placement.vertices[1][2]])
+    rest = shape.mesh.V[placement.handles_at(P)[shape.moving]]
+    Qs = np.stack([rest, rest + 0.05, rest, rest - 0.02])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
+        for compressed in (False, True):
+            if compressed:
+                op.compress(rank=2, dtype=np.float64)
+            for X in (op(Qs, P=P), op.evaluate_batch(Qs, P=P)):
+                assert np.array_equal(X[0], shape.mesh.V) and np.array_equal(X[2], shape.mesh.V)
+                assert np.array_equal(X[:, placement.handles_at(P)[shape.moving]], Qs)
+        X = op.evaluate_fast(rest + 1e6, P=P)  # beyond the float32 guard: the scaled numpy product
+        assert np.isfinite(X).all() and np.array_equal(X[placement.handles_at(P)[shape.moving]], rest + 1e6)
+
+
+def test_placement_regions_are_part_of_the_cache_key(shape, placement, tmp_path, monkeypatch):
+    monkeypatch.setenv("DEFOP_CACHE", str(tmp_path))
+    other = placement_regions(shape, [0, 1], radius=0.12)
+    idx = np.stack([other.nominal, other.nominal])
+    Q = np.stack([shape.mesh.V[shape.handles[shape.moving]] + 0.01] * 2)
+    solve_joint(shape, placement, idx, Q, n_jobs=1, progress=False)
+    n = len(list(tmp_path.rglob("*.npz")))
+    solve_joint(shape, placement, idx, Q, n_jobs=1, progress=False)  # a hit: nothing new
+    assert len(list(tmp_path.rglob("*.npz"))) == n
+    solve_joint(shape, other, idx, Q, n_jobs=1, progress=False)  # other regions: another entry
+    assert len(list(tmp_path.rglob("*.npz"))) == n + 1
