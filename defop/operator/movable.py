@@ -296,7 +296,9 @@ class MovableOp:
         return y.astype(float) * s
 
     def _frame(self, Q, st):
-        z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Q[None], *self.scales)[0]
+        z = st["z0"].copy()  # [(P_b − P_b⁰)/s_P, 0], kept per placement; the Q part is the frame's (joint_z's sums)
+        np.divide(np.subtract(Q, st["P"], out=z[self.placement.n_movable:]), self.scales[1],
+                  out=z[self.placement.n_movable:])
         Xz = self._kernel(z, self._fast_state()["kernel"])
         if not Xz.size or not st["X0"].size:  # beyond the float32 guard: numpy with scaling
             u = self._product(self.basis.delta_z(z.reshape(1, -1)) - st["psi0"])
