@@ -6,14 +6,16 @@ operator (one DefOp per branch of D^E), :mod:`.compress` its
 compression and :mod:`.io` its files. Never imports :mod:`defop.variational`.
 """
 
-from . import branched, compress, defop, domains, fit, handle_bases, io, spatial
+from . import branched, compress, defop, domains, fit, handle_bases, io, movable, spatial
 from .branched import BranchedOperator
 from .defop import DefOp, ExtrapolationWarning
+from .movable import MovableOp
 
 __all__ = [
     "BranchedOperator",
     "DefOp",
     "ExtrapolationWarning",
+    "MovableOp",
     "branched",
     "compress",
     "defop",
@@ -21,5 +23,6 @@ __all__ = [
     "fit",
     "handle_bases",
     "io",
+    "movable",
     "spatial",
 ]

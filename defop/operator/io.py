@@ -328,6 +328,8 @@ def _member_headers(path, zf, members=MEMBERS, max_members=MAX_MEMBERS):
     names = {i.filename for i in infos[: 2 * max_members]}
     if members is MEMBERS and "mode.npy" in names:
         raise OperatorFileError(f"{path} is a multi-valued operator file (kind 'branched'): use BranchedOperator.load")
+    if members is MEMBERS and "joint_W.npy" in names:
+        raise OperatorFileError(f"{path} is a movable-handle operator file: use defop.operator.movable.MovableOp.load")
     if members is not MEMBERS and "W.npy" in names:
         raise OperatorFileError(f"{path} is a single-valued operator file ({FORMAT} or older): use DefOp.load")
     if len(infos) > max_members:

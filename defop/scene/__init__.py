@@ -4,7 +4,7 @@
 :mod:`.shapes` the :class:`Shape` and its constructors (``load``, ``from_polygon``, ``from_image``).
 """
 
-from . import models, regions, shapes
+from . import models, placement, regions, shapes
 from .shapes import Shape
 
-__all__ = ["Shape", "models", "regions", "shapes"]
+__all__ = ["Shape", "models", "placement", "regions", "shapes"]

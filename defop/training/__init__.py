@@ -6,9 +6,10 @@ least certain (:func:`train_adaptive`); :mod:`.branches` finds every branch of D
 :mod:`.branch_domains` certifies where each branch is present and absent.
 """
 
-from . import adaptive, bootstrap, branch_domains, branches, cache, sampling
+from . import adaptive, bootstrap, branch_domains, branches, cache, movable, sampling
 from .adaptive import train_adaptive
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
+from .movable import train_movable
 
 __all__ = [
     "TrainingRecord",
@@ -19,8 +20,10 @@ __all__ = [
     "cache",
     "held_out",
     "min_samples",
+    "movable",
     "sampling",
     "solve_samples",
     "train",
     "train_adaptive",
+    "train_movable",
 ]
