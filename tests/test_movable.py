@@ -268,3 +268,20 @@ def test_region_vertices_and_reach_are_checked(shape):
             placement_regions(shape, [0], radius=0.1, reach=reach)
     ok = placement_regions(shape, [0], vertices=[np.array([float(h)])])  # integral floats stay accepted
     assert ok.vertices[0].tolist() == [h]
+
+
+def test_train_movable_refuses_before_any_solve(shape, placement):
+    """n_q = 0 raised a ZeroDivisionError, a placement made for another mesh an IndexError from deep in the
+    sampling, and movable=[0.5] was truncated to handle 0: each is now a ValueError naming the argument (review of
+    issue 38)."""
+    other = dop.shapes.from_polygon(np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 1.5], [0.0, 1.5]]),
+                                    handles=np.array([[2.7, 0.75], [1.5, 1.2], [0.15, 0.75]]),
+                                    moving=[True, True, False], n_vertices=150, name="rect2")
+    with pytest.raises(ValueError, match=r"n_q must be an integer >= 1, got 0"):
+        train_movable(shape, placement, m=5, n_q=0, n_jobs=1, progress=False, cache=False)
+    with pytest.raises(ValueError, match=r"placement .*'rect2'"):
+        train_movable(other, placement, m=5, n_jobs=1, progress=False, cache=False)
+    with pytest.raises(ValueError, match=r"placement must be .*PlacementRegions"):
+        train_movable(shape, [0, 1], m=5, n_jobs=1, progress=False, cache=False)
+    with pytest.raises(ValueError, match=r"movable\[0\] must be an integer.*0\.5"):
+        placement_regions(shape, [0.5], radius=0.1)

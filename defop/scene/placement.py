@@ -289,7 +289,10 @@ def placement_regions(shape, movable=None, radius=None, vertices=None, reach=Non
     -------
     PlacementRegions
     """
-    mv = np.flatnonzero(shape.moving) if movable is None else np.asarray(movable, np.int64).ravel()
+    if movable is None:
+        mv = np.flatnonzero(shape.moving)
+    else:
+        mv = np.array([opt.integer(f"movable[{i}]", k) for i, k in enumerate(np.ravel(movable))], np.int64)
     if (radius is None) == (vertices is None):
         raise ValueError("give exactly one of radius (a ball per movable handle) and vertices (the regions)")
     if radius is not None:
