@@ -220,3 +220,68 @@ def test_placement_regions_are_part_of_the_cache_key(shape, placement, tmp_path,
     assert len(list(tmp_path.rglob("*.npz"))) == n
     solve_joint(shape, other, idx, Q, n_jobs=1, progress=False)  # other regions: another entry
     assert len(list(tmp_path.rglob("*.npz"))) == n + 1
+
+
+def _edited(src, dst, header=None, **arrays):
+    """A copy of the operator file ``src`` with header fields and arrays replaced."""
+    import json
+
+    with np.load(src) as z:
+        data = {k: z[k] for k in z.files}
+    h = json.loads(str(data["header"]))
+    h.update(header or {})
+    data.update(arrays, header=np.array(json.dumps(h)))
+    with open(dst, "wb") as fh:
+        np.savez(fh, **data)
+    return dst
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (dict(header={"dim": 3}), r"dim = 3, but V is"),
+        (dict(header={"dim": "2"}), r"dim must be an integer"),
+        (dict(placement_movable=np.array([0.5, 1.5])), r"'placement_movable' must be 1-D of kind 'iu'"),
+        (dict(placement_vertices=np.array([0.0, 1.0])), r"'placement_vertices' must be 1-D of kind 'iu'"),
+        (dict(placement_reach=np.array([-0.1, 0.2])), r"reach must be 2 positive finite lengths"),
+        (dict(reach=np.array([-0.1, 0.2])), r"'reach' must be 2 non-negative finite lengths"),
+    ],
+)
+def test_damaged_movable_files_are_refused(shape, placement, tmp_path, edit, match):
+    """Header fields and arrays that loaded silently (a 3D header on a 2D mesh, fractional region vertices, negative
+    reaches that made the extrapolation warning fire at rest): refused, naming the file (review of issue 38)."""
+    op = _synthetic(shape, placement)
+    op.save(tmp_path / "m.npz")
+    bad = _edited(tmp_path / "m.npz", tmp_path / "bad.npz", **edit)
+    with pytest.raises(OperatorFileError, match=r"bad\.npz.*" + match):
+        MovableOp.load(bad)
+
+
+def test_region_vertices_and_reach_are_checked(shape):
+    """Fractional vertex indices were truncated (1.5 -> vertex 1) and a negative or NaN reach raised scipy's
+    'limit must be >= 0': both are now a ValueError naming the argument (review of issue 38)."""
+    h = int(shape.handles[0])
+    with pytest.raises(ValueError, match=r"placement region 0 must hold integer vertex indices.*1\.5"):
+        placement_regions(shape, [0], vertices=[np.array([float(h), 1.5])])
+    for reach in ([-1.0], [np.nan], [1.0, 2.0]):
+        with pytest.raises(ValueError, match=r"reach must be 1 positive finite lengths"):
+            placement_regions(shape, [0], radius=0.1, reach=reach)
+    ok = placement_regions(shape, [0], vertices=[np.array([float(h)])])  # integral floats stay accepted
+    assert ok.vertices[0].tolist() == [h]
+
+
+def test_train_movable_refuses_before_any_solve(shape, placement):
+    """n_q = 0 raised a ZeroDivisionError, a placement made for another mesh an IndexError from deep in the
+    sampling, and movable=[0.5] was truncated to handle 0: each is now a ValueError naming the argument (review of
+    issue 38)."""
+    other = dop.shapes.from_polygon(np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 1.5], [0.0, 1.5]]),
+                                    handles=np.array([[2.7, 0.75], [1.5, 1.2], [0.15, 0.75]]),
+                                    moving=[True, True, False], n_vertices=150, name="rect2")
+    with pytest.raises(ValueError, match=r"n_q must be an integer >= 1, got 0"):
+        train_movable(shape, placement, m=5, n_q=0, n_jobs=1, progress=False, cache=False)
+    with pytest.raises(ValueError, match=r"placement .*'rect2'"):
+        train_movable(other, placement, m=5, n_jobs=1, progress=False, cache=False)
+    with pytest.raises(ValueError, match=r"placement must be .*PlacementRegions"):
+        train_movable(shape, [0, 1], m=5, n_jobs=1, progress=False, cache=False)
+    with pytest.raises(ValueError, match=r"movable\[0\] must be an integer.*0\.5"):
+        placement_regions(shape, [0.5], radius=0.1)

@@ -286,3 +286,14 @@ def test_same_operator_with_dask(bar):
             b, rb = dop.train(bar, m=12, seed=6, n_jobs=-1, progress=False, policy="multilevel", cache=False)
     Q = dop.training.sampling.sample_shape(bar, 20, np.random.default_rng(99))
     assert np.abs(a(Q) - b(Q)).max() <= 1e-9 * bar.mesh.bbox_diagonal and ra.multilevel["rule"] == rb.multilevel["rule"]
+
+
+def test_multilevel_modules_are_exported():
+    """train's docstring names defop.training.multilevel.MultilevelWarning: both multilevel modules are in their
+    subpackage's ``__all__`` as the other modules are (the merged main had neither; review of issue 36)."""
+    import defop.geometry as geometry
+    import defop.training as training
+
+    assert "multilevel" in training.__all__ and "multilevel" in geometry.__all__
+    assert training.multilevel.MultilevelWarning is ml.MultilevelWarning
+    assert geometry.multilevel.coarse_mesh_of is coarse_mesh_of

@@ -3,16 +3,18 @@
 :class:`Mesh` holds ``V (n, d)`` and ``F (m, d + 1)``. :mod:`.planar` makes planar meshes from polygons,
 implicit outlines and pictures (Triangle); :mod:`.volumetric` makes tetrahedral meshes of solids and closed
 surfaces (Kuhn cubes); :mod:`.fields` holds the implicit primitives both use; :mod:`.surface_files` reads
-PLY, STL, OBJ and OFF files safely (counts checked before allocation, STL welded).
+PLY, STL, OBJ and OFF files safely (counts checked before allocation, STL welded); :mod:`.multilevel` makes a
+coarse mesh of the same outline and the prolongation onto the fine one (multilevel training).
 """
 
-from . import fields, mesh, planar, surface_files, volumetric
+from . import fields, mesh, multilevel, planar, surface_files, volumetric
 from .mesh import Mesh, read_mesh, signed_areas, signed_volumes, write_mesh
 
 __all__ = [
     "Mesh",
     "fields",
     "mesh",
+    "multilevel",
     "planar",
     "surface_files",
     "volumetric",

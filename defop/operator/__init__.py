@@ -2,8 +2,9 @@
 
 :mod:`.spatial` is Φ (§3.1), :mod:`.handle_bases` Ψ (Appendix A), :mod:`.fit` problem (8),
 :mod:`.defop` the trained operator :class:`DefOp` and its evaluation paths, :mod:`.branched` the multi-valued
-operator (one DefOp per branch of D^E), :mod:`.compress` its
-compression and :mod:`.io` its files. Never imports :mod:`defop.variational`.
+operator (one DefOp per branch of D^E; :mod:`.domains` the domain g_b where a branch exists), :mod:`.compress` its
+compression and :mod:`.io` its files; :mod:`.movable` is D(x; P, Q), handles that move at rest (:class:`MovableOp`).
+Never imports :mod:`defop.variational`.
 """
 
 from . import branched, compress, defop, domains, fit, handle_bases, io, movable, spatial

@@ -438,6 +438,10 @@ def save_movable(op, path):
 
 
 def _check_declared(path, header, headers, version):
+    d = io_mod._field(path, "dim", header.get("dim"))
+    V = headers.get("V", (None,))[0]
+    if V is not None and (len(V) != 2 or V[1] != d):
+        raise io_mod.OperatorFileError(f"{path}: the header says dim = {d}, but V is {'×'.join(map(str, V))}")
     C = headers.get("joint_centers", (None,))[0]
     if C is not None and len(C) >= 1 and C[0] > io_mod.MAX_CENTERS:
         raise io_mod.OperatorFileError(f"{path} declares {C[0]} TPS centres, limit {io_mod.MAX_CENTERS}")
@@ -454,12 +458,15 @@ def load_movable(path, cls=None):
         mesh = Mesh(V, A(data, "F", 2, "iu", (None, d + 1)))
         handles = A(data, "handles", 1, "iu")
         moving = A(data, "moving", 1, "b", handles.shape)
-        pr = PlacementRegions.from_arrays(mesh, handles, moving, {k: A(data, k, 1, "iuf") for k in (
-            "placement_movable", "placement_vertices", "placement_sizes", "placement_reach")})
+        regions = {k: A(data, k, 1, "iu") for k in ("placement_movable", "placement_vertices", "placement_sizes")}
+        regions["placement_reach"] = A(data, "placement_reach", 1, "f")
+        pr = PlacementRegions.from_arrays(mesh, handles, moving, regions)
         C = A(data, "joint_centers", 3, "f", (None, pr.n_movable + int(moving.sum()), d))
         basis = hb.TPSBasis(np.zeros(C.shape[1:]), C, 1.0)
         W = A(data, "joint_W", 2, "f", (basis.size, d * len(V)))
         reach = A(data, "reach", 1, "f", (int(moving.sum()),)) if "reach" in data else None
+        if reach is not None and np.any(reach < 0):
+            raise ValueError(f"array 'reach' must be {len(reach)} non-negative finite lengths, got {reach}")
         s = [float(x) for x in header["scales"]]
         if len(s) != 2 or not all(np.isfinite(s)) or min(s) <= 0:
             raise ValueError(f"header 'scales' must be two positive numbers, got {s}")

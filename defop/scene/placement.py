@@ -80,12 +80,15 @@ class PlacementRegions:
         self.handles = np.asarray(handles, np.int64)
         self.moving = np.asarray(moving, bool)
         self.movable = np.asarray(movable, np.int64)
-        self.vertices = [np.unique(np.asarray(v, np.int64)) for v in vertices]
+        self.vertices = [region_vertices(ell, v) for ell, v in enumerate(vertices)]
         check(self)
         if reach is None:
             reach = [BUMP_REACH * max(np.linalg.norm(mesh.V[v] - mesh.V[self.handles[b]], axis=1).max(), 1e-300)
                      for b, v in zip(self.movable, self.vertices)]
         self.reach = np.asarray(reach, float)
+        if self.reach.shape != (len(self.movable),) or not np.isfinite(self.reach).all() or np.any(self.reach <= 0):
+            raise ValueError(f"reach must be {len(self.movable)} positive finite lengths (one per movable handle), "
+                             f"got {np.array2string(self.reach, threshold=10)}")
         self.g = bumps(self)  # (Σ k_ℓ, n_vertices) CSR, rows in region order
         self.offset = np.cumsum([0] + [len(v) for v in self.vertices])
         self.owner = np.full(mesh.n_vertices, -1, np.int64)  # the region of each vertex (-1: none)
@@ -190,6 +193,15 @@ class PlacementRegions:
                    arrays["placement_reach"])
 
 
+def region_vertices(ell, v):
+    """Region ``ell``'s vertices ``v`` as a sorted (k,) int64 array; integral floats pass, fractions do not."""
+    a = np.asarray(v).ravel()
+    if a.dtype.kind not in "iuf" or (a.dtype.kind == "f" and not (np.isfinite(a).all() and np.all(a == np.round(a)))):
+        raise ValueError(f"placement region {ell} must hold integer vertex indices, got {a.dtype} "
+                         f"{np.array2string(a, threshold=10)}")
+    return np.unique(a.astype(np.int64))
+
+
 def check(pr):
     """Raise ValueError unless the regions of ``pr`` follow the module's rules."""
     n = pr.mesh.n_vertices
@@ -277,7 +289,10 @@ def placement_regions(shape, movable=None, radius=None, vertices=None, reach=Non
     -------
     PlacementRegions
     """
-    mv = np.flatnonzero(shape.moving) if movable is None else np.asarray(movable, np.int64).ravel()
+    if movable is None:
+        mv = np.flatnonzero(shape.moving)
+    else:
+        mv = np.array([opt.integer(f"movable[{i}]", k) for i, k in enumerate(np.ravel(movable))], np.int64)
     if (radius is None) == (vertices is None):
         raise ValueError("give exactly one of radius (a ball per movable handle) and vertices (the regions)")
     if radius is not None:

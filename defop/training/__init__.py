@@ -3,10 +3,12 @@
 :mod:`.sampling` draws the Q_k, :mod:`.cache` stores ground truths and operators on disk and
 :mod:`.bootstrap` runs the pipeline (:func:`train`); :mod:`.adaptive` chooses the samples where the operator is
 least certain (:func:`train_adaptive`); :mod:`.branches` finds every branch of D^E and fits a multi-valued operator,
-:mod:`.branch_domains` certifies where each branch is present and absent.
+:mod:`.branch_domains` certifies where each branch is present and absent; :mod:`.multilevel` is ``train``'s
+multilevel policy (decisions on a coarse mesh) and :mod:`.movable` trains handles that move at rest
+(:func:`train_movable`).
 """
 
-from . import adaptive, bootstrap, branch_domains, branches, cache, movable, sampling
+from . import adaptive, bootstrap, branch_domains, branches, cache, movable, multilevel, sampling
 from .adaptive import train_adaptive
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
 from .movable import train_movable
@@ -21,6 +23,7 @@ __all__ = [
     "held_out",
     "min_samples",
     "movable",
+    "multilevel",
     "sampling",
     "solve_samples",
     "train",

@@ -18,6 +18,7 @@ import numpy as np
 
 from .. import options as opt
 from ..operator.movable import fit_movable
+from ..scene.placement import PlacementRegions
 from ..scene.shapes import Shape
 from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning, Solver
@@ -123,6 +124,21 @@ class MovableRecord:
     seconds: float
 
 
+def check_placement(shape, placement):
+    """Raise ValueError unless ``placement`` holds regions of ``shape``'s mesh and handles."""
+    if not isinstance(placement, PlacementRegions):
+        raise ValueError(f"placement must be a PlacementRegions (placement_regions(shape, ...)), got "
+                         f"{type(placement).__name__}")
+    mesh = placement.mesh
+    same_mesh = mesh is shape.mesh or (np.array_equal(mesh.V, shape.mesh.V) and np.array_equal(mesh.F, shape.mesh.F))
+    same_handles = np.array_equal(placement.handles, shape.handles) and np.array_equal(placement.moving, shape.moving)
+    if not (same_mesh and same_handles):
+        raise ValueError(f"placement holds regions of another mesh or other handles ({mesh.n_vertices} vertices, "
+                         f"handles {placement.handles.tolist()}) than shape {shape.name!r} ({shape.mesh.n_vertices} "
+                         f"vertices, handles {np.asarray(shape.handles).tolist()}): make it by "
+                         "placement_regions(shape, ...)")
+
+
 def train_movable(shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs=None, cache=True, progress=True):
     """Sample (P_k, Q_k), solve problem (6) at each (cached), fit D(x; P, Q) (:func:`defop.operator.movable
     .fit_movable`).
@@ -134,7 +150,9 @@ def train_movable(shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs
     """
     en.check_energy(energy)
     m = opt.integer("m", m, minimum=2)
+    n_q = opt.integer("n_q", n_q, minimum=1)
     opt.seed(seed)
+    check_placement(shape, placement)
     t0 = time.perf_counter()
     idx, Q = sample_joint(shape, placement, -(-m // n_q), np.random.default_rng(seed), n_q)
     X, conv = solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache)
