@@ -220,7 +220,7 @@ def _fake_solves(monkeypatch):
     def solve(solver, jobs, rest=True):
         calls.append(len(jobs))
         out = []
-        for T, _ in jobs:
+        for T, *_ in jobs:
             X = solver.mesh.V + {"arap": 0.0, "sarap": 1.0, "isometric": 2.0}[solver.energy]
             X[solver.handles] = T
             X += 1e-3 * len(solver.handles)

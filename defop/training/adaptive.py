@@ -36,6 +36,7 @@ from ..operator.fit import fit
 from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning
 from . import bootstrap
+from .batch import warm_starts
 from .sampling import sample_shape
 
 __all__ = ["disagreement", "energy_residual", "select_batch", "train_adaptive", "uncertainty"]
@@ -279,7 +280,7 @@ def train_adaptive(
         scores[taken] = 0.0
         new = select_batch(scores, candidates, Q, min(batch, m - len(Q)))
         taken[new] = True
-        starts = batch.warm_starts(current, candidates[new], shape.mesh, energy)
+        starts = warm_starts(current, candidates[new], shape.mesh, energy)
         Xn, cn = bootstrap.sample_ground_truth(shape, candidates[new], energy, starts, n_jobs, progress, cache)
         Q, X, conv = np.concatenate([Q, candidates[new]]), np.concatenate([X, Xn]), np.concatenate([conv, cn])
         counts.append(len(Q))
