@@ -14,7 +14,7 @@ NOTEBOOKS = sorted((pathlib.Path(__file__).resolve().parents[1] / "notebooks").g
 
 
 def test_there_is_a_notebook_per_figure():
-    assert len(NOTEBOOKS) == 16
+    assert len(NOTEBOOKS) == 17  # 00_shapes .. 16_moving_handles
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
