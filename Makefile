@@ -30,6 +30,7 @@ figures: $(STAMP)
 
 # the book is built first, from the stored outputs, and tests/test_book.py opens every page of it in Chromium
 test: book
+	$(BIN)/ruff format --check --quiet defop tests benchmarks notebooks docs
 	$(BIN)/lint-imports --no-cache
 	DEFOP_FAST=1 DEFOP_BOOK=build/book $(BIN)/python -m pytest -p no:cacheprovider tests notebooks $(NBVAL)
 
@@ -39,6 +40,7 @@ book: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check defop tests benchmarks notebooks
+	$(BIN)/ruff format --check defop tests benchmarks notebooks docs
 	$(BIN)/lint-imports --no-cache
 
 benchmarks: $(STAMP)

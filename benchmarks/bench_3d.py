@@ -93,15 +93,22 @@ def run(name, n_vertices, m, n_test):
     print(f"  peers' precompute: {time.perf_counter() - t0:.1f} s in all")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)
-        scores, _ = compare.score_all(methods + [op], shape, Q, X, names=[None] * len(methods) + [
-            f"defop TPS-{m}, exact"], precompute=[None] * len(methods) + [train_s])
+        scores, _ = compare.score_all(
+            methods + [op],
+            shape,
+            Q,
+            X,
+            names=[None] * len(methods) + [f"defop TPS-{m}, exact"],
+            precompute=[None] * len(methods) + [train_s],
+        )
         op.compress(tol=TOL)
         ok = speed(op, Q) and ok
-        comp, _ = compare.score(op, shape, Q, X, name=f"defop TPS-{m}, compressed rank {op.rank}",
-                                precompute=train_s)
+        comp, _ = compare.score(op, shape, Q, X, name=f"defop TPS-{m}, compressed rank {op.rank}", precompute=train_s)
     scores.append(comp)
-    print(f"\n  {n_test} held-out Q, one BLAS thread, frame times by the thread's CPU time; load average "
-          f"{os.getloadavg()[0]:.1f}\n")
+    print(
+        f"\n  {n_test} held-out Q, one BLAS thread, frame times by the thread's CPU time; load average "
+        f"{os.getloadavg()[0]:.1f}\n"
+    )
     print("\n".join("  " + line for line in compare.markdown_table(scores).splitlines()))
     by = {sc.name: sc for sc in scores}
     ours, arap = by[f"defop TPS-{m}, exact"], by["libigl ARAP, 10 it."]
@@ -123,8 +130,9 @@ def main(m=40, n_test=20, octopus=None, bar=None):
     runs = [("bar_3d", bar)] + ([("octopus_3d", octopus)] if octopus else [])
     ok = all([run(name, nv, m, n_test) for name, nv in runs])
     if not octopus:
-        print("\noctopus_3d not run (10,000 vertices: hours of verified solves here); --octopus N runs it at N "
-              "vertices")
+        print(
+            "\noctopus_3d not run (10,000 vertices: hours of verified solves here); --octopus N runs it at N vertices"
+        )
     return ok
 
 

@@ -135,11 +135,15 @@ def in_page(page_path, steps, sync_frames=0):
         u, v = page.evaluate("() => window.defopEditor.handleScreen(0)")
         start = [box["x"] + u, box["y"] + v]
         page.evaluate(DRAG, [*start, 30, -20, 20])  # warm-up: JIT
-        page.evaluate("() => { const e = window.defopEditor; window.__stamps = []; e.st.evalMs = [];"
-                      " e.st.drawMs = []; e.onFrame = (t) => window.__stamps.push(t); }")
+        page.evaluate(
+            "() => { const e = window.defopEditor; window.__stamps = []; e.st.evalMs = [];"
+            " e.st.drawMs = []; e.onFrame = (t) => window.__stamps.push(t); }"
+        )
         page.evaluate(DRAG, [*start, 160, -120, steps])
-        res = page.evaluate("() => ({stamps: window.__stamps, evalMs: window.defopEditor.st.evalMs,"
-                            " drawMs: window.defopEditor.st.drawMs})")
+        res = page.evaluate(
+            "() => ({stamps: window.__stamps, evalMs: window.defopEditor.st.evalMs,"
+            " drawMs: window.defopEditor.st.drawMs})"
+        )
         page.evaluate("() => { window.defopEditor.onFrame = null; }")
         sync = SYNC_FRAMES_3D if page.evaluate("() => !!window.defopEditor.scene") else SYNC_FRAMES
         res["syncMs"] = page.evaluate(sync, sync_frames) if sync_frames else []
@@ -153,8 +157,10 @@ def main(m=40, steps=200, ipympl=True):
     shape = dop.shapes.load("octopus")
     t0 = time.perf_counter()
     op, _ = dop.train(shape, basis="tps", m=m, progress=False)
-    print(f"octopus: {shape.mesh.n_vertices} vertices, {shape.n_moving} moving handles; {op} "
-          f"({time.perf_counter() - t0:.0f} s to train or load from the cache)")
+    print(
+        f"octopus: {shape.mesh.n_vertices} vertices, {shape.n_moving} moving handles; {op} "
+        f"({time.perf_counter() - t0:.0f} s to train or load from the cache)"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         page_path = export.to_html(op, Path(tmp) / "octopus.html", shape=shape)
         print(f"standalone page: {page_path.stat().st_size / 1e6:.1f} MB")
@@ -163,8 +169,10 @@ def main(m=40, steps=200, ipympl=True):
     row = "  {:<34} median {:5.1f} fps, 5th percentile {:5.1f} fps ({} frames in {:.1f} s)"
     med, p5, n, span = rates(res["stamps"])
     print(row.format("in-page editor (this module):", med, p5, n, span))
-    print(f"    per frame in the page: evaluation {np.median(res['evalMs']):.2f} ms, "
-          f"draw submission {np.median(res['drawMs']):.2f} ms (medians)")
+    print(
+        f"    per frame in the page: evaluation {np.median(res['evalMs']):.2f} ms, "
+        f"draw submission {np.median(res['drawMs']):.2f} ms (medians)"
+    )
     if ipympl:
         from bench_browser_ipympl import ipympl_drag
 
@@ -180,12 +188,19 @@ def horse(n_vertices=2000):
 
     pad = 40
     mask = np.pad(~skimage.data.horse(), pad)
-    handles_px = pad + np.array([[64, 300], [124, 296], [259, 302], [281, 305], [372, 82], [28, 232], [180, 140]],
-                                float)
+    handles_px = pad + np.array(
+        [[64, 300], [124, 296], [259, 302], [281, 305], [372, 82], [28, 232], [180, 140]], float
+    )
     regions = [{"kind": "disc", "radius": 0.06}] * 4 + [{"kind": "disc", "radius": 0.08}] * 2
     to_mesh, _ = warp.image_to_mesh_frame(mask)
-    shape = dop.shapes.from_image(mask, handles=to_mesh(handles_px), moving=[True] * 6 + [False], regions=regions,
-                                  n_vertices=n_vertices, name="horse")
+    shape = dop.shapes.from_image(
+        mask,
+        handles=to_mesh(handles_px),
+        moving=[True] * 6 + [False],
+        regions=regions,
+        n_vertices=n_vertices,
+        name="horse",
+    )
     _, to_pixels = warp.image_to_mesh_frame(mask, shape.mesh)
     return plot_peers.coat_picture(mask), shape, to_pixels
 
@@ -194,29 +209,38 @@ def main_image(m=40, n_vertices=2000, steps=200, rounds=3, sync_frames=60):
     """The picture editor beside the same page without the picture (see the module docstring)."""
     picture, shape, to_pixels = horse(n_vertices)
     op, _ = dop.train(shape, basis="tps", m=m, progress=False)
-    print(f"horse: {shape.mesh.n_vertices} vertices, {len(shape.mesh.F)} triangles, {shape.n_moving} moving handles; "
-          f"{op}; picture {picture.shape[1]} x {picture.shape[0]} px")
+    print(
+        f"horse: {shape.mesh.n_vertices} vertices, {len(shape.mesh.F)} triangles, {shape.n_moving} moving handles; "
+        f"{op}; picture {picture.shape[1]} x {picture.shape[0]} px"
+    )
     runs = {"plain mesh": [], "picture (texture)": []}
     with tempfile.TemporaryDirectory() as tmp:
-        pages = {"plain mesh": export.to_html(op, Path(tmp) / "horse_plain.html", shape=shape),
-                 "picture (texture)": export.to_html(op, Path(tmp) / "horse_picture.html", shape=shape,
-                                                      image=picture, image_frame=to_pixels)}
+        pages = {
+            "plain mesh": export.to_html(op, Path(tmp) / "horse_plain.html", shape=shape),
+            "picture (texture)": export.to_html(
+                op, Path(tmp) / "horse_picture.html", shape=shape, image=picture, image_frame=to_pixels
+            ),
+        }
         for name, path in pages.items():
             print(f"  {name}: page {path.stat().st_size / 1e6:.2f} MB")
         for _ in range(rounds):  # alternate the two pages: the machine's load drifts
             for name, path in pages.items():
                 runs[name].append(in_page(path, steps, sync_frames))
     assert all(r["textured"] for r in runs["picture (texture)"]), "the picture was not textured"
-    print(f"{steps}-step drag, one pointer event per animation frame ({rounds} runs per page, alternating); "
-          f"frame time forced to finish ({sync_frames} frames per run):")
+    print(
+        f"{steps}-step drag, one pointer event per animation frame ({rounds} runs per page, alternating); "
+        f"frame time forced to finish ({sync_frames} frames per run):"
+    )
     sync = {}
     for name, rs in runs.items():
         fps = [rates(r["stamps"])[0] for r in rs]
         sync[name] = np.concatenate([r["syncMs"] for r in rs])
         ev, dr = (np.median(np.concatenate([r[k] for r in rs])) for k in ("evalMs", "drawMs"))
-        print(f"  {name:<18} rAF median {np.median(fps):5.1f} fps (runs: {', '.join(f'{f:.0f}' for f in fps)}); "
-              f"forced frame {np.median(sync[name]):5.2f} ms median, {np.percentile(sync[name], 90):5.2f} ms p90; "
-              f"evaluation {ev:.2f} ms, draw submission {dr:.2f} ms")
+        print(
+            f"  {name:<18} rAF median {np.median(fps):5.1f} fps (runs: {', '.join(f'{f:.0f}' for f in fps)}); "
+            f"forced frame {np.median(sync[name]):5.2f} ms median, {np.percentile(sync[name], 90):5.2f} ms p90; "
+            f"evaluation {ev:.2f} ms, draw submission {dr:.2f} ms"
+        )
     ratio = np.median(sync["picture (texture)"]) / np.median(sync["plain mesh"])
     print(f"texture / plain forced frame time: {ratio:.2f}x")
 
@@ -234,8 +258,7 @@ def sized_operator_3d(shape, m, seed=0):
 
     rng = np.random.default_rng(seed)
     P = shape.P_moving
-    centers = np.stack([as_region(r).sample(rng, p, m, P, i) for i, (p, r) in enumerate(zip(P, shape.regions))],
-                       axis=1)
+    centers = np.stack([as_region(r).sample(rng, p, m, P, i) for i, (p, r) in enumerate(zip(P, shape.regions))], axis=1)
     diag = shape.mesh.bbox_diagonal
     basis = make_basis("tps", P, centers, scale=0.1 * diag)
     V = shape.mesh.V
@@ -260,25 +283,33 @@ def main_3d(m=40, rank=0, steps=200, rounds=3, trained=False, sync_frames=60):
         how = "of a trained operator's sizes, W synthetic (--trained trains it: about 90 s per sample)"
     if rank:
         op.compress(rank=rank)
-    print(f"octopus_3d: {shape.mesh.n_vertices} vertices, {shape.mesh.n_faces} tetrahedra, "
-          f"{len(shape.mesh.boundary_facets)} boundary triangles, {shape.n_moving} moving handles; {op}, {how}")
+    print(
+        f"octopus_3d: {shape.mesh.n_vertices} vertices, {shape.mesh.n_faces} tetrahedra, "
+        f"{len(shape.mesh.boundary_facets)} boundary triangles, {shape.n_moving} moving handles; {op}, {how}"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         page_path = export.to_html(op, Path(tmp) / "octopus_3d.html", shape=shape)
         print(f"standalone 3D page: {page_path.stat().st_size / 1e6:.1f} MB")
         runs = [in_page(page_path, steps, sync_frames) for _ in range(rounds)]
-    print(f"{steps}-step drag of one handle in the view plane, one pointer event per animation frame "
-          f"({rounds} runs), frames shown per second:")
+    print(
+        f"{steps}-step drag of one handle in the view plane, one pointer event per animation frame "
+        f"({rounds} runs), frames shown per second:"
+    )
     meds = []
     for r in runs:
         med, p5, n, span = rates(r["stamps"])
         meds.append(med)
-        print(f"  3D page: median {med:5.1f} fps, 5th percentile {p5:5.1f} fps ({n} frames in {span:.1f} s); "
-              f"evaluation {np.median(r['evalMs']):.2f} ms, normals + upload + render submission "
-              f"{np.median(r['drawMs']):.2f} ms (medians)")
+        print(
+            f"  3D page: median {med:5.1f} fps, 5th percentile {p5:5.1f} fps ({n} frames in {span:.1f} s); "
+            f"evaluation {np.median(r['evalMs']):.2f} ms, normals + upload + render submission "
+            f"{np.median(r['drawMs']):.2f} ms (medians)"
+        )
     sync = np.concatenate([r["syncMs"] for r in runs])
-    print(f"  frame time with the GPU's work forced to finish (evaluate, normals, upload, render, readPixels; "
-          f"{len(sync)} frames): median {np.median(sync):.2f} ms, p90 {np.percentile(sync, 90):.2f} ms "
-          f"(= {1000 / np.median(sync):.0f} fps without the display's 60 Hz cap)")
+    print(
+        f"  frame time with the GPU's work forced to finish (evaluate, normals, upload, render, readPixels; "
+        f"{len(sync)} frames): median {np.median(sync):.2f} ms, p90 {np.percentile(sync, 90):.2f} ms "
+        f"(= {1000 / np.median(sync):.0f} fps without the display's 60 Hz cap)"
+    )
     med = float(np.median(meds))
     print(f"target >= 55 fps median in the 3D page: {'met' if med >= 55 else 'NOT met'} ({med:.1f} fps)")
 
@@ -286,8 +317,11 @@ def main_3d(m=40, rank=0, steps=200, rounds=3, trained=False, sync_frames=60):
 if __name__ == "__main__":
     args = [a for a in sys.argv[1:] if not a.startswith("--")]
     if "--3d" in sys.argv:
-        main_3d(*(int(a) for a in args[:2]), rounds=int(os.environ.get("DEFOP_BENCH_ROUNDS", 3)),
-                trained="--trained" in sys.argv)
+        main_3d(
+            *(int(a) for a in args[:2]),
+            rounds=int(os.environ.get("DEFOP_BENCH_ROUNDS", 3)),
+            trained="--trained" in sys.argv,
+        )
     elif "--image" in sys.argv:
         main_image(*(int(a) for a in args[:2]))
     else:

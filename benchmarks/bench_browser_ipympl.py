@@ -71,15 +71,35 @@ def ipympl_drag(m, steps, drag_js):
         root = tmp / "nb"
         root.mkdir()
         _notebook(root / "ipympl.ipynb", m)
-        env = dict(os.environ, JUPYTER_CONFIG_DIR=str(tmp / "jc"), JUPYTER_RUNTIME_DIR=str(tmp / "jr"),
-                   JUPYTERLAB_WORKSPACES_DIR=str(tmp / "lw"), IPYTHONDIR=str(tmp / "ip"), MPLCONFIGDIR=str(tmp / "mpl"))
+        env = dict(
+            os.environ,
+            JUPYTER_CONFIG_DIR=str(tmp / "jc"),
+            JUPYTER_RUNTIME_DIR=str(tmp / "jr"),
+            JUPYTERLAB_WORKSPACES_DIR=str(tmp / "lw"),
+            IPYTHONDIR=str(tmp / "ip"),
+            MPLCONFIGDIR=str(tmp / "mpl"),
+        )
         env.pop("MPLBACKEND", None)
         port = _free_port()
         proc = subprocess.Popen(
-            [sys.executable, "-m", "jupyterlab", "--ServerApp.ip=127.0.0.1", f"--ServerApp.port={port}",
-             "--ServerApp.port_retries=0", f"--IdentityProvider.token={TOKEN}", "--no-browser", "--allow-root",
-             f"--ServerApp.root_dir={root}", "--LabApp.expose_app_in_browser=True"],
-            env=env, cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+            [
+                sys.executable,
+                "-m",
+                "jupyterlab",
+                "--ServerApp.ip=127.0.0.1",
+                f"--ServerApp.port={port}",
+                "--ServerApp.port_retries=0",
+                f"--IdentityProvider.token={TOKEN}",
+                "--no-browser",
+                "--allow-root",
+                f"--ServerApp.root_dir={root}",
+                "--LabApp.expose_app_in_browser=True",
+            ],
+            env=env,
+            cwd=root,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
         )
         try:
             url = f"http://127.0.0.1:{port}"

@@ -187,8 +187,10 @@ def main(m=500):
         f"{1e6 * floor_dram:.1f} µs; t B alone (BLAS sgemv, B in cache): {1e6 * steps['numpy: t B (sgemv)']:.1f} µs"
     )
     ratio = ours / bih_t
-    print(f"\nop(Q) / biharmonic coordinates: {ratio:.2f}x (target <= 1.5x); floor / biharmonic {floor / bih_t:.2f}x "
-          f"(copy), {floor_read / bih_t:.2f}x (read)")
+    print(
+        f"\nop(Q) / biharmonic coordinates: {ratio:.2f}x (target <= 1.5x); floor / biharmonic {floor / bih_t:.2f}x "
+        f"(copy), {floor_read / bih_t:.2f}x (read)"
+    )
     return ratio <= 1.5 and err_c <= 1.01 * err
 
 

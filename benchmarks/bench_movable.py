@@ -66,8 +66,10 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
     mesh = shape.mesh
     pr = placement_regions(shape, movable, radius=0.05 * mesh.bbox_diagonal)
     sizes = [len(v) for v in pr.vertices]
-    print(f"\n== {name}: {mesh.n_vertices} vertices, {pr.n_movable} movable of {shape.n_moving} moving handles, "
-          f"regions of radius 5% of the diagonal with {sizes} vertices; load average {os.getloadavg()[0]:.1f}")
+    print(
+        f"\n== {name}: {mesh.n_vertices} vertices, {pr.n_movable} movable of {shape.n_moving} moving handles, "
+        f"regions of radius 5% of the diagonal with {sizes} vertices; load average {os.getloadavg()[0]:.1f}"
+    )
     assert min(sizes) >= 20, sizes
     c0 = time.process_time()
     op0, _ = dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)
@@ -75,10 +77,12 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
     c0 = time.process_time()
     opj, rec = train_movable(shape, pr, "sarap", m=m_joint, seed=seed, n_q=n_q, cache=False, progress=False)
     t_joint = time.process_time() - c0
-    print(f"budget: fixed-P training m=200 {t_fixed:.1f} CPU s; joint m={m_joint} ({n_q} Q per placement) "
-          f"{t_joint:.1f} CPU s "
-          f"(|Ψ| = {opj.basis.size}); ratio {t_joint / t_fixed:.2f}x (target <= 5x); "
-          f"converged {int(rec.converged.sum())}/{len(rec.converged)}")
+    print(
+        f"budget: fixed-P training m=200 {t_fixed:.1f} CPU s; joint m={m_joint} ({n_q} Q per placement) "
+        f"{t_joint:.1f} CPU s "
+        f"(|Ψ| = {opj.basis.size}); ratio {t_joint / t_fixed:.2f}x (target <= 5x); "
+        f"converged {int(rec.converged.sum())}/{len(rec.converged)}"
+    )
     carry = CarryOp(op0, pr)
     idx, Q = sample_joint(shape, pr, n_place, np.random.default_rng(10_000 + seed), N_Q)
     X, conv = solve_joint(shape, pr, idx, Q, progress=False)
@@ -102,13 +106,17 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
             fl[k].append(flips(mesh, got[k]))
         res += [residual(opj, q, P) for q in Qp]
     err = {k: float(np.mean(v)) for k, v in rows.items()}
-    print(f"held out: {n_place} placements x {N_Q} Q{'' if n_place >= FULL else f' (REDUCED run: {FULL} asked)'}, "
-          f"truth converged {int(conv.sum())}/{len(conv)}; mean (8a)/n per frame:")
+    print(
+        f"held out: {n_place} placements x {N_Q} Q{'' if n_place >= FULL else f' (REDUCED run: {FULL} asked)'}, "
+        f"truth converged {int(conv.sum())}/{len(conv)}; mean (8a)/n per frame:"
+    )
     for k, v in err.items():
         print(f"  {k:16s} {v:.3e}   joint / this {err['joint'] / v:6.2f}")
-    print(f"joint / retrained {err['joint'] / err['retrained']:.2f}x (target <= 2x); below MLS rigid, MLS similarity, "
-          f"biharmonic: {all(err['joint'] < err[k] for k in PEERS)}; carry / retrained "
-          f"{err['carry'] / err['retrained']:.2f}x")
+    print(
+        f"joint / retrained {err['joint'] / err['retrained']:.2f}x (target <= 2x); below MLS rigid, MLS similarity, "
+        f"biharmonic: {all(err['joint'] < err[k] for k in PEERS)}; carry / retrained "
+        f"{err['carry'] / err['retrained']:.2f}x"
+    )
     print(f"biharmonic coordinates re-solve per placement: {np.mean(bih_seconds) * 1e3:.0f} ms (wall, mean)")
     print(f"residual before the correction: max {max(res):.2e}, median {np.median(res):.2e} of the diagonal")
     print("flipped triangles per frame: " + ", ".join(f"{k} {np.mean(v):.2f}" for k, v in fl.items()))
@@ -119,13 +127,23 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
         Qn = Q[:N_Q] + (op0.P - mesh.V[pr.handles_at(idx[0])[shape.moving]])
         tf = frame_seconds(op0.evaluate_fast, Qn)
         tj = frame_seconds(lambda q: opj.evaluate_fast(q, P=idx[0]), Q[:N_Q])
-        err_c = np.mean([err8a(mesh, opj(Q[p * N_Q:(p + 1) * N_Q], P=idx[p * N_Q]), X[p * N_Q:(p + 1) * N_Q])
-                         for p in range(n_place)])
-    print(f"compressed frame: fixed-P rank {op0.rank} {tf * 1e6:.1f} µs, joint rank {opj.rank} {tj * 1e6:.1f} µs, "
-          f"ratio {tj / tf:.2f}x (target <= 3x); joint compressed (tol {JOINT_TOL:g}) error {err_c:.3e}, "
-          f"{err_c / err['retrained']:.2f}x the retrained (uncompressed)")
-    return {"budget": t_joint / t_fixed, "err": err["joint"] / err["retrained"], "frame": tj / tf,
-            "peers": all(err["joint"] < err[k] for k in PEERS)}
+        err_c = np.mean(
+            [
+                err8a(mesh, opj(Q[p * N_Q : (p + 1) * N_Q], P=idx[p * N_Q]), X[p * N_Q : (p + 1) * N_Q])
+                for p in range(n_place)
+            ]
+        )
+    print(
+        f"compressed frame: fixed-P rank {op0.rank} {tf * 1e6:.1f} µs, joint rank {opj.rank} {tj * 1e6:.1f} µs, "
+        f"ratio {tj / tf:.2f}x (target <= 3x); joint compressed (tol {JOINT_TOL:g}) error {err_c:.3e}, "
+        f"{err_c / err['retrained']:.2f}x the retrained (uncompressed)"
+    )
+    return {
+        "budget": t_joint / t_fixed,
+        "err": err["joint"] / err["retrained"],
+        "frame": tj / tf,
+        "peers": all(err["joint"] < err[k] for k in PEERS),
+    }
 
 
 #: movable handles, default joint m; Q per placement (fewer rest centres: a cheaper frame)
@@ -139,8 +157,10 @@ def main(names=("aleph", "octopus"), n_place=FULL, m_joint=None):
     warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
     t0 = time.perf_counter()
     out = [run(name, CASES[name][0], n_place, m_joint or CASES[name][1], n_q=N_Q_TRAIN) for name in names]
-    print(f"\ntotal {time.perf_counter() - t0:.0f} s wall; load average {os.getloadavg()[0]:.1f}; "
-          f"DEFOP_N_JOBS={os.environ.get('DEFOP_N_JOBS')}")
+    print(
+        f"\ntotal {time.perf_counter() - t0:.0f} s wall; load average {os.getloadavg()[0]:.1f}; "
+        f"DEFOP_N_JOBS={os.environ.get('DEFOP_N_JOBS')}"
+    )
     return all(r["budget"] <= 5 and r["err"] <= 2 and r["frame"] <= 3 and r["peers"] for r in out)
 
 

@@ -117,8 +117,7 @@ def figures_dir() -> Path:
     return path
 
 
-def parse_integer(name, raw, default, minimum=1, maximum=MAX_INTEGER_SETTING, signed=False, nonzero=False,
-                  rule=None):
+def parse_integer(name, raw, default, minimum=1, maximum=MAX_INTEGER_SETTING, signed=False, nonzero=False, rule=None):
     """The integer an environment setting's text ``raw`` names, checked before ``int()`` sees it.
 
     Only ASCII decimal digits count (with one leading ``-`` when ``signed``), after stripping ASCII white space:
@@ -156,8 +155,12 @@ def parse_integer(name, raw, default, minimum=1, maximum=MAX_INTEGER_SETTING, si
     number = None
     if digits and len(digits) <= len(str(MAX_INTEGER_SETTING)) and all("0" <= ch <= "9" for ch in digits):
         number = int(value)
-    in_range = number is not None and (minimum is None or number >= minimum) and (
-        maximum is None or number <= maximum) and not (nonzero and number == 0)
+    in_range = (
+        number is not None
+        and (minimum is None or number >= minimum)
+        and (maximum is None or number <= maximum)
+        and not (nonzero and number == 0)
+    )
     if not in_range:
         if rule is None:
             bounds = [f">= {minimum}" if minimum is not None else "", f"<= {maximum}" if maximum is not None else ""]

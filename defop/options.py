@@ -66,8 +66,11 @@ def n_jobs(value):
         raise ValueError("n_jobs must be a non-zero integer (-1: every core, 1: this process), got 0")
     cores = cpu_count()
     if jobs > cores:
-        warnings.warn(f"n_jobs={jobs} is more than the {cores} cores of this machine; using {cores}",
-                      RuntimeWarning, stacklevel=user_stacklevel())
+        warnings.warn(
+            f"n_jobs={jobs} is more than the {cores} cores of this machine; using {cores}",
+            RuntimeWarning,
+            stacklevel=user_stacklevel(),
+        )
         jobs = cores
     return jobs
 
@@ -99,8 +102,10 @@ def rng(value, name="rng"):
     try:
         return np.random.default_rng(seed(value, name))
     except ValueError:
-        raise ValueError(f"{name} must be a numpy.random.Generator or a seed (an integer >= 0), got "
-                         f"{type(value).__name__} {value!r:.80}") from None
+        raise ValueError(
+            f"{name} must be a numpy.random.Generator or a seed (an integer >= 0), got "
+            f"{type(value).__name__} {value!r:.80}"
+        ) from None
 
 
 def real_array(name, value, cast=True):

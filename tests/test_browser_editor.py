@@ -420,17 +420,38 @@ def widget_lab(tmp_path, request):
     settings = tmp_path / "lab-settings" / "@jupyterlab" / "apputils-extension"
     settings.mkdir(parents=True)
     (settings / "notification.jupyterlab-settings").write_text('{"fetchNews": "false", "checkForUpdates": false}')
-    env = dict(os.environ, DEFOP_CACHE=str(tmp_path / "cache"), DEFOP_N_JOBS="1",
-               JUPYTER_CONFIG_DIR=str(tmp_path / "jc"), JUPYTER_RUNTIME_DIR=str(tmp_path / "jr"),
-               JUPYTERLAB_SETTINGS_DIR=str(tmp_path / "lab-settings"), JUPYTERLAB_WORKSPACES_DIR=str(tmp_path / "lw"),
-               IPYTHONDIR=str(tmp_path / "ipython"), PYTHONPATH=str(ROOT))
+    env = dict(
+        os.environ,
+        DEFOP_CACHE=str(tmp_path / "cache"),
+        DEFOP_N_JOBS="1",
+        JUPYTER_CONFIG_DIR=str(tmp_path / "jc"),
+        JUPYTER_RUNTIME_DIR=str(tmp_path / "jr"),
+        JUPYTERLAB_SETTINGS_DIR=str(tmp_path / "lab-settings"),
+        JUPYTERLAB_WORKSPACES_DIR=str(tmp_path / "lw"),
+        IPYTHONDIR=str(tmp_path / "ipython"),
+        PYTHONPATH=str(ROOT),
+    )
     port = _free_port()
     log = open(tmp_path / "lab.log", "w")  # noqa: SIM115 - closed below
     proc = subprocess.Popen(
-        [sys.executable, "-m", "jupyterlab", "--ServerApp.ip=127.0.0.1", f"--ServerApp.port={port}",
-         "--ServerApp.port_retries=0", f"--IdentityProvider.token={TOKEN}", "--no-browser", "--allow-root",
-         f"--ServerApp.root_dir={root}", "--LabApp.expose_app_in_browser=True"],
-        env=env, cwd=root, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+        [
+            sys.executable,
+            "-m",
+            "jupyterlab",
+            "--ServerApp.ip=127.0.0.1",
+            f"--ServerApp.port={port}",
+            "--ServerApp.port_retries=0",
+            f"--IdentityProvider.token={TOKEN}",
+            "--no-browser",
+            "--allow-root",
+            f"--ServerApp.root_dir={root}",
+            "--LabApp.expose_app_in_browser=True",
+        ],
+        env=env,
+        cwd=root,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
     )
     url = f"http://127.0.0.1:{port}"
     try:
@@ -514,8 +535,9 @@ def picture_for(mesh, width=300, margin=10):
         return np.column_stack([margin + (X[:, 0] - lo[0]) * s, H - margin - (X[:, 1] - lo[1]) * s])
 
     y, x = np.mgrid[0:H, 0:width].astype(float)
-    image = np.stack([0.5 + 0.4 * np.sin(x / 23), 0.5 + 0.4 * np.sin(y / 17 + 1), 0.5 + 0.4 * np.cos((x + y) / 31)],
-                     axis=-1)
+    image = np.stack(
+        [0.5 + 0.4 * np.sin(x / 23), 0.5 + 0.4 * np.sin(y / 17 + 1), 0.5 + 0.4 * np.cos((x + y) / 31)], axis=-1
+    )
     return image, to_pixels
 
 
@@ -528,14 +550,22 @@ def _png_array(data):
 
 
 @settings(max_examples=12, deadline=None)
-@given(layout=st.sampled_from([(), (3,), (4,), (1,)]), dtype=st.sampled_from(["uint8", "float32", "float64", "bool"]),
-       h=st.integers(3, 40), w=st.integers(3, 40), seed=st.integers(0, 2**16))
+@given(
+    layout=st.sampled_from([(), (3,), (4,), (1,)]),
+    dtype=st.sampled_from(["uint8", "float32", "float64", "bool"]),
+    h=st.integers(3, 40),
+    w=st.integers(3, 40),
+    seed=st.integers(0, 2**16),
+)
 def test_image_payload_png_round_trip(layout, dtype, h, w, seed):
     """Grey, RGB, RGBA and (H,W,1) pictures of every accepted dtype reach the page as the same 8-bit picture."""
     rng = np.random.default_rng(seed)
     img = rng.random((h, w, *layout))
-    img = (img > 0.5) if dtype == "bool" else (np.round(img * 255).astype(np.uint8) if dtype == "uint8" else
-                                               img.astype(dtype))
+    img = (
+        (img > 0.5)
+        if dtype == "bool"
+        else (np.round(img * 255).astype(np.uint8) if dtype == "uint8" else img.astype(dtype))
+    )
     V_px = rng.uniform(-0.5, [w - 0.5, h - 0.5], size=(7, 2))
     p = payload.image_payload(img, V_px)
     expected = dop.geometry.planar.outlines.load_image(img)
@@ -546,15 +576,19 @@ def test_image_payload_png_round_trip(layout, dtype, h, w, seed):
     np.testing.assert_allclose(p["uv"] * [w, h] - 0.5, V_px, atol=1e-5 * max(w, h))  # float32 texture coordinates
 
 
-@pytest.mark.parametrize(("image", "match"), [
-    (np.zeros((0, 0, 3)), "too small"),
-    (np.zeros((5,)), "must be"),
-    (np.zeros((20, 20, 2)), "must be"),
-    (np.full((20, 20, 3), np.nan), "NaN"),
-    (np.zeros((20, 20), complex), "real numbers"),
-    (np.full((20, 20), 1.5), r"\[0,1\]"),
-    (np.zeros((20, payload.MAX_IMAGE_SIDE + 1)), "at most 4096 per side"),
-], ids=["empty", "1d", "two-channels", "nan", "complex", "out-of-range", "too-large"])
+@pytest.mark.parametrize(
+    ("image", "match"),
+    [
+        (np.zeros((0, 0, 3)), "too small"),
+        (np.zeros((5,)), "must be"),
+        (np.zeros((20, 20, 2)), "must be"),
+        (np.full((20, 20, 3), np.nan), "NaN"),
+        (np.zeros((20, 20), complex), "real numbers"),
+        (np.full((20, 20), 1.5), r"\[0,1\]"),
+        (np.zeros((20, payload.MAX_IMAGE_SIDE + 1)), "at most 4096 per side"),
+    ],
+    ids=["empty", "1d", "two-channels", "nan", "complex", "out-of-range", "too-large"],
+)
 def test_image_payload_rejects_bad_pictures(image, match):
     with pytest.raises(ValueError, match=match):
         payload.image_payload(image, np.zeros((3, 2)))
@@ -604,8 +638,9 @@ def _textured_colours(page, editor, points):
     """The canvas colours at mesh points (k,2) of the current pose, in [0,1] (a screenshot of the canvas)."""
     from test_browser import _png_to_array
 
-    screen = np.array(page.evaluate(f"(pts) => pts.map(([x, y]) => {editor}.st.view.toScreen(x, y))",
-                                    np.asarray(points).tolist()))
+    screen = np.array(
+        page.evaluate(f"(pts) => pts.map(([x, y]) => {editor}.st.view.toScreen(x, y))", np.asarray(points).tolist())
+    )
     shot = _png_to_array(page.locator("canvas.defop-canvas").first.screenshot()) / 255.0
     ij = np.floor(screen).astype(int)
     return shot[ij[:, 1], ij[:, 0]], shot
@@ -615,8 +650,10 @@ def _picture_colours(image, px):
     """The picture sampled bilinearly at pixel positions (k,2) (x = column, y = row), as the texture is."""
     from scipy.ndimage import map_coordinates
 
-    return np.stack([map_coordinates(image[..., c], [px[:, 1], px[:, 0]], order=1, mode="nearest")
-                     for c in range(image.shape[2])], axis=-1)
+    return np.stack(
+        [map_coordinates(image[..., c], [px[:, 1], px[:, 0]], order=1, mode="nearest") for c in range(image.shape[2])],
+        axis=-1,
+    )
 
 
 _WIDGET_HOST = """<!DOCTYPE html><html><head><meta charset="utf-8"></head><body><div id="host"></div>

@@ -17,8 +17,13 @@ from defop.operator.defop import ExtrapolationWarning
 
 
 @settings(max_examples=25, deadline=None)
-@given(d=st.sampled_from([2, 3]), n=st.integers(1, 4), m=st.integers(1, 30), seed=st.integers(0, 2**31 - 1),
-       far=st.sampled_from([0.0, 1e-8, 0.1, 1.0, 50.0]))
+@given(
+    d=st.sampled_from([2, 3]),
+    n=st.integers(1, 4),
+    m=st.integers(1, 30),
+    seed=st.integers(0, 2**31 - 1),
+    far=st.sampled_from([0.0, 1e-8, 0.1, 1.0, 50.0]),
+)
 def test_kernel_psi_is_delta_raw_and_exactly_zero_at_rest(d, n, m, seed, far):
     rng = np.random.default_rng(seed)
     P = rng.standard_normal((n, d))
@@ -29,7 +34,7 @@ def test_kernel_psi_is_delta_raw_and_exactly_zero_at_rest(d, n, m, seed, far):
     y = np.empty(basis.size - 1)
     kernels.tps_raw(dz, dz @ dz, cm, czeps, inv_s2, ell0, log_kernel, y)
     ref = basis.delta_raw(dz, dz @ dz, np.empty(basis.size - 1))  # the numpy path (its own ℓ(0))
-    ell = basis.delta_raw(dz, dz @ dz, np.empty(basis.size - 1))[n * d:] + basis._ell0
+    ell = basis.delta_raw(dz, dz @ dz, np.empty(basis.size - 1))[n * d :] + basis._ell0
     assert np.allclose(y, ref, rtol=0, atol=1e-12 * max(1.0, np.abs(ell).max()))
     if far == 0.0:
         assert not y.any()  # δψ(P) = 0 bit for bit: (8b) on the kernel path

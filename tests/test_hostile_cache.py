@@ -291,8 +291,9 @@ def test_no_mutation_of_the_problem_reuses_another_problems_entries(bar, tmp_pat
     calls.clear()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        X, _ = bootstrap.solve_samples(mutated, Q_b, energy_b, n_jobs=1, progress=False,
-                                       checkpoint=batch.Checkpoints(store))
+        X, _ = bootstrap.solve_samples(
+            mutated, Q_b, energy_b, n_jobs=1, progress=False, checkpoint=batch.Checkpoints(store)
+        )
     assert np.array_equal(X, ref)
     foreign = [w for w in caught if issubclass(w.category, cm.CacheWarning) and "another problem" in str(w.message)]
     assert len(foreign) == differ
@@ -310,8 +311,9 @@ def _mutated(bar, data, hows):
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data(), hows=st.lists(st.sampled_from(MUTATIONS), min_size=1, max_size=3, unique=True))
-def test_no_mutation_of_the_problem_reuses_another_problems_ground_truth(bar, tmp_path_factory, monkeypatch, data,
-                                                                          hows):
+def test_no_mutation_of_the_problem_reuses_another_problems_ground_truth(
+    bar, tmp_path_factory, monkeypatch, data, hows
+):
     """As above for the whole ground truth of :func:`sample_ground_truth` (``gt``), the bar's entry renamed to the
     mutated problem's name in a shared cache directory."""
     monkeypatch.setattr(batch, "CHUNK", 2)
@@ -372,8 +374,9 @@ def branched_file(bar, tmp_path_factory):
 
     op, _ = dop.train(bar, "arap", "linear", m=4, seed=1, n_jobs=1, progress=False, cache=False)
     z = np.zeros(op.handle_basis.size)
-    bop = BranchedOperator([Branch(0, op, z, z + 1, 1), Branch(1, op, z, z + 1, -1)], np.zeros_like(bar.mesh.V),
-                           np.zeros(1 + op.P.size))
+    bop = BranchedOperator(
+        [Branch(0, op, z, z + 1, 1), Branch(1, op, z, z + 1, -1)], np.zeros_like(bar.mesh.V), np.zeros(1 + op.P.size)
+    )
     path = tmp_path_factory.mktemp("branched") / "two.npz"
     bop.save(path)
     with zipfile.ZipFile(path) as zf:

@@ -20,8 +20,20 @@ from hypothesis import strategies as st
 import defop as dop
 from defop.editor.state import EditorState
 
-STATE = ("Q", "X", "flipped", "eval_time", "kind", "gt_enabled", "X_gt", "Q_gt", "gt_result", "gt_error", "gt_time",
-         "active")
+STATE = (
+    "Q",
+    "X",
+    "flipped",
+    "eval_time",
+    "kind",
+    "gt_enabled",
+    "X_gt",
+    "Q_gt",
+    "gt_result",
+    "gt_error",
+    "gt_time",
+    "active",
+)
 
 
 class Faulty:
@@ -69,8 +81,9 @@ def _state(setup):
 
 
 def _snapshot(s):
-    return {name: (np.array(v, copy=True) if isinstance(v, np.ndarray) else v) for name in STATE
-            for v in [getattr(s, name)]}
+    return {
+        name: (np.array(v, copy=True) if isinstance(v, np.ndarray) else v) for name in STATE for v in [getattr(s, name)]
+    }
 
 
 def _same(a, b):
@@ -99,11 +112,24 @@ def _invariants(s):
 coord = st.floats(-0.5, 1.5)
 bad_scalar = st.sampled_from([np.nan, np.inf, -np.inf, "1", None, 1j, [1.0, 2.0]])
 point = st.tuples(coord, coord).map(list)
-bad_point = st.one_of(coord, st.sampled_from([[np.nan, 0.0], [0.0, np.inf], [1.0, 2.0, 3.0], "xy", [1j, 0], [[0.5, 0]],
-                                              None, []]))
+bad_point = st.one_of(
+    coord, st.sampled_from([[np.nan, 0.0], [0.0, np.inf], [1.0, 2.0, 3.0], "xy", [1j, 0], [[0.5, 0]], None, []])
+)
 Q_valid = st.tuples(coord, coord).map(lambda p: np.array([p]))
-Q_bad = st.one_of(coord, st.sampled_from([np.zeros((2, 2)), np.zeros(2), np.full((1, 2), np.nan), "Q",
-                                          np.ones((1, 2)) * 1j, [[0.5, 0.1, 0]], [[[0.5, 0.1]]]]))
+Q_bad = st.one_of(
+    coord,
+    st.sampled_from(
+        [
+            np.zeros((2, 2)),
+            np.zeros(2),
+            np.full((1, 2), np.nan),
+            "Q",
+            np.ones((1, 2)) * 1j,
+            [[0.5, 0.1, 0]],
+            [[[0.5, 0.1]]],
+        ]
+    ),
+)
 index_bad = st.sampled_from([1, -1, 0.5, "0", None, np.nan, True])
 
 call = st.one_of(
@@ -111,11 +137,14 @@ call = st.one_of(
     st.tuples(st.just("set_handle"), st.tuples(st.one_of(st.just(0), index_bad), st.one_of(point, bad_point))),
     st.tuples(st.just("press"), st.tuples(st.one_of(coord, bad_scalar), st.one_of(coord, bad_scalar))),
     st.tuples(st.just("drag"), st.tuples(st.one_of(coord, bad_scalar), coord)),
-    st.tuples(st.just("release"), st.one_of(st.just(()), st.tuples(coord, coord), st.tuples(coord, st.none()),
-                                            st.tuples(bad_scalar, coord))),
+    st.tuples(
+        st.just("release"),
+        st.one_of(st.just(()), st.tuples(coord, coord), st.tuples(coord, st.none()), st.tuples(bad_scalar, coord)),
+    ),
     st.tuples(st.just("set_basis"), st.sampled_from(["tps", "linear", "cubic", "", None, 3]).map(lambda k: (k,))),
-    st.tuples(st.just("set_ground_truth"), st.sampled_from([True, False, "off", 2, None, np.bool_(True)]).map(
-        lambda v: (v,))),
+    st.tuples(
+        st.just("set_ground_truth"), st.sampled_from([True, False, "off", 2, None, np.bool_(True)]).map(lambda v: (v,))
+    ),
     st.tuples(st.just("reset"), st.just(())),
 )
 
@@ -176,8 +205,10 @@ def test_the_ground_truth_switch_takes_only_true_or_false(setup, value):
 
 # ------------------------------------------------------------------------------------------------ the page
 trait_set = st.one_of(
-    st.tuples(st.just("q"), st.one_of(point, st.sampled_from([[0.1], [0.1, 0.2, 0.3], [], ["a", "b"],
-                                                              [np.nan, 0.0], [0.95, -0.3]]))),
+    st.tuples(
+        st.just("q"),
+        st.one_of(point, st.sampled_from([[0.1], [0.1, 0.2, 0.3], [], ["a", "b"], [np.nan, 0.0], [0.95, -0.3]])),
+    ),
     st.tuples(st.just("basis"), st.sampled_from(["tps", "linear", "quartic", ""])),
     st.tuples(st.just("shape_name"), st.sampled_from(["bar", "nope"])),
     st.tuples(st.just("ground_truth"), st.booleans()),

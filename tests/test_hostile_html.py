@@ -158,8 +158,12 @@ def test_script_json_escapes_what_ends_a_script():
 def test_hostile_pages_draw_the_mesh_and_run_no_injected_script(op, tmp_path):
     from test_browser_editor import chromium_page
 
-    titles = ["<script>window.pwned=1</script>", "<!--<script>", "</script><img src=x onerror=window.pwned=1>",
-              "</title><script>window.pwned=1</script>"]
+    titles = [
+        "<script>window.pwned=1</script>",
+        "<!--<script>",
+        "</script><img src=x onerror=window.pwned=1>",
+        "</title><script>window.pwned=1</script>",
+    ]
     with chromium_page(["--disable-3d-apis"]) as page:
         for k, title in enumerate(titles):
             path = export.to_html(op, tmp_path / f"page{k}.html", title=title)

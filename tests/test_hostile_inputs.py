@@ -184,8 +184,11 @@ def test_a_huge_declared_image_is_refused_by_pillows_own_limit(tmp_path, png_byt
     """Pillow's DecompressionBombError, or its warning followed by a MemoryError."""
     path = tmp_path / "bomb.png"
     path.write_bytes(_png_declaring(png_bytes, w, h))
-    with pytest.raises(ValueError, match=rf"^image file {path} declares {w * h:,} pixels, more than Pillow's "
-                                         r"decompression-bomb limit PIL.Image.MAX_IMAGE_PIXELS = 89,478,485"):
+    with pytest.raises(
+        ValueError,
+        match=rf"^image file {path} declares {w * h:,} pixels, more than Pillow's "
+        r"decompression-bomb limit PIL.Image.MAX_IMAGE_PIXELS = 89,478,485",
+    ):
         load_image(path)
 
 
@@ -236,12 +239,18 @@ def test_a_vertex_far_outside_the_picture_still_draws_its_triangle(far):
     np.testing.assert_allclose(bary[inside].sum(axis=1), 1.0)
 
 
-@pytest.mark.parametrize("mask, match", [
-    (np.zeros((5, 5), bool), r"^mask has no True pixel"),
-    (np.ones((5, 5, 3), bool), r"^mask must be an \(H, W\) array of booleans, got shape \(5, 5, 3\); for a picture"),
-    (np.full((4, 4), 0.5), r"^mask must be an \(H, W\) array of booleans \(or 0/1\)"),
-    ("mask", r"^mask must be an \(H, W\) array of booleans, got shape \(\)"),
-])
+@pytest.mark.parametrize(
+    "mask, match",
+    [
+        (np.zeros((5, 5), bool), r"^mask has no True pixel"),
+        (
+            np.ones((5, 5, 3), bool),
+            r"^mask must be an \(H, W\) array of booleans, got shape \(5, 5, 3\); for a picture",
+        ),
+        (np.full((4, 4), 0.5), r"^mask must be an \(H, W\) array of booleans \(or 0/1\)"),
+        ("mask", r"^mask must be an \(H, W\) array of booleans, got shape \(\)"),
+    ],
+)
 def test_image_to_mesh_frame_names_a_bad_mask(mask, match):
     """An all-False mask raised numpy's 'zero-size array to reduction operation'; (H, W, 3) a wrong frame."""
     with pytest.raises(ValueError, match=match):
@@ -306,21 +315,35 @@ def test_a_failed_mesh_write_leaves_the_old_file(bar, tmp_path, monkeypatch):
         write_mesh(tmp_path / "x.npz", bar.mesh.V)
 
 
-@pytest.mark.parametrize("make, match", [
-    (lambda good: good[: len(good) // 2], r"is not an \.npz archive"),
-    (lambda good: _npy_bytes(), r"is not an \.npz archive"),
-    (lambda good: _npz_with({"V.npy": _npy_header((10**9, 2)) + b"\0" * 10**6, "F.npy": _npy_header((1, 3), "<i8")}),
-     r"declares 1,000,000,000 rows of V, limit 10,000,000"),
-    (lambda good: _npz_with({"V.npy": b"\x93NUMPY\x01\x00" + b"{" * 5000, "F.npy": b""}), r"member V is not a numpy"),
-    (lambda good: _npz_with({"V.npy": _npy_header((2, 2), "|O") + b"\0" * 64, "F.npy": b""}),
-     r"V must hold numbers, got dtype object"),
-    (lambda good: _npz_with({"V.npy": _npy_header((4, 2)) + b"\0" * 10, "F.npy": b""}), r"V is truncated"),
-    (lambda good: _npz_with({"X.npy": b""}), r"holds no mesh \(arrays V and F are missing\)"),
-    (lambda good: _npz_with({"V.npy": _raw_header("(" * 3000), "F.npy": b""}), r"member V is not a numpy array"),
-    (lambda good: _npz_with({"V.npy": _raw_header("[" * 3000), "F.npy": b""}), r"member V is not a numpy array"),
-    (lambda good: _npz_with({"V.npy": _raw_header("(" * 2400 + ")" * 2400), "F.npy": b""}),
-     r"member V is not a numpy array"),
-])
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda good: good[: len(good) // 2], r"is not an \.npz archive"),
+        (lambda good: _npy_bytes(), r"is not an \.npz archive"),
+        (
+            lambda good: _npz_with(
+                {"V.npy": _npy_header((10**9, 2)) + b"\0" * 10**6, "F.npy": _npy_header((1, 3), "<i8")}
+            ),
+            r"declares 1,000,000,000 rows of V, limit 10,000,000",
+        ),
+        (
+            lambda good: _npz_with({"V.npy": b"\x93NUMPY\x01\x00" + b"{" * 5000, "F.npy": b""}),
+            r"member V is not a numpy",
+        ),
+        (
+            lambda good: _npz_with({"V.npy": _npy_header((2, 2), "|O") + b"\0" * 64, "F.npy": b""}),
+            r"V must hold numbers, got dtype object",
+        ),
+        (lambda good: _npz_with({"V.npy": _npy_header((4, 2)) + b"\0" * 10, "F.npy": b""}), r"V is truncated"),
+        (lambda good: _npz_with({"X.npy": b""}), r"holds no mesh \(arrays V and F are missing\)"),
+        (lambda good: _npz_with({"V.npy": _raw_header("(" * 3000), "F.npy": b""}), r"member V is not a numpy array"),
+        (lambda good: _npz_with({"V.npy": _raw_header("[" * 3000), "F.npy": b""}), r"member V is not a numpy array"),
+        (
+            lambda good: _npz_with({"V.npy": _raw_header("(" * 2400 + ")" * 2400), "F.npy": b""}),
+            r"member V is not a numpy array",
+        ),
+    ],
+)
 def test_corrupt_npz_mesh_files_name_the_file(tmp_path, npz, make, match):
     path = tmp_path / "m.npz"
     path.write_bytes(make(npz))
@@ -345,8 +368,10 @@ def test_a_zip_bomb_stops_at_its_declared_size(tmp_path):
     """The member declares 4 vertices; its stream inflates to 100 MB of zeros: only the declared bytes are read."""
     V = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     F = np.array([[0, 1, 2], [0, 2, 3]])
-    members = {"V.npy": _npy_header(V.shape) + V.tobytes() + b"\0" * 10**8,
-               "F.npy": _npy_header(F.shape, "<i8") + F.tobytes()}
+    members = {
+        "V.npy": _npy_header(V.shape) + V.tobytes() + b"\0" * 10**8,
+        "F.npy": _npy_header(F.shape, "<i8") + F.tobytes(),
+    }
     path = tmp_path / "bomb.npz"
     path.write_bytes(_npz_with(members))
     assert path.stat().st_size < 10**6
@@ -354,12 +379,15 @@ def test_a_zip_bomb_stops_at_its_declared_size(tmp_path):
     np.testing.assert_array_equal(mesh.V, V)
 
 
-@pytest.mark.parametrize("text, match", [
-    ("OFF\n1000000000 1000000000 0\n0 0 0\n", r"declares 1,000,000,000 vertices and 1,000,000,000 faces"),
-    ("OFF\n3 1 0\n0 0 0\n1 0 0\n", r"could not be read as \.off"),
-    ("not an off file\n", r"is not an OFF file"),
-    ("OFF\nx y z\n", r"the OFF header has no vertex and face counts"),
-])
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("OFF\n1000000000 1000000000 0\n0 0 0\n", r"declares 1,000,000,000 vertices and 1,000,000,000 faces"),
+        ("OFF\n3 1 0\n0 0 0\n1 0 0\n", r"could not be read as \.off"),
+        ("not an off file\n", r"is not an OFF file"),
+        ("OFF\nx y z\n", r"the OFF header has no vertex and face counts"),
+    ],
+)
 def test_off_headers_are_checked_before_libigl_allocates(tmp_path, text, match):
     path = tmp_path / "m.off"
     path.write_text(text)
@@ -413,9 +441,11 @@ def test_score_all_refuses_per_method_lists_of_another_length(bar):
     X = peer(Q)
     scores, _ = compare.score_all([peer, peer], bar, Q, X, names=["a", "b"], precompute=[1.0, None])
     assert [s.name for s in scores] == ["a", "b"] and scores[0].precompute == 1.0
-    for kw, match in [({"names": ["a"]}, r"^names must be None or a list of one entry per method \(2\), got 1"),
-                      ({"precompute": 0}, r"^precompute must be None or a list .* got 0"),
-                      ({"precompute": [-1.0, None]}, r"^precompute must be None or seconds, .* got -1.0")]:
+    for kw, match in [
+        ({"names": ["a"]}, r"^names must be None or a list of one entry per method \(2\), got 1"),
+        ({"precompute": 0}, r"^precompute must be None or a list .* got 0"),
+        ({"precompute": [-1.0, None]}, r"^precompute must be None or seconds, .* got -1.0"),
+    ]:
         with pytest.raises(ValueError, match=match):
             compare.score_all([peer, peer], bar, Q, X, **kw)
     with pytest.raises(ValueError, match=r"^Q must be a batch of shape \(k, 1, 2\)"):
@@ -441,8 +471,9 @@ def pictures():
     return out
 
 
-@pytest.mark.filterwarnings("ignore:Tag data larger than file:UserWarning", "ignore:Corrupt EXIF data:UserWarning",
-                            "ignore::UserWarning:PIL")
+@pytest.mark.filterwarnings(
+    "ignore:Tag data larger than file:UserWarning", "ignore:Corrupt EXIF data:UserWarning", "ignore::UserWarning:PIL"
+)
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_random_damage_to_an_image_file_is_a_value_error_naming_it(pictures, tmp_path_factory, data):

@@ -42,8 +42,14 @@ def _run(code, env=None, timeout=300):
     full = {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
     for key in [k for k, v in full.items() if v is None]:
         del full[key]
-    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
-                          timeout=timeout, cwd=ROOT, env=full)
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=ROOT,
+        env=full,
+    )
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -168,7 +174,7 @@ def _expected(raw, minimum, signed):
 settings_text = st.one_of(
     st.text(max_size=12),
     st.text(alphabet="0123456789²³¹٣۳߃०੩１ -+_.e\t\n\u00a0\u2003", max_size=12),
-    st.integers(-10**12, 10**12).map(str),
+    st.integers(-(10**12), 10**12).map(str),
 )
 
 
@@ -201,8 +207,11 @@ def test_defop_n_jobs_reads_ascii_integers(raw, jobs, monkeypatch):
 @pytest.mark.parametrize("raw", ["²", "٣", "-0", "0", "--1", "- 1", "+1", "1e3", "3\u2003"])
 def test_defop_n_jobs_refuses_non_ascii_and_zero(raw, monkeypatch):
     monkeypatch.setenv("DEFOP_N_JOBS", raw)
-    with pytest.raises(ValueError, match=r"^DEFOP_N_JOBS must be a non-zero integer from -2147483647 to 2147483647 "
-                                         r"\(-1: every core\), got "):
+    with pytest.raises(
+        ValueError,
+        match=r"^DEFOP_N_JOBS must be a non-zero integer from -2147483647 to 2147483647 "
+        r"\(-1: every core\), got ",
+    ):
         config.n_jobs()
     with pytest.raises(ValueError, match="^DEFOP_N_JOBS"):  # and the public entry points check it first
         dop.options.n_jobs(None)
@@ -212,8 +221,11 @@ def test_defop_n_jobs_refuses_non_ascii_and_zero(raw, monkeypatch):
 def test_defop_n_jobs_out_of_range_says_the_range(raw, monkeypatch):
     """A non-zero integer beyond a C int was told "must be a non-zero integer" (review of issue 35)."""
     monkeypatch.setenv("DEFOP_N_JOBS", raw)
-    with pytest.raises(ValueError, match=rf"^DEFOP_N_JOBS must be a non-zero integer from -2147483647 to 2147483647 .*"
-                                         rf"got '{raw}'"):
+    with pytest.raises(
+        ValueError,
+        match=rf"^DEFOP_N_JOBS must be a non-zero integer from -2147483647 to 2147483647 .*"
+        rf"got '{raw}'",
+    ):
         config.n_jobs()
 
 
@@ -288,8 +300,11 @@ def _random_warp(rng, dtype, channels):
     k = int(rng.integers(2, 6))
     gx, gy = np.meshgrid(np.linspace(-2, w + 1, k + 1), np.linspace(-2, h + 1, k + 1))
     V = np.column_stack([gx.ravel(), gy.ravel()])
-    quads = [(j * (k + 1) + i, j * (k + 1) + i + 1, (j + 1) * (k + 1) + i + 1, (j + 1) * (k + 1) + i)
-             for j in range(k) for i in range(k)]
+    quads = [
+        (j * (k + 1) + i, j * (k + 1) + i + 1, (j + 1) * (k + 1) + i + 1, (j + 1) * (k + 1) + i)
+        for j in range(k)
+        for i in range(k)
+    ]
     F = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
     F = F[rng.permutation(len(F))]  # overlaps resolve by triangle order: the order must survive the tiles
     X = V + rng.normal(scale=0.4 * w / k, size=V.shape)
@@ -299,8 +314,13 @@ def _random_warp(rng, dtype, channels):
 
 
 @settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), tile=st.integers(1, 300), block=st.integers(1, 400),
-       dtype=st.sampled_from(["u1", "i4", "f4", "f8", "u8", "f2"]), channels=st.sampled_from([None, 1, 3]))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    tile=st.integers(1, 300),
+    block=st.integers(1, 400),
+    dtype=st.sampled_from(["u1", "i4", "f4", "f8", "u8", "f2"]),
+    channels=st.sampled_from([None, 1, 3]),
+)
 def test_tiled_warp_equals_the_untiled_warp_bit_for_bit(seed, tile, block, dtype, channels):
     rng = np.random.default_rng(seed)
     image, V, X, F, shape = _random_warp(rng, dtype, channels)

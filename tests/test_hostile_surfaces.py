@@ -56,9 +56,11 @@ def _rows(prefix, A):
 
 
 def _ply_header(fmt, n_v, n_f):
-    return (f"ply\nformat {fmt} 1.0\ncomment made by a test\nelement vertex {n_v}\nproperty double x\n"
-            f"property double y\nproperty double z\nelement face {n_f}\nproperty list uchar int vertex_indices\n"
-            "end_header\n").encode()
+    return (
+        f"ply\nformat {fmt} 1.0\ncomment made by a test\nelement vertex {n_v}\nproperty double x\n"
+        f"property double y\nproperty double z\nelement face {n_f}\nproperty list uchar int vertex_indices\n"
+        "end_header\n"
+    ).encode()
 
 
 def write_ply(path, V, F, binary=False, n_v=None, endian="<"):
@@ -78,7 +80,8 @@ def write_stl(path, V, F, binary=False, count=None):
         path.write_bytes(b"binary box".ljust(80, b" ") + struct.pack("<I", len(F) if count is None else count) + rec)
     else:
         facets = "".join(
-            " facet normal 0 0 0\n  outer loop\n" + _rows("   vertex ", V[t]) + "  endloop\n endfacet\n" for t in F)
+            " facet normal 0 0 0\n  outer loop\n" + _rows("   vertex ", V[t]) + "  endloop\n endfacet\n" for t in F
+        )
         path.write_text(f"solid box\n{facets}endsolid box\n")
     return path
 
@@ -132,8 +135,7 @@ def test_an_stl_box_meshes_exactly_like_its_obj(tmp_path):
         np.testing.assert_array_equal(mesh.V, ref.V, err_msg=name)
         np.testing.assert_array_equal(mesh.F, ref.F, err_msg=name)
     V, F = surf.read_surface(tmp_path / "box.stl")
-    shape = dop.shapes.from_surface(V, F, handles=[[0.3, 0.5, 0.25], [1.7, 0.5, 0.25], [1.0, 0.2, 0.3]],
-                                    n_vertices=150)
+    shape = dop.shapes.from_surface(V, F, handles=[[0.3, 0.5, 0.25], [1.7, 0.5, 0.25], [1.0, 0.2, 0.3]], n_vertices=150)
     assert shape.mesh.dim == 3 and len(shape.handles) == 3
 
 
@@ -166,17 +168,27 @@ def test_tolerance_welding_is_opt_in_and_closes_a_cracked_surface(tmp_path):
 
 def test_tolerance_welding_refuses_degenerate_or_non_manifold_results(tmp_path):
     thin = V_BOX * [1, 1, 0.02]  # the box 0.01 thick: a tolerance of 0.05 × the diagonal merges top and bottom
-    with pytest.raises(ValueError, match=r"t\.obj: welding within 0\.05 × the diagonal makes \d+ triangles "
-                                         r"degenerate \(two corners merged\), first is triangle \d+"):
+    with pytest.raises(
+        ValueError,
+        match=r"t\.obj: welding within 0\.05 × the diagonal makes \d+ triangles "
+        r"degenerate \(two corners merged\), first is triangle \d+",
+    ):
         surf.read_surface(write_obj(tmp_path / "t.obj", thin, F_BOX), weld_tolerance=0.05)
     two = np.vstack([V_BOX, V_BOX + [2 + 1e-9, 0, 0]])  # two boxes 1e-9 apart: their touching sides would fuse
     F2 = np.vstack([F_BOX, F_BOX + 12])
     path = write_obj(tmp_path / "two.obj", two, F2)
     assert surf.read_surface(path, weld_tolerance=0).welded == 0  # 0: exact welding, in any format
-    assert surf.read_surface(write_obj(tmp_path / "dup.obj", np.vstack([V_BOX, V_BOX[:1]]), F_BOX),
-                             weld_tolerance=0).welded == 1
-    with pytest.raises(ValueError, match=r"two\.obj: welding within 1e-06 × the diagonal puts edge \(\d+, \d+\) "
-                                         r"in [34] triangles \(not a manifold\)"):
+    assert (
+        surf.read_surface(
+            write_obj(tmp_path / "dup.obj", np.vstack([V_BOX, V_BOX[:1]]), F_BOX), weld_tolerance=0
+        ).welded
+        == 1
+    )
+    with pytest.raises(
+        ValueError,
+        match=r"two\.obj: welding within 1e-06 × the diagonal puts edge \(\d+, \d+\) "
+        r"in [34] triangles \(not a manifold\)",
+    ):
         surf.read_surface(path, weld_tolerance=1e-6)
 
 
@@ -191,8 +203,12 @@ HOSTILE = [
     ("e.obj", b"", r"holds no data"),
     ("e.off", b"", r"holds no data"),
     ("g.ply", b"\x00\xffgarbage" * 10, r"is not a PLY file"),
-    ("g.stl", b"hello world garbage" * 10, r"is neither binary STL \(a binary STL's header declares [\d,]+ "
-                                            r"triangles, [\d,]+ bytes, the file has 190\) nor ASCII STL"),
+    (
+        "g.stl",
+        b"hello world garbage" * 10,
+        r"is neither binary STL \(a binary STL's header declares [\d,]+ "
+        r"triangles, [\d,]+ bytes, the file has 190\) nor ASCII STL",
+    ),
     ("g.obj", b"\x00\xffgarbage" * 10, r"is not a text OBJ file"),
     ("g.off", b"\x00\xffgarbage" * 10, r"is not a text OFF file"),
     ("w.obj", b"just words\nno geometry\n", r"holds no triangle surface \(0 vertex lines"),
@@ -208,17 +224,29 @@ HOSTILE = [
     ("two.obj", b"v 0 0 0\nv 1 0 0\nf 1 2\n", r"OBJ line 3: the face has 2 vertices"),
     ("huge.off", b"OFF\n1000000000 1 0\n0 0 0\n", r"declares 1,000,000,000 vertices, limit 10,000,000"),
     ("short.off", b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n", r"declares 3 vertices and 1 faces, but has 3 data lines"),
-    ("s.stl", b"solid x\n facet normal 0 0 0\n outer loop\n vertex 0 0 0\n vertex 1 0 0\n endloop\n endfacet\n"
-              b"endsolid\n", r"ASCII STL facet 0: expected 'vertex', got 'endloop'"),
+    (
+        "s.stl",
+        b"solid x\n facet normal 0 0 0\n outer loop\n vertex 0 0 0\n vertex 1 0 0\n endloop\n endfacet\nendsolid\n",
+        r"ASCII STL facet 0: expected 'vertex', got 'endloop'",
+    ),
     ("n.stl", b"solid x\nendsolid x\n", r"holds no triangles"),
-    ("x.stl", b"solid x\n facet normal 0 0 0\n outer loop\n vertex 0 0 0\n vertex 1 0 0\n vertex 0 1 q\n endloop\n"
-              b" endfacet\nendsolid\n", r"ASCII STL facet 0, coordinate 8 is not a number: 'q'"),
+    (
+        "x.stl",
+        b"solid x\n facet normal 0 0 0\n outer loop\n vertex 0 0 0\n vertex 1 0 0\n vertex 0 1 q\n endloop\n"
+        b" endfacet\nendsolid\n",
+        r"ASCII STL facet 0, coordinate 8 is not a number: 'q'",
+    ),
     ("x.vtk", b"# vtk DataFile", r"unknown format '\.vtk'"),
-    ("twice.ply", _ply_text(3, 1, "").replace(b"end_header", b"element face 0\nend_header"),
-     r"declares an element twice: vertex, face, face"),
-    ("vlist.ply", _ply_text(1, 1, "0 0 0 0\n3 0 0 0\n").replace(b"element face",
-                                                                 b"property list uchar int n\nelement face"),
-     r"the vertex element has list properties"),
+    (
+        "twice.ply",
+        _ply_text(3, 1, "").replace(b"end_header", b"element face 0\nend_header"),
+        r"declares an element twice: vertex, face, face",
+    ),
+    (
+        "vlist.ply",
+        _ply_text(1, 1, "0 0 0 0\n3 0 0 0\n").replace(b"element face", b"property list uchar int n\nelement face"),
+        r"the vertex element has list properties",
+    ),
 ]
 
 
@@ -284,8 +312,10 @@ def test_a_file_without_read_permission_is_called_unreadable(tmp_path, npz_box):
         cmd = ["setpriv", "--inh-caps=-all", "--bounding-set=-dac_override,-dac_read_search", *cmd]
     out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.splitlines() == [f"mesh file {mesh_path} cannot be read: permission denied",
-                                       f"surface file {surf_path} cannot be read: permission denied"]
+    assert out.stdout.splitlines() == [
+        f"mesh file {mesh_path} cannot be read: permission denied",
+        f"surface file {surf_path} cannot be read: permission denied",
+    ]
 
 
 @pytest.fixture
@@ -314,8 +344,13 @@ for path in sys.argv[1:]:
 
 def test_crash_class_files_are_clean_errors_under_a_2_gib_address_space(tmp_path):
     """Before: libigl allocated a 10⁹-vertex PLY, printed std::bad_alloc and aborted (double free, SIGABRT)."""
-    paths = [tmp_path / "huge.ply", tmp_path / "hugeb.ply", tmp_path / "huge.stl", tmp_path / "sparse.stl",
-             tmp_path / "sparse.ply"]
+    paths = [
+        tmp_path / "huge.ply",
+        tmp_path / "hugeb.ply",
+        tmp_path / "huge.stl",
+        tmp_path / "sparse.stl",
+        tmp_path / "sparse.ply",
+    ]
     paths[0].write_bytes(_ply_text(10**9, 12, "0 0 0\n"))
     write_ply(paths[1], V_BOX, F_BOX, binary=True, n_v=10**9)
     write_stl(paths[2], V_BOX, F_BOX, binary=True, count=2**32 - 1)
@@ -326,18 +361,22 @@ def test_crash_class_files_are_clean_errors_under_a_2_gib_address_space(tmp_path
     with open(paths[4], "wb") as fh:  # larger than MAX_FILE_BYTES: not read at all
         fh.write(_ply_header("binary_little_endian", 10**7, 10**7))
         fh.truncate(sf.MAX_FILE_BYTES + 1)
-    out = subprocess.run([sys.executable, "-c", _CRASH, *map(str, paths)], capture_output=True, text=True,
-                         cwd=ROOT, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", _CRASH, *map(str, paths)], capture_output=True, text=True, cwd=ROOT, timeout=300
+    )
     assert out.returncode == 0 and out.stderr == "", out.stderr[-2000:]
     lines = out.stdout.splitlines()
     assert len(lines) == 5 and all(line.startswith(f"ValueError surface file {p}") for line, p in zip(lines, paths))
-    for line, expect in zip(lines, [
-        "declares 1,000,000,000 vertex elements, limit 10,000,000",
-        "declares 1,000,000,000 vertex elements, limit 10,000,000",
-        "a binary STL's header declares 4,294,967,295 triangles",
-        "declares 10,000,001 triangles, limit 10,000,000",
-        f"has {sf.MAX_FILE_BYTES + 1:,} bytes, limit {sf.MAX_FILE_BYTES:,}",
-    ]):
+    for line, expect in zip(
+        lines,
+        [
+            "declares 1,000,000,000 vertex elements, limit 10,000,000",
+            "declares 1,000,000,000 vertex elements, limit 10,000,000",
+            "a binary STL's header declares 4,294,967,295 triangles",
+            "declares 10,000,001 triangles, limit 10,000,000",
+            f"has {sf.MAX_FILE_BYTES + 1:,} bytes, limit {sf.MAX_FILE_BYTES:,}",
+        ],
+    ):
         assert expect in line, line
 
 
@@ -395,12 +434,15 @@ def test_a_box_at_any_scale_meshes_like_the_unit_box_or_gets_the_range_error(exp
     np.testing.assert_allclose(mesh.V / scale, REF.V, rtol=0, atol=1e-5)
 
 
-@pytest.mark.parametrize("scale, match", [
-    (1e160, r"has a coordinate of magnitude 2e\+160; supported coordinates are at most 1e\+50"),
-    (1e-60, r"has a bounding-box diagonal of 2.29e-60; the supported diagonal is at least 1e-50"),
-    (1e-320, r"has a bounding-box diagonal of"),  # subnormal coordinates
-    (0.0, r"has a bounding-box diagonal of 0"),
-])
+@pytest.mark.parametrize(
+    "scale, match",
+    [
+        (1e160, r"has a coordinate of magnitude 2e\+160; supported coordinates are at most 1e\+50"),
+        (1e-60, r"has a bounding-box diagonal of 2.29e-60; the supported diagonal is at least 1e-50"),
+        (1e-320, r"has a bounding-box diagonal of"),  # subnormal coordinates
+        (0.0, r"has a bounding-box diagonal of 0"),
+    ],
+)
 def test_scales_outside_the_range_are_named(scale, match):
     with pytest.raises(ValueError, match=match):
         surf.check_surface(V_BOX * scale, F_BOX)
@@ -419,12 +461,15 @@ def test_bad_surfaces_get_the_same_verdict_at_every_scale(scale):
 
 
 # ------------------------------------------------------------------------------------------------ signed_areas
-@pytest.mark.parametrize("F, match", [
-    ([[0, 1, 3]], r"element 0 of F indexes vertex 3, but V has 3 vertices \(valid indices 0 to 2\)"),
-    ([[0, 1, 2], [0, -1, 2]], r"element 1 of F indexes vertex -1, but V has 3 vertices"),
-    ([[0.0, 1.0, 2.0]], r"F must hold integer vertex indices, got dtype float64"),
-    ([0, 1, 2], r"F must have shape \(m,3\)"),
-])
+@pytest.mark.parametrize(
+    "F, match",
+    [
+        ([[0, 1, 3]], r"element 0 of F indexes vertex 3, but V has 3 vertices \(valid indices 0 to 2\)"),
+        ([[0, 1, 2], [0, -1, 2]], r"element 1 of F indexes vertex -1, but V has 3 vertices"),
+        ([[0.0, 1.0, 2.0]], r"F must hold integer vertex indices, got dtype float64"),
+        ([0, 1, 2], r"F must have shape \(m,3\)"),
+    ],
+)
 def test_signed_areas_names_a_bad_face_index(F, match):
     """Before: numpy's IndexError, and a negative index wrapped around silently."""
     V = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
@@ -442,13 +487,15 @@ def test_read_mesh_reads_obj_and_off_without_libigl(tmp_path, capfd):
     with pytest.raises(ValueError, match=r"g\.obj could not be read as \.obj \(OBJ line 2: a vertex needs 3"):
         read_mesh(tmp_path / "g.obj")
     assert capfd.readouterr().err == ""
-    (tmp_path / "ok.obj").write_text(textwrap.dedent("""\
+    (tmp_path / "ok.obj").write_text(
+        textwrap.dedent("""\
         v 0 0 0
         v 1 0 0
         v 1 1 0
         v 0 1 0
         f 1 2 3 4
-    """))
+    """)
+    )
     assert read_mesh(tmp_path / "ok.obj").F.tolist() == [[0, 1, 2], [0, 2, 3]]  # a quad as a fan, as libigl did
 
 

@@ -44,13 +44,19 @@ def _entries(w):
         ("shapes.load n_vertices", lambda v: dop.shapes.load("bar", n_vertices=v), "n_vertices"),
         ("from_polygon outer", lambda v: dop.shapes.from_polygon(v, handles=[[0.5, 0.5]]), "polygon|outer|vert"),
         ("from_polygon handles", lambda v: dop.shapes.from_polygon(SQUARE, handles=v, n_vertices=60), "handle"),
-        ("from_polygon n_vertices", lambda v: dop.shapes.from_polygon(SQUARE, handles=[[0.5, 0.5]], n_vertices=v),
-         "n_vertices"),
+        (
+            "from_polygon n_vertices",
+            lambda v: dop.shapes.from_polygon(SQUARE, handles=[[0.5, 0.5]], n_vertices=v),
+            "n_vertices",
+        ),
         ("from_image image", lambda v: dop.shapes.from_image(v), "image"),
         ("from_image size", lambda v: dop.shapes.from_image(w["img"], size=v, n_vertices=60), "size"),
         ("from_image threshold", lambda v: dop.shapes.from_image(w["img"], threshold=v), "threshold"),
-        ("from_image n_auto_handles", lambda v: dop.shapes.from_image(w["img"], n_auto_handles=v, n_vertices=60),
-         "n_auto_handles"),
+        (
+            "from_image n_auto_handles",
+            lambda v: dop.shapes.from_image(w["img"], n_auto_handles=v, n_vertices=60),
+            "n_auto_handles",
+        ),
         ("Shape.targets Q", lambda v: s.targets(v), "Q"),
         ("solve targets", lambda v: dop.solve(s.mesh, s.handles, v), "targets"),
         ("solve energy", lambda v: dop.solve(s.mesh, s.handles, s.P, energy=v), "energy"),
@@ -58,20 +64,29 @@ def _entries(w):
         ("train basis", lambda v: dop.train(s, basis=v, m=8, progress=False, n_jobs=1, cache=False), "basis"),
         ("train seed", lambda v: dop.train(s, m=8, seed=v, progress=False, n_jobs=1, cache=False), "seed"),
         ("train n_jobs", lambda v: dop.train(s, m=8, progress=False, n_jobs=v, cache=False), "n_jobs"),
-        ("DefOp call Q", lambda v: _NON_NUMBER(v) if isinstance(v, (str, bytes, dict)) or type(v) is object else op(v),
-         "Q"),
+        (
+            "DefOp call Q",
+            lambda v: _NON_NUMBER(v) if isinstance(v, (str, bytes, dict)) or type(v) is object else op(v),
+            "Q",
+        ),
         ("make_peer kind", lambda v: pe.make_peer(s, v), "peer"),
         ("make_peer iterations", lambda v: pe.make_peer(s, "arap", iterations=v), "iterations"),
         ("make_peer alpha", lambda v: pe.make_peer(s, "mls-rigid", alpha=v), "alpha"),
         ("peer call Q", lambda v: pe.make_peer(s, "tps")(v), "Q"),
         ("warp_image image", lambda v: warp.warp_image(v, s.mesh.V, s.mesh.V, s.mesh.F), "image"),
         ("warp_image X", lambda v: warp.warp_image(w["img"], s.mesh.V, v, s.mesh.F), "X"),
-        ("warp_image shape", lambda v: warp.warp_image(w["img"], s.mesh.V, s.mesh.V, s.mesh.F, shape=v),
-         "shape|height|width"),
+        (
+            "warp_image shape",
+            lambda v: warp.warp_image(w["img"], s.mesh.V, s.mesh.V, s.mesh.F, shape=v),
+            "shape|height|width",
+        ),
         ("image_to_mesh_frame mask", lambda v: warp.image_to_mesh_frame(v), "mask"),
         ("EditorState shape", lambda v: EditorState(v), "shape"),
-        ("EditorState pick_radius", lambda v: EditorState(s, {"tps": op}, kinds=("tps",), pick_radius=v),
-         "pick_radius"),
+        (
+            "EditorState pick_radius",
+            lambda v: EditorState(s, {"tps": op}, kinds=("tps",), pick_radius=v),
+            "pick_radius",
+        ),
         ("EditorState set_Q", lambda v: st.set_Q(v), "Q"),
         ("EditorState set_handle i", lambda v: st.set_handle(v, [0.5, 0.1]), "handle index"),
         ("EditorState set_handle q", lambda v: st.set_handle(0, v), r"\bq\b"),
@@ -97,7 +112,8 @@ def _forbidden(exc):
     import zipfile
 
     return isinstance(exc, (*FORBIDDEN, zipfile.BadZipFile, pickle.UnpicklingError)) or not isinstance(
-        exc, (ValueError, TypeError, OSError))
+        exc, (ValueError, TypeError, OSError)
+    )
 
 
 def _NON_NUMBER(v):
@@ -137,11 +153,28 @@ def test_defop_call_names_q_for_non_numbers(world, Q):
 
 # what may be accepted: a default (None), a value in range, a name, a bool as 0/1 (numpy casts it to a number)
 _ACCEPTED = [
-    "EditorState drag(-1)", "EditorState drag(0)", "EditorState drag(0.5)", "EditorState drag(True)",
-    "EditorState pick_radius(0.5)", "EditorState pick_radius(1e+300)", "EditorState set_ground_truth(0)",
-    "EditorState set_ground_truth(True)", "EditorState set_handle i(0)", "from_image size(0.5)",
-    "from_image threshold(0.5)", "from_polygon n_vertices(None)", "make_peer alpha(0.5)",
-    "shapes.load n_vertices(None)", "to_html path('x')", "to_html title('x')", "to_html title(None)",
-    "to_html shape(None)", "outside_regions Q(None)",
-    "train m(None)", "train n_jobs(-1)", "train n_jobs(None)", "train seed(0)", "warp_image shape(None)",
+    "EditorState drag(-1)",
+    "EditorState drag(0)",
+    "EditorState drag(0.5)",
+    "EditorState drag(True)",
+    "EditorState pick_radius(0.5)",
+    "EditorState pick_radius(1e+300)",
+    "EditorState set_ground_truth(0)",
+    "EditorState set_ground_truth(True)",
+    "EditorState set_handle i(0)",
+    "from_image size(0.5)",
+    "from_image threshold(0.5)",
+    "from_polygon n_vertices(None)",
+    "make_peer alpha(0.5)",
+    "shapes.load n_vertices(None)",
+    "to_html path('x')",
+    "to_html title('x')",
+    "to_html title(None)",
+    "to_html shape(None)",
+    "outside_regions Q(None)",
+    "train m(None)",
+    "train n_jobs(-1)",
+    "train n_jobs(None)",
+    "train seed(0)",
+    "warp_image shape(None)",
 ]

@@ -22,8 +22,14 @@ def shape():
     """A 2 x 1 rectangle, about 250 vertices: two moving handles (movable) and one fixed."""
     outer = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
     H = np.array([[1.8, 0.5], [1.0, 0.8], [0.1, 0.5]])
-    return dop.shapes.from_polygon(outer, handles=H, moving=[True, True, False], n_vertices=250, name="rect",
-                                   regions=[{"kind": "disc", "radius": 0.15}] * 2)
+    return dop.shapes.from_polygon(
+        outer,
+        handles=H,
+        moving=[True, True, False],
+        n_vertices=250,
+        name="rect",
+        regions=[{"kind": "disc", "radius": 0.15}] * 2,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -94,8 +100,9 @@ def _paths(op, Q, P):
 @given(i=st.integers(0, 10**6), j=st.integers(0, 10**6), scale=st.floats(0.0, 0.3), seed=st.integers(0, 99))
 def test_guarantees_every_path(shape, placement, i, j, scale, seed):
     op = _synthetic(shape, placement)
-    P = np.array([placement.vertices[0][i % len(placement.vertices[0])],
-                  placement.vertices[1][j % len(placement.vertices[1])]])
+    P = np.array(
+        [placement.vertices[0][i % len(placement.vertices[0])], placement.vertices[1][j % len(placement.vertices[1])]]
+    )
     hm = placement.handles_at(P)[shape.moving]
     rest = shape.mesh.V[hm]
     Q = rest + scale * np.random.default_rng(seed).normal(size=rest.shape)
@@ -127,8 +134,9 @@ def test_training_reproduced_and_truth(shape, placement, trained):
         errs = [np.abs(op(q, P=i) - x).max() / diag for i, q, x in zip(idx, Q, X)]
         assert max(errs) < 0.05, errs
         assert residual(op, Q[0], idx[0]) < 0.05
-        carry = CarryOp(dop.train(shape_at(shape, placement, placement.nominal), m=12, n_jobs=1, progress=False)[0],
-                        placement)
+        carry = CarryOp(
+            dop.train(shape_at(shape, placement, placement.nominal), m=12, n_jobs=1, progress=False)[0], placement
+        )
         Xc = carry(Q[0], P=idx[0])
     hm = placement.handles_at(idx[0])[shape.moving]
     assert np.array_equal(Xc[hm], Q[0])
@@ -274,9 +282,13 @@ def test_train_movable_refuses_before_any_solve(shape, placement):
     """n_q = 0 raised a ZeroDivisionError, a placement made for another mesh an IndexError from deep in the
     sampling, and movable=[0.5] was truncated to handle 0: each is now a ValueError naming the argument (review of
     issue 38)."""
-    other = dop.shapes.from_polygon(np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 1.5], [0.0, 1.5]]),
-                                    handles=np.array([[2.7, 0.75], [1.5, 1.2], [0.15, 0.75]]),
-                                    moving=[True, True, False], n_vertices=150, name="rect2")
+    other = dop.shapes.from_polygon(
+        np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 1.5], [0.0, 1.5]]),
+        handles=np.array([[2.7, 0.75], [1.5, 1.2], [0.15, 0.75]]),
+        moving=[True, True, False],
+        n_vertices=150,
+        name="rect2",
+    )
     with pytest.raises(ValueError, match=r"n_q must be an integer >= 1, got 0"):
         train_movable(shape, placement, m=5, n_q=0, n_jobs=1, progress=False, cache=False)
     with pytest.raises(ValueError, match=r"placement .*'rect2'"):

@@ -78,8 +78,13 @@ def test_ground_truth_trajectories_need_a_handle_grid(bar, no_solves):
 
 @pytest.mark.parametrize(
     "value, what",
-    [([[1 + 2j, 0.0]], "complex numbers"), ([[True, False]], "booleans"), ("ab", "strings"),
-     ([[0.0, 1.0], [2.0]], "a ragged sequence"), ([object()], "Python objects")],
+    [
+        ([[1 + 2j, 0.0]], "complex numbers"),
+        ([[True, False]], "booleans"),
+        ("ab", "strings"),
+        ([[0.0, 1.0], [2.0]], "a ragged sequence"),
+        ([object()], "Python objects"),
+    ],
 )
 def test_real_array_rejects_what_a_float_cast_would_mangle(value, what):
     with pytest.raises(ValueError, match=f"Q must be an array of real numbers, got {what}"):

@@ -47,8 +47,7 @@ def ops3(bar3):
     out = {}
     for kind in ("tps", "linear"):
         m = dop.training.min_samples(kind, bar3.n_moving, d=3) + 4
-        out[kind], _ = dop.train(bar3, energy="sarap", basis=kind, m=m, seed=0, cache=False, n_jobs=1,
-                                 progress=False)
+        out[kind], _ = dop.train(bar3, energy="sarap", basis=kind, m=m, seed=0, cache=False, n_jobs=1, progress=False)
     out["compressed"] = copy.deepcopy(out["tps"]).compress(rank=4)
     return out
 
@@ -56,14 +55,21 @@ def ops3(bar3):
 def node_eval3(op, Qs, tmp_path):
     """The page's evaluator in Node on Qs (k,n,3): X (k,n_vertices,3), psi (k,|Ψ|), outside lists."""
     meta, data = payload.encode_payload(payload.defop_to_payload(op))
-    spec = {"js": str(payload.JS_PATH), "meta": meta, "data": base64.b64encode(data).decode(),
-            "Q": [np.asarray(Q, float).ravel().tolist() for Q in Qs]}
+    spec = {
+        "js": str(payload.JS_PATH),
+        "meta": meta,
+        "data": base64.b64encode(data).decode(),
+        "Q": [np.asarray(Q, float).ravel().tolist() for Q in Qs],
+    }
     path = tmp_path / "input3d.json"
     path.write_text(json.dumps(spec))
     res = subprocess.run([NODE, str(DRIVER), str(path)], capture_output=True, text=True, timeout=60, check=True)
     out = json.loads(res.stdout)
-    return (np.array([o["X"] for o in out]).reshape(len(Qs), -1, 3), np.array([o["psi"] for o in out]),
-            [o["outside"] for o in out])
+    return (
+        np.array([o["X"] for o in out]).reshape(len(Qs), -1, 3),
+        np.array([o["psi"] for o in out]),
+        [o["outside"] for o in out],
+    )
 
 
 def _float32_bound(op, Q):
@@ -119,22 +125,32 @@ def test_outside_ball_warning_in_node(ops3, bar3, tmp_path):
     Q[2] += [0.0, 0.05, 0.0]  # inside the ball of radius 0.08
     Q2 = Q.copy()
     Q2[1] += [0.0, 0.0, 0.1]  # outside
-    meta, data = payload.encode_payload(payload.defop_to_payload(op, payload.region_balls(bar3.P_moving,
-                                                                                           bar3.regions)))
-    spec = {"js": str(payload.JS_PATH), "meta": meta, "data": base64.b64encode(data).decode(),
-            "Q": [Q.ravel().tolist(), Q2.ravel().tolist()]}
+    meta, data = payload.encode_payload(payload.defop_to_payload(op, payload.region_balls(bar3.P_moving, bar3.regions)))
+    spec = {
+        "js": str(payload.JS_PATH),
+        "meta": meta,
+        "data": base64.b64encode(data).decode(),
+        "Q": [Q.ravel().tolist(), Q2.ravel().tolist()],
+    }
     (tmp_path / "in.json").write_text(json.dumps(spec))
     if not NODE or subprocess.run([NODE, "--version"], capture_output=True).returncode:
         pytest.skip("no node")
-    res = subprocess.run([NODE, str(DRIVER), str(tmp_path / "in.json")], capture_output=True, text=True,
-                         timeout=60, check=True)
+    res = subprocess.run(
+        [NODE, str(DRIVER), str(tmp_path / "in.json")], capture_output=True, text=True, timeout=60, check=True
+    )
     assert [o["outside"] for o in json.loads(res.stdout)] == [[], [1]]
 
 
 def test_dimension_mismatch_is_a_clear_error(ops3, bar3, tmp_path):
     flat = dop.shapes.load("bar")
-    op2, _ = dop.train(flat, basis="linear", m=dop.training.min_samples("linear", flat.n_moving) + 2,
-                       progress=False, n_jobs=1, rounds=1)
+    op2, _ = dop.train(
+        flat,
+        basis="linear",
+        m=dop.training.min_samples("linear", flat.n_moving) + 2,
+        progress=False,
+        n_jobs=1,
+        rounds=1,
+    )
     with pytest.raises(ValueError, match="shape must be a 3D shape for this 3D operator, got the 2D shape"):
         export.to_html(ops3["tps"], tmp_path / "a.html", shape=flat)
     with pytest.raises(ValueError, match="shape must be a 2D shape for this 2D operator, got the 3D shape"):
@@ -181,8 +197,10 @@ def _drag(page, box, e, i, du, dv, steps=5):
         page.wait_for_timeout(30)
     held = page.evaluate(f"() => ({{active: {e}.st.active, orbit: {e}.controls.enabled, plane: {e}.dragPlane}})")
     page.mouse.up()
-    after = page.evaluate(f"() => ({{Q: Array.from({e}.st.Q), X: Array.from({e}.st.X), cam: {e}.cameraState(),"
-                          f" orbit: {e}.controls.enabled}})")
+    after = page.evaluate(
+        f"() => ({{Q: Array.from({e}.st.Q), X: Array.from({e}.st.X), cam: {e}.cameraState(),"
+        f" orbit: {e}.controls.enabled}})"
+    )
     return {"u1": u1, "v1": v1, "before": before, "held": held, "after": after}
 
 

@@ -63,7 +63,7 @@ def test_tps_warp_interpolates_handles_and_reproduces_affine_maps(seed):
     V = np.vstack([rng.uniform(-2, 2, (80, 2)), P])
     G = peers.tps_precompute(V, P)
     Q = P + rng.normal(scale=0.3, size=P.shape)
-    np.testing.assert_allclose(peers.linear_evaluate(G, Q)[-len(P):], Q, atol=1e-9)
+    np.testing.assert_allclose(peers.linear_evaluate(G, Q)[-len(P) :], Q, atol=1e-9)
     A, t = rng.normal(size=(2, 2)), rng.normal(size=2)
     np.testing.assert_allclose(peers.linear_evaluate(G, P @ A.T + t), V @ A.T + t, atol=1e-9)
 

@@ -27,8 +27,9 @@ def box():
     V, T = box_tets((4, 2, 2), (1.0, 0.4, 0.4))
     handles = np.concatenate([np.random.default_rng(3).permutation(_corners(V, 1.0)), _corners(V, 0.0)])
     moving = np.arange(8) < 4
-    return dop.Shape(name="box", mesh=dop.Mesh(V, T), handles=handles, moving=moving,
-                     regions=[{"kind": "ball", "radius": 0.1}] * 4)
+    return dop.Shape(
+        name="box", mesh=dop.Mesh(V, T), handles=handles, moving=moving, regions=[{"kind": "ball", "radius": 0.1}] * 4
+    )
 
 
 def _random_Q(shape, rng, scale=0.05, k=None):
@@ -102,8 +103,12 @@ def _mls_reference(v, P, Q, kind, alpha):
 
 
 @settings(max_examples=8, deadline=None)
-@given(kind=st.sampled_from(["similarity", "rigid"]), h=st.integers(3, 8), alpha=st.floats(0.5, 2.0),
-       seed=st.integers(0, 2**32 - 1))
+@given(
+    kind=st.sampled_from(["similarity", "rigid"]),
+    h=st.integers(3, 8),
+    alpha=st.floats(0.5, 2.0),
+    seed=st.integers(0, 2**32 - 1),
+)
 def test_3d_mls_matches_a_per_point_kabsch_reference(kind, h, alpha, seed):
     """Random handles, targets and points (one on a handle) against scipy's weighted Kabsch, point by point."""
     rng = np.random.default_rng(seed)

@@ -244,7 +244,14 @@ def test_bad_images(image, kw, match):
 
 def test_shapes_lists_what_shape_users_need_and_planar_the_polygon_helpers():
     assert set(shapes.__all__) == {
-        "Shape", "load", "names", "from_polygon", "from_image", "from_surface", "default_vertices", "REGION_KINDS",
+        "Shape",
+        "load",
+        "names",
+        "from_polygon",
+        "from_image",
+        "from_surface",
+        "default_vertices",
+        "REGION_KINDS",
         "MAX_VERTICES",
     }
     for name in shapes.__all__:

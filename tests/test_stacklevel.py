@@ -33,8 +33,9 @@ def op(bar):
 def bop(bar, op):
     """Two branches (the bar's linear operator twice, sides +1 and -1): far from the samples, none exists."""
     z = np.zeros(op.handle_basis.size)
-    return BranchedOperator([Branch(0, op, z, z + 1, 1), Branch(1, op, z, z + 1, -1)], np.zeros_like(bar.mesh.V),
-                            np.zeros(1 + op.P.size))
+    return BranchedOperator(
+        [Branch(0, op, z, z + 1, 1), Branch(1, op, z, z + 1, -1)], np.zeros_like(bar.mesh.V), np.zeros(1 + op.P.size)
+    )
 
 
 @pytest.fixture
@@ -126,8 +127,9 @@ def test_train_adaptive_with_unconverged_samples(bar, monkeypatch):
 
 def test_trajectories_with_unconverged_solves(bar, cache):
     g = tr.handle_grid(bar.P_moving[0], 0.2, 2)
-    _points_here(RuntimeWarning, lambda: tr.ground_truth_trajectories(bar, g, "sarap", n_jobs=1,
-                                                                       solver_kw={"max_iter": 1}))
+    _points_here(
+        RuntimeWarning, lambda: tr.ground_truth_trajectories(bar, g, "sarap", n_jobs=1, solver_kw={"max_iter": 1})
+    )
 
 
 def test_branch_comparison_with_unconverged_continuation(bar, op, bop, monkeypatch):
@@ -167,8 +169,10 @@ def test_a_checkpoint_of_another_problem(bar, tmp_path, monkeypatch):
     bootstrap.solve_samples(bar, Q, "arap", n_jobs=1, progress=False, checkpoint=cp)
     a, b = (store.path("chunk", k) for k in cp.keys)
     b.write_bytes(a.read_bytes())
-    _points_here(cm.CacheWarning, lambda: bootstrap.solve_samples(bar, Q, "arap", n_jobs=1, progress=False,
-                                                                   checkpoint=batch.Checkpoints(store)))
+    _points_here(
+        cm.CacheWarning,
+        lambda: bootstrap.solve_samples(bar, Q, "arap", n_jobs=1, progress=False, checkpoint=batch.Checkpoints(store)),
+    )
 
 
 def test_an_unwritable_entry(tmp_path):

@@ -176,7 +176,7 @@ def test_canvas_picture_follows_the_state(state):
     assert np.mean(np.any(np.abs(after - before) > 30, axis=2)) > 0.005  # the picture changed
     uv = view.handle_fractions()[0]  # the dragged handle is drawn red where handle_fractions says
     h, w = after.shape[:2]
-    patch = after[int(uv[1] * h) - 2:int(uv[1] * h) + 3, int(uv[0] * w) - 2:int(uv[0] * w) + 3]
+    patch = after[int(uv[1] * h) - 2 : int(uv[1] * h) + 3, int(uv[0] * w) - 2 : int(uv[0] * w) + 3]
     assert (patch[..., 0] > 150).any() and (patch[..., 0] - patch[..., 2] > 60).any(), patch
 
 

@@ -158,8 +158,9 @@ def compare(shape, bop, single, Qs, energy="sarap", window=5, truth=None):
     diag = shape.mesh.bbox_diagonal
     X, E, ok = solver_path(shape, Qs, energy) if truth is None else truth
     if not ok.all():
-        warnings.warn(f"{int((~ok).sum())} of {len(ok)} continuation solves did not converge",
-                      stacklevel=opt.user_stacklevel())
+        warnings.warn(
+            f"{int((~ok).sum())} of {len(ok)} continuation solves did not converge", stacklevel=opt.user_stacklevel()
+        )
     # a there-and-back path visits each Q twice: out on one branch, back on the other where both exist
     E = np.where(ok, E, np.inf)
     lowest = np.minimum(E, E[::-1]) if np.allclose(Qs, Qs[::-1]) else E

@@ -20,8 +20,17 @@ import numpy as np
 from .. import options as opt
 from . import metrics
 
-COLUMNS = ("method", "(8a)/n", "worst/diag", "flips/frame", "frames flipped", "handle err", "precompute",
-           "frame median", "frame best")
+COLUMNS = (
+    "method",
+    "(8a)/n",
+    "worst/diag",
+    "flips/frame",
+    "frames flipped",
+    "handle err",
+    "precompute",
+    "frame median",
+    "frame best",
+)
 #: the 3D headers of the inverted-element columns
 INVERTED_HEADER = {"flips/frame": "inverted tets/frame", "frames flipped": "frames inverted"}
 
@@ -172,8 +181,12 @@ def score(method, shape, Q, X_true, name=None, precompute=None):
     if Q.ndim != 3 or Q.shape[1:] != (n, d) or len(Q) == 0:
         raise ValueError(f"Q must be a batch of shape (k, {n}, {d}) with k >= 1 (the moving handles), got {Q.shape}")
     X_true = opt.real_array("X_true", X_true)
-    if precompute is not None and not (isinstance(precompute, (int, float, np.number)) and np.isfinite(precompute)
-                                       and precompute >= 0 and not isinstance(precompute, (bool, np.bool_))):
+    if precompute is not None and not (
+        isinstance(precompute, (int, float, np.number))
+        and np.isfinite(precompute)
+        and precompute >= 0
+        and not isinstance(precompute, (bool, np.bool_))
+    ):
         raise ValueError(f"precompute must be None or seconds, a finite number >= 0, got {precompute!r}")
     if X_true.shape != (len(Q), shape.mesh.n_vertices, d):
         raise ValueError(f"X_true must have shape ({len(Q)}, {shape.mesh.n_vertices}, {d}), got {X_true.shape}")

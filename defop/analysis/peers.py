@@ -97,8 +97,10 @@ def _check_span(P, k, method, why):
     sv = np.linalg.svd(P - P.mean(axis=0), compute_uv=False)
     if len(sv) < k or sv[k - 1] <= 1e-9 * max(sv[0], np.finfo(float).tiny):
         spread = f" (spread across it {sv[k - 1]:.2g}, along it {sv[0]:.2g})" if len(sv) >= k else ""
-        raise ValueError(f"{method} handles that are not all on {_FLAT[k - 1]} ({why}); the {len(P)} handles "
-                         f"lie on {_FLAT[k - 1]}{spread}; move one off it")
+        raise ValueError(
+            f"{method} handles that are not all on {_FLAT[k - 1]} ({why}); the {len(P)} handles "
+            f"lie on {_FLAT[k - 1]}{spread}; move one off it"
+        )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -221,8 +223,10 @@ def _check_weights(w, alpha):
     """MLS weights must be finite with a positive sum per point: else α is too large for the distances."""
     sums = w.sum(axis=1)
     if not (np.isfinite(w).all() and np.isfinite(sums).all() and (sums > 0).all()):
-        raise ValueError(f"alpha = {alpha!r} is too large for these handle distances: the MLS weights "
-                         f"|p - v|^(-2 alpha) overflow or vanish in float64; use a smaller alpha (1 is usual)")
+        raise ValueError(
+            f"alpha = {alpha!r} is too large for these handle distances: the MLS weights "
+            f"|p - v|^(-2 alpha) overflow or vanish in float64; use a smaller alpha (1 is usual)"
+        )
 
 
 def _procrustes(pre, Q):
@@ -422,13 +426,14 @@ def biharmonic_precompute(mesh, handles, k=2):
 
     k = opt.integer("k", k, minimum=1)
     if k == 3:
-        raise ValueError("k = 3 (triharmonic) is not available: libigl's biharmonic_coordinates returns an empty "
-                         "matrix for k = 3; use k = 2 (biharmonic)")
+        raise ValueError(
+            "k = 3 (triharmonic) is not available: libigl's biharmonic_coordinates returns an empty "
+            "matrix for k = 3; use k = 2 (biharmonic)"
+        )
     V, F, b = _mesh_arrays(mesh, handles)
     d = V.shape[1]
     if len(b) < d + 1:
-        raise ValueError(f"biharmonic coordinates need at least {d + 1} point handles (linear precision), "
-                         f"got {len(b)}")
+        raise ValueError(f"biharmonic coordinates need at least {d + 1} point handles (linear precision), got {len(b)}")
     _check_span(V[b], d, "biharmonic coordinates need", "linear precision: W P = V")
     W = np.asarray(igl.biharmonic_coordinates(V, F, [[int(i)] for i in b], int(k)))
     if W.shape != (len(V), len(b)) or not np.isfinite(W).all():
@@ -548,8 +553,10 @@ class Peer:
         Q = opt.real_array("Q", Q)
         n, d = self.n_moving, self.mesh.dim
         if Q.shape[-2:] != (n, d) or Q.ndim not in (2, 3):
-            raise ValueError(f"Q must have shape ({n}, {d}) or (k, {n}, {d}) for the {n} moving handles, "
-                             f"got {Q.shape}{_dim_hint(Q, n, d)}")
+            raise ValueError(
+                f"Q must have shape ({n}, {d}) or (k, {n}, {d}) for the {n} moving handles, "
+                f"got {Q.shape}{_dim_hint(Q, n, d)}"
+            )
         if not np.isfinite(Q).all():
             where = f" (frame {int(np.argwhere(~np.isfinite(Q))[0, 0])})" if Q.ndim == 3 else ""
             raise ValueError(f"Q has NaN or infinite entries{where}")
@@ -618,8 +625,7 @@ def make_peers(shape, kinds=KINDS, arap_iterations=(10,)):
     -------
     peers : list of Peer
     """
-    if isinstance(arap_iterations, (str, bytes)) or not hasattr(arap_iterations, "__len__") or not len(
-            arap_iterations):
+    if isinstance(arap_iterations, (str, bytes)) or not hasattr(arap_iterations, "__len__") or not len(arap_iterations):
         raise ValueError(f"arap_iterations must be a non-empty list of iteration counts, got {arap_iterations!r}")
     arap_iterations = [opt.integer("arap_iterations", k, minimum=1) for k in arap_iterations]
     out = []

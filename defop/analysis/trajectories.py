@@ -413,14 +413,23 @@ def ground_truth_trajectories(
             res = _follow_path(solver, targets, path[:, 0] * nx + path[:, 1], solve_kw, progress)
         X, E, conv = (np.array([r[i] for r in res]) for i in range(3))
         if not conv.all():
-            warnings.warn(f"{int((~conv).sum())} of {len(conv)} {mode} ground-truth solves did not converge",
-                          stacklevel=opt.user_stacklevel())
+            warnings.warn(
+                f"{int((~conv).sum())} of {len(conv)} {mode} ground-truth solves did not converge",
+                stacklevel=opt.user_stacklevel(),
+            )
         conv = conv.reshape(ny, nx).astype(bool)
         return {"X": X.reshape(ny, nx, -1, 2), "energy": E.reshape(ny, nx), "converged": conv}
 
     z = batch.load_or_compute(store, "traj", key, _trajectory_expect(grid, shape.mesh.n_vertices), compute)
-    return Trajectory(grid=grid, X=z["X"], rest=shape.mesh.V.copy(), kind=mode, converged=z["converged"],
-                      energy=z["energy"], path=path)
+    return Trajectory(
+        grid=grid,
+        X=z["X"],
+        rest=shape.mesh.V.copy(),
+        kind=mode,
+        converged=z["converged"],
+        energy=z["energy"],
+        path=path,
+    )
 
 
 def _follow_path(solver, targets, order, solve_kw, show):

@@ -130,12 +130,14 @@ class BrowserEditor(anywidget.AnyWidget):
         s = self.state
         payload = defop_to_payload(s.operator, s.regions)
         payload.update(
-            title=f"{s.shape.name}: {s.energy} DefOp, Ψ = {s.kind}", kinds=list(s.kinds), shape=s.shape.name,
-            shapes=self._shapes, pick_radius=s.pick_radius,
+            title=f"{s.shape.name}: {s.energy} DefOp, Ψ = {s.kind}",
+            kinds=list(s.kinds),
+            shape=s.shape.name,
+            shapes=self._shapes,
+            pick_radius=s.pick_radius,
         )
         meta, data = encode_payload(payload)
-        self._sync(payload_meta=meta, payload_data=data, q=s.Q.ravel().tolist(), basis=s.kind,
-                   shape_name=s.shape.name)
+        self._sync(payload_meta=meta, payload_data=data, q=s.Q.ravel().tolist(), basis=s.kind, shape_name=s.shape.name)
         self._send_ground_truth()
 
     def _send_ground_truth(self):

@@ -41,7 +41,9 @@ h1 {{ font-size: 18px; margin: 0 0 2px; }}
 </head><body>
 <h1>{title}</h1>
 """
-_PAGE = _HEAD + """\
+_PAGE = (
+    _HEAD
+    + """\
 <p class="defop-instruction">Drag a red handle with the mouse: the shape follows, computed in this page.</p>
 <div id="defop-app"></div>
 <div class="defop-legend" aria-label="legend">
@@ -63,22 +65,25 @@ window.defopEditor = mountStandalone(document.getElementById("defop-app"), {meta
 </script>
 </body></html>
 """
+)
 
 # the multi-valued page (a BranchedOperator): the 2D page with what the branch readout and the toggle mean
 _PAGE_BRANCHED = _PAGE.replace(
     '<p class="defop-instruction">Drag a red handle with the mouse: the shape follows, computed in this page.</p>',
     '<p class="defop-instruction">Drag a red handle across the jump and back: the shape stays on its branch while '
-    'that branch exists (follow), so it jumps at different places on the way out and on the way back.</p>',
+    "that branch exists (follow), so it jumps at different places on the way out and on the way back.</p>",
 ).replace(
-    "<p class=\"defop-note\">",
-    "<p class=\"defop-note\">One closed-form operator per branch of D<sup>E</sup>; a branch exists where its "
+    '<p class="defop-note">',
+    '<p class="defop-note">One closed-form operator per branch of D<sup>E</sup>; a branch exists where its '
     "estimated stability margin &lambda;&sup2;<sub>b</sub>(Q) is positive and Q is on its side of the mode score "
     "(defop.operator.branched). Follow stays on the current branch while it exists, else takes the existing branch "
     "of lowest estimated energy E<sub>b</sub>(Q); global always takes the lowest; Reset goes back to the rest "
-    "pose's branch.</p>\n<p class=\"defop-note\">",
+    'pose\'s branch.</p>\n<p class="defop-note">',
 )
 
-_PAGE_3D = _HEAD + """\
+_PAGE_3D = (
+    _HEAD
+    + """\
 <p class="defop-instruction">Drag a red handle in the view plane; drag elsewhere to orbit, scroll to zoom.</p>
 <div id="defop-app"></div>
 <div class="defop-legend" aria-label="legend">
@@ -99,16 +104,18 @@ window.defopEditor = mountSolid(document.getElementById("defop-app"), {meta}, "{
 </script>
 </body></html>
 """
+)
 
 
 def _check_dimensions(op, shape, image, image_frame):
     """A 3D operator with a 2D shape (or the reverse), or a picture on a 3D mesh: a ValueError naming them."""
     if shape is not None and shape.mesh.dim != op.d:
-        raise ValueError(f"shape must be a {op.d}D shape for this {op.d}D operator, got the {shape.mesh.dim}D shape "
-                         f"{shape.name!r} ({'tetrahedra' if shape.mesh.dim == 3 else 'triangles'})")
+        raise ValueError(
+            f"shape must be a {op.d}D shape for this {op.d}D operator, got the {shape.mesh.dim}D shape "
+            f"{shape.name!r} ({'tetrahedra' if shape.mesh.dim == 3 else 'triangles'})"
+        )
     if op.d == 3 and (image is not None or image_frame is not None):
-        raise ValueError("image and image_frame are for 2D operators (a picture on the triangles); this operator "
-                         "is 3D")
+        raise ValueError("image and image_frame are for 2D operators (a picture on the triangles); this operator is 3D")
 
 
 def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
@@ -165,12 +172,18 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     regions = None
     if shape is not None:
         op.check_mesh(shape.mesh)
-        regions = (region_polygons(shape.P_moving, shape.regions) if op.d == 2 else
-                   region_balls(shape.P_moving, shape.regions, op.train_samples))
+        regions = (
+            region_polygons(shape.P_moving, shape.regions)
+            if op.d == 2
+            else region_balls(shape.P_moving, shape.regions, op.train_samples)
+        )
     payload = branched_to_payload(bop, regions) if branched else defop_to_payload(op, regions)
     if not title:  # the shape's name comes from the operator's file: as untrusted as a title
-        title = opt.text("title", f"defop: {op.meta.get('shape', 'shape')}, Ψ = {op.handle_basis.kind}"
-                         + (f", {len(bop)} branches" if branched else ""))
+        title = opt.text(
+            "title",
+            f"defop: {op.meta.get('shape', 'shape')}, Ψ = {op.handle_basis.kind}"
+            + (f", {len(bop)} branches" if branched else ""),
+        )
     payload.update(title=title, kinds=[op.handle_basis.kind])
     if image is not None or image_frame is not None:
         payload.update(image_for(op.mesh, image, image_frame))
@@ -189,8 +202,10 @@ def _vendored(name):
     raw = (THREE_DIR / name).read_bytes()
     digest = hashlib.sha256(raw).hexdigest()
     if digest != THREE_FILES[name]:
-        raise RuntimeError(f"{THREE_DIR / name} has sha256 {digest}, not the pinned {THREE_FILES[name]} "
-                           f"(see {THREE_DIR / 'README.md'})")
+        raise RuntimeError(
+            f"{THREE_DIR / name} has sha256 {digest}, not the pinned {THREE_FILES[name]} "
+            f"(see {THREE_DIR / 'README.md'})"
+        )
     return raw.decode("utf-8")
 
 

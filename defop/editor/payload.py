@@ -183,8 +183,12 @@ def domain_payload(domain):
     out = {"domain_w": np.asarray(domain.w, np.float64), "domain_own": int(domain.own)}
     if domain.own:
         basis = domain.basis
-        out.update(domain_size=int(basis.size), domain_scale=float(basis.scale), domain_kernel=basis.kernel,
-                   domain_centers=np.asarray(basis.z(basis.centers), np.float64))
+        out.update(
+            domain_size=int(basis.size),
+            domain_scale=float(basis.scale),
+            domain_kernel=basis.kernel,
+            domain_centers=np.asarray(basis.z(basis.centers), np.float64),
+        )
     return out
 
 

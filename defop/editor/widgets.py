@@ -76,9 +76,14 @@ class CanvasView:
         self.fig.tight_layout()
         self._cids = []
         if interactive:
-            self._cids = [self.fig.canvas.mpl_connect(name, handler) for name, handler in (
-                ("button_press_event", self._press), ("motion_notify_event", self._motion),
-                ("button_release_event", self._release))]
+            self._cids = [
+                self.fig.canvas.mpl_connect(name, handler)
+                for name, handler in (
+                    ("button_press_event", self._press),
+                    ("motion_notify_event", self._motion),
+                    ("button_release_event", self._release),
+                )
+            ]
         self.refresh()
 
     def _build_artists(self, regions):
@@ -95,8 +100,9 @@ class CanvasView:
         F = s.mesh.F
         self._mesh = PolyCollection(s.X[F], facecolors=_FACE, edgecolors=_EDGE, linewidths=0.3, zorder=2)
         ax.add_collection(self._mesh, autolim=False)
-        self._gt = PolyCollection(s.X[F], facecolors="none", edgecolors=(0.8, 0.1, 0.1, 0.7), linewidths=0.5,
-                                  visible=False, zorder=3)
+        self._gt = PolyCollection(
+            s.X[F], facecolors="none", edgecolors=(0.8, 0.1, 0.1, 0.7), linewidths=0.5, visible=False, zorder=3
+        )
         ax.add_collection(self._gt, autolim=False)
         fixed = s.mesh.V[s.shape.fixed_handles] if len(s.shape.fixed_handles) else np.zeros((0, 2))
         ax.plot(*s.P.T, "o", ms=9, mfc="none", mec="0.55", mew=1.0, zorder=4)
@@ -186,8 +192,9 @@ class Controls:
     def __init__(self, state, on_change=None):
         self.state, self.on_change = state, on_change
         self._syncing = False
-        self.basis = widgets.Dropdown(options=list(state.kinds), value=state.kind, description="Ψ basis",
-                                      layout=widgets.Layout(width="200px"))
+        self.basis = widgets.Dropdown(
+            options=list(state.kinds), value=state.kind, description="Ψ basis", layout=widgets.Layout(width="200px")
+        )
         self.basis.observe(self._act(state.set_basis), names="value")
         self.ground_truth = widgets.ToggleButton(value=False, description="Ground truth", icon="check")
         self.ground_truth.observe(self._act(state.set_ground_truth), names="value")
@@ -200,18 +207,27 @@ class Controls:
         d, (x0, y0) = state.diag, state.mesh.V.min(axis=0) - 0.3 * state.diag
         x1, y1 = state.mesh.V.max(axis=0) + 0.3 * state.diag
         self.sliders = [
-            tuple(widgets.FloatSlider(value=float(p[c]), min=float(lo), max=float(hi), step=d / 1000.0,
-                                      description=f"q{i} {'xy'[c]}", readout_format=".3f",
-                                      layout=widgets.Layout(width="320px"))
-                  for c, (lo, hi) in enumerate(((x0, x1), (y0, y1))))
+            tuple(
+                widgets.FloatSlider(
+                    value=float(p[c]),
+                    min=float(lo),
+                    max=float(hi),
+                    step=d / 1000.0,
+                    description=f"q{i} {'xy'[c]}",
+                    readout_format=".3f",
+                    layout=widgets.Layout(width="320px"),
+                )
+                for c, (lo, hi) in enumerate(((x0, x1), (y0, y1)))
+            )
             for i, p in enumerate(state.P)
         ]
         for i, pair in enumerate(self.sliders):
             for c, slider in enumerate(pair):
                 slider.observe(self._slide(i, c), names="value")
         self.box = widgets.HBox([self.basis, self.ground_truth, self.reset])
-        self.slider_box = widgets.Accordion(children=[widgets.VBox([widgets.HBox(list(p)) for p in self.sliders])],
-                                            titles=("Handle sliders",))
+        self.slider_box = widgets.Accordion(
+            children=[widgets.VBox([widgets.HBox(list(p)) for p in self.sliders])], titles=("Handle sliders",)
+        )
         self.slider_box.selected_index = None
         self.refresh()
 
@@ -260,8 +276,9 @@ class Controls:
         Q = np.round(s.Q, 6).tolist()
         uv = json.dumps(getattr(self, "_positions", []))
         text = ", ".join(f"q{i} = ({q[0]:.3f}, {q[1]:.3f})" for i, q in enumerate(Q))
-        self.handle_readout.value = (f"<span class='defop-handle-data' data-q='{json.dumps(Q)}' data-uv='{uv}'>"
-                                     f"{html.escape(text)}</span>")
+        self.handle_readout.value = (
+            f"<span class='defop-handle-data' data-q='{json.dumps(Q)}' data-uv='{uv}'>{html.escape(text)}</span>"
+        )
 
 
 class HandleEditor:
@@ -343,6 +360,8 @@ def static_bundle(state, dpi=72):
         ``{"image/png": base64 str, "text/plain": str}``.
     """
     shape = state.shape
-    text = (f"Handle editor: {shape.name}, {shape.mesh.n_vertices} vertices, {len(state.P)} moving handle(s), "
-            f"the {state.kind} DefOp (run the notebook to drag the handles)")
+    text = (
+        f"Handle editor: {shape.name}, {shape.mesh.n_vertices} vertices, {len(state.P)} moving handle(s), "
+        f"the {state.kind} DefOp (run the notebook to drag the handles)"
+    )
     return {"image/png": base64.b64encode(static_png(state, dpi)).decode("ascii"), "text/plain": text}

@@ -95,8 +95,10 @@ def signed_volumes(V, F):
         raise ValueError(f"F must hold integer vertex indices, got dtype {F.dtype}")
     if F.size and (F.min() < 0 or F.max() >= len(V)):
         t, j = (int(x) for x in np.argwhere((F < 0) | (F >= len(V)))[0])
-        raise ValueError(f"element {t} of F indexes vertex {F[t, j].item()!r}, but V has {len(V)} vertices "
-                         f"(valid indices 0 to {len(V) - 1})")
+        raise ValueError(
+            f"element {t} of F indexes vertex {F[t, j].item()!r}, but V has {len(V)} vertices "
+            f"(valid indices 0 to {len(V) - 1})"
+        )
     P = V[F]
     return _simplex_volumes(P[:, 0], P[:, 1:])
 
@@ -713,11 +715,14 @@ def _read_member(fh, path, key):
         raise ValueError(f"mesh file {path}: {key} must hold numbers, got dtype {dtype}")
     cols = (2, 3) if key == "V" else (3, 4)  # Mesh itself checks that they fit together
     if len(shape) != 2 or shape[1] not in cols:
-        raise ValueError(f"mesh file {path}: {key} must be an (n, {' or '.join(map(str, cols))}) array, "
-                         f"got shape {shape}")
+        raise ValueError(
+            f"mesh file {path}: {key} must be an (n, {' or '.join(map(str, cols))}) array, got shape {shape}"
+        )
     if shape[0] > MAX_FILE_ELEMENTS:
-        raise ValueError(f"mesh file {path} declares {shape[0]:,} rows of {key}, limit {MAX_FILE_ELEMENTS:,} "
-                         f"(defop.geometry.mesh.MAX_FILE_ELEMENTS)")
+        raise ValueError(
+            f"mesh file {path} declares {shape[0]:,} rows of {key}, limit {MAX_FILE_ELEMENTS:,} "
+            f"(defop.geometry.mesh.MAX_FILE_ELEMENTS)"
+        )
     count = int(np.prod(shape))
     data = fh.read(count * dtype.itemsize)  # stops at the declared size: a bomb cannot inflate further
     if len(data) != count * dtype.itemsize:
@@ -757,8 +762,10 @@ def _check_off_header(path, size):
     except (IndexError, ValueError):
         raise ValueError(f"mesh file {path}: the OFF header has no vertex and face counts") from None
     if min(n_v, n_f) < 0 or max(n_v, n_f) > MAX_FILE_ELEMENTS or 2 * (n_v + n_f) > size:
-        raise ValueError(f"mesh file {path} declares {n_v:,} vertices and {n_f:,} faces in {size:,} bytes "
-                         f"(limit {MAX_FILE_ELEMENTS:,} each, and at least 2 bytes per entry)")
+        raise ValueError(
+            f"mesh file {path} declares {n_v:,} vertices and {n_f:,} faces in {size:,} bytes "
+            f"(limit {MAX_FILE_ELEMENTS:,} each, and at least 2 bytes per entry)"
+        )
 
 
 def _igl_write(path, V3, F):

@@ -50,9 +50,22 @@ MAX_FILE_BYTES = 2**30
 SURFACE_FORMATS = (".ply", ".stl", ".obj", ".off")
 
 _PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
 }
 _STL_RECORD = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
 _COUNT = re.compile(r"[0-9]{1,19}")  # ASCII digits only: '²'.isdigit() is True, and int('²') fails
@@ -127,8 +140,9 @@ def check_size(path, what="file"):
     """The size of the file ``path`` in bytes; ValueError naming it above :data:`MAX_FILE_BYTES` (nothing is read)."""
     size = Path(path).stat().st_size
     if size > MAX_FILE_BYTES:
-        raise ValueError(f"{what} {path} has {size:,} bytes, limit {MAX_FILE_BYTES:,} "
-                         "(defop.geometry.surface_files.MAX_FILE_BYTES)")
+        raise ValueError(
+            f"{what} {path} has {size:,} bytes, limit {MAX_FILE_BYTES:,} (defop.geometry.surface_files.MAX_FILE_BYTES)"
+        )
     return size
 
 
@@ -176,8 +190,10 @@ def read_surface_file(path, weld_tolerance=None):
     except ValueError as exc:
         raise ValueError(f"surface file {path}: {exc}") from None
     except MemoryError:
-        raise MemoryError(f"surface file {path} ({size:,} bytes) does not fit in the memory left while it is "
-                          "read (ASCII files need several times their size)") from None
+        raise MemoryError(
+            f"surface file {path} ({size:,} bytes) does not fit in the memory left while it is "
+            "read (ASCII files need several times their size)"
+        ) from None
     return SurfaceFile(V, F, welded, path, fmt)
 
 
@@ -226,16 +242,19 @@ def _count(word, what):
         raise ValueError(f"the {what} count {word!r} is not a non-negative integer")
     n = int(word)
     if n > MAX_FILE_ELEMENTS:
-        raise ValueError(f"declares {n:,} {what}, limit {MAX_FILE_ELEMENTS:,} "
-                         "(defop.geometry.surface_files.MAX_FILE_ELEMENTS)")
+        raise ValueError(
+            f"declares {n:,} {what}, limit {MAX_FILE_ELEMENTS:,} (defop.geometry.surface_files.MAX_FILE_ELEMENTS)"
+        )
     return n
 
 
 def _fits(n, what, per_record, nbytes):
     """ASCII: n records of at least ``per_record`` bytes must fit in ``nbytes``."""
     if n * per_record > nbytes:
-        raise ValueError(f"declares {n:,} {what}, but {nbytes:,} bytes of data hold at most "
-                         f"{nbytes // per_record:,} (each takes at least {per_record} bytes)")
+        raise ValueError(
+            f"declares {n:,} {what}, but {nbytes:,} bytes of data hold at most "
+            f"{nbytes // per_record:,} (each takes at least {per_record} bytes)"
+        )
 
 
 def _text(data, what):
@@ -284,8 +303,11 @@ def _read_stl(data):
             rec = np.frombuffer(data, dtype=_STL_RECORD, count=k, offset=84)
             return rec["corners"].reshape(-1, 3).astype(np.float64), np.arange(3 * k).reshape(-1, 3), "stl-binary"
     k = int.from_bytes(data[80:84], "little")
-    binary = (f"a binary STL's header declares {k:,} triangles, {84 + 50 * k:,} bytes, the file has {len(data):,}"
-              if len(data) >= 84 else f"{len(data)} bytes are too short for a binary STL (84-byte header)")
+    binary = (
+        f"a binary STL's header declares {k:,} triangles, {84 + 50 * k:,} bytes, the file has {len(data):,}"
+        if len(data) >= 84
+        else f"{len(data)} bytes are too short for a binary STL (84-byte header)"
+    )
     if not data.lstrip()[:5].lower() == b"solid":
         raise ValueError(f"is neither binary STL ({binary}) nor ASCII STL (it does not start with 'solid')")
     try:
@@ -303,8 +325,17 @@ def _read_stl_ascii(text):
         _count(str(len(starts)), "triangles")
     if not starts:
         raise ValueError("holds no triangles (no 'facet' in an ASCII STL)")
-    keys = {0: "facet", 1: "normal", 5: "outer", 6: "loop", 7: "vertex", 11: "vertex", 15: "vertex",
-            19: "endloop", 20: "endfacet"}
+    keys = {
+        0: "facet",
+        1: "normal",
+        5: "outer",
+        6: "loop",
+        7: "vertex",
+        11: "vertex",
+        15: "vertex",
+        19: "endloop",
+        20: "endfacet",
+    }
     coords = []
     for n, s in enumerate(starts):
         for off, key in keys.items():
@@ -442,14 +473,18 @@ def _read_ply_binary(data, elements, start, key, order):
         if elements[i][1] and len(data) >= offsets[i] + recs[i].itemsize:
             k = int(np.frombuffer(data, recs[i], 1, offsets[i])[key + "#n"][0])
         hint = f"; face 0 has {k} vertices: only triangles are read from binary PLY" if k > 3 else ""
-        raise ValueError(f"binary PLY size {len(data):,} bytes, but its header ({start} B) and {counts} "
-                         f"(faces as triangles) make {offsets[-1]:,} bytes{hint}")
+        raise ValueError(
+            f"binary PLY size {len(data):,} bytes, but its header ({start} B) and {counts} "
+            f"(faces as triangles) make {offsets[-1]:,} bytes{hint}"
+        )
     out = {name: np.frombuffer(data, r, n, pos) for (name, n, _), r, pos in zip(elements, recs, offsets)}
     f = out["face"]
     bad = np.flatnonzero(f[key + "#n"] != 3)
     if len(bad):
-        raise ValueError(f"binary PLY face {int(bad[0])} has {int(f[key + '#n'][bad[0]])} vertices: "
-                         "only triangles are read from binary PLY")
+        raise ValueError(
+            f"binary PLY face {int(bad[0])} has {int(f[key + '#n'][bad[0]])} vertices: "
+            "only triangles are read from binary PLY"
+        )
     v = out["vertex"]
     return np.column_stack([v[c].astype(np.float64) for c in "xyz"]), f[key].astype(np.int64)
 
@@ -464,8 +499,9 @@ def _read_ply_ascii(data, elements, start, key, order):
         if all(isinstance(t, str) for _, t in props):  # a fixed number of values per record
             k = len(props)
             if pos + n * k > len(tokens):
-                raise ValueError(f"ASCII PLY: {n:,} {name} elements need {n * k:,} values, "
-                                 f"{len(tokens) - pos:,} are left")
+                raise ValueError(
+                    f"ASCII PLY: {n:,} {name} elements need {n * k:,} values, {len(tokens) - pos:,} are left"
+                )
             if name == "vertex":
                 names = [p for p, _ in props]
                 vals = _floats(tokens[pos : pos + n * k], lambda i, k=k: f"ASCII PLY vertex {i // k}, property {i % k}")
@@ -560,13 +596,17 @@ def _check_tolerance_weld(F, F2, tolerance):
     before = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
     bad = np.flatnonzero(degenerate & ~before)
     if len(bad):
-        raise ValueError(f"welding within {tolerance:g} × the diagonal makes {len(bad)} triangles degenerate "
-                         f"(two corners merged), first is triangle {int(bad[0])}; use a smaller weld_tolerance")
+        raise ValueError(
+            f"welding within {tolerance:g} × the diagonal makes {len(bad)} triangles degenerate "
+            f"(two corners merged), first is triangle {int(bad[0])}; use a smaller weld_tolerance"
+        )
     E = np.sort(np.concatenate([F2[:, [0, 1]], F2[:, [1, 2]], F2[:, [2, 0]]]), axis=1)
     uniq, counts = np.unique(E, axis=0, return_counts=True)
     E0 = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
     if (counts > 2).any() and counts.max() > np.unique(E0, axis=0, return_counts=True)[1].max():
         k = int(np.flatnonzero(counts > 2)[0])
-        raise ValueError(f"welding within {tolerance:g} × the diagonal puts edge ({int(uniq[k, 0])}, "
-                         f"{int(uniq[k, 1])}) in {int(counts[k])} triangles (not a manifold); use a smaller "
-                         "weld_tolerance")
+        raise ValueError(
+            f"welding within {tolerance:g} × the diagonal puts edge ({int(uniq[k, 0])}, "
+            f"{int(uniq[k, 1])}) in {int(counts[k])} triangles (not a manifold); use a smaller "
+            "weld_tolerance"
+        )

@@ -213,8 +213,9 @@ class DefOp:
         f = self._fast if self._fast is not None and self._fast["key"] is self.factors else self._fast_state()
         k = f["kernel"]
         if k["tps"] is not None:  # TPS: everything in one call, dz and the guard included
-            X, far = k["tps_frame"](Q, self.P, f["R2"], k["far2"], *k["tps"], k["A"], k["B"], self._x, self._hcols,
-                                    f["xh"])
+            X, far = k["tps_frame"](
+                Q, self.P, f["R2"], k["far2"], *k["tps"], k["A"], k["B"], self._x, self._hcols, f["xh"]
+            )
             if not X.size:
                 return None
         else:
@@ -526,5 +527,12 @@ def kernel_state(basis, mats, far2=None):
         tps = (cm, czeps, inv_s2, kernels.tps_rest(cm, czeps, inv_s2, log_kernel), log_kernel)
     B = np.ascontiguousarray(mats[-1])
     far2 = np.zeros(0) if far2 is None else np.ascontiguousarray(far2, dtype=float)
-    return {"A": A, "B": B, "tps": tps, "far2": far2, "tps_frame": kernels.tps_frame, "apply": kernels.apply,
-            "beyond": kernels.beyond}
+    return {
+        "A": A,
+        "B": B,
+        "tps": tps,
+        "far2": far2,
+        "tps_frame": kernels.tps_frame,
+        "apply": kernels.apply,
+        "beyond": kernels.beyond,
+    }

@@ -94,7 +94,15 @@ BRANCHED_READS = {"defop-branched-1": 1, BRANCHED_FORMAT: 2}
 #: the most branches a file may hold
 MAX_BRANCHES = 8
 BRANCH_MEMBERS = (
-    "W", "basis_centers", "train_samples", "factor_A", "factor_B", "energy", "margin", "domain_w", "domain_centers"
+    "W",
+    "basis_centers",
+    "train_samples",
+    "factor_A",
+    "factor_B",
+    "energy",
+    "margin",
+    "domain_w",
+    "domain_centers",
 )
 SHARED_MEMBERS = ("header", "V", "F", "handles", "moving", "basis_P", "mode", "box")
 _NPY_HEADER_MAX = 65_536 + 16  # numpy's own limit on a .npy header
@@ -174,8 +182,15 @@ def save_branched(bop, path):
         arrays.update({f"b{b.label}.{name}": a for name, a in own.items()})
         entries.append({"label": b.label, "side": b.side, "meta": b.op.meta, "basis": basis, "domain": domain})
     arrays["box"] = bop.box
-    header = {"format": BRANCHED_FORMAT, "format_version": 2, "kind": "branched", "dim": bop.branches[0].op.d,
-              "meta": bop.meta, "threshold": bop.threshold.tolist(), "branches": entries}
+    header = {
+        "format": BRANCHED_FORMAT,
+        "format_version": 2,
+        "kind": "branched",
+        "dim": bop.branches[0].op.d,
+        "meta": bop.meta,
+        "threshold": bop.threshold.tolist(),
+        "branches": entries,
+    }
     arrays["header"] = np.array(json.dumps(header))
     _write(path, arrays)
 
@@ -215,8 +230,9 @@ def _domain(entry, data, k, op, domain_cls):
         return None
     n, dim = op.P.shape
     if d.get("kernel") != hb.KERNELS[dim]:
-        raise ValueError(f"the {dim}D domain TPS uses the kernel {hb.KERNELS[dim]!r}, the file says {d.get('kernel')!r}"
-                         )
+        raise ValueError(
+            f"the {dim}D domain TPS uses the kernel {hb.KERNELS[dim]!r}, the file says {d.get('kernel')!r}"
+        )
     basis = hb.TPSBasis(op.P, _array(data, f"b{k}.domain_centers", 3, "f", (None, n, dim)), float(d["scale"]))
     return domain_cls(basis, _array(data, f"b{k}.domain_w", 1, "f", (basis.size,)))
 

@@ -202,17 +202,29 @@ class MovableOp:
 
     def __repr__(self):
         comp = f", rank {self.rank}" if self.factors is not None else ""
-        return (f"MovableOp({self.meta.get('shape', '?')}, {self.placement.n_movable} movable of {self.n_moving} "
-                f"moving handles, |Ψ|={self.basis.size}, {self.meta.get('n_samples')} samples{comp})")
+        return (
+            f"MovableOp({self.meta.get('shape', '?')}, {self.placement.n_movable} movable of {self.n_moving} "
+            f"moving handles, |Ψ|={self.basis.size}, {self.meta.get('n_samples')} samples{comp})"
+        )
 
     # ------------------------------------------------------------------ the rest placement
     def at(self, P=None):
         """The state of rest placement P (:meth:`PlacementRegions.resolve`), kept until P changes: its vertices,
         the moving handles' rest positions, z(P, P) and the kernel's frame at (P, P)."""
         last = self._at
-        if last is not None and last["key"] is self.factors and (
-                (P is None and last["nominal"]) or (type(P) is np.ndarray and P.dtype.kind in "iu"
-                                                    and P.shape == last["idx"].shape and (P == last["idx"]).all())):
+        if (
+            last is not None
+            and last["key"] is self.factors
+            and (
+                (P is None and last["nominal"])
+                or (
+                    type(P) is np.ndarray
+                    and P.dtype.kind in "iu"
+                    and P.shape == last["idx"].shape
+                    and (P == last["idx"]).all()
+                )
+            )
+        ):
             return last  # the placement of the last frame (an interactive drag): nothing to resolve
         idx = self.placement.resolve(P)
         if self._at is not None and np.array_equal(self._at["idx"], idx) and self._at["key"] is self.factors:
@@ -220,9 +232,17 @@ class MovableOp:
         hm = self.placement.handles_at(idx)[self.moving]
         Pm = self.mesh.V[hm]
         z0 = joint_z(self.mesh.V, self.placement.nominal, idx, hm, Pm[None], *self.scales)[0]
-        st = {"idx": idx, "key": self.factors, "hm": hm, "P": Pm, "z0": z0, "bumps": self.placement.bumps_at(idx),
-              "rows": self.placement.moving_rows(), "fixed": self.handles[~self.moving],
-              "nominal": bool(np.array_equal(idx, self.placement.nominal))}
+        st = {
+            "idx": idx,
+            "key": self.factors,
+            "hm": hm,
+            "P": Pm,
+            "z0": z0,
+            "bumps": self.placement.bumps_at(idx),
+            "rows": self.placement.moving_rows(),
+            "fixed": self.handles[~self.moving],
+            "nominal": bool(np.array_equal(idx, self.placement.nominal)),
+        }
         st["psi0"] = self.basis.delta_z(z0.reshape(1, -1))  # (1, |Ψ|−1), float64
         k = self._fast_state()["kernel"]
         st["X0"] = self._kernel(z0, k)
@@ -242,8 +262,9 @@ class MovableOp:
 
     def _kernel(self, z, k):
         """x + (ψ_raw(z) − ℓ(0)) A' B by the compiled frame (empty when beyond the overflow guard)."""
-        return k["tps_frame"](z, k["zero"], self._fast["R2"], k["far2"], *k["tps"], k["A"], k["B"], self._x,
-                              k["none"], k["nothing"])[0]
+        return k["tps_frame"](
+            z, k["zero"], self._fast["R2"], k["far2"], *k["tps"], k["A"], k["B"], self._x, k["none"], k["nothing"]
+        )[0]
 
     # ------------------------------------------------------------------ evaluation
     def _check_Q(self, Q, st):
@@ -259,9 +280,12 @@ class MovableOp:
             far = np.flatnonzero(dist > EXTRAPOLATION_FACTOR * self.reach + 1e-12)
             if far.size:
                 j = int(far[0])
-                warnings.warn(f"moving handle {j} is {dist[j]:.3g} from its rest position P, beyond 1.5x the farthest "
-                              f"training offset ({self.reach[j]:.3g}): the operator extrapolates",
-                              ExtrapolationWarning, stacklevel=3)
+                warnings.warn(
+                    f"moving handle {j} is {dist[j]:.3g} from its rest position P, beyond 1.5x the farthest "
+                    f"training offset ({self.reach[j]:.3g}): the operator extrapolates",
+                    ExtrapolationWarning,
+                    stacklevel=3,
+                )
         return Q
 
     def __call__(self, Q, P=None):
@@ -297,15 +321,19 @@ class MovableOp:
 
     def _frame(self, Q, st):
         z = st["z0"].copy()  # [(P_b − P_b⁰)/s_P, 0], kept per placement; the Q part is the frame's (joint_z's sums)
-        np.divide(np.subtract(Q, st["P"], out=z[self.placement.n_movable:]), self.scales[1],
-                  out=z[self.placement.n_movable:])
+        np.divide(
+            np.subtract(Q, st["P"], out=z[self.placement.n_movable :]),
+            self.scales[1],
+            out=z[self.placement.n_movable :],
+        )
         Xz = self._kernel(z, self._fast_state()["kernel"])
         if not Xz.size or not st["X0"].size:  # beyond the float32 guard: numpy with scaling
             u = self._product(self.basis.delta_z(z.reshape(1, -1)) - st["psi0"])
             return self._finish(u, st, Q[None])[0].reshape(self.n_vertices, self.d)
         sup, wt = st["bumps"]
-        out = self._fast["finish"](Xz, st["X0"], self._x, Q, st["P"], st["idx"], st["rows"], st["hm"], sup, wt,
-                                   st["fixed"])
+        out = self._fast["finish"](
+            Xz, st["X0"], self._x, Q, st["P"], st["idx"], st["rows"], st["hm"], sup, wt, st["fixed"]
+        )
         return out.reshape(self.n_vertices, self.d)
 
     def evaluate_fast(self, Q, P=None):
@@ -398,8 +426,14 @@ class CarryOp:
         elem, bary = self.mesh.locate(y)
         n = self.n_vertices
         S = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(n), self.d + 1), self.mesh.F[elem].ravel())), (n, n))
-        self._at = {"idx": idx, "hm": hm, "P": self.mesh.V[hm], "bumps": self.placement.bumps_at(idx), "S": S,
-                    "shift": self.op0.P - self.mesh.V[hm]}
+        self._at = {
+            "idx": idx,
+            "hm": hm,
+            "P": self.mesh.V[hm],
+            "bumps": self.placement.bumps_at(idx),
+            "S": S,
+            "shift": self.op0.P - self.mesh.V[hm],
+        }
         return self._at
 
     def __call__(self, Q, P=None, fast=False):
@@ -417,22 +451,49 @@ class CarryOp:
 # ---------------------------------------------------------------------- files
 #: the movable-handle operator's file format (an .npz archive checked as every operator file, :mod:`.io`)
 FORMAT = "defop-movable-1"
-MEMBERS = ("header", "V", "F", "handles", "moving", "joint_W", "joint_centers", "reach", "placement_movable",
-           "placement_vertices", "placement_sizes", "placement_reach", "factor_A", "factor_B")
+MEMBERS = (
+    "header",
+    "V",
+    "F",
+    "handles",
+    "moving",
+    "joint_W",
+    "joint_centers",
+    "reach",
+    "placement_movable",
+    "placement_vertices",
+    "placement_sizes",
+    "placement_reach",
+    "factor_A",
+    "factor_B",
+)
 
 
 def save_movable(op, path):
     """Write ``op`` (:class:`MovableOp`) to ``path`` atomically: arrays, placement regions, JSON header."""
     import json
 
-    arrays = {"V": op.mesh.V, "F": op.mesh.F, "handles": op.handles, "moving": op.moving, "joint_W": op.W,
-              "joint_centers": op.basis.centers, **op.placement.to_arrays()}
+    arrays = {
+        "V": op.mesh.V,
+        "F": op.mesh.F,
+        "handles": op.handles,
+        "moving": op.moving,
+        "joint_W": op.W,
+        "joint_centers": op.basis.centers,
+        **op.placement.to_arrays(),
+    }
     if op.reach is not None:
         arrays["reach"] = op.reach
     if op.factors is not None:
         arrays["factor_A"], arrays["factor_B"] = op.factors
-    header = {"format": FORMAT, "format_version": 1, "kind": "movable", "dim": op.d, "meta": op.meta,
-              "scales": list(op.scales)}
+    header = {
+        "format": FORMAT,
+        "format_version": 1,
+        "kind": "movable",
+        "dim": op.d,
+        "meta": op.meta,
+        "scales": list(op.scales),
+    }
     arrays["header"] = np.array(json.dumps(header))
     io_mod._write(path, arrays)
 
@@ -476,8 +537,9 @@ def load_movable(path, cls=None):
             fa = A(data, "factor_A", 2, "f", (basis.size - 1, None))
             fb = A(data, "factor_B", 2, "f", (fa.shape[1], d * len(V)))
             if fa.dtype != fb.dtype or np.any(fb[:, op.columns(op._still)] != 0):
-                raise ValueError("factor_B must be zero on the columns of the handles that are not movable, "
-                                 "in the dtype of factor_A")
+                raise ValueError(
+                    "factor_B must be zero on the columns of the handles that are not movable, in the dtype of factor_A"
+                )
             op.factors = (fa, fb)
         return op
     except (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError) as exc:

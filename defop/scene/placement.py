@@ -39,8 +39,9 @@ def edge_graph(mesh):
     E = np.unique(np.sort(E, axis=1), axis=0)
     w = np.linalg.norm(mesh.V[E[:, 0]] - mesh.V[E[:, 1]], axis=1)
     n = mesh.n_vertices
-    return sp.csr_matrix((np.concatenate([w, w]), (np.concatenate([E[:, 0], E[:, 1]]),
-                                                    np.concatenate([E[:, 1], E[:, 0]]))), shape=(n, n))
+    return sp.csr_matrix(
+        (np.concatenate([w, w]), (np.concatenate([E[:, 0], E[:, 1]]), np.concatenate([E[:, 1], E[:, 0]]))), shape=(n, n)
+    )
 
 
 def ball_region(mesh, vertex, radius):
@@ -83,12 +84,16 @@ class PlacementRegions:
         self.vertices = [region_vertices(ell, v) for ell, v in enumerate(vertices)]
         check(self)
         if reach is None:
-            reach = [BUMP_REACH * max(np.linalg.norm(mesh.V[v] - mesh.V[self.handles[b]], axis=1).max(), 1e-300)
-                     for b, v in zip(self.movable, self.vertices)]
+            reach = [
+                BUMP_REACH * max(np.linalg.norm(mesh.V[v] - mesh.V[self.handles[b]], axis=1).max(), 1e-300)
+                for b, v in zip(self.movable, self.vertices)
+            ]
         self.reach = np.asarray(reach, float)
         if self.reach.shape != (len(self.movable),) or not np.isfinite(self.reach).all() or np.any(self.reach <= 0):
-            raise ValueError(f"reach must be {len(self.movable)} positive finite lengths (one per movable handle), "
-                             f"got {np.array2string(self.reach, threshold=10)}")
+            raise ValueError(
+                f"reach must be {len(self.movable)} positive finite lengths (one per movable handle), "
+                f"got {np.array2string(self.reach, threshold=10)}"
+            )
         self.g = bumps(self)  # (Σ k_ℓ, n_vertices) CSR, rows in region order
         self.offset = np.cumsum([0] + [len(v) for v in self.vertices])
         self.owner = np.full(mesh.n_vertices, -1, np.int64)  # the region of each vertex (-1: none)
@@ -143,13 +148,17 @@ class PlacementRegions:
                     )
                 idx[ell] = verts[int(np.argmin(dist))]
         else:
-            raise ValueError(f"P must be ({b},) vertex indices or ({b}, {d}) rest positions of the {b} movable "
-                             f"handles, got {P.dtype} {P.shape}")
+            raise ValueError(
+                f"P must be ({b},) vertex indices or ({b}, {d}) rest positions of the {b} movable "
+                f"handles, got {P.dtype} {P.shape}"
+            )
         own = self.owner[np.clip(idx, 0, len(self.owner) - 1)]
         for ell, (v, verts) in enumerate(zip(idx, self.vertices)):
             if own[ell] != ell or v < 0 or v >= len(self.owner):
-                raise ValueError(f"P[{ell}] is vertex {int(v)}, outside movable handle {ell}'s placement region "
-                                 f"({len(verts)} vertices around vertex {int(self.nominal[ell])})")
+                raise ValueError(
+                    f"P[{ell}] is vertex {int(v)}, outside movable handle {ell}'s placement region "
+                    f"({len(verts)} vertices around vertex {int(self.nominal[ell])})"
+                )
         return idx
 
     def snap(self, points):
@@ -157,8 +166,9 @@ class PlacementRegions:
         points = opt.real_array("points", points)
         if points.shape != (self.n_movable, self.mesh.dim) or not np.isfinite(points).all():
             raise ValueError(f"points must be finite, shape ({self.n_movable}, {self.mesh.dim}), got {points.shape}")
-        return np.array([v[np.argmin(np.linalg.norm(self.mesh.V[v] - p, axis=1))]
-                         for p, v in zip(points, self.vertices)], np.int64)
+        return np.array(
+            [v[np.argmin(np.linalg.norm(self.mesh.V[v] - p, axis=1))] for p, v in zip(points, self.vertices)], np.int64
+        )
 
     def bumps_at(self, idx):
         """The bumps of the region vertices ``idx`` (b,) on their joint support: (sup (s,) int, weights (s, b))."""
@@ -178,9 +188,12 @@ class PlacementRegions:
 
     def to_arrays(self):
         """{"placement_movable", "placement_vertices", "placement_sizes", "placement_reach"} for a file."""
-        return {"placement_movable": self.movable, "placement_vertices": np.concatenate(self.vertices),
-                "placement_sizes": np.array([len(v) for v in self.vertices], np.int64),
-                "placement_reach": self.reach}
+        return {
+            "placement_movable": self.movable,
+            "placement_vertices": np.concatenate(self.vertices),
+            "placement_sizes": np.array([len(v) for v in self.vertices], np.int64),
+            "placement_reach": self.reach,
+        }
 
     @classmethod
     def from_arrays(cls, mesh, handles, moving, arrays):
@@ -189,16 +202,23 @@ class PlacementRegions:
         flat = np.asarray(arrays["placement_vertices"], np.int64)
         if sizes.ndim != 1 or np.any(sizes < 1) or sizes.sum() != len(flat):
             raise ValueError("placement_sizes must be positive and sum to the length of placement_vertices")
-        return cls(mesh, handles, moving, arrays["placement_movable"], np.split(flat, np.cumsum(sizes)[:-1]),
-                   arrays["placement_reach"])
+        return cls(
+            mesh,
+            handles,
+            moving,
+            arrays["placement_movable"],
+            np.split(flat, np.cumsum(sizes)[:-1]),
+            arrays["placement_reach"],
+        )
 
 
 def region_vertices(ell, v):
     """Region ``ell``'s vertices ``v`` as a sorted (k,) int64 array; integral floats pass, fractions do not."""
     a = np.asarray(v).ravel()
     if a.dtype.kind not in "iuf" or (a.dtype.kind == "f" and not (np.isfinite(a).all() and np.all(a == np.round(a)))):
-        raise ValueError(f"placement region {ell} must hold integer vertex indices, got {a.dtype} "
-                         f"{np.array2string(a, threshold=10)}")
+        raise ValueError(
+            f"placement region {ell} must hold integer vertex indices, got {a.dtype} {np.array2string(a, threshold=10)}"
+        )
     return np.unique(a.astype(np.int64))
 
 
@@ -230,16 +250,20 @@ def check(pr):
             raise ValueError(f"placement region {ell} does not hold its handle's nominal vertex {int(h[k])}")
         clash = v[owner[v] >= 0]
         if len(clash):
-            raise ValueError(f"placement regions {int(owner[clash[0]])} and {ell} overlap at vertex {int(clash[0])}"
-                             " (regions must be disjoint: shrink the radius)")
+            raise ValueError(
+                f"placement regions {int(owner[clash[0]])} and {ell} overlap at vertex {int(clash[0])}"
+                " (regions must be disjoint: shrink the radius)"
+            )
         owner[v] = ell
     others = np.setdiff1d(np.arange(len(h)), mv)
     inside = others[owner[h[others]] >= 0]
     if len(inside):
         k = int(inside[0])
         kind = "fixed" if not pr.moving[k] else "moving but not movable"
-        raise ValueError(f"handle {k} ({kind}, vertex {int(h[k])}) lies inside placement region "
-                         f"{int(owner[h[k]])}: a region may not hold another handle")
+        raise ValueError(
+            f"handle {k} ({kind}, vertex {int(h[k])}) lies inside placement region "
+            f"{int(owner[h[k]])}: a region may not hold another handle"
+        )
 
 
 def bumps(pr):
@@ -253,8 +277,9 @@ def bumps(pr):
     rows, cols, vals = [], [], []
     r0 = 0
     for ell, verts in enumerate(pr.vertices):
-        blocked = np.concatenate([v for j, v in enumerate(pr.vertices) if j != ell]
-                                 + [np.delete(pr.handles, pr.movable)]).astype(np.int64)
+        blocked = np.concatenate(
+            [v for j, v in enumerate(pr.vertices) if j != ell] + [np.delete(pr.handles, pr.movable)]
+        ).astype(np.int64)
         D = csgraph.dijkstra(G, indices=verts, limit=pr.reach[ell])
         for i in range(len(verts)):
             rho = pr.reach[ell]
@@ -266,8 +291,9 @@ def bumps(pr):
             cols.append(sel)
             vals.append((1.0 - t * t) ** 2)
         r0 += len(verts)
-    g = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(r0, pr.mesh.n_vertices))
+    g = sp.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(r0, pr.mesh.n_vertices)
+    )
     g.sort_indices()
     return g
 

@@ -366,8 +366,10 @@ def from_image(
     """
     size = opt.positive("size", size)  # a negative size mirrored the silhouette
     if not SCALE_RANGE[0] <= size <= SCALE_RANGE[1]:  # 1e300 overflowed into "too thin to place handles"
-        raise ValueError(f"size must be a positive number in [{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}] (the "
-                         f"coordinate range meshing supports), got {size!r}")
+        raise ValueError(
+            f"size must be a positive number in [{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}] (the "
+            f"coordinate range meshing supports), got {size!r}"
+        )
     if handles is None:
         # 0 gave one handle; the candidates are a 60 x 60 grid
         n_auto_handles = opt.integer("n_auto_handles", n_auto_handles, minimum=1, maximum=MAX_AUTO_HANDLES)

@@ -57,7 +57,15 @@ from .. import options as opt
 from ..variational.solver import VERSION as _solve_version
 
 __all__ = [
-    "Cache", "CacheWarning", "CorruptEntry", "FORMAT", "SOLVER_SALT", "digest", "key", "open_cache", "solver_settings"
+    "Cache",
+    "CacheWarning",
+    "CorruptEntry",
+    "FORMAT",
+    "SOLVER_SALT",
+    "digest",
+    "key",
+    "open_cache",
+    "solver_settings",
 ]
 
 #: Version of the algorithm of :mod:`defop.variational.solver` (one number,
@@ -327,8 +335,11 @@ class Cache:
             except FileNotFoundError:
                 return None
             if not stat.S_ISREG(st.st_mode):  # e.g. a directory made by hand: not ours to remove
-                warnings.warn(f"cache entry {path} is not a regular file; ignored, recomputing", CacheWarning,
-                              stacklevel=opt.user_stacklevel())
+                warnings.warn(
+                    f"cache entry {path} is not a regular file; ignored, recomputing",
+                    CacheWarning,
+                    stacklevel=opt.user_stacklevel(),
+                )
                 return None
             inode = st.st_ino
             try:
@@ -345,9 +356,12 @@ class Cache:
                 return None  # written by an older defop: stale, recomputed and overwritten
             if stamped != digest(kind, key):
                 return self._discard(
-                    path, inode, f"removed cache entry {path}: it holds the result of another problem (digest "
+                    path,
+                    inode,
+                    f"removed cache entry {path}: it holds the result of another problem (digest "
                     f"{stamped!r}, this problem's is {digest(kind, key)!r}: a copied or renamed file, or a shared "
-                    "cache directory); recomputing it")
+                    "cache directory); recomputing it",
+                )
             return result
         return None
 
@@ -381,8 +395,11 @@ class Cache:
         """
         path = self.path(kind, key)
         if path.is_dir():  # not ours to replace (see load)
-            warnings.warn(f"could not write the cache entry {path} (a directory is in its place); the result is not "
-                          "cached", CacheWarning, stacklevel=opt.user_stacklevel())
+            warnings.warn(
+                f"could not write the cache entry {path} (a directory is in its place); the result is not cached",
+                CacheWarning,
+                stacklevel=opt.user_stacklevel(),
+            )
             return None
 
         def stamped(tmp):
@@ -392,8 +409,11 @@ class Cache:
         try:
             opt.write_atomic(path, stamped)
         except OSError as exc:
-            warnings.warn(f"could not write the cache entry {path} ({exc}); the result is not cached", CacheWarning,
-                          stacklevel=opt.user_stacklevel())
+            warnings.warn(
+                f"could not write the cache entry {path} ({exc}); the result is not cached",
+                CacheWarning,
+                stacklevel=opt.user_stacklevel(),
+            )
             return None
         return path
 

@@ -45,8 +45,9 @@ def sample_joint(shape, placement, m, rng, n_q=1):
     m = opt.integer("m", m, minimum=1)
     rng = np.random.default_rng(rng)
     idx = sample_placements(placement, m, rng)
-    Q = np.stack([sample_handles(shape.mesh.V[placement.handles_at(i)[shape.moving]], shape.regions, n_q, rng)
-                  for i in idx])
+    Q = np.stack(
+        [sample_handles(shape.mesh.V[placement.handles_at(i)[shape.moving]], shape.regions, n_q, rng) for i in idx]
+    )
     return np.repeat(idx, n_q, axis=0), Q.reshape(m * n_q, shape.n_moving, shape.mesh.dim)
 
 
@@ -54,8 +55,9 @@ def shape_at(shape, placement, idx):
     """The shape with its movable handles at vertices ``idx`` (b,): a fixed-P :class:`Shape` (same regions)."""
     idx = placement.resolve(np.asarray(idx, np.int64))
     name = f"{shape.name}@{'-'.join(map(str, idx))}"
-    return Shape(name, shape.mesh, placement.handles_at(idx), shape.moving, shape.regions, shape.description,
-                 shape.outline)
+    return Shape(
+        name, shape.mesh, placement.handles_at(idx), shape.moving, shape.regions, shape.description, shape.outline
+    )
 
 
 def _solve_chunk(mesh, handles0, moving, movable, energy, jobs):
@@ -87,8 +89,22 @@ def solve_joint(shape, placement, idx, Q, energy="sarap", n_jobs=None, progress=
     mesh = shape.mesh
     store = cache_mod.open_cache(cache)
     pa = placement.to_arrays()
-    key = None if store is None else cache_mod.key("gt-movable", mesh.V, mesh.F, shape.handles, shape.moving,
-                                                   *pa.values(), energy, _solver_key(shape, energy), idx, Q)
+    key = (
+        None
+        if store is None
+        else cache_mod.key(
+            "gt-movable",
+            mesh.V,
+            mesh.F,
+            shape.handles,
+            shape.moving,
+            *pa.values(),
+            energy,
+            _solver_key(shape, energy),
+            idx,
+            Q,
+        )
+    )
     ck = None if store is None else batch.Checkpoints(store)
 
     def chunk(a, b, compute):
@@ -103,8 +119,9 @@ def solve_joint(shape, placement, idx, Q, energy="sarap", n_jobs=None, progress=
 
     def compute():
         fn = functools.partial(_solve_chunk, mesh, shape.handles, shape.moving, placement.movable, energy)
-        res = batch.map_checkpointed(fn, list(zip(idx, Q)), n_jobs, progress, "joint solves",
-                                     None if ck is None else chunk)
+        res = batch.map_checkpointed(
+            fn, list(zip(idx, Q)), n_jobs, progress, "joint solves", None if ck is None else chunk
+        )
         return {"X": np.array([r[0] for r in res]), "converged": np.array([r[1] for r in res], dtype=bool)}
 
     gt = batch.load_or_compute(store, "gt", key, _gt_expect(len(Q), mesh.n_vertices, mesh.dim), compute)
@@ -127,16 +144,19 @@ class MovableRecord:
 def check_placement(shape, placement):
     """Raise ValueError unless ``placement`` holds regions of ``shape``'s mesh and handles."""
     if not isinstance(placement, PlacementRegions):
-        raise ValueError(f"placement must be a PlacementRegions (placement_regions(shape, ...)), got "
-                         f"{type(placement).__name__}")
+        raise ValueError(
+            f"placement must be a PlacementRegions (placement_regions(shape, ...)), got {type(placement).__name__}"
+        )
     mesh = placement.mesh
     same_mesh = mesh is shape.mesh or (np.array_equal(mesh.V, shape.mesh.V) and np.array_equal(mesh.F, shape.mesh.F))
     same_handles = np.array_equal(placement.handles, shape.handles) and np.array_equal(placement.moving, shape.moving)
     if not (same_mesh and same_handles):
-        raise ValueError(f"placement holds regions of another mesh or other handles ({mesh.n_vertices} vertices, "
-                         f"handles {placement.handles.tolist()}) than shape {shape.name!r} ({shape.mesh.n_vertices} "
-                         f"vertices, handles {np.asarray(shape.handles).tolist()}): make it by "
-                         "placement_regions(shape, ...)")
+        raise ValueError(
+            f"placement holds regions of another mesh or other handles ({mesh.n_vertices} vertices, "
+            f"handles {placement.handles.tolist()}) than shape {shape.name!r} ({shape.mesh.n_vertices} "
+            f"vertices, handles {np.asarray(shape.handles).tolist()}): make it by "
+            "placement_regions(shape, ...)"
+        )
 
 
 def train_movable(shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs=None, cache=True, progress=True):
@@ -157,8 +177,11 @@ def train_movable(shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs
     idx, Q = sample_joint(shape, placement, -(-m // n_q), np.random.default_rng(seed), n_q)
     X, conv = solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache)
     if not conv.all():
-        warnings.warn(f"{int((~conv).sum())} of {len(conv)} joint solves did not converge; used as they are",
-                      NotConvergedWarning, stacklevel=2)
+        warnings.warn(
+            f"{int((~conv).sum())} of {len(conv)} joint solves did not converge; used as they are",
+            NotConvergedWarning,
+            stacklevel=2,
+        )
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
     op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta)
     return op, MovableRecord(idx, Q, X, conv, time.perf_counter() - t0)

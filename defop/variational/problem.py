@@ -55,6 +55,7 @@ PARDISO_MIN_VERTICES_3D = 1000
 #: targets farther than this many bounding-box diagonals from the mesh are rejected (the energy overflows)
 MAX_TARGET_DISTANCE = 1e6
 
+
 def count_flips(mesh, X):
     """Number of elements with det J ≤ 0 (flipped or collapsed).
 
@@ -295,7 +296,8 @@ def _warn_fallback(source):
         f"{source}=auto: MKL's library cannot load ({mkl_error()}), so tet meshes from {PARDISO_MIN_VERTICES_3D} "
         f"vertices are factorised by qdldl instead of PARDISO, {FALLBACK_COST} (benchmarks/README.md). Reinstall "
         f"MKL (pip install 'defop[mkl]'), or {silence} to choose qdldl and silence this warning",
-        RuntimeWarning, stacklevel=opt.user_stacklevel(),
+        RuntimeWarning,
+        stacklevel=opt.user_stacklevel(),
     )
 
 

@@ -226,8 +226,10 @@ def _check_mask(mask):
         raise ValueError(f"mask must be an (H, W) array of booleans, got shape {arr.shape}{hint}")
     if arr.dtype != bool:
         if arr.dtype.kind not in "iuf" or not np.isin(arr, (0, 1)).all():
-            raise ValueError(f"mask must be an (H, W) array of booleans (or 0/1), got dtype {arr.dtype} with "
-                             f"values other than 0 and 1")
+            raise ValueError(
+                f"mask must be an (H, W) array of booleans (or 0/1), got dtype {arr.dtype} with "
+                f"values other than 0 and 1"
+            )
         arr = arr.astype(bool)
     if not arr.any():
         raise ValueError(f"mask has no True pixel: the shape is empty ({arr.shape[0]} x {arr.shape[1]} all False)")

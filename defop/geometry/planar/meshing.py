@@ -137,8 +137,10 @@ def _check_apart(points, tol):
         d = float(d_i[j])
         i, j = min(i, j), max(i, j)
         apart = "coincide" if d == 0 else f"are {d:.2g} apart"
-        raise ValueError(f"handles {i} and {j} {apart}; merge them or move one (handles must be more than "
-                         f"{tol:.3g} apart, 1e-6 of the shape's diagonal)")
+        raise ValueError(
+            f"handles {i} and {j} {apart}; merge them or move one (handles must be more than "
+            f"{tol:.3g} apart, 1e-6 of the shape's diagonal)"
+        )
 
 
 def _resampled(loops, h):

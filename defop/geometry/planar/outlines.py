@@ -159,8 +159,7 @@ def image_path(path, name="image"):
     if isinstance(path, bytes):
         path = os.fsdecode(path)  # bytes name a file, as they do for open()
     if not isinstance(path, (str, os.PathLike)):
-        raise ValueError(f"{name} must be a path (str, bytes or pathlib.Path) or an array, got "
-                         f"{type(path).__name__}")
+        raise ValueError(f"{name} must be a path (str, bytes or pathlib.Path) or an array, got {type(path).__name__}")
     try:
         path = Path(path)
         exists, is_dir = path.exists(), path.is_dir()
@@ -205,9 +204,11 @@ def read_image(path):
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
         found = re.search(r"\((\d+) pixels\)", str(exc))  # Pillow: "Image size (3600000000 pixels) exceeds ..."
         size = f"{int(found.group(1)):,} pixels" if found else "too many pixels"
-        raise ValueError(f"image file {path} declares {size}, more than Pillow's decompression-bomb limit "
-                         f"PIL.Image.MAX_IMAGE_PIXELS = {Image.MAX_IMAGE_PIXELS:,}; raise it to read a file you "
-                         f"trust") from None
+        raise ValueError(
+            f"image file {path} declares {size}, more than Pillow's decompression-bomb limit "
+            f"PIL.Image.MAX_IMAGE_PIXELS = {Image.MAX_IMAGE_PIXELS:,}; raise it to read a file you "
+            f"trust"
+        ) from None
     except Image.UnidentifiedImageError:
         raise ValueError(f"image file {path} is not an image Pillow can read") from None
     except PermissionError:

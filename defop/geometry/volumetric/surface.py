@@ -98,12 +98,16 @@ def normalised(V, what="the surface"):
     lo, hi = COORDINATE_RANGE
     big = float(np.abs(V).max(initial=0.0))
     if big > hi:
-        raise ValueError(f"{what} has a coordinate of magnitude {big:.3g}; supported coordinates are at most "
-                         f"{hi:g} (defop.geometry.volumetric.surface.COORDINATE_RANGE): rescale it")
+        raise ValueError(
+            f"{what} has a coordinate of magnitude {big:.3g}; supported coordinates are at most "
+            f"{hi:g} (defop.geometry.volumetric.surface.COORDINATE_RANGE): rescale it"
+        )
     diag = bbox_diagonal(V)
     if not diag >= lo:
-        raise ValueError(f"{what} has a bounding-box diagonal of {diag:.3g}; the supported diagonal is at least "
-                         f"{lo:g} (defop.geometry.volumetric.surface.COORDINATE_RANGE): rescale it")
+        raise ValueError(
+            f"{what} has a bounding-box diagonal of {diag:.3g}; the supported diagonal is at least "
+            f"{lo:g} (defop.geometry.volumetric.surface.COORDINATE_RANGE): rescale it"
+        )
     centre = 0.5 * (V.min(axis=0) + V.max(axis=0))
     return (V - centre) / diag, diag
 
