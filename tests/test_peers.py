@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop.analysis import compare, peers
+from defop.analysis import compare
+from defop.rivals import peers
 from defop.view import warp
 
 
