@@ -1,4 +1,4 @@
-"""The peers of notebook 12 (defop.analysis.peers) and the harness that scores them (defop.analysis.compare)."""
+"""The peers of notebook 12 (defop.rivals.peers) and the harness that scores them (defop.analysis.compare)."""
 
 from __future__ import annotations
 
