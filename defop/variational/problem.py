@@ -220,8 +220,8 @@ class ReducedProblem:
 
     @property
     def dim(self) -> int:
-        """d: 2 for triangles, 3 for tetrahedra."""
-        return self.mesh.V.shape[1]
+        """d: 2 for triangles, 3 for tetrahedra (:attr:`defop.geometry.mesh.Mesh.dim`)."""
+        return self.mesh.dim
 
     @property
     def kernel(self) -> str:
