@@ -138,7 +138,7 @@ class ElementKernels:
         kink = np.asarray(kink, dtype=float)
         hold = bool(self.energy == "sarap" and mu == 0 and np.any(kink > 0))
         kink = np.ascontiguousarray(np.broadcast_to(kink[:, None] if kink.ndim == 1 else kink, (m, 2)))
-        g, data = np.empty(d * len(mesh.V)), np.empty(H._nnz)
+        g, data = np.empty(d * len(mesh.V)), np.empty(H.nnz)
         W, lamA = np.empty((m, (d + 1) * d, d * d)), np.empty((m, d * d))
         args = (mesh.F, mesh.local_gradients, self._vertex_order(fused), mesh.areas, code, float(mu), kink, hold)
         E = fused.grad_hess(self._map(X), *args, bool(project), H.slot, g, data, W, lamA)

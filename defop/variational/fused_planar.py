@@ -13,7 +13,12 @@ import math
 import numpy as np
 from numba import njit
 
+from . import smoothed_max
 from .fused_common import JIT, R2, finite
+
+#: the arithmetic S-ARAP's smoothed maximum shares with the numpy path, compiled
+_half_sums = njit(**JIT)(smoothed_max.half_sums)
+_derivatives = njit(**JIT)(smoothed_max.derivatives)
 
 
 @njit(**JIT)
@@ -72,17 +77,11 @@ def _sarap_smooth(t1, t2, ok, mu):
     g1, g2 = 2 * (t1 - 1) / _cube(t1), 2 * (t2 - 1)
     f11, f22 = 2.0, 6 / (t2 * t2) ** 2 - 4 / _cube(t2)
     g11, g22 = 6 / (t1 * t1) ** 2 - 4 / _cube(t1), 2.0
-    a, b = (f + g) / 2, (f - g) / 2
-    a1, a2, b1, b2 = (f1 + g1) / 2, (f2 + g2) / 2, (f1 - g1) / 2, (f2 - g2) / 2
-    a11, a22, b11, b22 = (f11 + g11) / 2, (f22 + g22) / 2, (f11 - g11) / 2, (f22 - g22) / 2
+    a, b, a1, a2, b1, b2, a11, a22, b11, b22 = _half_sums(f, g, f1, f2, g1, g2, f11, f22, g11, g22)
     r = math.sqrt(b * b + mu * mu)
     w, c = b / r, mu * mu / _cube(r)
     psi = a + r - mu if ok else np.inf
-    p1, p2 = a1 + w * b1, a2 + w * b2
-    p11 = a11 + w * b11 + c * b1 * b1
-    p22 = a22 + w * b22 + c * b2 * b2
-    p12 = c * b1 * b2
-    twist = (p1 + p2) / (t1 + t2)
+    p1, p2, p11, p22, p12, twist = _derivatives(t1, t2, a1, a2, b1, b2, a11, a22, b11, b22, w, c)
     gap = t1 - t2
     flip = (p1 - p2) / gap if gap > 1e-6 * t1 else p11 - p12
     return psi, p1, p2, p11, p22, p12, twist, flip

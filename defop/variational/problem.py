@@ -90,8 +90,10 @@ class ReducedHessian:
         uniq, self._inv = np.unique(c[keep] * nf + r[keep], return_inverse=True)  # column-major = CSC
         self._rows = (uniq % nf).astype(np.int32)
         self._ptr = np.concatenate([[0], np.cumsum(np.bincount(uniq // nf, minlength=nf))]).astype(np.int32)
-        self._nnz = len(uniq)
-        self._diag = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
+        #: values in the pattern (the length of every ``data`` array)
+        self.nnz = len(uniq)
+        #: the slots of the diagonal entries in ``data``
+        self.diag = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
         self._K = self._factor = self._slot = None
         #: "numba": :meth:`assemble` runs :func:`defop.variational.fused.scatter`; "numpy": the reference
         self.kernel = "numba"
@@ -116,20 +118,20 @@ class ReducedHessian:
         if self.kernel == "numba":
             from . import fused
 
-            data = np.empty(self._nnz)
+            data = np.empty(self.nnz)
             fused.scatter(W, lamA, self.slot, bool(project), data)
             return data
         if project:
             lamA = np.maximum(lamA, 0.0)
         K_loc = np.matmul(W * lamA[:, None, :], np.swapaxes(W, 1, 2))  # (m, (d+1)d, (d+1)d)
-        return np.bincount(self._inv, weights=K_loc.reshape(-1)[self._keep], minlength=self._nnz)
+        return np.bincount(self._inv, weights=K_loc.reshape(-1)[self._keep], minlength=self.nnz)
 
     def matrix(self, data, rel_shift=0.0):
         """The upper-triangular CSC matrix with these values plus ``rel_shift`` · mean|diag| on the diagonal."""
         if self._K is None:  # the pattern is fixed: build the matrix once, then only overwrite its values
             self._K = sp.csc_matrix((data.copy(), self._rows, self._ptr), shape=(self.nf, self.nf))
         self._K.data[:] = data
-        self._K.data[self._diag] += rel_shift * max(float(np.mean(np.abs(data[self._diag]))), 1e-300)
+        self._K.data[self.diag] += rel_shift * max(float(np.mean(np.abs(data[self.diag]))), 1e-300)
         return self._K
 
     def full(self, data):

@@ -36,7 +36,7 @@ from .verify import KINK, verify_point
 
 #: bumped whenever a change to the solver moves its solutions (cache keys of ground truth should include it)
 VERSION = 5  # 5: check 5 shifts by the median diagonal (a saddle on the kink was accepted as a minimum)
-# not bumped when the kink code took check 5's shift too (issue 35): no minimum moved by more than 5.3e-16 of E or
+# not bumped when the kink code took check 5's shift too: no minimum moved by more than 5.3e-16 of E or
 # 5.5e-13 of the diagonal on 889 samples (aleph, bar, U, Fig. 10's grid; benchmarks/bench_inertia_shift.py)
 
 
@@ -95,9 +95,10 @@ class SolveResult:
     candidates: list = dataclasses.field(default_factory=list)
 
 
-def _held(name, doc):
-    """A read-only attribute of the solver that is its held problem's ``name``."""
-    return property(lambda self: getattr(self.problem, name), doc=doc)
+def _held(name, doc, settable=False):
+    """An attribute of the solver that is its held problem's ``name`` (read-only unless ``settable``)."""
+    fset = (lambda self, value: setattr(self.problem, name, value)) if settable else None
+    return property(lambda self: getattr(self.problem, name), fset, doc=doc)
 
 
 class Solver:
@@ -208,15 +209,12 @@ class Solver:
     full = _held("full", ":meth:`ReducedProblem.full`.")
     extend = _held("extend", ":meth:`ReducedProblem.extend`.")
     check_start = _held("check_start", ":meth:`ReducedProblem.check_start`.")
+    kernel = _held("kernel", "The element kernels in use (:attr:`ReducedProblem.kernel`); settable.", settable=True)
 
     @property
-    def kernel(self) -> str:
-        """The element kernels in use (:attr:`ReducedProblem.kernel`); settable."""
-        return self.problem.kernel
-
-    @kernel.setter
-    def kernel(self, kernel):
-        self.problem.kernel = kernel
+    def kink_threshold(self) -> float:
+        """S-ARAP elements within this (relative) of Σ = σ count as on the kink (check 4, the μ = 0 stage)."""
+        return self._kink
 
     def verify(self, X, T, tol=None):
         """The five checks behind ``converged`` at X (n, d), targets T (u, d) per unique handle (:meth:`targets_of`),
@@ -244,7 +242,7 @@ class Solver:
             ``"local"``: one path from ``X0`` (warm start, path following; saddles are still escaped).
             ``"global"``: :meth:`solve_best` from the rest pose and ``X0`` (when given), the lower
             verified minimum. This is a documented multi-start, not a certificate: where the energy has
-            several minima it can miss a lower one that no start leads to (a stranger's test found an
+            several minima it can miss a lower one that no start leads to (a test found an
             ARAP bar pushed 0.35 along its axis whose up-bent start verified at 3% lower energy).
 
         Returns
