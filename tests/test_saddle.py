@@ -198,7 +198,7 @@ def test_the_held_hessian_at_the_saddle_shows_its_negative_curvature(bar, climb)
     from defop.variational.inertia import INERTIA_SHIFT, inertia_shift
 
     _, S, _, _, _ = bar
-    E, g, data, _ = S.grad_hess(climb[1].X, 0.0, project=False, kink=S._kink)
+    E, g, data, _ = S.grad_hess(climb[1].X, 0.0, project=False, kink=S.kink_threshold)
     negative = {}
     for name, shift in (("old", INERTIA_SHIFT), ("one", inertia_shift(S, data))):
         S.newton_direction(g[S.free], data, rel_shift=shift)

@@ -26,8 +26,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from .. import options as opt
+from ..variational.escape import negative_curvature
 from ..variational.newton import step_off
-from ..variational.saddle import negative_curvature
 from ..variational.solver import NotConvergedWarning, Solver
 from ..variational.verify import KINK, held_on_kink, inertia_shift
 

@@ -7,11 +7,13 @@ first:
 
 - :mod:`.energies`: ψ of a Jacobian's singular values with its projected Hessian, one face over the closed forms
   of :mod:`.planar` (2×2);
+- :mod:`.checks`: the checks of a solve's arguments; :mod:`.backend`: the factorisation back end (qdldl, PARDISO);
 - :mod:`.problem`: problem (6) reduced to the free vertices, the Hessian's sparsity pattern and its LDLᵀ;
 - :mod:`.inertia`: the one diagonal shift of an exact-Hessian factorisation; :mod:`.kink`: S-ARAP's kink (the held
   set, its pull and certificates, the smoothing continuation);
 - :mod:`.newton`: stages, line search, continuation; :mod:`.verify`: the five checks behind ``converged``;
-  :mod:`.saddle`: negative curvature and escapes;
+  :mod:`.escape`: negative curvature and the escapes from saddles (``.saddle``, its old name, warns);
+- :mod:`.backend`: the sparse factorisation's back end; :mod:`.checks`: the argument checks;
 - :mod:`.solver`: the :class:`Solver` facade.
 
 Never imports :mod:`defop.operator` (an import-linter contract).
@@ -20,18 +22,31 @@ Never imports :mod:`defop.operator` (an import-linter contract).
 from importlib import import_module
 
 from ..lazy import moved
-from . import energies, newton, planar, problem, saddle, solver, verify
+from . import (
+    backend,
+    checks,
+    energies,
+    escape,
+    newton,
+    planar,
+    problem,
+    saddle,  # noqa: F401 (the old name of .escape, deprecated)
+    solver,
+    verify,
+)
 from .solver import NotConvergedWarning, Solver, SolveResult, solve
 
 __all__ = [
     "NotConvergedWarning",
     "SolveResult",
     "Solver",
+    "backend",
+    "checks",
     "energies",
+    "escape",
     "newton",
     "planar",
     "problem",
-    "saddle",
     "solve",
     "solver",
     "verify",
