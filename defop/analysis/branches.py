@@ -19,7 +19,6 @@ import numpy as np
 
 from .. import options as opt
 from ..scene import shapes
-from ..training import branch_domains as bd
 from ..training import branches as br
 from ..variational.solver import NotConvergedWarning, Solver
 
@@ -206,7 +205,7 @@ def near_error(c, window=5):
 
 
 def targets_met(c, catalogue=True, cost=None, window=5):
-    """Issue 37's targets on one :class:`PathComparison`: a dict of name -> (value, passed).
+    """The targets of a multi-valued operator on one :class:`PathComparison`: a dict of name -> (value, passed).
 
     * ``follow`` jumps as often as the solver, each within 1 step of a solver jump;
     * near the solver's jumps (``window`` steps, :func:`near_error`), ``follow``'s mean error ≤ 1e-2 of the diagonal;
@@ -244,11 +243,11 @@ CASES = {
 }
 #: the axes of every case's grid plane and path
 AXES = (0, 1)
-#: one set of parameters for every case (catalogue and random, issue 37): the grid's samples per side ``n``, its
+#: one set of parameters for every case (catalogue and random): the grid's samples per side ``n``, its
 #: half width ``radius`` (the shapes are about 1 long), its centre (the path's midpoint, a rule, not a number), one
-#: continuation sweep along the path's main direction, bisection ``levels`` towards each fold, the edge minima kept,
-#: the grouping ``tol``, TPS Ψ and hat Φ; ``FOLLOW_RATIO`` is :data:`defop.training.branches.FOLLOW_RATIO`
-PARAMS = {"n": 17, "radius": 0.3, "sweeps": 1, "levels": 3, "edges": True, "tol": 1e-3, "basis": "tps"}
+#: continuation sweep along the path's main direction, bisection ``depth`` steps towards each fold, the edge minima
+#: kept, the grouping ``tol``, TPS Ψ and hat Φ; ``FOLLOW_RATIO`` is :data:`defop.training.branches.FOLLOW_RATIO`
+PARAMS = {"n": 17, "radius": 0.3, "sweeps": 1, "depth": 3, "edges": True, "tol": 1e-3, "basis": "tps"}
 
 
 @dataclasses.dataclass
@@ -282,13 +281,13 @@ def build(shape, moving, path, n=None, energy="sarap", cache=True):
     Returns
     -------
     minima, branches, bop, single, fit_seconds
-        The discovery's minima, the certified Branches, the BranchedOperator, the single-valued DefOp (the lowest
+        The discovery's minima, the certified SampledBranches, the BranchedOperator, the single-valued DefOp (the lowest
         minimum per sample), the CPU seconds of the two fits.
     """
     Q, sweeps = grid_for(shape, moving, path, n)
     minima = br.discover(shape, Q, sweeps, energy, cache=cache)
     branches = br.group(shape, minima, PARAMS["tol"], energy, margins=False)
-    branches = bd.certify_branches(shape, branches, PARAMS["levels"], PARAMS["edges"], PARAMS["tol"], energy)
+    branches = br.certify_branches(shape, branches, PARAMS["depth"], PARAMS["edges"], PARAMS["tol"], energy)
     t0 = time.process_time()
     bop = br.fit_branched(shape, branches, energy, PARAMS["basis"])
     single = br.fit_single(shape, minima, energy, PARAMS["basis"])
