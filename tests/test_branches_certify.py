@@ -96,3 +96,15 @@ def test_old_names_warn_and_still_work():
     assert bd.certify_branches is br.certify_branches
     with pytest.raises(TypeError, match="depth= only"):
         br.certify_branches(shape, B, depth=3, levels=3)
+
+
+def test_certification_is_cached_and_the_cached_result_is_the_same(tmp_path, monkeypatch):
+    shape, Q, _, B, C, _ = certified()
+    monkeypatch.setenv("DEFOP_CACHE", str(tmp_path))
+    first = br.certify_branches(shape, B, depth=3, n_jobs=1)
+    assert len(list(tmp_path.glob("branch-certified-*.npz"))) == 1
+    again = br.certify_branches(shape, B, depth=3)  # loaded: the same labels, minima and measured seconds
+    same(again, first)
+    for a, c in zip(first.branches, C.branches):  # and the same as the fixture's (computed with every worker)
+        assert np.array_equal(a.samples, c.samples) and np.array_equal(a.absent, c.absent)
+        assert np.abs(a.X - c.X).max() < 1e-12 and np.abs(a.folds - c.folds).max() < 1e-12

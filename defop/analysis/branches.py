@@ -287,7 +287,9 @@ def build(shape, moving, path, n=None, energy="sarap", cache=True):
     Q, sweeps = grid_for(shape, moving, path, n)
     minima = br.discover(shape, Q, sweeps, energy, cache=cache)
     branches = br.group(shape, minima, PARAMS["tol"], energy, margins=False)
-    branches = br.certify_branches(shape, branches, PARAMS["depth"], PARAMS["edges"], PARAMS["tol"], energy)
+    branches = br.certify_branches(
+        shape, branches, PARAMS["depth"], PARAMS["edges"], PARAMS["tol"], energy, cache=cache
+    )
     t0 = time.process_time()
     bop = br.fit_branched(shape, branches, energy, PARAMS["basis"])
     single = br.fit_single(shape, minima, energy, PARAMS["basis"])

@@ -40,7 +40,9 @@ from ... import options as opt
 from ...operator.domains import fold_pairs
 from ...variational.solver import Solver
 from .. import batch
+from .. import cache as cache_mod
 from ..minima import rms
+from . import records
 from .discover import solve_quietly
 from .grid import check_planar, grid_neighbours
 from .group import check_mesh, plane, score
@@ -309,7 +311,7 @@ def refine_segments(judge, Q, certified, lows, sides, depth, n_jobs=None):
     return seconds
 
 
-def certify(shape, branches, depth=None, tol=1e-3, energy="sarap", n_jobs=None, *, levels=None):
+def certify(shape, branches, depth=None, tol=1e-3, energy="sarap", n_jobs=None, cache=True, *, levels=None):
     """Certify every branch's presence and absence at the grid samples bordering its domain (module docstring).
 
     Parameters
@@ -324,26 +326,44 @@ def certify(shape, branches, depth=None, tol=1e-3, energy="sarap", n_jobs=None, 
     energy : str
     n_jobs : int, optional
         Workers (:func:`defop.training.batch.parallel_map`; the result does not depend on it).
+    cache : bool
+        Store/reuse the result under ``config.cache_dir()`` (:mod:`defop.training.branches.records`).
 
     Returns
     -------
     certified : list of Certified
         One per branch, in label order.
     seconds : float
-        CPU seconds of every solve here (``time.process_time`` of the processes that solved).
+        CPU seconds of every solve here (``time.process_time`` of the processes that solved; as measured when
+        computed, for a cached result).
     """
     depth = depth_of(depth, levels)
     tol = opt.positive("tol", tol)
     check_mesh(shape, branches)
+    store = cache_mod.open_cache(cache)
     grid = branches.grid if branches.grid is not None else len(branches.distinct)  # edge minima follow the grid
     Q = np.asarray(branches.samples)[:grid]
     check_planar(Q)
-    judge = _Judge(shape, branches, Solver(shape.mesh, shape.handles, energy=energy))
+    solver = Solver(shape.mesh, shape.handles, energy=energy)
+    qshape, xshape = Q.shape[1:], shape.mesh.V.shape
+    key = None if store is None else records.certified_key(shape, branches, grid, depth, tol, solver)
+
+    def compute():
+        out, seconds = _certify(shape, branches, Q, _Judge(shape, branches, solver), depth, tol, n_jobs)
+        return records.to_arrays(out, seconds, qshape, xshape)
+
+    expect = records.expected(len(branches.branches), qshape, xshape)
+    z = batch.load_or_compute(store, "branch-certified", key, expect, compute)
+    return records.from_arrays(z, len(branches.branches), Certified)
+
+
+def _certify(shape, branches, Q, judge, depth, tol, n_jobs):
+    """:func:`certify`'s work: the flood fills, the fold bisections and the segments' bisections."""
     nbrs = grid_neighbours(Q)
-    known = [[] for _ in range(grid)]
+    known = [[] for _ in range(len(Q))]
     for b in branches.branches:
         for k, X in zip(b.samples, b.X):
-            if k < grid:
+            if k < len(Q):
                 known[k].append(X)
     flood = functools.partial(_flood_item, judge, Q, nbrs, known, tol)
     out, s0 = _map(flood, branches.branches, n_jobs, "certification")
@@ -357,7 +377,9 @@ def is_certified(branches):
     return branches.grid is not None and all(b.folds is not None for b in branches.branches)
 
 
-def certify_branches(shape, branches, depth=None, edges=True, tol=1e-3, energy="sarap", n_jobs=None, *, levels=None):
+def certify_branches(
+    shape, branches, depth=None, edges=True, tol=1e-3, energy="sarap", n_jobs=None, cache=True, *, levels=None
+):
     """:func:`certify`, applied: branches that hold every certified-present grid sample, their fold points, absent
     and uncertified samples, and (``edges``) the last minimum of each bisection as a new sample.
 
@@ -376,7 +398,7 @@ def certify_branches(shape, branches, depth=None, edges=True, tol=1e-3, energy="
     check_mesh(shape, branches)
     if is_certified(branches):
         return branches
-    certified, seconds = certify(shape, branches, depth, tol, energy, n_jobs)
+    certified, seconds = certify(shape, branches, depth, tol, energy, n_jobs, cache)
     Q = np.asarray(branches.samples)
     grid = branches.grid if branches.grid is not None else len(branches.distinct)
     extra_Q, out, lowest = [], [], []
