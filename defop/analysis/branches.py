@@ -20,7 +20,7 @@ import numpy as np
 from .. import options as opt
 from ..scene import shapes
 from ..training import branches as br
-from ..variational.solver import NotConvergedWarning, Solver
+from ..variational.solver import Solver
 
 __all__ = [
     "CASES",
@@ -72,7 +72,7 @@ def line_path(P, moving, start, end, steps):
 
 def solver_path(shape, Qs, energy="sarap", X0=None):
     """The solver's warm-started continuation along Qs: frame 0 from the rest pose's multi-start, then each frame
-    from the previous minimum (no other start: the drag of a variational editor).
+    from the previous minimum (no other start: the drag of a variational editor; :func:`defop.training.branches.sweep`).
 
     Returns
     -------
@@ -81,15 +81,15 @@ def solver_path(shape, Qs, energy="sarap", X0=None):
     converged : (k,) numpy bool array
     """
     solver = Solver(shape.mesh, shape.handles, energy=energy)
-    X, E, ok = [], [], []
-    prev = X0
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotConvergedWarning)
-        for k, q in enumerate(Qs):
-            r = solver.solve(shape.targets(q), X0=prev, start="global" if k == 0 and X0 is None else "local")
-            prev = r.X
-            X.append(r.X), E.append(r.energy), ok.append(r.converged)
-    return np.array(X), np.array(E), np.array(ok)
+    targets = [shape.targets(q) for q in Qs]
+    if not targets:
+        return np.zeros((0, *shape.mesh.V.shape)), np.zeros(0), np.zeros(0, bool)
+    if X0 is None:  # frame 0: the multi-start from the rest pose
+        x, e, ok = br.solve_quietly(solver, targets[0], None, "global")
+        X, E, conv, _ = br.sweep(solver, targets[1:], x)
+        return np.concatenate([x[None], X]), np.concatenate([[e], E]), np.concatenate([[ok], conv])
+    X, E, conv, _ = br.sweep(solver, targets, X0)
+    return X, E, conv
 
 
 def jump_frames(X, diag, factor=8.0):
