@@ -108,3 +108,9 @@ def test_certification_is_cached_and_the_cached_result_is_the_same(tmp_path, mon
     for a, c in zip(first.branches, C.branches):  # and the same as the fixture's (computed with every worker)
         assert np.array_equal(a.samples, c.samples) and np.array_equal(a.absent, c.absent)
         assert np.abs(a.X - c.X).max() < 1e-12 and np.abs(a.folds - c.folds).max() < 1e-12
+
+
+def test_minima_of_another_mesh_are_not_grouped():
+    shape, _, minima, _, _, _ = certified()
+    with pytest.raises(ValueError, match="another mesh"):
+        br.group(dop.shapes.load("bar"), minima)

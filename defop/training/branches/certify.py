@@ -395,6 +395,7 @@ def certify_branches(
         ``found`` the samples discovery had missed.
     """
     depth = depth_of(depth, levels)
+    opt.positive("tol", tol)
     check_mesh(shape, branches)
     if is_certified(branches):
         return branches

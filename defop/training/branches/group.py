@@ -198,6 +198,12 @@ def group(shape, minima, tol=1e-3, energy="sarap", margins=True):
     """
     tol = opt.positive("tol", tol)
     mesh, m = shape.mesh, len(minima.samples)
+    if np.shape(minima.X)[2:] != mesh.V.shape or np.shape(minima.samples)[1:] != np.shape(shape.P_moving):
+        raise ValueError(
+            f"minima hold configurations of shape {np.shape(minima.X)[2:]} at samples of shape "
+            f"{np.shape(minima.samples)[1:]}, and shape {shape.name!r} has a mesh of {mesh.V.shape} and moving "
+            f"handles of {np.shape(shape.P_moving)}: the minima were discovered on another mesh or shape"
+        )
     kept = [distinct_at(mesh, minima, k, tol) for k in range(m)]
     if not any(kept):
         raise ValueError("no sample holds a verified minimum: nothing to group")
