@@ -3,12 +3,12 @@
 :mod:`.sampling` draws the Q_k, :mod:`.cache` stores ground truths and operators on disk and
 :mod:`.bootstrap` runs the pipeline (:func:`train`); :mod:`.adaptive` chooses the samples where the operator is
 least certain (:func:`train_adaptive`); :mod:`.branches` finds every branch of D^E and fits a multi-valued operator,
-:mod:`.branch_domains` certifies where each branch is present and absent; :mod:`.multilevel` is ``train``'s
+and certifies where each branch is present and absent; :mod:`.multilevel` is ``train``'s
 multilevel policy (decisions on a coarse mesh) and :mod:`.movable` trains handles that move at rest
 (:func:`train_movable`).
 """
 
-from . import adaptive, bootstrap, branch_domains, branches, cache, movable, multilevel, sampling
+from . import adaptive, bootstrap, branches, cache, movable, multilevel, sampling
 from .adaptive import train_adaptive
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
 from .movable import train_movable
@@ -17,7 +17,6 @@ __all__ = [
     "TrainingRecord",
     "adaptive",
     "bootstrap",
-    "branch_domains",
     "branches",
     "cache",
     "held_out",
@@ -30,3 +29,11 @@ __all__ = [
     "train_adaptive",
     "train_movable",
 ]
+
+
+def __getattr__(name):
+    if name == "branch_domains":  # the deprecated module path: imported (and warning) on first use only
+        import importlib
+
+        return importlib.import_module(".branch_domains", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -222,17 +222,17 @@ def coarse_portfolio(lv, samples, energy, n_jobs=None, progress=True, rounds=2):
 
 
 def distinct_minima(candidates, diagonal):
-    """The verified candidates, lowest energy first, one per minimum (:data:`DISTINCT` apart).
+    """The verified candidates, lowest energy first, one per minimum (:data:`DISTINCT` apart, largest coordinate
+    difference: :func:`defop.training.minima.distinct_minima` with ``metric="max"``).
 
     Returns
     -------
     list of (X, energy)
     """
-    out = []
-    for X, E, ok in sorted(candidates, key=lambda c: c[1]):
-        if ok and all(np.abs(X - Y).max() > DISTINCT * diagonal for Y, _ in out):
-            out.append((X, E))
-    return out
+    from .minima import distinct_minima as distinct
+
+    X, E, ok = [c[0] for c in candidates], [c[1] for c in candidates], [bool(c[2]) for c in candidates]
+    return [(X[i], E[i]) for i in distinct(X, E, ok, DISTINCT, diagonal, metric="max")]
 
 
 def _safeguard(lv, solver, minima, starts):
