@@ -315,6 +315,30 @@ def _trajectory_expect(grid, n_vertices):
     return {"X": ((ny, nx, n_vertices, 2), "f"), "energy": ((ny, nx), "f"), "converged": ((ny, nx), "b")}
 
 
+def _check_ground_truth(shape, grid, energy, mode, moving, path, n_jobs):
+    """:func:`ground_truth_trajectories`' arguments, checked before any work: (moving, path or None, the moving
+    handles' rest positions)."""
+    if mode not in ("global", "local"):
+        raise ValueError(f"mode must be 'global' or 'local', got {mode!r}")
+    _check_grid(grid)
+    check_energy(energy)
+    moving = opt.integer("moving", moving, minimum=0)
+    opt.n_jobs(n_jobs)
+    if mode == "local":
+        path = serpentine_path(*grid.shape) if path is None else np.asarray(path, dtype=np.int64)
+        check_path(path, grid.shape)
+    else:
+        path = None
+    P_moving = np.asarray(shape.P_moving, dtype=float)
+    if not 0 <= moving < len(P_moving):
+        raise ValueError(f"moving handle index {moving} out of range [0, {len(P_moving)})")
+    if not np.allclose(grid.center, P_moving[moving]):
+        raise ValueError(
+            f"grid.center {grid.center} is not the rest position {P_moving[moving]} of moving handle {moving}"
+        )
+    return moving, path, P_moving
+
+
 def ground_truth_trajectories(
     shape,
     grid,
@@ -360,29 +384,10 @@ def ground_truth_trajectories(
     Trajectory
         With ``converged`` and ``energy`` filled in; a warning is issued if some solves did not converge.
     """
-    if mode not in ("global", "local"):
-        raise ValueError(f"mode must be 'global' or 'local', got {mode!r}")
-    _check_grid(grid)
-    check_energy(energy)
-    moving = opt.integer("moving", moving, minimum=0)
-    opt.n_jobs(n_jobs)
+    moving, path, P_moving = _check_ground_truth(shape, grid, energy, mode, moving, path, n_jobs)
     store = cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
-    solver_kw = dict(solver_kw or {})
-    solve_kw = dict(solve_kw or {})
+    solver_kw, solve_kw = dict(solver_kw or {}), dict(solve_kw or {})
     ny, nx = grid.shape
-    if mode == "local":
-        path = serpentine_path(ny, nx) if path is None else np.asarray(path, dtype=np.int64)
-        check_path(path, grid.shape)
-    else:
-        path = None
-    P_moving = np.asarray(shape.P_moving, dtype=float)
-    if not 0 <= moving < len(P_moving):
-        raise ValueError(f"moving handle index {moving} out of range [0, {len(P_moving)})")
-    if not np.allclose(grid.center, P_moving[moving]):
-        raise ValueError(
-            f"grid.center {grid.center} is not the rest position {P_moving[moving]} of moving handle {moving}"
-        )
-
     key = None if store is None else _cache_key(shape, grid, energy, mode, moving, path, solver_kw, solve_kw)
     Qm = moving_batch(grid, len(P_moving), moving, P_moving)
 
