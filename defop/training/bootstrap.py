@@ -301,7 +301,9 @@ def _multilevel_ground_truth(lv, samples, energy, n_jobs, progress, rounds, ck, 
     times, wall = {"coarse": clock.cpu}, {"coarse": clock.wall}
     clock = solves.Stopwatch()
     key_of = None if ck is None else lambda a, b: cache_mod.key("ml-fine", *key_parts, a, b)
-    X, conv, info, remote = portfolios.refine(lv, samples, energy, cands, n_jobs, progress, ck, key_of)
+    X, conv, info, remote = portfolios.refine(
+        lv, samples, energy, cands, ml.refine_one, ml.RULES, n_jobs, progress, ck, key_of
+    )
     clock.remote += remote
     times["fine"], wall["fine"] = clock.cpu, clock.wall
     info["coarse_vertices"] = lv.coarse.mesh.n_vertices

@@ -234,7 +234,9 @@ def refine(lv, samples, energy, candidates, n_jobs=None, progress=True, checkpoi
     """The fine stage of every sample: (X, converged, info) of :func:`defop.training.portfolios.refine`."""
     from . import portfolios
 
-    return portfolios.refine(lv, samples, energy, candidates, n_jobs, progress, checkpoint, key_of)[:3]
+    return portfolios.refine(lv, samples, energy, candidates, refine_one, RULES, n_jobs, progress, checkpoint, key_of)[
+        :3
+    ]
 
 
 _RENAMED = {"Levels": "CoarseLevel", "levels": "coarse_level"}

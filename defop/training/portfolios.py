@@ -5,7 +5,8 @@ fine stage.
 fit to them; every other sample from the rest pose and that fit's prediction; then ``rounds - 1`` rounds from a
 smooth fit's prediction, the current solution verified as the incumbent, the lowest verified minimum kept. The full
 policy runs it on the shape's mesh; the multilevel policy runs the same code on a coarse mesh, keeping every end
-point (:func:`defop.training.multilevel.refine_one` decides from them), and :func:`refine` runs the fine stage.
+point, and :func:`refine` runs the fine stage (the per-sample rule :func:`defop.training.multilevel.refine_one`
+decides from them).
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ from ..operator import handle_bases as hb
 from ..operator.fit import fit
 from ..variational.solver import NotConvergedWarning, Solver
 from . import batch, solves
-from . import multilevel as ml
 
 __all__ = ["portfolio", "refine"]
 
@@ -86,14 +86,14 @@ def portfolio(shape, samples, energy, n_jobs=None, progress=True, rounds=2, chec
     return X, conv, times, wall, runs
 
 
-def _refine_chunk(lv, solver, jobs):
-    """:func:`defop.training.multilevel.refine_one` per (targets, candidates) job, with its CPU seconds."""
+def _refine_chunk(decide, lv, solver, jobs):
+    """``decide`` (:func:`defop.training.multilevel.refine_one`) per (targets, candidates) job, with its CPU seconds."""
     out, pid = [], os.getpid()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotConvergedWarning)
         for T, c in jobs:
             t0 = time.process_time()
-            res = ml.refine_one(lv, solver, T, c)
+            res = decide(lv, solver, T, c)
             out.append((*res, time.process_time() - t0, pid))
     return out
 
@@ -101,7 +101,7 @@ def _refine_chunk(lv, solver, jobs):
 _FIELDS = ("X", "converged", "rule", "iterations", "minima", "coarse_energy")
 
 
-def _refine_cache(checkpoint, key_of, n, d):
+def _refine_cache(checkpoint, key_of, n, d, rules):
     """``map_checkpointed``'s chunk callable for :func:`refine`: every field of a chunk's results in one entry."""
     if checkpoint is None or key_of is None:
         return None
@@ -116,22 +116,22 @@ def _refine_cache(checkpoint, key_of, n, d):
             return {
                 "X": np.array(cols[0]),
                 "converged": np.array(cols[1], bool),
-                "rule": np.array([ml.RULES.index(r) + 1 if r else 0 for r in cols[2]]),
+                "rule": np.array([rules.index(r) + 1 if r else 0 for r in cols[2]]),
                 "iterations": np.array(cols[3], int),
                 "minima": np.array(cols[4], int),
                 "coarse_energy": np.nan_to_num(np.array(cols[5], float), nan=-1.0),
             }
 
         got = checkpoint.load_or_compute(key_of(a, b), expect(b - a), arrays)
-        rules = ["" if r == 0 else ml.RULES[r - 1] for r in got["rule"]]
-        cols = (got["X"], got["converged"], rules, got["iterations"], got["minima"], got["coarse_energy"])
+        names = ["" if r == 0 else rules[r - 1] for r in got["rule"]]
+        cols = (got["X"], got["converged"], names, got["iterations"], got["minima"], got["coarse_energy"])
         return [(*row, 0.0, 0) for row in zip(*cols)]
 
     return chunk
 
 
-def refine(lv, samples, energy, candidates, n_jobs=None, progress=True, checkpoint=None, key_of=None):
-    """The fine stage of every sample (:func:`defop.training.multilevel.refine_one`), in parallel and checkpointed.
+def refine(lv, samples, energy, candidates, decide, rules, n_jobs=None, progress=True, checkpoint=None, key_of=None):
+    """The fine stage of every sample, in parallel and checkpointed.
 
     Parameters
     ----------
@@ -140,6 +140,11 @@ def refine(lv, samples, energy, candidates, n_jobs=None, progress=True, checkpoi
     energy : str
     candidates : list of m lists
         Every coarse end point per sample (:func:`portfolio` with ``keep="all"`` on ``lv.coarse``).
+    decide : callable
+        The per-sample rule, ``decide(lv, solver, T, candidates) -> (X, converged, rule, iterations, minima,
+        coarse_energy)`` (:func:`defop.training.multilevel.refine_one`).
+    rules : tuple of str
+        Its safeguard rules (:data:`defop.training.multilevel.RULES`), for the checkpoints.
     checkpoint : defop.training.batch.Checkpoints, optional
     key_of : callable, optional
         ``key_of(a, b)``: the checkpoint key of samples a..b (everything that determines them).
@@ -158,9 +163,9 @@ def refine(lv, samples, energy, candidates, n_jobs=None, progress=True, checkpoi
     solver = Solver(fine.mesh, fine.handles, energy)
     jobs = [(fine.targets(q), c) for q, c in zip(samples, candidates)]
     n, d = fine.mesh.V.shape
-    chunk = _refine_cache(checkpoint, key_of, n, d)
+    chunk = _refine_cache(checkpoint, key_of, n, d, tuple(rules))
     res = batch.map_checkpointed(
-        functools.partial(_refine_chunk, lv, solver), jobs, n_jobs, progress, "fine runs", chunk
+        functools.partial(_refine_chunk, decide, lv, solver), jobs, n_jobs, progress, "fine runs", chunk
     )
     cols = list(zip(*res))
     info = {
