@@ -1,6 +1,6 @@
 """Training a DefOp by bootstrapping (§3.3): sample, solve the variational problem, fit.
 
-Stages, each timed in the :class:`TrainingRecord`:
+Stages, each timed in the :class:`TrainingRecord` (CPU seconds, wall seconds beside):
 
 1. **bootstrap**: the first dn + 1 samples (n moving handles in R^d) are solved from the rest pose and a
    *linear* operator is fitted to them;
@@ -10,8 +10,9 @@ Stages, each timed in the :class:`TrainingRecord`:
    current solution and the prediction of a smooth fit, keeping the lower;
 3. **fit**: the final basis (problem 8).
 
-Sample solves run in parallel with joblib on every core by default (``DEFOP_N_JOBS``), through
-whatever joblib backend is active, so ``with joblib.parallel_backend("dask"):`` runs them on a Dask
+The stages 1-2 are the start portfolio of :func:`defop.training.portfolios.portfolio`; every solve runs on the
+sample engine (:mod:`defop.training.solves`), in parallel with joblib on every core by default (``DEFOP_N_JOBS``),
+through whatever joblib backend is active, so ``with joblib.parallel_backend("dask"):`` runs them on a Dask
 cluster. Ground truths and trained operators are cached on disk (``DEFOP_CACHE``, :mod:`defop.training.cache`),
 keyed by a hash of everything that determines them (the solver's settings and the library version
 included), so notebooks and figures never retrain.

@@ -360,6 +360,8 @@ def solve(
     else:
         targets, per = [targets_at(shape, h, q) for h, q in zip(handles, samples)], list(handles)
     if checkpoint is not None and key_of is None and keep == "best":
+        if handles is not None:  # the default key holds shape.handles, not the handles per sample
+            raise ValueError("a checkpointed solve with handles per sample needs key_of (its checkpoint keys)")
         key_of = chunk_key(shape, energy, samples, starts, rest, held)
     n_vertices, d = shape.mesh.V.shape
     chunk = checkpointed(checkpoint if keep == "best" else None, key_of, n_vertices, d)
