@@ -19,13 +19,11 @@ Fig. 7 in 3D samples a beam's end patch with :func:`defop.training.sampling.patc
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from ..analysis.metrics import approximation_error
 from ..analysis.trajectories import Trajectory, check_scan, discontinuities, moving_batch, moving_rest_positions
-from ..variational.solver import NotConvergedWarning, Solver
+from ..training import solves
 
 __all__ = [
     "column_path",
@@ -89,20 +87,15 @@ def lowest_of(shape, runs, energy="sarap", solver_kw=None):
     grid = runs[0].grid
     if any(r.X.shape != runs[0].X.shape for r in runs):
         raise ValueError("every trajectory must be on the same grid")
-    solver = Solver(shape.mesh, shape.handles, energy=energy, **dict(solver_kw or {}))
     Q = grid.positions
     ny, nx = grid.shape
-    X = np.empty_like(runs[0].X)
-    E = np.empty((ny, nx))
-    conv = np.zeros((ny, nx), dtype=bool)
-    for i in range(ny):
-        for j in range(nx):
-            q = np.asarray(shape.P_moving, float).copy()
-            q[0] = Q[i, j]
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", NotConvergedWarning)
-                r = solver.solve_best(shape.targets(q), starts=[run.X[i, j] for run in runs], rest=False)
-            X[i, j], E[i, j], conv[i, j] = r.X, r.energy, r.converged
+    samples = np.repeat(np.asarray(shape.P_moving, float)[None], ny * nx, axis=0)
+    samples[:, 0] = Q.reshape(ny * nx, -1)
+    starts = [[run.X[i, j] for run in runs] for i in range(ny) for j in range(nx)]
+    res = solves.solve(shape, samples, energy, starts=starts, rest=False, progress=False, solver_kw=solver_kw)
+    X = res.X.reshape(runs[0].X.shape)
+    E = res.energy.reshape(ny, nx)
+    conv = res.converged.reshape(ny, nx)
     return Trajectory(grid=grid, X=X, rest=shape.mesh.V.copy(), kind="global", converged=conv, energy=E)
 
 

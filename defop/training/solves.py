@@ -37,6 +37,7 @@ __all__ = [
     "Stopwatch",
     "check_samples",
     "chunk_key",
+    "continuation",
     "gt_expect",
     "solve",
     "solve_chunk",
@@ -380,17 +381,23 @@ def targets_at(shape, handles, q):
     return T
 
 
-def sweep_chunk(problem, targets, start, bar):
-    """Local solves along ``targets``, each from the previous solution (the first from ``start``)."""
+def continuation(solver, targets, start, bar=None, solve_start="local", solve_kw=None):
+    """Solves along ``targets``, each warm-started from the previous solution (the first from ``start``), the
+    solver's NotConvergedWarning silenced as in every engine batch: a list of :class:`Item`.
+
+    The one continuation of the library: :func:`sweep` runs it on a shape's samples, branch discovery
+    (:func:`defop.training.branches.sweep`) on a solver's targets inside its parallel map.
+    """
     out, X, pid = [], start, os.getpid()
-    solver = problem.solver_for(None)
-    for T in targets:
-        t0 = time.process_time()
-        r = solver.solve(T, X0=X, start="local", **problem.solve_kw)
-        X = np.asarray(r.X)
-        out.append(Item(X, float(r.energy), bool(r.converged), time.process_time() - t0, pid))
-        if bar:
-            bar.update(1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotConvergedWarning)
+        for T in targets:
+            t0 = time.process_time()
+            r = solver.solve(T, X0=X, start=solve_start, **dict(solve_kw or {}))
+            X = np.asarray(r.X)
+            out.append(Item(X, float(r.energy), bool(r.converged), time.process_time() - t0, pid))
+            if bar:
+                bar.update(1)
     return out
 
 
@@ -428,7 +435,7 @@ def sweep(shape, samples, energy="sarap", start=None, progress=False, desc="swee
     w0 = time.perf_counter()
     bar = batch.progress(len(targets), desc, progress)
     try:
-        items = sweep_chunk(problem, targets, start, bar)
+        items = continuation(problem.solver_for(None), targets, start, bar, solve_kw=problem.solve_kw)
     finally:
         if bar:
             bar.close()

@@ -19,7 +19,7 @@ import numpy as np
 
 from ...variational.energies import check_energy
 from ...variational.solver import NotConvergedWarning, Solver
-from .. import batch
+from .. import batch, solves
 from .. import cache as cache_mod
 
 __all__ = ["Minima", "discover", "solve_quietly", "sweep"]
@@ -80,14 +80,11 @@ def sweep(solver, targets, X0, start="local"):
     seconds : float
         CPU seconds of the solves (``time.process_time`` of the process that ran them).
     """
-    t0 = time.process_time()
-    X, E, ok, prev = [], [], [], X0
-    for T in targets:
-        x, e, c = solve_quietly(solver, T, prev, start)
-        X.append(x), E.append(e), ok.append(c)
-        prev = x
-    X = np.reshape(X, (len(targets), *np.shape(X0)))
-    return X, np.array(E, dtype=float), np.array(ok, dtype=bool), time.process_time() - t0
+    items = solves.continuation(solver, targets, X0, solve_start=start)
+    X = np.reshape([i.X for i in items], (len(targets), *np.shape(X0)))
+    E = np.array([i.energy for i in items], dtype=float)
+    ok = np.array([i.converged for i in items], dtype=bool)
+    return X, E, ok, float(sum(i.cpu for i in items))
 
 
 def _multistarts(solver, chunk):
