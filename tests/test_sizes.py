@@ -1,0 +1,36 @@
+"""The split modules keep their old import paths: renamed modules warn and still work, moved names re-export."""
+
+import importlib
+import warnings
+
+import pytest
+
+
+def test_geometry_multilevel_is_coarse_and_warns():
+    import defop.geometry.coarse as coarse
+
+    old = importlib.import_module("defop.geometry.multilevel")
+    with pytest.warns(DeprecationWarning, match="defop.geometry.coarse"):
+        f = old.coarse_mesh_of
+    assert f is coarse.coarse_mesh_of
+    with pytest.raises(AttributeError):
+        old.no_such_name  # noqa: B018
+
+
+def test_new_geometry_modules_do_not_warn():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        from defop.geometry.coarse import coarse_mesh_of, prolongate  # noqa: F401
+        from defop.geometry.mesh_checks import check_closed_surface  # noqa: F401
+        from defop.geometry.simplices import boundary_facets, signed_volumes  # noqa: F401
+
+
+def test_mesh_module_keeps_its_names():
+    import defop.geometry.mesh as mesh
+    import defop.geometry.mesh_checks as checks
+    import defop.geometry.simplices as simplices
+
+    for name in ("signed_volumes", "signed_areas", "cotangent_laplacian", "boundary_facets", "ELEMENT", "FACETS"):
+        assert getattr(mesh, name) is getattr(simplices, name)
+    assert mesh.check_closed_surface is checks.check_closed_surface
+    assert mesh.SAFE_DIAGONAL == simplices.SAFE_DIAGONAL
