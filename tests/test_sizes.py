@@ -34,3 +34,16 @@ def test_mesh_module_keeps_its_names():
         assert getattr(mesh, name) is getattr(simplices, name)
     assert mesh.check_closed_surface is checks.check_closed_surface
     assert mesh.SAFE_DIAGONAL == simplices.SAFE_DIAGONAL
+
+
+def test_plot_module_keeps_every_name():
+    import defop.view.plot as plot
+    import defop.view.plot_bases as bases
+    import defop.view.plot_energies as energies
+    import defop.view.plot_trajectories as trajectories
+
+    for mod in (bases, energies, trajectories):
+        for name in mod.__all__:
+            assert getattr(plot, name) is getattr(mod, name)
+    for name in ("plot_shape", "plot_deformation", "region_outlines", "readable", "figure_key", "NAMES", "FLIP"):
+        assert hasattr(plot, name)
