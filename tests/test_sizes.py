@@ -47,3 +47,11 @@ def test_plot_module_keeps_every_name():
             assert getattr(plot, name) is getattr(mod, name)
     for name in ("plot_shape", "plot_deformation", "region_outlines", "readable", "figure_key", "NAMES", "FLIP"):
         assert hasattr(plot, name)
+
+
+def test_render_module_keeps_the_headless_names():
+    import defop.view.headless as headless
+    import defop.view.render as render
+
+    for name in headless.__all__:
+        assert getattr(render, name) is getattr(headless, name)
