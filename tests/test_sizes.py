@@ -55,3 +55,12 @@ def test_render_module_keeps_the_headless_names():
 
     for name in headless.__all__:
         assert getattr(render, name) is getattr(headless, name)
+
+
+def test_figures_package_keeps_the_main_jobs_names():
+    import defop.figures as figures
+
+    for name in figures.__all__:
+        assert hasattr(figures, name), name
+    assert figures.ROOT / "notebooks" == figures.NOTEBOOKS and (figures.ROOT / "defop" / "figures").is_dir()
+    assert figures.RUNTIMES == figures.ROOT / "figures" / "runtimes.json"
