@@ -64,3 +64,16 @@ def test_figures_package_keeps_the_main_jobs_names():
         assert hasattr(figures, name), name
     assert figures.ROOT / "notebooks" == figures.NOTEBOOKS and (figures.ROOT / "defop" / "figures").is_dir()
     assert figures.RUNTIMES == figures.ROOT / "figures" / "runtimes.json"
+
+
+def test_shapes_module_keeps_its_names():
+    import defop.scene.handles as handles
+    import defop.scene.planar_shapes as planar_shapes
+    import defop.scene.shape as shape
+    import defop.scene.shapes as shapes
+
+    assert shapes.Shape is shape.Shape
+    assert shapes.from_polygon is planar_shapes.from_polygon and shapes.from_image is planar_shapes.from_image
+    for name in handles.__all__:
+        assert getattr(shapes, name) is getattr(handles, name)
+    assert shapes.MAX_AUTO_HANDLES == planar_shapes.MAX_AUTO_HANDLES
