@@ -40,7 +40,7 @@ def test_plot_module_keeps_every_name():
     import defop.view.plot as plot
     import defop.view.plot_bases as bases
     import defop.view.plot_energies as energies
-    import defop.view.plot_trajectories as trajectories
+    import defop.view.plot_trajectory_maps as trajectories
 
     for mod in (bases, energies, trajectories):
         for name in mod.__all__:
@@ -77,3 +77,9 @@ def test_shapes_module_keeps_its_names():
     for name in handles.__all__:
         assert getattr(shapes, name) is getattr(handles, name)
     assert shapes.MAX_AUTO_HANDLES == planar_shapes.MAX_AUTO_HANDLES
+
+
+def test_plot_trajectories_is_the_function():
+    import defop.view.plot as plot
+
+    assert callable(plot.plot_trajectories) and plot.plot_trajectories.__name__ == "plot_trajectories"

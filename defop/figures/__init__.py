@@ -35,47 +35,22 @@ import sys
 import time
 from pathlib import Path
 
-from .paths import FIGURES, NOTEBOOKS, ROOT, RUNTIMES, notebooks
-from .run_times import (
-    CANONICAL_RE,
-    RUN_TIME_RE,
-    format_seconds,
-    machine_info,
-    parse_run_time,
-    recorded_times,
-    replace_run_time,
-    run_time_sentence,
-    stated_times,
-    update_stated_times,
-    write_runtimes,
-)
-from .storing import STRIP_KEYS, WIDGET_VIEW, normalise, normalise_files
+from . import paths, run_times, storing
+from .paths import *  # noqa: F403 (the names in paths.__all__, and so on)
+from .paths import FIGURES, NOTEBOOKS, RUNTIMES, notebooks
+from .run_times import *  # noqa: F403
+from .run_times import write_runtimes
+from .storing import *  # noqa: F403
+from .storing import normalise
 
 __all__ = [
-    "ROOT",
-    "NOTEBOOKS",
-    "FIGURES",
-    "RUNTIMES",
     "CELL_TIMEOUT",
     "NotebookError",
-    "notebooks",
     "run_notebook",
     "regenerate",
-    "STRIP_KEYS",
-    "WIDGET_VIEW",
-    "normalise",
-    "normalise_files",
-    "machine_info",
-    "write_runtimes",
-    "RUN_TIME_RE",
-    "CANONICAL_RE",
-    "format_seconds",
-    "parse_run_time",
-    "replace_run_time",
-    "run_time_sentence",
-    "stated_times",
-    "update_stated_times",
-    "recorded_times",
+    *paths.__all__,
+    *run_times.__all__,
+    *storing.__all__,
 ]
 
 #: per-cell timeout of the main job: the longest cell (07_octopus, training two 1,000-sample S-ARAP operators on the

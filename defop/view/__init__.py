@@ -1,5 +1,5 @@
 """Pictures (layer 6): matplotlib plots (:mod:`.plot` gathers :mod:`.draw`, :mod:`.plot_bases`,
-:mod:`.plot_energies` and :mod:`.plot_trajectories`; :mod:`.plot_peers`; labels clear of each other, :mod:`.labels`),
+:mod:`.plot_energies` and :mod:`.plot_trajectory_maps`; :mod:`.plot_peers`; labels clear of each other, :mod:`.labels`),
 PyVista rendering (:mod:`.render`; the off-screen window, :mod:`.headless`) and image warping (:mod:`.warp`).
 Nothing below this layer imports a plotting library.
 """
@@ -15,7 +15,7 @@ _MODULES = (
     "plot_bases",
     "plot_energies",
     "plot_peers",
-    "plot_trajectories",
+    "plot_trajectory_maps",
     "render",
     "warp",
 )

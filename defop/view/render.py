@@ -12,16 +12,9 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.mesh import boundary_facets
-from .headless import (
-    APT_LINE,
-    APT_PACKAGES,
-    candidates,
-    configure_headless,
-    ensure_chromium,
-    ensure_system_packages,
-    jupyter_backend,
-    probe,
-)
+from . import headless
+from .headless import *  # noqa: F403 (the names in headless.__all__)
+from .headless import configure_headless
 
 __all__ = [
     "FILL",
@@ -33,14 +26,7 @@ __all__ = [
     "render_mesh",
     "render_panels",
     "render_height_fields",
-    "APT_LINE",
-    "APT_PACKAGES",
-    "candidates",
-    "probe",
-    "configure_headless",
-    "ensure_system_packages",
-    "ensure_chromium",
-    "jupyter_backend",
+    *headless.__all__,
 ]
 
 #: surface colour of a mesh without scalars
