@@ -70,6 +70,16 @@ def from_polygon(
         n_vertices = 1500
     outer, holes = validate_polygon(outer, holes)
     mesh = triangulate(outer, holes, points=H, n_vertices=n_vertices, max_area=max_area)
+    idx = _exact_vertices(mesh, H)
+    moving = np.ones(len(H), bool) if moving is None else moving  # Shape checks the flags
+    if regions is None:
+        r = region_scale * mesh.bbox_diagonal / 2
+        regions = [Disc(r) for _ in range(int(np.count_nonzero(moving)))]
+    return Shape(name, mesh, idx, moving, list(regions), description, [outer, *holes])
+
+
+def _exact_vertices(mesh, H):
+    """The mesh vertex at each handle point H (h,2); ValueError for a point that is not exactly a vertex."""
     idx, dist = mesh.nearest_vertex(H)
     if not np.all(dist == 0):  # Triangle keeps input points exactly, unless resampling left one outside
         k = int(np.argmax(dist))
@@ -77,11 +87,7 @@ def from_polygon(
             f"handle {k} at ({H[k, 0]:.4g}, {H[k, 1]:.4g}) is not a mesh vertex: it lies outside the outline "
             f"resampled at the mesh spacing (nearest vertex {dist[k]:.3g} away); move it inside or use more vertices"
         )
-    moving = np.ones(len(H), bool) if moving is None else moving  # Shape checks the flags
-    if regions is None:
-        r = region_scale * mesh.bbox_diagonal / 2
-        regions = [Disc(r) for _ in range(int(np.count_nonzero(moving)))]
-    return Shape(name, mesh, idx, moving, list(regions), description, [outer, *holes])
+    return idx
 
 
 def from_image(

@@ -265,6 +265,20 @@ def _snapshot(plotter, screenshot=None, draw=None):
     return np.asarray(img)
 
 
+def _check_poses(mesh, poses):
+    """The poses as float arrays; ValueError unless they are a non-empty list of arrays shaped like ``mesh.V``."""
+    poses = [np.asarray(p, dtype=float) for p in poses]
+    if not poses or any(p.shape != mesh.V.shape for p in poses):
+        raise ValueError(f"poses must be a non-empty list of {mesh.V.shape} arrays, got {[p.shape for p in poses]}")
+    return poses
+
+
+def _common_bounds(poses):
+    """The VTK bounds (xmin, xmax, ymin, ymax, zmin, zmax) of all poses together (z = 0 for planar ones)."""
+    bounds = np.array([p.min(0) for p in poses]).min(0), np.array([p.max(0) for p in poses]).max(0)
+    return [v for pair in zip(*(np.append(b, 0.0)[:3] for b in bounds)) for v in pair]
+
+
 def render_panels(
     mesh,
     poses,
@@ -308,15 +322,12 @@ def render_panels(
     img : (H,W,3) uint8 numpy array
     """
     pv = _pyvista()
-    poses = [np.asarray(p, dtype=float) for p in poses]
-    if not poses or any(p.shape != mesh.V.shape for p in poses):
-        raise ValueError(f"poses must be a non-empty list of {mesh.V.shape} arrays, got {[p.shape for p in poses]}")
+    poses = _check_poses(mesh, poses)
     ncols = len(poses) if ncols is None else int(ncols)
     nrows = -(-len(poses) // ncols)
     size = (panel_size[0] * ncols, panel_size[1] * nrows)
     plotter = pv.Plotter(off_screen=True, shape=(nrows, ncols), window_size=size, border=False)
-    bounds = np.array([p.min(0) for p in poses]).min(0), np.array([p.max(0) for p in poses]).max(0)
-    box = [v for pair in zip(*(np.append(b, 0.0)[:3] for b in bounds)) for v in pair]
+    box = _common_bounds(poses)
 
     def draw():
         for k, P in enumerate(poses):
