@@ -99,7 +99,7 @@ def from_image(
     size=1.0,
     n_vertices=1500,
     name="image",
-    nauto_handles=2,
+    n_auto_handles=2,
     foreground="auto",
 ):
     """A :class:`Shape` from the silhouette of a binary, greyscale, RGB or RGBA image (e.g. a PNG).
@@ -112,14 +112,14 @@ def from_image(
     handles : (h,2) numpy array, optional
         Handle positions in the output units (the silhouette is scaled so its bounding-box
         diagonal equals ``size``, origin at its bounding-box corner). Default: the
-        ``nauto_handles`` interior points farthest apart.
+        ``n_auto_handles`` interior points farthest apart.
     moving, regions : see :func:`from_polygon`
     threshold : float
         In (0,1): a pixel is inside when its foreground value exceeds it.
     size : float
     n_vertices : int
     name : str
-    nauto_handles : int
+    n_auto_handles : int
     foreground : str
         ``"auto"`` (default: the alpha channel if it varies, else whatever differs from the
         image border, so a grey, RGB or RGBA copy of the same picture gives the same shape),
@@ -137,7 +137,7 @@ def from_image(
         )
     if handles is None:
         # 0 gave one handle; the candidates are a 60 x 60 grid
-        nauto_handles = opt.integer("nauto_handles", nauto_handles, minimum=1, maximum=MAX_AUTO_HANDLES)
+        n_auto_handles = opt.integer("n_auto_handles", n_auto_handles, minimum=1, maximum=MAX_AUTO_HANDLES)
     outer, holes = image_outline(image, threshold, foreground_mode=foreground)
     lo = outer.min(axis=0)
     ext = outer.max(axis=0) - lo
@@ -145,7 +145,7 @@ def from_image(
     outer = (outer - lo) * scale
     holes = [(H - lo) * scale for H in holes]
     if handles is None:
-        handles = auto_handles(outer, holes, nauto_handles)
+        handles = auto_handles(outer, holes, n_auto_handles)
     return from_polygon(
         outer, holes, handles, moving, regions, n_vertices=n_vertices, name=name, description="silhouette of an image"
     )
