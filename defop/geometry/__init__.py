@@ -6,7 +6,7 @@ surfaces (Kuhn cubes); :mod:`.fields` holds the implicit primitives both use; :m
 PLY, STL, OBJ and OFF files safely (counts checked before allocation, STL welded); :mod:`.coarse` makes a
 coarse mesh of the same outline and the prolongation onto the fine one (multilevel training; :mod:`.multilevel` is
 its deprecated name). :mod:`.simplices` holds the elements' volumes and facets, :mod:`.mesh_checks` the checks of
-a mesh's arrays.
+a mesh's arrays and :mod:`.mesh_text` the OBJ/OFF mesh files.
 """
 
 from . import coarse, fields, mesh, mesh_checks, multilevel, planar, simplices, surface_files, volumetric

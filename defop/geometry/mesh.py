@@ -31,6 +31,8 @@ from .mesh_checks import (
     dim_of,
     orient_elements,
 )
+from .mesh_text import igl_write as _igl_write
+from .mesh_text import read_text_mesh as _read_text
 from .simplices import (
     ELEMENT,
     ELEMENTS,
@@ -43,7 +45,7 @@ from .simplices import (
     simplex_volumes,
 )
 from .simplices import SAFE_DIAGONAL as SAFE_DIAGONAL  # re-exported
-from .surface_files import MAX_FILE_ELEMENTS, check_file, check_size, parse_surface
+from .surface_files import MAX_FILE_ELEMENTS, check_file
 
 __all__ = [
     "Mesh",
@@ -456,44 +458,3 @@ def _read_member(fh, path, key):
         raise ValueError(f"mesh file {path}: {key} is truncated ({len(data)} of {count * dtype.itemsize} bytes)")
     arr = np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
     return np.array(arr)
-
-
-def _read_text(path, ext):
-    """V and F of an OBJ/OFF (numpy reader, :mod:`.surface_files`), the OFF header's counts checked first."""
-    size = check_size(path, "mesh file")  # read whole below: a 3 GiB file raised an empty MemoryError
-    if ext == ".off":
-        _check_off_header(path, size)
-    try:
-        V, F, _ = parse_surface(path.read_bytes(), ext)
-    except ValueError as exc:
-        raise ValueError(f"mesh file {path} could not be read as {ext} ({exc})") from None
-    if V.shape[1] == 3:
-        if np.abs(V[:, 2]).max(initial=0) > 0:
-            raise ValueError(f"{path} is not planar (z is not 0)")
-        V = V[:, :2]
-    return V, F
-
-
-def _check_off_header(path, size):
-    with open(path, "rb") as fh:
-        head = fh.read(4096).decode("ascii", "replace").split("\n")
-    words = []
-    for line in head:
-        words += line.split("#")[0].split()
-        if len(words) >= 4:
-            break
-    if not words or not words[0].upper().endswith("OFF"):
-        raise ValueError(f"mesh file {path} is not an OFF file (no OFF header)")
-    try:
-        n_v, n_f = int(words[1]), int(words[2])
-    except (IndexError, ValueError):
-        raise ValueError(f"mesh file {path}: the OFF header has no vertex and face counts") from None
-    if min(n_v, n_f) < 0 or max(n_v, n_f) > MAX_FILE_ELEMENTS or 2 * (n_v + n_f) > size:
-        raise ValueError(
-            f"mesh file {path} declares {n_v:,} vertices and {n_f:,} faces in {size:,} bytes "
-            f"(limit {MAX_FILE_ELEMENTS:,} each, and at least 2 bytes per entry)"
-        )
-
-
-def _igl_write(path, V3, F):
-    igl.write_triangle_mesh(str(path), V3, F, igl.FileEncoding.Ascii)
