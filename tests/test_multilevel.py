@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 import defop as dop
 from defop.geometry.mesh import Mesh
-from defop.geometry.multilevel import CoarseningError, coarse_mesh_of, prolongate, prolongation
+from defop.geometry.coarse import CoarseningError, coarse_mesh_of, prolongate, prolongation
 from defop.training import bootstrap
 from defop.training import multilevel as ml
 from defop.variational.solver import Solver
@@ -289,11 +289,11 @@ def test_same_operator_with_dask(bar):
 
 
 def test_multilevel_modules_are_exported():
-    """train's docstring names defop.training.multilevel.MultilevelWarning: both multilevel modules are in their
-    subpackage's ``__all__`` as the other modules are (the merged main had neither; review of issue 36)."""
+    """train's docstring names defop.training.multilevel.MultilevelWarning: the multilevel policy and the coarse
+    meshes are in their subpackage's ``__all__`` as the other modules are."""
     import defop.geometry as geometry
     import defop.training as training
 
-    assert "multilevel" in training.__all__ and "multilevel" in geometry.__all__
+    assert "multilevel" in training.__all__ and "coarse" in geometry.__all__
     assert training.multilevel.MultilevelWarning is ml.MultilevelWarning
-    assert geometry.multilevel.coarse_mesh_of is coarse_mesh_of
+    assert geometry.coarse.coarse_mesh_of is coarse_mesh_of

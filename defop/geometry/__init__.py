@@ -18,7 +18,6 @@ __all__ = [
     "fields",
     "mesh",
     "mesh_checks",
-    "multilevel",
     "planar",
     "simplices",
     "surface_files",

@@ -3,13 +3,13 @@
 The policy, beside the one-level policy of :func:`defop.training.bootstrap.train` (``policy="full"``):
 
 1. **Coarse portfolio.** On a coarse mesh of the same shape with the same handles
-   (:func:`defop.geometry.multilevel.coarse_mesh_of`: Triangle from the same outline at about 1/:data:`COARSE_FACTOR`
+   (:func:`defop.geometry.coarse.coarse_mesh_of`: Triangle from the same outline at about 1/:data:`COARSE_FACTOR`
    of the vertices), every sample runs the full policy's start portfolio (the same code,
    :func:`defop.training.portfolios.portfolio`): the rest pose and the prediction of a linear fit to
    the first dn + 1 samples, then ``rounds - 1`` rounds from the prediction of a smooth fit. Every local solve's
    end point is kept (not only the lowest).
 2. **One fine run.** The lowest verified coarse minimum is prolongated (barycentric, rest pose to rest pose and
-   handles to handles exactly: :func:`defop.geometry.multilevel.prolongate`) and the fine mesh gets one local
+   handles to handles exactly: :func:`defop.geometry.coarse.prolongate`) and the fine mesh gets one local
    Newton run from it, which must verify.
 3. **Safeguard.** A sample falls back to the full fine portfolio (the rest pose and every prolongated coarse
    minimum, the lowest verified minimum kept; a verified fine run competes as it is) when one of the
@@ -40,7 +40,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .. import options as opt
-from ..geometry.multilevel import CoarseningError, coarse_mesh_of, prolongate
+from ..geometry.coarse import CoarseningError, coarse_mesh_of, prolongate
 from ..scene.shapes import Shape
 from ..variational import energies as en
 
@@ -107,7 +107,7 @@ class CoarseLevel:
     fine, coarse : defop.scene.shapes.Shape
         The same handles (same rest positions, same order, same moving flags) on both meshes.
     P : (n, n_c) scipy.sparse.csr_matrix
-        The prolongation (:func:`defop.geometry.multilevel.prolongation`).
+        The prolongation (:func:`defop.geometry.coarse.prolongation`).
     """
 
     fine: Shape
@@ -120,7 +120,7 @@ class CoarseLevel:
 
 
 def coarse_level(shape):
-    """The :class:`CoarseLevel` of a shape; :class:`~defop.geometry.multilevel.CoarseningError` where none exists."""
+    """The :class:`CoarseLevel` of a shape; :class:`~defop.geometry.coarse.CoarseningError` where none exists."""
     mesh, idx, P = coarse_mesh_of(shape.mesh, shape.outline, shape.P, COARSE_FACTOR, MIN_COARSE_VERTICES)
     coarse = Shape(f"{shape.name} (coarse)", mesh, idx, shape.moving.copy(), list(shape.regions), shape.description)
     return CoarseLevel(shape, coarse, P)
