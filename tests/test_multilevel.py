@@ -10,8 +10,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import defop as dop
-from defop.geometry.mesh import Mesh
 from defop.geometry.coarse import CoarseningError, coarse_mesh_of, prolongate, prolongation
+from defop.geometry.mesh import Mesh
 from defop.training import bootstrap
 from defop.training import multilevel as ml
 from defop.variational.solver import Solver
