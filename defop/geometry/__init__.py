@@ -9,7 +9,17 @@ its deprecated name). :mod:`.simplices` holds the elements' volumes and facets, 
 a mesh's arrays and :mod:`.mesh_text` the OBJ/OFF mesh files.
 """
 
-from . import coarse, fields, mesh, mesh_checks, multilevel, planar, simplices, surface_files, volumetric
+from . import (
+    coarse,
+    fields,
+    mesh,
+    mesh_checks,
+    multilevel,  # noqa: F401 (the deprecated name of .coarse)
+    planar,
+    simplices,
+    surface_files,
+    volumetric,
+)
 from .mesh import Mesh, read_mesh, signed_areas, signed_volumes, write_mesh
 
 __all__ = [
