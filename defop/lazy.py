@@ -2,7 +2,8 @@
 
 One policy for the top-level package and the subpackages whose modules pull in heavy libraries (``view``:
 matplotlib and PyVista; ``editor``: anywidget; ``rivals``: libigl), so ``import defop`` stays light. :func:`moved`
-keeps a moved module's old names working, with a ``DeprecationWarning``.
+keeps a moved module's old names working, and :func:`renamed` a module's renamed names, each with a
+``DeprecationWarning``: the one deprecation policy of the library.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import sys
 import warnings
 from importlib import import_module
 
-__all__ = ["attach", "moved"]
+__all__ = ["attach", "moved", "renamed"]
 
 
 def attach(package, modules=(), names=None):
@@ -97,3 +98,35 @@ def moved(old, new, load, names=None, stacklevel=2):
         return forwarded(load())
 
     return __getattr__, __dir__
+
+
+def renamed(module, names, stacklevel=2):
+    """``__getattr__`` for a module some of whose names were renamed: each old name warns and returns the new object.
+
+    Parameters
+    ----------
+    module : str
+        The module's ``__name__``.
+    names : dict of str -> str
+        Old name -> new name, both in ``module``.
+    stacklevel : int
+        The warning's, counted from ``__getattr__`` (2: the code that reads the old name).
+
+    Returns
+    -------
+    __getattr__ : callable
+        To assign at the module's level (PEP 562).
+    """
+    names = dict(names)
+
+    def __getattr__(name):
+        if name not in names:
+            raise AttributeError(f"module {module!r} has no attribute {name!r}")
+        warnings.warn(
+            f"{module}.{name} is renamed {names[name]} and will be removed: use {module}.{names[name]}",
+            DeprecationWarning,
+            stacklevel=stacklevel,
+        )
+        return getattr(sys.modules[module], names[name])
+
+    return __getattr__

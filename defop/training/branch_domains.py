@@ -1,16 +1,17 @@
 """Deprecated module path: certification lives in :mod:`defop.training.branches` (:mod:`.branches.certify`)."""
 
-from __future__ import annotations
+from ..lazy import moved
 
-import warnings
 
-from .branches.certify import Certified, bracket_fold, certify, certify_branches, refine_segments
-from .branches.grid import grid_neighbours
+def _load():
+    from . import branches
 
-__all__ = ["Certified", "bracket_fold", "certify", "certify_branches", "grid_neighbours", "refine_segments"]
+    return branches
 
-warnings.warn(
-    "defop.training.branch_domains is deprecated: import certify_branches, certify, ... from defop.training.branches",
-    DeprecationWarning,
-    stacklevel=2,
+
+__getattr__, __dir__ = moved(
+    __name__,
+    "defop.training.branches",
+    _load,
+    ("Certified", "bracket_fold", "certify", "certify_branches", "grid_neighbours", "refine_segments"),
 )

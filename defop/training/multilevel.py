@@ -41,6 +41,7 @@ import scipy.sparse as sp
 
 from .. import options as opt
 from ..geometry.coarse import CoarseningError, coarse_mesh_of, prolongate
+from ..lazy import renamed
 from ..scene.shapes import Shape
 from ..variational import energies as en
 
@@ -239,16 +240,4 @@ def refine(lv, samples, energy, candidates, n_jobs=None, progress=True, checkpoi
     ]
 
 
-_RENAMED = {"Levels": "CoarseLevel", "levels": "coarse_level"}
-
-
-def __getattr__(name):
-    if name in _RENAMED:
-        new = _RENAMED[name]
-        warnings.warn(
-            f"defop.training.multilevel.{name} is renamed {new}; the old name goes in the next release",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return globals()[new]
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = renamed(__name__, {"Levels": "CoarseLevel", "levels": "coarse_level"})

@@ -17,9 +17,7 @@ one module each:
 
 from __future__ import annotations
 
-import warnings
-
-from ... import options as opt
+from ...lazy import renamed
 from .certify import (
     FOLLOW_RATIO,
     Certified,
@@ -82,12 +80,8 @@ __all__ = [
     "values_at_train",
 ]
 
-#: old name -> (new name, its object): still served, with a DeprecationWarning
-RENAMED = {
-    "Branch": ("SampledBranch", SampledBranch),
-    "Branches": ("SampledBranches", SampledBranches),
-    "distinct_minima": ("distinct_at", distinct_at),
-}
+#: old name -> new name: still served, with a DeprecationWarning
+RENAMED = {"Branch": "SampledBranch", "Branches": "SampledBranches", "distinct_minima": "distinct_at"}
 
 #: removed names -> what replaces them
 REMOVED = {
@@ -107,13 +101,10 @@ def removed(name):
     return gone
 
 
+_renamed = renamed(__name__, RENAMED)
+
+
 def __getattr__(name):
-    if name in RENAMED:
-        new, obj = RENAMED[name]
-        warnings.warn(
-            f"defop.training.branches.{name} is renamed {new}", DeprecationWarning, stacklevel=opt.user_stacklevel()
-        )
-        return obj
     if name in REMOVED:
         return removed(name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return _renamed(name)
