@@ -25,7 +25,15 @@ from scipy.sparse.csgraph import connected_components
 
 from .planar.meshing import triangulate
 
-__all__ = ["CoarseningError", "OUTSIDE", "coarse_mesh_of", "coarse_planar_mesh", "n_parts", "prolongate", "prolongation"]
+__all__ = [
+    "CoarseningError",
+    "OUTSIDE",
+    "coarse_mesh_of",
+    "coarse_planar_mesh",
+    "n_parts",
+    "prolongate",
+    "prolongation",
+]
 
 #: a fine vertex may lie at most this many element heights outside the coarse element it is located in (the coarse
 #: outline, resampled at the coarse spacing, cuts corners and the ends of thin limbs by up to about one spacing: 0.84
