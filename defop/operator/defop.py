@@ -180,10 +180,9 @@ class DefOp(OperatorCore):
         Q = opt.real_array("Q", Q)  # complex, bool, strings, objects: named, not cast
         z = self.handle_basis.z(Q)  # validates shape and NaN
         Q2 = Q.reshape(-1, self.n_moving, self.d)
-        dpsi = self.handle_basis.delta_z(np.atleast_2d(z))
-        finite = np.isfinite(dpsi).all(axis=1)
-        if not finite.all():
-            raise not_finite_error(self, Q2[~finite])
+        with np.errstate(over="ignore", invalid="ignore"):  # a far Q: the clear error below, not numpy's warning
+            dpsi = self.handle_basis.delta_z(np.atleast_2d(z))
+        self.check_not_finite(dpsi, Q2, self.P, self.handle_basis)
         check_extrapolation(self, Q)
         out = free_part(self, dpsi, fast, out)
         out[:, self._hcols] += (Q2 - self.P).reshape(len(Q2), self._hcols.size)  # δψ W_H = Q − P (Prop. 2)

@@ -234,7 +234,8 @@ class MovableOp(OperatorCore):
         if not np.isfinite(Q).all():
             raise ValueError(f"Q has NaN or infinite entries: {np.array2string(Q, threshold=20)}")
         if self.reach is not None:
-            dist = np.sqrt(np.square(Q - st["P"]).sum(axis=-1).reshape(-1, n).max(axis=0, initial=0.0))
+            with np.errstate(over="ignore"):  # a far Q: inf, refused where Ψ is evaluated
+                dist = np.sqrt(np.square(Q - st["P"]).sum(axis=-1).reshape(-1, n).max(axis=0, initial=0.0))
             far = np.flatnonzero(core.beyond_reach(dist, self.reach))
             if far.size:
                 j = int(far[0])
@@ -255,6 +256,9 @@ class MovableOp(OperatorCore):
         """
         st = self.at(P)
         Q = self._check_Q(Q, st)
+        empty = core.empty_frames(Q, self.n_vertices, self.d)
+        if empty is not None:
+            return empty
         Q2 = Q.reshape(-1, self.n_moving, self.d)
         if self.factors is not None and Q.ndim == 2:
             return self._frame(Q, st)
@@ -315,7 +319,7 @@ class MovableOp(OperatorCore):
         if Qs.ndim != 3:
             raise ValueError(f"Qs must have shape (k, {self.n_moving}, {self.d}), got {Qs.shape}")
         if len(Qs) == 0:
-            return np.empty((0, self.n_vertices, self.d))
+            return core.empty_frames(Qs, self.n_vertices, self.d)
         u = self._product(self.delta_psi(Qs, st))
         return self._finish(u, st, Qs).reshape(len(Qs), self.n_vertices, self.d)
 

@@ -134,7 +134,9 @@ def read_file(path, kind, check_declared):
             if "header" not in members:
                 raise OperatorFileError(f"{path} is not a defop operator file: no 'header' member")
             header = json_header(path, z, members["header"])
-            fmt = header.get("format") if isinstance(header, dict) else None
+            if not isinstance(header, dict):
+                raise OperatorFileError(f"{path}: the header must be a JSON object, got {type(header).__name__}")
+            fmt = header.get("format")
             other = wrong_kind(path, kind, names, header)
             if other is not None:
                 raise other
