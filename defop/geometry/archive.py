@@ -29,7 +29,7 @@ import zlib
 
 import numpy as np
 
-__all__ = ["DAMAGED", "ArchiveError", "Limits", "Member", "NpzReader", "size_text"]
+__all__ = ["DAMAGED", "ArchiveError", "Limits", "Member", "NpzReader", "Reraise", "size_text"]
 
 #: numpy's own limit on a .npy header: the bytes read from a member's start to parse it
 NPY_HEADER_BYTES = 65_536 + 16
@@ -141,7 +141,16 @@ class NpzReader:
 
     def translated(self):
         """A context turning what a damaged archive raises (:data:`DAMAGED`, OSError) into an ArchiveError."""
-        return _Translate(self.label, self.what)
+        return Reraise((OSError, *DAMAGED, ValueError, MemoryError), self.damaged, keep=(ArchiveError,))
+
+    def damaged(self, exc):
+        """The ArchiveError of an exception raised while the archive is read."""
+        if isinstance(exc, OSError) and not isinstance(exc, zipfile.BadZipFile):
+            return ArchiveError(f"{self.label} cannot be read: {exc}")
+        what = self.what.split(" ", 1)[-1]
+        return ArchiveError(
+            f"{self.label} is not a readable {what}: damaged or truncated ({type(exc).__name__}: {exc})"
+        )
 
     def names(self):
         """The member names as in the zip directory (``"V.npy"``), at most twice the member limit."""
@@ -245,21 +254,16 @@ class NpzReader:
         return {name: self.read(m) for name, m in members.items()}
 
 
-class _Translate:
-    def __init__(self, label, what):
-        self.label, self.what = label, what
+class Reraise:
+    """A context that re-raises an exception of ``types`` (but not of ``keep``) as ``make(exc)``, chained."""
+
+    def __init__(self, types, make, keep=()):
+        self.types, self.make, self.keep = types, make, keep
 
     def __enter__(self):
         return self
 
     def __exit__(self, typ, exc, tb):
-        if typ is None or issubclass(typ, ArchiveError):
+        if typ is None or issubclass(typ, self.keep) or not issubclass(typ, self.types):
             return False
-        if issubclass(typ, OSError) and not issubclass(typ, zipfile.BadZipFile):
-            raise ArchiveError(f"{self.label} cannot be read: {exc}") from exc
-        if issubclass(typ, (*DAMAGED, ValueError, MemoryError)):
-            raise ArchiveError(
-                f"{self.label} is not a readable {self.what.split(' ', 1)[-1]}: damaged or truncated "
-                f"({typ.__name__}: {exc})"
-            ) from exc
-        return False
+        raise self.make(exc) from exc

@@ -21,8 +21,6 @@ import dataclasses
 
 import numpy as np
 
-from .. import options as opt
-
 #: a moving handle farther from rest than this times its farthest training sample extrapolates (a warning)
 EXTRAPOLATION_FACTOR = 1.5
 #: bound on |δψ| of a row (in raw units) below which the float32 products of :func:`reduced_product` stay finite
@@ -203,6 +201,13 @@ def reduced_product(dpsi, mats, bound=F32_SAFE, out=None):
     return y * s if far.any() else y
 
 
+def check_finite(dpsi, Q2, P, basis, mesh):
+    """Raise :func:`not_finite_error` for the rows of δψ (k, q) that are not finite (Q2 (k, n, d))."""
+    finite = np.isfinite(dpsi).all(axis=1)
+    if not finite.all():
+        raise not_finite_error(Q2[~finite], P, basis.kind, mesh.bbox_diagonal)
+
+
 def empty_frames(Q, n_vertices, d):
     """The (0, n_vertices, d) result of an empty batch Q (0, n, d), or None for any other Q."""
     return np.empty((0, n_vertices, d)) if np.ndim(Q) == 3 and len(Q) == 0 else None
@@ -273,23 +278,23 @@ class OperatorCore:
         return self.set_factors(None)
 
     def fast_state(self):
-        """The :class:`FastState` of the current factors (made on first use, rebuilt when they change)."""
+        """The :class:`FastState` of the current factors (the kind's ``make_fast_state()``, made on first use and
+        rebuilt when the factors change)."""
         f = self._fast
         if f is None or f.key is not self.factors:
             f = self._fast = self.make_fast_state()
         return f
 
-    def make_fast_state(self):
-        """A kind's :class:`FastState` (its basis, W_F, factors and kernel arguments)."""
-        raise NotImplementedError
 
-    def check_not_finite(self, dpsi, Q2, P, basis):
-        """Raise :func:`not_finite_error` for the rows of δψ (k, q) that are not finite (Q2 (k, n, d))."""
-        finite = np.isfinite(dpsi).all(axis=1)
-        if not finite.all():
-            raise not_finite_error(Q2[~finite], P, basis.kind, self.mesh.bbox_diagonal)
-
-
-def real_configurations(Q):
-    """Q as a float array, refusing what a float cast would mangle (complex, bool, strings, objects)."""
-    return opt.real_array("Q", Q)
+def check_configurations(Q, n, d=2):
+    """The one check of handle configurations: Q (n, d) or (k, n, d), real and finite, as a float array
+    (a ValueError naming Q and the condition)."""
+    if np.iscomplexobj(Q):  # float() would drop the imaginary part with only a ComplexWarning
+        raise ValueError("Q must be real; got a complex array")
+    Q = np.asarray(Q, dtype=float)
+    if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, d):
+        raise ValueError(f"Q must have shape ({n}, {d}) or (k, {n}, {d}) for {n} moving handles, got {Q.shape}")
+    if not np.isfinite(Q).all():
+        where = np.argwhere(~np.isfinite(Q))[0].tolist()
+        raise ValueError(f"Q has NaN or infinite entries (first at {where}): {np.array2string(Q, threshold=20)}")
+    return Q

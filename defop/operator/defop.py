@@ -146,10 +146,6 @@ class DefOp(OperatorCore):
         f.kernel = core.kernel_args(self.handle_basis, f.mats, self._far2)
         return f
 
-    def _fast_state(self):
-        """:meth:`fast_state` (the name the benchmarks use)."""
-        return self.fast_state()
-
     def _frame(self, Q, warn):
         """(★) of one float64 Q (n_moving,d) by the compiled kernel (:mod:`defop.operator.kernels`), or None
         when |Q − P|² is not below the overflow guard (NaN, inf, far); ``warn``: the extrapolation check."""
@@ -174,22 +170,6 @@ class DefOp(OperatorCore):
     def check_mesh(self, mesh):
         """Raise ValueError unless ``mesh`` is the mesh this operator was trained on (dimension, sizes, arrays)."""
         check_mesh(self, mesh)
-
-    def _evaluate(self, Q, fast, out=None):
-        """(★) for Q (n,d) or (k,n,d), validated; ``out`` (k, d n_vertices) float64 receives the result."""
-        Q = opt.real_array("Q", Q)  # complex, bool, strings, objects: named, not cast
-        z = self.handle_basis.z(Q)  # validates shape and NaN
-        Q2 = Q.reshape(-1, self.n_moving, self.d)
-        with np.errstate(over="ignore", invalid="ignore"):  # a far Q: the clear error below, not numpy's warning
-            dpsi = self.handle_basis.delta_z(np.atleast_2d(z))
-        self.check_not_finite(dpsi, Q2, self.P, self.handle_basis)
-        check_extrapolation(self, Q)
-        out = free_part(self, dpsi, fast, out)
-        out[:, self._hcols] += (Q2 - self.P).reshape(len(Q2), self._hcols.size)  # δψ W_H = Q − P (Prop. 2)
-        big = np.abs(dpsi).max(axis=1, initial=0.0) > 1e280  # only rows this far from rest can overflow
-        if big.any() and not np.isfinite(out[big]).all():
-            raise not_finite_error(self, Q2[big], "D(·, Q)")
-        return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
 
     def __call__(self, Q):
         """D(·, Q): the deformed vertex positions, (★) with float64 W or the compressed factors.
@@ -218,7 +198,7 @@ class DefOp(OperatorCore):
             X = self._frame(Q, warn=True)
             if X is not None:
                 return X
-        return self._evaluate(Q, fast=False)
+        return checked_frames(self, Q, fast=False)
 
     def evaluate_batch(self, Qs, out=None):
         """D(·, Q_k) for k configurations as one matrix product (trajectories, animation).
@@ -252,7 +232,7 @@ class DefOp(OperatorCore):
             return np.empty(shape) if out is None else out
         flat = np.empty((len(Qs), self.d * self.n_vertices)) if out is None else out.reshape(len(Qs), -1)
         if not batch_fast(self, Qs, flat):  # NaN, or a row far enough to overflow float32: the checked path
-            self._evaluate(Qs, fast=True, out=flat)
+            checked_frames(self, Qs, fast=True, out=flat)
         return flat.reshape(shape) if out is None else out
 
     def evaluate_fast(self, Q):
@@ -277,7 +257,7 @@ class DefOp(OperatorCore):
         if np.shape(Q) != self.handle_basis.P.shape:  # broadcasting would move every handle to one point
             raise ValueError(f"Q must have shape {self.handle_basis.P.shape} (the moving handles), got {np.shape(Q)}")
         X = self._frame(Q, warn=False) if type(Q) is np.ndarray and Q.dtype == np.float64 else None
-        return self._evaluate(Q, fast=True) if X is None else X  # NaN, inf, complex, far: the checked path
+        return checked_frames(self, Q, fast=True) if X is None else X  # NaN, inf, complex, far: the checked path
 
     # ------------------------------------------------------------------ compression
     def compress(self, rank=None, tol=compress_mod.TOL, dtype=np.float32):
@@ -302,6 +282,24 @@ class DefOp(OperatorCore):
         what is wrong (:func:`defop.operator.io.load`: the limits and the checks).
         """
         return io_mod.load(path, cls)
+
+
+def checked_frames(op, Q, fast, out=None):
+    """(★) for Q (n,d) or (k,n,d), validated (the checked path of every evaluation); ``fast``: the fast paths'
+    matrices (:func:`free_part`); ``out`` (k, d n_vertices) float64 receives the result."""
+    Q = opt.real_array("Q", Q)  # complex, bool, strings, objects: named, not cast
+    z = op.handle_basis.z(Q)  # validates shape and NaN
+    Q2 = Q.reshape(-1, op.n_moving, op.d)
+    with np.errstate(over="ignore", invalid="ignore"):  # a far Q: the clear error below, not numpy's warning
+        dpsi = op.handle_basis.delta_z(np.atleast_2d(z))
+    core.check_finite(dpsi, Q2, op.P, op.handle_basis, op.mesh)
+    check_extrapolation(op, Q)
+    out = free_part(op, dpsi, fast, out)
+    out[:, op._hcols] += (Q2 - op.P).reshape(len(Q2), op._hcols.size)  # δψ W_H = Q − P (Prop. 2)
+    big = np.abs(dpsi).max(axis=1, initial=0.0) > 1e280  # only rows this far from rest can overflow
+    if big.any() and not np.isfinite(out[big]).all():
+        raise not_finite_error(op, Q2[big], "D(·, Q)")
+    return out.reshape(*Q.shape[:-2], op.n_vertices, op.d)
 
 
 def check_extrapolation(op, Q):

@@ -36,9 +36,10 @@ from .. import options as opt
 from . import compress as compress_mod
 from . import core
 from . import handle_bases as hb
+from . import io as io_mod
 from .core import ExtrapolationWarning, OperatorCore, fast_matrices
 from .fit import structure
-from .io.movable_file import FORMAT, MEMBERS, load_movable, save_movable  # noqa: F401  (public names)
+from .io.movable_file import FORMAT, MEMBERS, save_movable  # noqa: F401  (public names)
 
 
 def joint_z(V, nominal, idx, handles_moving, Q, s_p, s_q):
@@ -270,7 +271,7 @@ class MovableOp(OperatorCore):
         z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Qs, *self.scales)
         with np.errstate(over="ignore", invalid="ignore"):  # a far Q: the clear error below, not numpy's warning
             dpsi = self.basis.delta_z(z.reshape(len(z), -1)) - st["psi0"]
-        self.check_not_finite(dpsi, Qs, st["P"], self.basis)
+        core.check_finite(dpsi, Qs, st["P"], self.basis, self.mesh)
         return dpsi
 
     def displacement(self, Qs, st):
@@ -342,7 +343,13 @@ class MovableOp(OperatorCore):
     @classmethod
     def load(cls, path):
         """Load a file written by :meth:`save`, checked before any work (:func:`load_movable`)."""
-        return load_movable(path, cls)
+        return io_mod.load_movable(path, cls)
+
+
+def load_movable(path, cls=None):
+    """A :class:`MovableOp` (or ``cls``) from a file of :func:`save_movable`
+    (:func:`defop.operator.io.load_movable`: checked before any work, errors naming the file)."""
+    return io_mod.load_movable(path, cls or MovableOp)
 
 
 def same_placement(P, last):

@@ -31,7 +31,7 @@ BRANCH_MEMBERS = (
     "domain_w",
     "domain_centers",
 )
-SHARED_MEMBERS = ("header", "V", "F", "handles", "moving", "basis_P", "mode", "box")
+SHARED_MEMBERS = files.MESH_MEMBERS + ("basis_P", "mode", "box")
 KIND = files.register(
     files.FileKind(
         "branched",

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ... import options as opt
-from ...geometry.archive import ArchiveError, Limits, NpzReader
+from ...geometry.archive import ArchiveError, Limits, NpzReader, Reraise
 from ...geometry.mesh import Mesh
 from .. import handle_bases as hb
 
@@ -36,6 +36,8 @@ MAX_JSON_DEPTH = 32
 MAX_CENTERS = 20_000
 #: the most branches a multi-valued file may hold
 MAX_BRANCHES = 8
+#: the members every operator file begins with: its JSON header, the mesh and the handles
+MESH_MEMBERS = ("header", "V", "F", "handles", "moving")
 #: the float dtypes an operator file may store (the compiled kernels take these; float16 is refused by name)
 FLOATS = (np.dtype(np.float32), np.dtype(np.float64))
 
@@ -255,20 +257,10 @@ def write(path, arrays):
 
 def load_errors(path, what):
     """A context turning a build's KeyError/TypeError/ValueError/... into an OperatorFileError naming the file."""
-    return _Invalid(path, what)
 
+    def invalid(exc):
+        reason = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or type(exc).__name__
+        return OperatorFileError(f"{path} is not a valid {what}: {reason}")
 
-class _Invalid:
-    def __init__(self, path, what):
-        self.path, self.what = path, what
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, typ, exc, tb):
-        if typ is None or issubclass(typ, OperatorFileError):
-            return False
-        if issubclass(typ, (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError)):
-            what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or typ.__name__
-            raise OperatorFileError(f"{self.path} is not a valid {self.what}: {what}") from exc
-        return False
+    errors = (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError)
+    return Reraise(errors, invalid, keep=(OperatorFileError,))

@@ -14,12 +14,7 @@ from . import files
 from .files import OperatorFileError, array
 
 FORMAT = "defop-movable-1"
-MEMBERS = (
-    "header",
-    "V",
-    "F",
-    "handles",
-    "moving",
+MEMBERS = files.MESH_MEMBERS + (
     "joint_W",
     "joint_centers",
     "reach",
@@ -78,12 +73,11 @@ def check_declared(path, header, shapes, version):
         raise OperatorFileError(f"{path} declares {C[0]} TPS centres, limit {files.MAX_CENTERS}")
 
 
-def load_movable(path, cls=None):
+def load_movable(path, cls):
     """Read a file of :func:`save_movable`, checked before any work (:func:`defop.operator.io.files.read_file`),
-    then every array against the others; a ValueError (``OperatorFileError``) names the file and the problem."""
+    then every array against the others, and build a ``cls`` (:class:`defop.operator.movable.MovableOp`); a
+    ValueError (``OperatorFileError``) names the file and the problem."""
     header, data, _ = files.read_file(path, KIND, check_declared)
-    if cls is None:
-        from ..movable import MovableOp as cls
     with files.load_errors(path, "movable-handle operator file"):
         meta = files.header_object(header, "meta")
         mesh, handles, moving = files.mesh_and_handles(data)

@@ -14,12 +14,7 @@ FORMAT = "defop-operator-3"
 FORMAT_VERSION = 3
 #: formats this version reads, with their version numbers (1 and 2 are 2D only)
 READS = {"defop-operator-1": 1, "defop-operator-2": 2, FORMAT: FORMAT_VERSION}
-MEMBERS = (
-    "header",
-    "V",
-    "F",
-    "handles",
-    "moving",
+MEMBERS = files.MESH_MEMBERS + (
     "W",
     "basis_P",
     "basis_centers",
