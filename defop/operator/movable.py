@@ -229,11 +229,8 @@ class MovableOp(OperatorCore):
     def _check_Q(self, Q, st):
         if not (type(Q) is np.ndarray and Q.dtype == np.float64):
             Q = opt.real_array("Q", Q)
-        n, d = self.n_moving, self.d
-        if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, d):
-            raise ValueError(f"Q must have shape ({n}, {d}) or (k, {n}, {d}) for {n} moving handles, got {Q.shape}")
-        if not np.isfinite(Q).all():
-            raise ValueError(f"Q has NaN or infinite entries: {np.array2string(Q, threshold=20)}")
+        n = self.n_moving
+        Q = core.check_configurations(Q, n, self.d)  # the one check of Q: shape, real, finite
         if self.reach is not None:
             with np.errstate(over="ignore"):  # a far Q: inf, refused where Ψ is evaluated
                 dist = np.sqrt(np.square(Q - st["P"]).sum(axis=-1).reshape(-1, n).max(axis=0, initial=0.0))
