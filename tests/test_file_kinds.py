@@ -199,3 +199,24 @@ def test_every_kind_is_registered_with_its_formats():
     assert set(opio.KINDS) == {"operator", "branched", "movable"}
     assert opio.KINDS["branched"].formats == {"defop-branched-1": 1, "defop-branched-2": 2}
     assert opio.kind_of(["joint_W.npy"])[2] == "defop.operator.MovableOp.load"
+
+
+def test_every_path_computes_the_frames_of_f3915d6():
+    """The frames of every evaluation path, as the code before the one operator core computed them
+    (tests/data/files/frames.py): float64 paths bit for bit, the float32 and compiled paths within round-off."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("fixture_frames", FILES / "frames.py")
+    frames = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(frames)
+    now = frames.frames(FILES)
+    with np.load(FILES / "frames_f3915d6.npz") as z:
+        old = {k: z[k] for k in z.files}
+    assert set(now) == set(old)
+    for name, X in old.items():
+        if name in frames.EXACT:
+            assert np.array_equal(now[name], X), name
+        else:
+            assert np.allclose(now[name], X, rtol=1e-5, atol=1e-6 * np.abs(X).max()), name
+    n_equal = sum(np.array_equal(now[k], old[k]) for k in old)
+    assert n_equal >= len(frames.EXACT)
