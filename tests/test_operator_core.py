@@ -135,3 +135,23 @@ def test_guarantees_on_every_path_at_random_q(ops, data):
             X0 = f(P.copy()).reshape(-1, *op.mesh.V.shape)[0]
         assert np.array_equal(X0, op.mesh.V), (kind, name)
         assert np.allclose(X[hm], Q, rtol=0, atol=1e-12 * op.mesh.bbox_diagonal), (kind, name)
+
+
+def test_old_names_warn_and_still_work():
+    from defop.operator import defop as defop_mod
+    from defop.operator import kernels, movable_kernels
+
+    with pytest.warns(DeprecationWarning, match="movable_correction"):
+        assert movable_kernels.finish_frame is kernels.movable_correction
+    with pytest.warns(DeprecationWarning, match="frame_from_raw"):
+        assert kernels.apply is kernels.frame_from_raw
+    with pytest.warns(DeprecationWarning, match="beyond_bound"):
+        assert kernels.beyond is kernels.beyond_bound
+    op = DefOp.load(FILES / "operator-3_tps_rank3.npz")
+    f = op.fast_state()
+    with pytest.warns(DeprecationWarning, match="kernel_args"):
+        k = defop_mod.kernel_state(op.handle_basis, f.mats)
+    assert np.array_equal(k.B, f.kernel.B)
+    assert (
+        defop_mod.EXTRAPOLATION_FACTOR is core.EXTRAPOLATION_FACTOR and defop_mod.training_reach is core.training_reach
+    )

@@ -79,7 +79,7 @@ FORMAT = 1
 
 _META = "__meta__"  # the entry's JSON metadata, stored as a 0-d string array
 #: what an entry read by :meth:`Cache.load` may declare (:class:`defop.geometry.archive.NpzReader`)
-ENTRY_LIMITS = Limits(max_members=64, max_array_bytes=4 * 2**30, max_total_bytes=16 * 2**30, max_ndim=4)
+ENTRY_LIMITS = Limits(max_members=64, max_array_bytes=4 * 2**30, max_total_bytes=16 * 2**30, max_ndim=6)
 #: a damaged .npz can make zipfile/numpy raise nearly anything (BadZipFile, EOFError, NotImplementedError for a
 #: flipped compression-method byte, struct.error, zlib.error, SyntaxError in the array header, ...): any failure
 #: to read an entry makes it unusable, and it is removed, with a warning naming the file and the exception
