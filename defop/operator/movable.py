@@ -28,6 +28,7 @@ itself is a function of (P, Q) and keeps no state.
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -40,6 +41,36 @@ from . import io as io_mod
 from .core import ExtrapolationWarning, OperatorCore, fast_matrices
 from .fit import structure
 from .io.movable_file import FORMAT, MEMBERS, save_movable  # noqa: F401  (public names)
+
+
+@dataclasses.dataclass
+class RestPlacement:
+    """The state of one rest placement P of the movable handles (:meth:`MovableOp.at`, :meth:`CarryOp.at`).
+
+    ``idx`` (b,) the movable handles' vertices, ``hm`` (n,) the moving handles' vertices, ``P`` (n, d) their rest
+    positions, ``bumps`` the placement's bumps (support, weights); for :class:`MovableOp` also the factors it was
+    made for (``key``), z(P, P) (``z0``), δψ's subtrahend (``psi0``), the kernel's frame at (P, P) (``X0``), the
+    movable rows, the fixed handles and whether P is the nominal placement; for :class:`CarryOp` the barycentric
+    map ``S`` and the shift of Q to the nominal operator.
+    """
+
+    idx: np.ndarray
+    hm: np.ndarray
+    P: np.ndarray
+    bumps: tuple
+    key: object = None
+    z0: np.ndarray | None = None
+    psi0: np.ndarray | None = None
+    X0: np.ndarray | None = None
+    rows: np.ndarray | None = None
+    fixed: np.ndarray | None = None
+    nominal: bool = False
+    S: object = None
+    shift: np.ndarray | None = None
+
+    def __getitem__(self, name):
+        """``state["idx"]``: the mapping access of earlier versions."""
+        return getattr(self, name)
 
 
 def joint_z(V, nominal, idx, handles_moving, Q, s_p, s_q):
@@ -120,16 +151,16 @@ def retarget(Q, placement, old, new):
 def correct(mesh, placement, handles, moving, st, u, Qs):
     """x + u, the residual correction Σ_ℓ g_{v_ℓ} r_ℓ in float64, the handles written exactly, rest rows = x.
 
-    ``st``: the placement state (``idx``, ``hm``, ``P``, ``rows`` as :meth:`MovableOp.at` makes it); u (k, d n)
+    ``st``: the :class:`RestPlacement` of :meth:`MovableOp.at` (or :meth:`CarryOp.at`); u (k, d n)
     float64, Qs (k, n, d). Returns (k, d n_vertices).
     """
     k, d, n_vertices = len(Qs), mesh.dim, mesh.n_vertices
     X = (mesh.V.ravel() + u).reshape(k, n_vertices, d)
-    disp = Qs - st["P"]  # (k, n, d)
-    r = disp[:, placement.moving_rows()] - u.reshape(k, n_vertices, d)[:, st["idx"]]  # (k, b, d)
-    sup, wt = st["bumps"]
+    disp = Qs - st.P  # (k, n, d)
+    r = disp[:, placement.moving_rows()] - u.reshape(k, n_vertices, d)[:, st.idx]  # (k, b, d)
+    sup, wt = st.bumps
     X[:, sup] += np.matmul(wt, r)  # (s, b) @ (k, b, d): Σ_ℓ g_{v_ℓ} r_ℓ on the bumps' support
-    X[:, st["hm"]] = Qs  # Prop. 2: every moving handle on its target, bit for bit
+    X[:, st.hm] = Qs  # Prop. 2: every moving handle on its target, bit for bit
     fixed = handles[~moving]
     X[:, fixed] = mesh.V[fixed]
     rest = ~np.any(disp.reshape(k, -1) != 0.0, axis=1)
@@ -143,7 +174,7 @@ def residual(op, Q, P=None):
     st = op.at(P)
     Q = np.asarray(Q, float)[None]
     u = op.displacement(Q, st)
-    r = (Q - st["P"])[:, op.placement.moving_rows()] - u.reshape(1, op.n_vertices, op.d)[:, st["idx"]]
+    r = (Q - st.P)[:, op.placement.moving_rows()] - u.reshape(1, op.n_vertices, op.d)[:, st.idx]
     return float(np.abs(r).max() / op.mesh.bbox_diagonal)
 
 
@@ -189,27 +220,27 @@ class MovableOp(OperatorCore):
         """The state of rest placement P (:meth:`PlacementRegions.resolve`), kept until P changes: its vertices,
         the moving handles' rest positions, z(P, P) and the kernel's frame at (P, P)."""
         last = self._at
-        if last is not None and last["key"] is self.factors and same_placement(P, last):
+        if last is not None and last.key is self.factors and same_placement(P, last):
             return last  # the placement of the last frame (an interactive drag): nothing to resolve
         idx = self.placement.resolve(P)
-        if self._at is not None and np.array_equal(self._at["idx"], idx) and self._at["key"] is self.factors:
+        if self._at is not None and np.array_equal(self._at.idx, idx) and self._at.key is self.factors:
             return self._at
         hm = self.placement.handles_at(idx)[self.moving]
         Pm = self.mesh.V[hm]
         z0 = joint_z(self.mesh.V, self.placement.nominal, idx, hm, Pm[None], *self.scales)[0]
-        st = {
-            "idx": idx,
-            "key": self.factors,
-            "hm": hm,
-            "P": Pm,
-            "z0": z0,
-            "bumps": self.placement.bumps_at(idx),
-            "rows": self.placement.moving_rows(),
-            "fixed": self.handles[~self.moving],
-            "nominal": bool(np.array_equal(idx, self.placement.nominal)),
-        }
-        st["psi0"] = self.basis.delta_z(z0.reshape(1, -1))  # (1, |Ψ|−1), float64
-        st["X0"] = self._kernel(z0, self.fast_state())
+        st = RestPlacement(
+            idx=idx,
+            hm=hm,
+            P=Pm,
+            bumps=self.placement.bumps_at(idx),
+            key=self.factors,
+            z0=z0,
+            rows=self.placement.moving_rows(),
+            fixed=self.handles[~self.moving],
+            nominal=bool(np.array_equal(idx, self.placement.nominal)),
+        )
+        st.psi0 = self.basis.delta_z(z0.reshape(1, -1))  # (1, |Ψ|−1), float64
+        st.X0 = self._kernel(z0, self.fast_state())
         self._at = st
         return st
 
@@ -233,7 +264,7 @@ class MovableOp(OperatorCore):
         Q = core.check_configurations(Q, n, self.d)  # the one check of Q: shape, real, finite
         if self.reach is not None:
             with np.errstate(over="ignore"):  # a far Q: inf, refused where Ψ is evaluated
-                dist = np.sqrt(np.square(Q - st["P"]).sum(axis=-1).reshape(-1, n).max(axis=0, initial=0.0))
+                dist = np.sqrt(np.square(Q - st.P).sum(axis=-1).reshape(-1, n).max(axis=0, initial=0.0))
             far = np.flatnonzero(core.beyond_reach(dist, self.reach))
             if far.size:
                 j = int(far[0])
@@ -265,10 +296,10 @@ class MovableOp(OperatorCore):
 
     def delta_psi(self, Qs, st):
         """δψ(P, Q_k) (k, |Ψ|−1) in float64, checked finite (a ValueError naming Q where Ψ overflows)."""
-        z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Qs, *self.scales)
+        z = joint_z(self.mesh.V, self.placement.nominal, st.idx, st.hm, Qs, *self.scales)
         with np.errstate(over="ignore", invalid="ignore"):  # a far Q: the clear error below, not numpy's warning
-            dpsi = self.basis.delta_z(z.reshape(len(z), -1)) - st["psi0"]
-        core.check_finite(dpsi, Qs, st["P"], self.basis, self.mesh)
+            dpsi = self.basis.delta_z(z.reshape(len(z), -1)) - st.psi0
+        core.check_finite(dpsi, Qs, st.P, self.basis, self.mesh)
         return dpsi
 
     def displacement(self, Qs, st):
@@ -285,28 +316,26 @@ class MovableOp(OperatorCore):
         return y.astype(float)
 
     def _frame(self, Q, st):
-        z = st["z0"].copy()  # [(P_b − P_b⁰)/s_P, 0], kept per placement; the Q part is the frame's (joint_z's sums)
+        z = st.z0.copy()  # [(P_b − P_b⁰)/s_P, 0], kept per placement; the Q part is the frame's (joint_z's sums)
         np.divide(
-            np.subtract(Q, st["P"], out=z[self.placement.n_movable :]),
+            np.subtract(Q, st.P, out=z[self.placement.n_movable :]),
             self.scales[1],
             out=z[self.placement.n_movable :],
         )
         f = self.fast_state()
         Xz = self._kernel(z, f)
-        if not Xz.size or not st["X0"].size:  # beyond the float32 guard: numpy with scaling, Ψ checked finite
+        if not Xz.size or not st.X0.size:  # beyond the float32 guard: numpy with scaling, Ψ checked finite
             u = self._product(self.delta_psi(Q[None], st))
             return self._finish(u, st, Q[None])[0].reshape(self.n_vertices, self.d)
-        sup, wt = st["bumps"]
-        out = f.kernel.lib.movable_correction(
-            Xz, st["X0"], self._x, Q, st["P"], st["idx"], st["rows"], st["hm"], sup, wt, st["fixed"]
-        )
+        sup, wt = st.bumps
+        out = f.kernel.lib.movable_correction(Xz, st.X0, self._x, Q, st.P, st.idx, st.rows, st.hm, sup, wt, st.fixed)
         return out.reshape(self.n_vertices, self.d)
 
     def evaluate_fast(self, Q, P=None):
         """One frame by the compiled kernel: float32 W_F (or the factors), the correction in float64."""
         st = self.at(P)
         Q = self._check_Q(Q, st)
-        if Q.shape != st["P"].shape:
+        if Q.shape != st.P.shape:
             raise ValueError(f"Q must have shape {st['P'].shape} (one frame), got {Q.shape}")
         return self._frame(Q, st)
 
@@ -352,13 +381,8 @@ def load_movable(path, cls=None):
 def same_placement(P, last):
     """Whether P names the placement ``last`` was made for (None: the nominal; int vertex indices: equal)."""
     if P is None:
-        return last["nominal"]
-    return (
-        type(P) is np.ndarray
-        and P.dtype.kind in "iu"
-        and P.shape == last["idx"].shape
-        and bool((P == last["idx"]).all())
-    )
+        return last.nominal
+    return type(P) is np.ndarray and P.dtype.kind in "iu" and P.shape == last.idx.shape and bool((P == last.idx).all())
 
 
 class CarryOp:
@@ -386,7 +410,7 @@ class CarryOp:
         import scipy.sparse as sp
 
         idx = self.placement.resolve(P)
-        if self._at is not None and np.array_equal(self._at["idx"], idx):
+        if self._at is not None and np.array_equal(self._at.idx, idx):
             return self._at
         hm = self.placement.handles_at(idx)[self.moving]
         y = self.mesh.V.copy()
@@ -397,23 +421,23 @@ class CarryOp:
         elem, bary = self.mesh.locate(y)
         n = self.n_vertices
         S = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(n), self.d + 1), self.mesh.F[elem].ravel())), (n, n))
-        self._at = {
-            "idx": idx,
-            "hm": hm,
-            "P": self.mesh.V[hm],
-            "bumps": self.placement.bumps_at(idx),
-            "S": S,
-            "shift": self.op0.P - self.mesh.V[hm],
-        }
+        self._at = RestPlacement(
+            idx=idx,
+            hm=hm,
+            P=self.mesh.V[hm],
+            bumps=self.placement.bumps_at(idx),
+            S=S,
+            shift=self.op0.P - self.mesh.V[hm],
+        )
         return self._at
 
     def __call__(self, Q, P=None, fast=False):
         """D(·; P, Q) for Q (n, d) or (k, n, d) at one P; ``fast``: the nominal operator's fast path."""
         st = self.at(P)
         Q = opt.real_array("Q", Q)
-        Qs = Q.reshape(-1, *st["P"].shape)
-        Qn = Qs + st["shift"]
+        Qs = Q.reshape(-1, *st.P.shape)
+        Qn = Qs + st.shift
         X0 = np.stack([self.op0.evaluate_fast(q) for q in Qn]) if fast else self.op0(Qn)
-        u = np.stack([st["S"] @ (x - self.mesh.V) for x in X0]).reshape(len(Qs), -1)
+        u = np.stack([st.S @ (x - self.mesh.V) for x in X0]).reshape(len(Qs), -1)
         out = correct(self.mesh, self.placement, self.handles, self.moving, st, u, Qs)
         return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
