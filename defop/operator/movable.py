@@ -263,8 +263,12 @@ class MovableOp(OperatorCore):
         n = self.n_moving
         Q = core.check_configurations(Q, n, self.d)  # the one check of Q: shape, real, finite
         if self.reach is not None:
-            with np.errstate(over="ignore"):  # a far Q: inf, refused where Ψ is evaluated
-                dist = np.sqrt(np.square(Q - st.P).sum(axis=-1).reshape(-1, n).max(axis=0, initial=0.0))
+            diff = Q - st.P
+            if np.vdot(diff, diff) < 1e300:  # vdot: no overflow warning; below, no square overflows (the frame's case)
+                dist = np.sqrt(np.square(diff).sum(axis=-1).reshape(-1, n).max(axis=0, initial=0.0))
+            else:
+                with np.errstate(over="ignore"):  # a far Q: inf, refused where Ψ is evaluated
+                    dist = np.sqrt(np.square(diff).sum(axis=-1).reshape(-1, n).max(axis=0, initial=0.0))
             far = np.flatnonzero(core.beyond_reach(dist, self.reach))
             if far.size:
                 j = int(far[0])
