@@ -29,6 +29,7 @@ from threadpoolctl import threadpool_limits
 import defop as dop
 from defop.analysis.metrics import approximation_error, copy_bandwidth
 from defop.operator import kernels
+from defop.operator.defop import checked_frames
 from defop.rivals import peers
 
 N_HELD_OUT = 100
@@ -60,22 +61,22 @@ def numpy_frame(op, f, Q):
     """The numpy single frame that ``evaluate_fast`` used before the kernel (for the record)."""
     dz = (Q - op.P).ravel()
     zz = np.vdot(dz, dz)
-    y = op.handle_basis.delta_raw(dz, zz, np.empty(op._q, f["dtype"]))
-    for M in f["mats"]:
+    y = op.handle_basis.delta_raw(dz, zz, np.empty(op._q, f.dtype))
+    for M in f.mats:
         y = np.dot(y, M)
     out = y.astype(np.float64)
     out += op._x
-    out[op._hcols] = f["xh"] + dz
+    out[op._hcols] = f.extra["xh"] + dz
     return out.reshape(-1, op.d)
 
 
 def breakdown(op, Q):
     """Seconds of each step of a frame (best), the numpy path and the kernel."""
-    f = op._fast_state()
-    hb, k = op.handle_basis, f["kernel"]
-    A32, B = k["A"], k["B"]
-    Af = f["mats"][0]
-    cm, czeps, inv_s2, ell0, log_kernel = k["tps"]
+    f = op.fast_state()
+    hb, k = op.handle_basis, f.kernel
+    A32, B = k.A, k.B
+    Af = f.mats[0]
+    cm, czeps, inv_s2, ell0, log_kernel = k.tps
     dzs = [((q - op.P).ravel(),) for q in Q]
     zzs = [(d, d @ d) for (d,) in dzs]
     y = np.empty(op._q, np.float32)
@@ -84,25 +85,25 @@ def breakdown(op, Q):
     us = [(np.dot(t, B),) for (t,) in ts]
     out = np.empty(B.shape[1])
     empty = np.empty((0, 0), np.float32)
-    xh = f["xh"]
+    xh = f.extra["xh"]
     steps = {
         "numpy: Q − P and |Q − P|²": (lambda q: np.vdot(d := (q - op.P).ravel(), d), [(q,) for q in Q]),
         "numpy: ψ (delta_raw: gemv, 2 adds, log, product, subtract)": (lambda d, z: hb.delta_raw(d, z, y), zzs),
         "numpy: δψ A' (sgemv)": (lambda yy: np.dot(yy, Af), ys),
         "numpy: t B (sgemv)": (lambda t: np.dot(t, B), ts),
         "numpy: x + u (cast, add)": (lambda u: np.add(u.astype(np.float64), op._x, out=out), us),
-        "numpy: the handles' exact part": (lambda d: np.add(f["xh"], d, out=out[: d.size]), dzs),
+        "numpy: the handles' exact part": (lambda d: np.add(f.extra["xh"], d, out=out[: d.size]), dzs),
         "kernel: ψ (tps_raw)": (lambda d, z: kernels.tps_raw(d, z, cm, czeps, inv_s2, ell0, log_kernel, y), zzs),
         "kernel: δψ A', t B, x + u, handles (apply)": (
-            lambda yy, d: kernels.apply(yy, A32, B, op._x, op._hcols, f["xh"], d),
+            lambda yy, d: kernels.frame_from_raw(yy, A32, B, op._x, op._hcols, f.extra["xh"], d),
             [(yy, d) for (yy,), (d,) in zip(ys, dzs)],
         ),
         "kernel: t B, x + u, handles (apply, A skipped)": (
-            lambda t, d: kernels.apply(t, empty, B, op._x, op._hcols, f["xh"], d),
+            lambda t, d: kernels.frame_from_raw(t, empty, B, op._x, op._hcols, f.extra["xh"], d),
             [(t, d) for (t,), (d,) in zip(ts, dzs)],
         ),
         "kernel: the whole frame (tps_frame: dz, guard, ψ, apply)": (
-            lambda q: kernels.tps_frame(q, op.P, f["R2"], k["far2"], *k["tps"], A32, B, op._x, op._hcols, xh),
+            lambda q: kernels.tps_frame(q, op.P, f.R2, k.far2, *k.tps, A32, B, op._x, op._hcols, xh),
             [(q,) for q in Q],
         ),
     }
@@ -122,14 +123,14 @@ def main(m=500):
         err_o = approximation_error(other, Qh, Xh)
     Q = dop.training.sampling.sample_shape(shape, 50, np.random.default_rng(1))
     bih = peers.make_peer(shape, "biharmonic")
-    f = op._fast_state()
+    f = op.fast_state()
     args = [(q,) for q in Q]
     methods = {
         "biharmonic coordinates (peer)": bih,
         "defop op(Q), compressed, validated (kernel)": op,
         "defop evaluate_fast, compressed (kernel)": op.evaluate_fast,
         f"defop op(Q), compress(tol={OTHER_TOL}) (kernel)": other,
-        "before: op(Q) checked numpy path": lambda q: op._evaluate(q, fast=False),
+        "before: op(Q) checked numpy path": lambda q: checked_frames(op, q, fast=False),
         "before: evaluate_fast numpy path": lambda q: numpy_frame(op, f, q),
     }
     for q in Q[:3]:  # the kernel path and the numpy path agree to float32 round-off; handles exact

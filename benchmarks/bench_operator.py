@@ -90,12 +90,12 @@ def quality_rows(name, op, Q, X):
 
 def psi_times(op, Q, k):
     """ψ seconds of one frame: on its own (the single-frame path) and vectorised over a batch of k."""
-    hb, f = op.handle_basis, op._fast_state()
+    hb, f = op.handle_basis, op.fast_state()
     dz = (Q[0] - op.P).ravel()
-    one = repeat_timing(lambda: hb.delta_raw(dz, dz @ dz, np.empty(hb.size - 1, f["dtype"])), 15, 0.01)
+    one = repeat_timing(lambda: hb.delta_raw(dz, dz @ dz, np.empty(hb.size - 1, f.dtype)), 15, 0.01)
     dZ = (Q[np.arange(k) % len(Q)] - op.P).reshape(k, -1)
     zz = np.sum(dZ**2, axis=1)
-    batch = repeat_timing(lambda: hb.delta_raw(dZ, zz, np.empty((k, hb.size - 1), f["dtype"])), 5, 0.05)
+    batch = repeat_timing(lambda: hb.delta_raw(dZ, zz, np.empty((k, hb.size - 1), f.dtype)), 5, 0.05)
     return one["best"], batch["best"] / k
 
 

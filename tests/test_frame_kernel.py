@@ -13,7 +13,7 @@ from test_operator import op_and_data  # noqa: F401 - the shared fixture (250-ve
 import defop as dop
 from defop.operator import handle_bases as hb
 from defop.operator import kernels
-from defop.operator.defop import ExtrapolationWarning
+from defop.operator.defop import ExtrapolationWarning, checked_frames
 
 
 @settings(max_examples=25, deadline=None)
@@ -50,7 +50,7 @@ def test_kernel_frame_is_the_checked_path_and_exact_at_handles_and_rest(op_and_d
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ExtrapolationWarning)
-            ref = op._evaluate(Qs, fast=True)  # numpy: δψ from delta_z, BLAS products
+            ref = checked_frames(op, Qs, fast=True)  # numpy: δψ from delta_z, BLAS products
             for q, r in zip(Qs, ref):
                 for path in (op, op.evaluate_fast):
                     X = path(q)
@@ -87,7 +87,7 @@ def test_compressed_single_frame_still_warns_and_validates(op_and_data):  # noqa
 def test_polynomial_bases_take_the_kernel_products(op_and_data):  # noqa: F811 - the fixture imported above
     s, _, Q, X = op_and_data
     op = dop.operator.fit.fit_shape(s, Q, X, "quadratic", meta={"energy": "arap"}).compress(rank=4)
-    ref = op._evaluate(Q[:4], fast=True)
+    ref = checked_frames(op, Q[:4], fast=True)
     for q, r in zip(Q[:4], ref):
         assert np.abs(op(q) - r).max() <= 1e-5 * s.mesh.bbox_diagonal
     assert np.array_equal(op(op.P.copy()), s.mesh.V)

@@ -367,7 +367,7 @@ def test_fast_paths_switch_to_the_checked_path_beyond_the_overflow_guard(op_and_
     if compressed:
         op.compress(tol=1e-3)
     try:
-        R = np.sqrt(op._fast_state()["R2"])
+        R = np.sqrt(op.fast_state().R2)
         assert 0 < R < np.inf
         rng = np.random.default_rng(5)
         u = rng.standard_normal(op.P.shape)

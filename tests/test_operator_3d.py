@@ -170,7 +170,7 @@ def test_reduced_basis_in_3d_spans_the_affine_functions(bar3d):
 
 def test_save_load_round_trip_in_3d(bar3d, tmp_path, monkeypatch):
     mesh, handles, moving, Q, X = bar3d
-    monkeypatch.setattr(opio, "Mesh", TetMesh)  # until defop.geometry.mesh.Mesh takes tetrahedra
+    monkeypatch.setattr(opio.files, "Mesh", TetMesh)  # until defop.geometry.mesh.Mesh takes tetrahedra
     op = fit(mesh, handles, moving, Q, X, "tps", meta={"shape": "tet bar"})
     op.save(tmp_path / "op3.npz")
     back = DefOp.load(tmp_path / "op3.npz")

@@ -193,7 +193,7 @@ def test_declared_degree_beyond_the_limit(op_file, tmp_path):
 
 def test_too_many_tps_centres(op_file, tmp_path, monkeypatch):
     _, path, _ = op_file
-    monkeypatch.setattr(opio, "MAX_CENTERS", 5)
+    monkeypatch.setattr(opio.files, "MAX_CENTERS", 5)
     _expect_clear_error(path, "declares 9 TPS centres, limit 5")
 
 
@@ -203,7 +203,7 @@ def test_zip_bomb_is_rejected_without_inflating_it(op_file, tmp_path, monkeypatc
     members["W.npy"] = _npy(np.zeros((2048, 2048)))  # 32 MiB of zeros, 33 kB deflated
     bomb = _zip(tmp_path / "bomb.npz", members)
     assert bomb.stat().st_size < 100_000
-    monkeypatch.setattr(opio, "MAX_ARRAY_BYTES", 2**20)  # a 1 MiB limit: the bomb declares 32 times more
+    monkeypatch.setattr(opio.files, "MAX_ARRAY_BYTES", 2**20)  # a 1 MiB limit: the bomb declares 32 times more
     inflated = []
     read = zipfile.ZipExtFile.read
 
@@ -216,7 +216,7 @@ def test_zip_bomb_is_rejected_without_inflating_it(op_file, tmp_path, monkeypatc
     _expect_clear_error(bomb, r"member 'W\.npy' declares 32 MiB uncompressed, limit 1 MiB per array \(not inflated\)")
     assert sum(inflated) < 200_000  # the headers of the other members only
     # the same bomb with a directory that lies about its size: numpy's header and the member disagree
-    monkeypatch.setattr(opio, "MAX_ARRAY_BYTES", 2 * 2**30)
+    monkeypatch.setattr(opio.files, "MAX_ARRAY_BYTES", 2 * 2**30)
     lied = bytearray(bomb.read_bytes())
     with zipfile.ZipFile(bomb) as zf:
         info = zf.getinfo("W.npy")
@@ -241,7 +241,7 @@ def test_unexpected_members_and_too_many(op_file, tmp_path, monkeypatch):
     members = _members(path)
     members["evil.npy"] = b"x"
     _expect_clear_error(_zip(tmp_path / "extra.npz", members), "unexpected member 'evil.npy'")
-    monkeypatch.setattr(opio, "MAX_MEMBERS", 3)
+    monkeypatch.setattr(opio.files, "MAX_MEMBERS", 3)
     _expect_clear_error(path, "archive members, limit 3")
 
 

@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import io
 import os
-import tokenize
-import zlib
 from functools import cached_property
 from pathlib import Path
 
@@ -412,49 +410,31 @@ def read_mesh(path):
 
 
 def _read_npz(path):
-    """V and F of an .npz, each member's header checked before its data is inflated (reads stop at its size)."""
+    """V and F of an .npz by the one archive reader (:class:`defop.geometry.archive.NpzReader`): each member's
+    header checked (numbers, the shape, :data:`MAX_FILE_ELEMENTS` rows) before its data is inflated."""
     import zipfile
+
+    from .archive import ArchiveError, Limits, NpzReader
 
     if not zipfile.is_zipfile(path):
         raise ValueError(f"mesh file {path} is not an .npz archive (not a zip file: truncated, or another format)")
-    arrays = {}
-    try:
-        with zipfile.ZipFile(path) as zf:
-            names = set(zf.namelist())
-            if not {"V.npy", "F.npy"} <= names:
-                raise ValueError(f"mesh file {path} holds no mesh (arrays V and F are missing)")
-            for key in ("V", "F"):
-                with zf.open(f"{key}.npy") as fh:
-                    arrays[key] = _read_member(fh, path, key)
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, zlib.error, NotImplementedError) as exc:
-        raise ValueError(f"mesh file {path} is truncated or corrupt ({exc})") from None
-    return arrays["V"], arrays["F"]
+    label = f"mesh file {path}"
 
+    def check(key, shape, dtype):
+        cols = {"V": (2, 3), "F": (3, 4)}.get(key)  # Mesh itself checks that they fit together
+        if cols is None:
+            return
+        if len(shape) != 2 or shape[1] not in cols:
+            raise ArchiveError(f"{label}: {key} must be an (n, {' or '.join(map(str, cols))}) array, got shape {shape}")
+        if shape[0] > MAX_FILE_ELEMENTS:
+            raise ArchiveError(
+                f"{label} declares {shape[0]:,} rows of {key}, limit {MAX_FILE_ELEMENTS:,} "
+                f"(defop.geometry.mesh.MAX_FILE_ELEMENTS)"
+            )
 
-def _read_member(fh, path, key):
-    fmt = np.lib.format
-    try:
-        version = fmt.read_magic(fh)
-        read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
-        shape, fortran, dtype = read_header(fh, max_header_size=10_000)  # a huge or nested header is refused
-    except (ValueError, SyntaxError, TypeError, tokenize.TokenError, RecursionError, MemoryError) as exc:
-        # numpy tokenizes the header: "((((" raised tokenize's TokenError, deep nesting a RecursionError
-        raise ValueError(f"mesh file {path}: member {key} is not a numpy array ({exc})") from None
-    if dtype.hasobject or dtype.kind not in "iuf":
-        raise ValueError(f"mesh file {path}: {key} must hold numbers, got dtype {dtype}")
-    cols = (2, 3) if key == "V" else (3, 4)  # Mesh itself checks that they fit together
-    if len(shape) != 2 or shape[1] not in cols:
-        raise ValueError(
-            f"mesh file {path}: {key} must be an (n, {' or '.join(map(str, cols))}) array, got shape {shape}"
-        )
-    if shape[0] > MAX_FILE_ELEMENTS:
-        raise ValueError(
-            f"mesh file {path} declares {shape[0]:,} rows of {key}, limit {MAX_FILE_ELEMENTS:,} "
-            f"(defop.geometry.mesh.MAX_FILE_ELEMENTS)"
-        )
-    count = int(np.prod(shape))
-    data = fh.read(count * dtype.itemsize)  # stops at the declared size: a bomb cannot inflate further
-    if len(data) != count * dtype.itemsize:
-        raise ValueError(f"mesh file {path}: {key} is truncated ({len(data)} of {count * dtype.itemsize} bytes)")
-    arr = np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
-    return np.array(arr)
+    limits = Limits(max_members=64, kinds="iuf", exact_size=False)  # reads stop at the declared size
+    with NpzReader(path, label, "an .npz archive", limits) as z:
+        if not {"V.npy", "F.npy"} <= set(z.names()):
+            raise ValueError(f"mesh file {path} holds no mesh (arrays V and F are missing)")
+        members = z.members(check=check)
+        return z.read(members["V"]), z.read(members["F"])

@@ -60,7 +60,8 @@ class Branch:
     side : int
         σ_b, +1 or −1.
     domain : defop.operator.domains.Domain, optional
-        g_b fitted from both sides (:func:`defop.operator.domains.fit_domain`); default λ²_b on Ψ_b.
+        g_b fitted from both sides (:func:`defop.operator.domains.fit_domain`); default (a version-1 file)
+        λ²_b = Ψ_b(Q) · l_b, read as a domain on Ψ_b.
     """
 
     def __init__(self, label, op, energy, margin, side, domain=None):
@@ -186,7 +187,15 @@ class BranchedOperator:
         psis = [b.op.psi(Q) for b in self.branches]  # validates Q (shape, NaN) like DefOp
         with np.errstate(over="ignore", invalid="ignore"):  # a far Q: the clear error below, not numpy's warning
             out = [np.stack([p @ b.energy_w for p, b in zip(psis, self.branches)], axis=-1)]
-            out.append(np.stack([b.domain(Q, None if b.domain.own else p) for p, b in zip(psis, self.branches)], -1))
+            out.append(
+                np.stack(
+                    [
+                        b.domain(Q, p if b.domain.basis is b.op.handle_basis else None)
+                        for p, b in zip(psis, self.branches)
+                    ],
+                    -1,
+                )
+            )
             out.append(np.stack([p @ b.score_w for p, b in zip(psis, self.branches)], axis=-1))
         bad = ~np.all([np.isfinite(o).reshape(-1, len(self)).all(axis=1) for o in out], axis=0)
         if bad.any():  # Ψ(Q) overflowed (inf, NaN): no estimate to choose from, no argmax over NaN
@@ -384,10 +393,7 @@ class FollowSession:
         if not ((dz >= box[0]).all() and (dz <= box[1]).all()):  # NaN compares False: the full test raises
             return False
         psi = b.op.handle_basis.evaluate_one(dz / b.op.handle_basis.scale)  # inside the box: Ψ is finite
-        if b.domain.own:
-            g = b.domain.basis.evaluate_one(dz / b.domain.basis.scale) @ b.domain.w
-        else:
-            g = psi @ b.domain.w
+        g = b.domain.basis.evaluate_one(dz / b.domain.basis.scale) @ b.domain.w
         return bool(g > 0 and psi @ b.score_w >= 0)
 
     def _commit(self, label, jump):

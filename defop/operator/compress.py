@@ -60,11 +60,21 @@ def factorise(op, rank=None, tol=TOL, dtype=np.float32):
         A rank that is not a positive integer, a tol outside [0, 1), or another dtype.
     """
     dtype = check_options(rank, tol, dtype)
-    n_cols = op.d * op.n_vertices
-    free = np.setdiff1d(np.arange(n_cols), op.columns(op.handles))
     S = None
     if op.train_samples is not None and len(op.train_samples) > 1:
         S = op.handle_basis.delta_z(op.handle_basis.z(op.train_samples))
+    return free_factors(op, op.handles, S, rank, tol, dtype)
+
+
+def free_factors(op, fixed, S, rank, tol, dtype):
+    """The one compression of every operator kind: (A, B) of W_F ≈ A B on the columns of the vertices that are
+    not ``fixed`` (B is zero on the ``fixed`` columns), mass-weighted (:func:`principal_factors`), in ``dtype``.
+
+    ``op``: an operator with ``WF``, ``columns``, ``d``, ``n_vertices`` and ``mesh``; ``S`` the δψ rows of the
+    training samples (None: Y = W_F M^{1/2}).
+    """
+    n_cols = op.d * op.n_vertices
+    free = np.setdiff1d(np.arange(n_cols), op.columns(fixed))
     mass = np.repeat(op.mesh.mass_matrix.diagonal(), op.d)
     A, Bf = principal_factors(op.WF[:, free], mass[free], S, rank, tol)
     B = np.zeros((A.shape[1], n_cols))

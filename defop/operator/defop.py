@@ -41,44 +41,19 @@ import numpy as np
 
 from .. import options as opt
 from . import compress as compress_mod
+from . import core
 from . import io as io_mod
-
-_F32_SAFE = 1e28  # bound on |δψ A|² (single frame) and |δψ| (batch): float32 products stay finite (|B| << 1e9)
-
-
-#: a moving handle farther from rest than this times its farthest training sample extrapolates (a warning)
-EXTRAPOLATION_FACTOR = 1.5
-
-
-class ExtrapolationWarning(UserWarning):
-    """A handle configuration far outside the sampled region: the operator extrapolates."""
+from .core import (  # noqa: F401  (public names of this module)
+    EXTRAPOLATION_FACTOR,
+    ExtrapolationWarning,
+    FastState,
+    OperatorCore,
+    fast_matrices,
+    training_reach,
+)
 
 
-def training_reach(P, samples):
-    """The reach of a trained operator: per moving handle, the distance from rest to its farthest training sample.
-
-    The one definition: :class:`DefOp` warns beyond :data:`EXTRAPOLATION_FACTOR` times it
-    (:func:`check_extrapolation`), and the editor draws it as the sampling region when none is known
-    (:func:`defop.editor.logic.reach_polygons`, :func:`defop.editor.payload.region_balls`).
-
-    Parameters
-    ----------
-    P : (n,d) numpy array
-        Rest positions of the moving handles.
-    samples : (m,n,d) numpy array or None
-        The training configurations Q_k.
-
-    Returns
-    -------
-    reach : (n,) numpy array or None
-        None without at least 2 samples.
-    """
-    if samples is None or len(samples) < 2:
-        return None
-    return np.linalg.norm(np.asarray(samples, float) - np.asarray(P, float), axis=-1).max(axis=0)
-
-
-class DefOp:
+class DefOp(OperatorCore):
     """A trained closed-form deformation operator, evaluated as (★) in the module docstring.
 
     Parameters
@@ -114,56 +89,27 @@ class DefOp:
     BATCH_CHUNK_BYTES = 4 * 2**20
 
     def __init__(self, mesh, handles, moving, handle_basis, W, meta=None, train_samples=None):
-        self.mesh = mesh
-        self.d = int(np.shape(mesh.V)[1])
-        if handle_basis.P.shape[1] != self.d:
-            raise ValueError(f"the handle basis is in {handle_basis.P.shape[1]}D, the mesh in {self.d}D")
-        self.handles = np.asarray(handles, dtype=np.int64)
-        self.moving = np.asarray(moving, dtype=bool)
+        d = int(np.shape(mesh.V)[1])
+        if handle_basis.P.shape[1] != d:
+            raise ValueError(f"the handle basis is in {handle_basis.P.shape[1]}D, the mesh in {d}D")
+        self.setup_core(mesh, handles, moving, W, meta)
         self.handle_basis = handle_basis
-        self.W = np.ascontiguousarray(W, dtype=float)
-        self.factors = None  # (A, B) after compress()
-        from .. import __version__
-
-        self.meta = {"version": __version__, **(meta or {})}
         self.train_samples = None if train_samples is None else np.asarray(train_samples, float)
         self._reach = training_reach(self.P, self.train_samples)  # (n,) or None
-        self._far2 = None  # per handle: |Q_j − P_j|² below this is not beyond 1.5x its reach (the fast check)
-        if self._reach is not None:  # the factor 1 − 1e-9 covers the rounding of the two ways of summing the squares
-            self._far2 = (EXTRAPOLATION_FACTOR * self._reach) ** 2 * (1.0 - 1e-9)
+        self._far2 = core.far_bound(self._reach)  # per handle: |Q_j − P_j|² below this is not beyond the reach
         self.fit_time = self.fold_time = None
         # (★): x, the moving handles' coordinate columns, and W_F = W[1:] without the handle columns
-        self._x = np.ascontiguousarray(mesh.V, dtype=float).ravel()
         self._hcols = self.columns(self.handles[self.moving])
         self._all_hcols = self.columns(self.handles)
-        self._WF = self.W[1:].copy()
-        self._WF[:, self._all_hcols] = 0.0
-        self._fast = None  # matrices of evaluate_fast / evaluate_batch (see _fast_state), made on first use
+        self.set_free_part(self.handles)
         self._work = None  # workspace of the batch product
         self._q = handle_basis.size - 1  # length of δψ
 
     # ------------------------------------------------------------------ properties
-    def columns(self, vertices):
-        """Columns of W (row-major x, y[, z] per vertex) of ``vertices`` (k,): (k d,) int array."""
-        return (self.d * np.asarray(vertices, np.int64)[:, None] + np.arange(self.d)).ravel()
-
     @property
     def P(self):
         """(n_moving,d) rest positions of the moving handles."""
         return self.handle_basis.P
-
-    @property
-    def WF(self):
-        """W_F of (★): W[1:] with the handle columns zeroed, (|Ψ|−1, d n_vertices) float64 (read only)."""
-        return self._WF
-
-    @property
-    def n_moving(self) -> int:
-        return int(self.moving.sum())
-
-    @property
-    def n_vertices(self) -> int:
-        return self.mesh.n_vertices
 
     @property
     def energy(self):
@@ -172,11 +118,6 @@ class DefOp:
     @property
     def n_samples(self):
         return self.meta.get("n_samples")
-
-    @property
-    def rank(self):
-        """Rank of the compressed factor, or None when uncompressed."""
-        return None if self.factors is None else self.factors[0].shape[1]
 
     def factor_bytes(self, fast=True):
         """Bytes of the matrices one evaluation streams (the memory-bandwidth floor of a frame)."""
@@ -197,35 +138,31 @@ class DefOp:
         """Ψ(Q): (|Ψ|,) or (k,|Ψ|) for Q (n_moving,d) or (k,n_moving,d)."""
         return self.handle_basis(Q)
 
-    def _fast_state(self):
-        """The fast paths' matrices, overflow guard and kernel constants (:func:`fast_matrices`,
-        :func:`kernel_state`), rebuilt when the factors change."""
-        if self._fast is None or self._fast["key"] is not self.factors:
-            f = fast_matrices(self.handle_basis, self._WF, self.factors)
-            f["xh"] = self._x[self._hcols].copy()
-            f["kernel"] = kernel_state(self.handle_basis, f["mats"], self._far2)
-            self._fast = f
-        return self._fast
+    def make_fast_state(self):
+        """The fast paths' :class:`FastState` (:func:`fast_matrices`, :func:`core.kernel_args`); ``extra["xh"]``:
+        the moving handles' rest coordinates."""
+        f = fast_matrices(self.handle_basis, self._WF, self.factors)
+        f.extra["xh"] = self._x[self._hcols].copy()
+        f.kernel = core.kernel_args(self.handle_basis, f.mats, self._far2)
+        return f
 
     def _frame(self, Q, warn):
         """(★) of one float64 Q (n_moving,d) by the compiled kernel (:mod:`defop.operator.kernels`), or None
         when |Q − P|² is not below the overflow guard (NaN, inf, far); ``warn``: the extrapolation check."""
-        f = self._fast if self._fast is not None and self._fast["key"] is self.factors else self._fast_state()
-        k = f["kernel"]
-        if k["tps"] is not None:  # TPS: everything in one call, dz and the guard included
-            X, far = k["tps_frame"](
-                Q, self.P, f["R2"], k["far2"], *k["tps"], k["A"], k["B"], self._x, self._hcols, f["xh"]
-            )
+        f = self._fast if self._fast is not None and self._fast.key is self.factors else self.fast_state()
+        k = f.kernel
+        if k.tps is not None:  # TPS: everything in one call, dz and the guard included
+            X, far = k.lib.tps_frame(Q, self.P, f.R2, k.far2, *k.tps, k.A, k.B, self._x, self._hcols, f.extra["xh"])
             if not X.size:
                 return None
         else:
             dz = (Q - self.P).ravel()
             zz = np.vdot(dz, dz)  # vdot: inf for a far Q without np.dot's overflow RuntimeWarning
-            if type(zz) is not np.float64 or not zz < f["R2"]:
+            if type(zz) is not np.float64 or not zz < f.R2:
                 return None
-            far = k["far2"].size > 0 and k["beyond"](dz, self.d, k["far2"])
-            y = self.handle_basis.delta_raw(dz, zz, np.empty(self._q, f["dtype"]))
-            X = k["apply"](y, k["A"], k["B"], self._x, self._hcols, f["xh"], dz)
+            far = k.far2.size > 0 and k.lib.beyond_bound(dz, self.d, k.far2)
+            y = self.handle_basis.delta_raw(dz, zz, np.empty(self._q, f.dtype))
+            X = k.lib.frame_from_raw(y, k.A, k.B, self._x, self._hcols, f.extra["xh"], dz)
         if warn and far:
             check_extrapolation(self, Q)  # the full check decides (and words the warning)
         return X.reshape(-1, self.d)
@@ -233,23 +170,6 @@ class DefOp:
     def check_mesh(self, mesh):
         """Raise ValueError unless ``mesh`` is the mesh this operator was trained on (dimension, sizes, arrays)."""
         check_mesh(self, mesh)
-
-    def _evaluate(self, Q, fast, out=None):
-        """(★) for Q (n,d) or (k,n,d), validated; ``out`` (k, d n_vertices) float64 receives the result."""
-        Q = opt.real_array("Q", Q)  # complex, bool, strings, objects: named, not cast
-        z = self.handle_basis.z(Q)  # validates shape and NaN
-        Q2 = Q.reshape(-1, self.n_moving, self.d)
-        dpsi = self.handle_basis.delta_z(np.atleast_2d(z))
-        finite = np.isfinite(dpsi).all(axis=1)
-        if not finite.all():
-            raise not_finite_error(self, Q2[~finite])
-        check_extrapolation(self, Q)
-        out = free_part(self, dpsi, fast, out)
-        out[:, self._hcols] += (Q2 - self.P).reshape(len(Q2), self._hcols.size)  # δψ W_H = Q − P (Prop. 2)
-        big = np.abs(dpsi).max(axis=1, initial=0.0) > 1e280  # only rows this far from rest can overflow
-        if big.any() and not np.isfinite(out[big]).all():
-            raise not_finite_error(self, Q2[big], "D(·, Q)")
-        return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
 
     def __call__(self, Q):
         """D(·, Q): the deformed vertex positions, (★) with float64 W or the compressed factors.
@@ -278,7 +198,7 @@ class DefOp:
             X = self._frame(Q, warn=True)
             if X is not None:
                 return X
-        return self._evaluate(Q, fast=False)
+        return checked_frames(self, Q, fast=False)
 
     def evaluate_batch(self, Qs, out=None):
         """D(·, Q_k) for k configurations as one matrix product (trajectories, animation).
@@ -312,7 +232,7 @@ class DefOp:
             return np.empty(shape) if out is None else out
         flat = np.empty((len(Qs), self.d * self.n_vertices)) if out is None else out.reshape(len(Qs), -1)
         if not batch_fast(self, Qs, flat):  # NaN, or a row far enough to overflow float32: the checked path
-            self._evaluate(Qs, fast=True, out=flat)
+            checked_frames(self, Qs, fast=True, out=flat)
         return flat.reshape(shape) if out is None else out
 
     def evaluate_fast(self, Q):
@@ -337,7 +257,7 @@ class DefOp:
         if np.shape(Q) != self.handle_basis.P.shape:  # broadcasting would move every handle to one point
             raise ValueError(f"Q must have shape {self.handle_basis.P.shape} (the moving handles), got {np.shape(Q)}")
         X = self._frame(Q, warn=False) if type(Q) is np.ndarray and Q.dtype == np.float64 else None
-        return self._evaluate(Q, fast=True) if X is None else X  # NaN, inf, complex, far: the checked path
+        return checked_frames(self, Q, fast=True) if X is None else X  # NaN, inf, complex, far: the checked path
 
     # ------------------------------------------------------------------ compression
     def compress(self, rank=None, tol=compress_mod.TOL, dtype=np.float32):
@@ -347,15 +267,7 @@ class DefOp:
         (relative, in [0, 1); default :data:`compress.TOL`, 5e-3); ``dtype`` float32 (default) or float64. See
         :func:`compress.factorise`, which raises a ValueError naming a bad option. Returns ``self``.
         """
-        self.factors = compress_mod.factorise(self, rank, tol, dtype)
-        self.meta["rank"] = self.factors[0].shape[1]
-        return self
-
-    def decompress(self):
-        """Go back to the exact folded W."""
-        self.factors = None
-        self.meta.pop("rank", None)
-        return self
+        return self.set_factors(compress_mod.factorise(self, rank, tol, dtype))
 
     # ------------------------------------------------------------------ checks and files
     def save(self, path):
@@ -372,19 +284,36 @@ class DefOp:
         return io_mod.load(path, cls)
 
 
+def checked_frames(op, Q, fast, out=None):
+    """(★) for Q (n,d) or (k,n,d), validated (the checked path of every evaluation); ``fast``: the fast paths'
+    matrices (:func:`free_part`); ``out`` (k, d n_vertices) float64 receives the result."""
+    Q = opt.real_array("Q", Q)  # complex, bool, strings, objects: named, not cast
+    z = op.handle_basis.z(Q)  # validates shape and NaN
+    Q2 = Q.reshape(-1, op.n_moving, op.d)
+    with np.errstate(over="ignore", invalid="ignore"):  # a far Q: the clear error below, not numpy's warning
+        dpsi = op.handle_basis.delta_z(np.atleast_2d(z))
+    core.check_finite(dpsi, Q2, op.P, op.handle_basis, op.mesh)
+    check_extrapolation(op, Q)
+    out = free_part(op, dpsi, fast, out)
+    out[:, op._hcols] += (Q2 - op.P).reshape(len(Q2), op._hcols.size)  # δψ W_H = Q − P (Prop. 2)
+    big = np.abs(dpsi).max(axis=1, initial=0.0) > 1e280  # only rows this far from rest can overflow
+    if big.any() and not np.isfinite(out[big]).all():
+        raise not_finite_error(op, Q2[big], "D(·, Q)")
+    return out.reshape(*Q.shape[:-2], op.n_vertices, op.d)
+
+
 def check_extrapolation(op, Q):
-    """Warn (:class:`ExtrapolationWarning`) when a moving handle of Q is beyond 1.5x its farthest training sample
-    (pointing at the user's line, :func:`defop.options.user_stacklevel`)."""
+    """Warn (:class:`ExtrapolationWarning`) when a moving handle of Q is beyond :data:`EXTRAPOLATION_FACTOR` times
+    its farthest training sample (:func:`core.beyond_reach`; pointing at the user's line)."""
     if op._reach is None:
         return
     dist = np.linalg.norm(Q - op.P, axis=-1)
-    far = dist > EXTRAPOLATION_FACTOR * op._reach + 1e-12
+    far = core.beyond_reach(dist, op._reach)
     if np.any(far):
         idx = np.argwhere(far)[0]
         j = int(idx[-1])
         warnings.warn(
-            f"moving handle {j} is {dist[tuple(idx)]:.3g} from rest, beyond 1.5x the farthest training sample "
-            f"({op._reach[j]:.3g}): the operator extrapolates",
+            core.extrapolation_message(j, dist[tuple(idx)], op._reach[j]),
             ExtrapolationWarning,
             stacklevel=opt.user_stacklevel(),
         )
@@ -398,25 +327,14 @@ def workspace(op, rows, M):
 
 
 def free_part(op, dpsi, fast, out=None):
-    """x + δψ W_F for δψ (k,|Ψ|−1), in float64: float64 W_F, or the fast paths' matrices (``fast``)."""
+    """x + δψ W_F for δψ (k,|Ψ|−1), in float64: float64 W_F, or the fast paths' matrices (``fast``) by the one
+    float32 rule (:func:`core.reduced_product`: only rows of far-away Q are scaled)."""
     if op.factors is None and not fast:
         return np.add(op._x, dpsi @ op._WF, out=out)
-    mats = op._fast_state()["mats"]
-    dpsi = dpsi / op.handle_basis.raw_scale  # the fast matrices multiply the raw values
-    # float32: rows of δψ beyond float32's range (only far-away Q) are scaled into it and back
-    s = np.abs(dpsi).max(axis=1, initial=0.0)
-    far = s > _F32_SAFE
-    if far.any():
-        s = np.where(far, s, 1.0)[:, None]
-        dpsi = dpsi / s
-    y = dpsi.astype(mats[0].dtype)
-    for M in mats[:-1]:
-        y = y @ M
+    mats = op.fast_state().mats
     # the last product goes into a kept workspace: a fresh (k, d n_vertices) temporary per call costs
     # page faults comparable to the product itself
-    y = np.matmul(y, mats[-1], out=workspace(op, len(y), mats[-1]))
-    if far.any():
-        y = y * s
+    y = core.reduced_product(dpsi / op.handle_basis.raw_scale, mats, out=workspace(op, len(dpsi), mats[-1]))
     return np.add(op._x, y, out=out, dtype=np.float64)
 
 
@@ -426,24 +344,24 @@ def batch_fast(op, Qs, out):
     ψ of the k rows vectorised (:meth:`HandleBasis.delta_raw`), then one product per factor (the
     last into the kept workspace), x added in float64 and the handles' exact part written.
     """
-    f = op._fast_state()
+    f = op.fast_state()
     dz = (Qs - op.P).reshape(len(Qs), -1)
     zz = np.einsum("ij,ij->i", dz, dz)
-    if not np.all(zz < f["R2"]):
+    if not np.all(zz < f.R2):
         return False
     check_extrapolation(op, Qs)
-    mats = f["mats"]
+    mats = f.mats
     c = op.BATCH_CHUNK if sum(M.nbytes for M in mats) <= op.BATCH_CHUNK_BYTES else len(Qs)
     workspace(op, min(c, len(Qs)), mats[-1])
     for i in range(0, len(Qs), c):  # chunks of rows: ψ's temporaries and the product's output stay in cache
         rows = slice(i, i + c)
-        y = op.handle_basis.delta_raw(dz[rows], zz[rows], np.empty((len(dz[rows]), op._q), f["dtype"]))
+        y = op.handle_basis.delta_raw(dz[rows], zz[rows], np.empty((len(dz[rows]), op._q), f.dtype))
         for M in mats[:-1]:
             y = y @ M
         y = np.matmul(y, mats[-1], out=op._work[: len(y)])
         np.copyto(out[rows], y)  # cast, then x added in place: faster than a mixed float64 + float32 sum
         out[rows] += op._x
-    out[:, op._hcols] = f["xh"] + dz  # δψ W_H = Q − P, exactly (Prop. 2); B and W_F are 0 there
+    out[:, op._hcols] = f.extra["xh"] + dz  # δψ W_H = Q − P, exactly (Prop. 2); B and W_F are 0 there
     return True
 
 
@@ -462,77 +380,10 @@ def check_mesh(op, mesh):
 
 def not_finite_error(op, Q, what="Ψ(Q)"):
     """The ValueError of a Q (k,n,d) whose Ψ(Q) (or D(·, Q)) is not finite, naming Q (the first row)."""
-    Q = np.asarray(Q, dtype=float).reshape(-1, op.n_moving, op.d)
-    dist = np.max(np.abs(Q - op.P))  # the largest coordinate offset: squaring it would overflow to inf
-    return ValueError(
-        f"{what} is not finite at Q = {np.array2string(Q[0], precision=4, threshold=20)}"
-        f"{' (first of the batch)' if len(Q) > 1 else ''}: a handle coordinate is {dist:.3g} from rest, beyond "
-        f"what the {op.handle_basis.kind} basis can evaluate in float64 (the bounding-box diagonal is "
-        f"{op.mesh.bbox_diagonal:.3g})"
-    )
-
-
-def fast_matrices(basis, WF, factors=None):
-    """The matrices of DefOp's fast paths and their overflow guard.
-
-    ``mats``: (A',) or (A', B) with A' = diag(raw_scale) W_F in float32 (or diag(raw_scale) A in the
-    factors' dtype, in column order for the gemv), so a frame multiplies the basis' raw values
-    (:meth:`HandleBasis.delta_raw`) directly. ``R2``: for |Q − P|² < R2 every float32 product is finite,
-    since |entries| ≤ raw_bound(R) · Π_M (largest column abs-sum of M) ≤ 1e30; beyond it (or at NaN) a
-    frame takes the checked path.
-
-    Parameters
-    ----------
-    basis : defop.operator.handle_bases.HandleBasis
-    WF : (|Ψ|−1, d n_vertices) numpy array
-        W_F, zero on the handle columns.
-    factors : tuple of (|Ψ|−1,r) and (r,d n_vertices) numpy arrays, optional
-        A and B of the compressed W_F ≈ A B.
-
-    Returns
-    -------
-    state : dict
-        ``key`` (``factors``), ``mats``, ``R2`` and ``dtype`` of the frame's δψ buffer.
-    """
-    scale = basis.raw_scale[:, None]
-    if factors is None:
-        mats = ((WF * scale).astype(np.float32),)
-    else:
-        A, B = factors
-        mats = (np.asfortranarray((A.astype(float) * scale).astype(A.dtype)), B)  # gemv on columns: faster
-    gain = float(np.prod([max(np.abs(M).sum(axis=0, dtype=float).max(initial=0.0), 1.0) for M in mats]))
-    lo, hi = -30.0, 30.0  # bisection on log10 R; raw_bound grows with R
-    if basis.raw_bound(10.0**lo) * gain > 1e30:
-        hi = lo = -np.inf
-    for _ in range(60 if np.isfinite(lo) else 0):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if basis.raw_bound(10.0**mid) * gain <= 1e30 else (lo, mid)
-    return {"key": factors, "mats": mats, "R2": 10.0 ** (2 * lo), "dtype": mats[0].dtype}
+    return core.not_finite_error(Q, op.P, op.handle_basis.kind, op.mesh.bbox_diagonal, what)
 
 
 def kernel_state(basis, mats, far2=None):
-    """The single-frame kernel's arguments for the fast matrices ``mats`` (:func:`fast_matrices`).
-
-    ``far2`` (n_moving,): the squared distances from rest beyond which the extrapolation check runs (None: never).
-    ``A`` (q, r) row-major (the kernel's δψ A' runs along rows), or (0, 0) when W_F is uncompressed; ``B``
-    the last matrix; ``tps`` the TPS constants of :meth:`TPSBasis.raw_constants` with ℓ(0) from the kernel's
-    own ψ (:func:`kernels.tps_rest`, so δψ(P) = 0 bit for bit), or None for the polynomial bases.
-    """
-    from . import kernels  # numba: compiled (or loaded from its cache) on the first fast frame
-
-    A = np.ascontiguousarray(mats[0]) if len(mats) == 2 else np.empty((0, 0), mats[-1].dtype)
-    tps = None
-    if hasattr(basis, "raw_constants"):
-        cm, czeps, inv_s2, log_kernel = basis.raw_constants()
-        tps = (cm, czeps, inv_s2, kernels.tps_rest(cm, czeps, inv_s2, log_kernel), log_kernel)
-    B = np.ascontiguousarray(mats[-1])
-    far2 = np.zeros(0) if far2 is None else np.ascontiguousarray(far2, dtype=float)
-    return {
-        "A": A,
-        "B": B,
-        "tps": tps,
-        "far2": far2,
-        "tps_frame": kernels.tps_frame,
-        "apply": kernels.apply,
-        "beyond": kernels.beyond,
-    }
+    """The single-frame kernel's arguments (a deprecated name of :func:`defop.operator.core.kernel_args`)."""
+    warnings.warn("kernel_state is deprecated: use defop.operator.core.kernel_args", DeprecationWarning, stacklevel=2)
+    return core.kernel_args(basis, mats, far2)

@@ -1,4 +1,4 @@
-"""A branch's domain in closed form, fitted from both sides, and the box of its samples (§5, issue 37).
+"""A branch's domain in closed form, fitted from both sides, and the box of its samples (§5).
 
 Branch b of a multi-valued operator exists where its domain function is positive:
 
@@ -9,14 +9,14 @@ b's fold points: + at the grid samples where b is present (discovered or certifi
 (certified absent: a solve warm-started from b left b; or beyond the certified border), 0 at the fold points
 (bisected to 2^−levels of the spacing between a present and an absent neighbour,
 :mod:`defop.training.branch_domains`). Why this and not the stability margin λ²_b alone: λ² is known only where
-b exists, so its fit extrapolates past the fold with nothing to pin it below zero (issue 37: on a slanted bistable
-shape it stayed positive 20 frames past the fold), and it vanishes at a fold, not where b's score meets the other
+b exists, so its fit extrapolates past the fold with nothing to pin it below zero (on a slanted bistable shape
+it stayed positive 20 frames past the fold), and it vanishes at a fold, not where b's score meets the other
 sheet's. The signed distance is defined on both sides, is zero exactly at the certified edge, and, the fit being
 an interpolant, its sign agrees with every certified label on the grid; near a smooth fold it is about linear in
 Q, which the TPS reproduces exactly, so its zero set runs through the fold points. It needs no eigenvalue solve.
 
-Files of format ``defop-branched-1`` carry λ²_b (Ψ_b(Q) · l_b) as the domain function instead: the same face,
-:class:`Domain` on the branch's own Ψ_b.
+Files of format ``defop-branched-1`` carry λ²_b (Ψ_b(Q) · l_b) as the domain function instead: it is read as a
+:class:`Domain` whose basis is the branch operator's Ψ_b, evaluated as every domain is (nothing here fits λ²).
 
 Far from the data: :func:`outside_box` flags a Q outside the samples' box (per coordinate of Q − P) enlarged by one
 grid spacing; every branch path warns there (:class:`defop.operator.defop.ExtrapolationWarning`), whatever g_b does.
@@ -41,7 +41,7 @@ class Domain:
     w : (|Ψ_D|,) numpy array
     own : bool
         True when Ψ_D is the domain's own basis (format 2); False when it is the branch operator's Ψ_b and w its
-        λ²_b coefficients (format 1).
+        λ²_b coefficients (format 1): how a file stores it, not how it is evaluated.
     """
 
     def __init__(self, basis, w, own=True):

@@ -1,4 +1,8 @@
-"""The single-frame kernel of DefOp's fast paths: (★) of :mod:`defop.operator.defop` in one compiled call.
+"""The compiled kernels of the closed-form operators (numba, BSD-2), named for what they compute.
+
+* :func:`tps_frame`: one frame of a TPS operator, (★) of :mod:`defop.operator.defop` in one call (its parts
+  :func:`tps_raw`, :func:`tps_rest`, :func:`frame_from_raw`, :func:`axpy8`, :func:`beyond_bound`);
+* :func:`movable_correction`: the float64 finish of a movable-handle frame (:mod:`defop.operator.movable`).
 
 A compressed frame streams B (rank × d n_vertices, float32: 1.1 MB for the aleph TPS-500 at rank 49) from
 cache; numpy spends as long again in the dozen ufunc and BLAS calls around it (ψ: a gemv, two additions, a
@@ -75,7 +79,7 @@ def axpy8(u, t, M):
 
 
 @njit(**_JIT)
-def beyond(dz, d, far2):
+def beyond_bound(dz, d, far2):
     """Whether a handle's |dz_j|² (dz (d n,), handles of d coordinates) reaches its bound far2[j]."""
     for j in range(far2.size):
         s = 0.0
@@ -87,7 +91,7 @@ def beyond(dz, d, far2):
 
 
 @njit(**_JIT)
-def apply(y, A, B, x, hcols, xh, dz):
+def frame_from_raw(y, A, B, x, hcols, xh, dz):
     """x + (y A) B (or x + y B when A has no rows) in float64, then x_h + dz at the handle columns.
 
     y (q,), A (q, r) row-major, B (r, c) row-major, both of y's dtype; x (c,) float64; hcols (h,), xh (h,),
@@ -111,11 +115,12 @@ def apply(y, A, B, x, hcols, xh, dz):
 
 @njit(**_JIT)
 def tps_frame(Q, P, R2, far2, cm, czeps, inv_s2, ell0, log_kernel, A, B, x, hcols, xh):
-    """One frame of a TPS operator in one call: dz = (Q − P).ravel(), the guard, :func:`tps_raw`, :func:`apply`.
+    """One frame of a TPS operator in one call: dz = (Q − P).ravel(), the guard, :func:`tps_raw`,
+    :func:`frame_from_raw`.
 
     Q, P (n, d) float64; R2 the overflow guard on |dz|²; far2 (n,) the extrapolation bounds (or empty).
     Returns (out (c,), beyond): out is empty when |dz|² is not below R2 (NaN, inf, far: the caller takes the
-    checked path); beyond tells whether a handle reached its far2 bound (:func:`beyond`).
+    checked path); beyond tells whether a handle reached its far2 bound (:func:`beyond_bound`).
     """
     n, d = P.shape
     dz = np.empty(n * d)
@@ -127,7 +132,60 @@ def tps_frame(Q, P, R2, far2, cm, czeps, inv_s2, ell0, log_kernel, A, B, x, hcol
             zz += v * v
     if not zz < R2:
         return np.empty(0), False
-    far = far2.size > 0 and beyond(dz, d, far2)
+    far = far2.size > 0 and beyond_bound(dz, d, far2)
     y = np.empty(cm.shape[0] + cm.shape[1], B.dtype)
     tps_raw(dz, zz, cm, czeps, inv_s2, ell0, log_kernel, y)
-    return apply(y, A, B, x, hcols, xh, dz), far
+    return frame_from_raw(y, A, B, x, hcols, xh, dz), far
+
+
+@njit(**_JIT)
+def movable_correction(Xz, X0, x, Q, Pm, idx, rows, hm, sup, wt, fixed):
+    """x + (Xz − X0), corrected, of a movable-handle frame: (d n_vertices,) float64.
+
+    After u = Xz − X0 (two calls of :func:`tps_frame`, X0 kept per placement), one pass writes x + u, the residuals
+    r_ℓ = (q_ℓ − p_ℓ) − u(v_ℓ), the correction Σ_ℓ g_{v_ℓ} r_ℓ on the bumps' support, then the moving handles as q
+    and the fixed ones as x; a frame with Q = P returns x. The same arithmetic as
+    :func:`defop.operator.movable.correct`. Q, Pm (n, d); idx, rows (b,); hm (n,); sup (s,); wt (s, b); fixed (f,).
+    """
+    n, d = Pm.shape
+    rest = True
+    for j in range(n):
+        for c in range(d):
+            if Q[j, c] != Pm[j, c]:
+                rest = False
+    if rest:
+        return x.copy()
+    out = np.empty(x.size)
+    for i in range(x.size):
+        out[i] = x[i] + (Xz[i] - X0[i])
+    b = idx.size
+    r = np.empty((b, d))
+    for ell in range(b):
+        v, j = idx[ell], rows[ell]
+        for c in range(d):
+            r[ell, c] = (Q[j, c] - Pm[j, c]) - (Xz[v * d + c] - X0[v * d + c])
+    for s in range(sup.size):
+        base = sup[s] * d
+        for ell in range(b):
+            w = wt[s, ell]
+            if w != 0.0:
+                for c in range(d):
+                    out[base + c] += w * r[ell, c]
+    for j in range(n):
+        for c in range(d):
+            out[hm[j] * d + c] = Q[j, c]
+    for f in range(fixed.size):
+        for c in range(d):
+            out[fixed[f] * d + c] = x[fixed[f] * d + c]
+    return out
+
+
+def __getattr__(name):
+    """The kernels' former names (deprecated): ``apply``, ``beyond``."""
+    new = {"apply": "frame_from_raw", "beyond": "beyond_bound"}.get(name)
+    if new is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import warnings
+
+    warnings.warn(f"kernels.{name} is deprecated: use kernels.{new}", DeprecationWarning, stacklevel=2)
+    return globals()[new]

@@ -1,4 +1,4 @@
-"""Handles that move at rest: the operator D(x; P, Q) (§5's last open question, issue 38).
+"""Handles that move at rest: the operator D(x; P, Q) (§5's last open question).
 
 The rest positions of the *movable* handles (:mod:`defop.scene.placement`) are inputs. The operator is
 
@@ -28,18 +28,49 @@ itself is a function of (P, Q) and keeps no state.
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
 
 from .. import options as opt
-from ..geometry.mesh import Mesh
-from ..scene.placement import PlacementRegions
 from . import compress as compress_mod
+from . import core
 from . import handle_bases as hb
 from . import io as io_mod
-from .defop import EXTRAPOLATION_FACTOR, ExtrapolationWarning, fast_matrices, kernel_state
+from .core import ExtrapolationWarning, OperatorCore, fast_matrices
 from .fit import structure
+from .io.movable_file import FORMAT, MEMBERS, save_movable  # noqa: F401  (public names)
+
+
+@dataclasses.dataclass
+class RestPlacement:
+    """The state of one rest placement P of the movable handles (:meth:`MovableOp.at`, :meth:`CarryOp.at`).
+
+    ``idx`` (b,) the movable handles' vertices, ``hm`` (n,) the moving handles' vertices, ``P`` (n, d) their rest
+    positions, ``bumps`` the placement's bumps (support, weights); for :class:`MovableOp` also the factors it was
+    made for (``key``), z(P, P) (``z0``), δψ's subtrahend (``psi0``), the kernel's frame at (P, P) (``X0``), the
+    movable rows, the fixed handles and whether P is the nominal placement; for :class:`CarryOp` the barycentric
+    map ``S`` and the shift of Q to the nominal operator.
+    """
+
+    idx: np.ndarray
+    hm: np.ndarray
+    P: np.ndarray
+    bumps: tuple
+    key: object = None
+    z0: np.ndarray | None = None
+    psi0: np.ndarray | None = None
+    X0: np.ndarray | None = None
+    rows: np.ndarray | None = None
+    fixed: np.ndarray | None = None
+    nominal: bool = False
+    S: object = None
+    shift: np.ndarray | None = None
+
+    def __getitem__(self, name):
+        """``state["idx"]``: the mapping access of earlier versions."""
+        return getattr(self, name)
 
 
 def joint_z(V, nominal, idx, handles_moving, Q, s_p, s_q):
@@ -120,16 +151,16 @@ def retarget(Q, placement, old, new):
 def correct(mesh, placement, handles, moving, st, u, Qs):
     """x + u, the residual correction Σ_ℓ g_{v_ℓ} r_ℓ in float64, the handles written exactly, rest rows = x.
 
-    ``st``: the placement state (``idx``, ``hm``, ``P``, ``rows`` as :meth:`MovableOp.at` makes it); u (k, d n)
+    ``st``: the :class:`RestPlacement` of :meth:`MovableOp.at` (or :meth:`CarryOp.at`); u (k, d n)
     float64, Qs (k, n, d). Returns (k, d n_vertices).
     """
     k, d, n_vertices = len(Qs), mesh.dim, mesh.n_vertices
     X = (mesh.V.ravel() + u).reshape(k, n_vertices, d)
-    disp = Qs - st["P"]  # (k, n, d)
-    r = disp[:, placement.moving_rows()] - u.reshape(k, n_vertices, d)[:, st["idx"]]  # (k, b, d)
-    sup, wt = st["bumps"]
+    disp = Qs - st.P  # (k, n, d)
+    r = disp[:, placement.moving_rows()] - u.reshape(k, n_vertices, d)[:, st.idx]  # (k, b, d)
+    sup, wt = st.bumps
     X[:, sup] += np.matmul(wt, r)  # (s, b) @ (k, b, d): Σ_ℓ g_{v_ℓ} r_ℓ on the bumps' support
-    X[:, st["hm"]] = Qs  # Prop. 2: every moving handle on its target, bit for bit
+    X[:, st.hm] = Qs  # Prop. 2: every moving handle on its target, bit for bit
     fixed = handles[~moving]
     X[:, fixed] = mesh.V[fixed]
     rest = ~np.any(disp.reshape(k, -1) != 0.0, axis=1)
@@ -143,11 +174,11 @@ def residual(op, Q, P=None):
     st = op.at(P)
     Q = np.asarray(Q, float)[None]
     u = op.displacement(Q, st)
-    r = (Q - st["P"])[:, op.placement.moving_rows()] - u.reshape(1, op.n_vertices, op.d)[:, st["idx"]]
+    r = (Q - st.P)[:, op.placement.moving_rows()] - u.reshape(1, op.n_vertices, op.d)[:, st.idx]
     return float(np.abs(r).max() / op.mesh.bbox_diagonal)
 
 
-class MovableOp:
+class MovableOp(OperatorCore):
     """D(x; P, Q) of (M) in the module docstring: a closed-form operator whose movable rest handles are inputs.
 
     Parameters
@@ -164,41 +195,18 @@ class MovableOp:
         The farthest training offset per moving handle (the extrapolation warning).
     """
 
+    #: the float32 rule's bound on a row of δψ (raw units) before it is scaled (:func:`core.reduced_product`)
+    F32_ROW_BOUND = 1.0
+
     def __init__(self, mesh, handles, moving, placement, basis, W, scales, meta=None, reach=None):
-        from .. import __version__
-
-        self.mesh, self.placement, self.basis = mesh, placement, basis
-        self.handles = np.asarray(handles, np.int64)
-        self.moving = np.asarray(moving, bool)
-        self.d = mesh.dim
-        self.W = np.ascontiguousarray(W, float)
+        self.setup_core(mesh, handles, moving, W, meta)
+        self.placement, self.basis = placement, basis
         self.scales = (float(scales[0]), float(scales[1]))
-        self.meta = {"version": __version__, **(meta or {})}
         self.reach = None if reach is None else np.asarray(reach, float)
-        self.factors = None
-        self._x = np.ascontiguousarray(mesh.V, float).ravel()
         still = np.setdiff1d(np.arange(len(self.handles)), placement.movable)
-        self._still = self.handles[still]  # handles that never leave their vertex
-        self._WF = self.W[1:].copy()
-        self._WF[:, self.columns(self._still)] = 0.0
-        self._fast = None
+        self.still = self.handles[still]  # handles that never leave their vertex
+        self.set_free_part(self.still)
         self._at = None  # (idx bytes, state) of the last rest placement
-
-    def columns(self, vertices):
-        """Columns (row-major x, y[, z] per vertex) of ``vertices`` (k,): (k d,) int array."""
-        return (self.d * np.asarray(vertices, np.int64)[:, None] + np.arange(self.d)).ravel()
-
-    @property
-    def n_moving(self):
-        return int(self.moving.sum())
-
-    @property
-    def n_vertices(self):
-        return self.mesh.n_vertices
-
-    @property
-    def rank(self):
-        return None if self.factors is None else self.factors[0].shape[1]
 
     def __repr__(self):
         comp = f", rank {self.rank}" if self.factors is not None else ""
@@ -212,77 +220,62 @@ class MovableOp:
         """The state of rest placement P (:meth:`PlacementRegions.resolve`), kept until P changes: its vertices,
         the moving handles' rest positions, z(P, P) and the kernel's frame at (P, P)."""
         last = self._at
-        if (
-            last is not None
-            and last["key"] is self.factors
-            and (
-                (P is None and last["nominal"])
-                or (
-                    type(P) is np.ndarray
-                    and P.dtype.kind in "iu"
-                    and P.shape == last["idx"].shape
-                    and (P == last["idx"]).all()
-                )
-            )
-        ):
+        if last is not None and last.key is self.factors and same_placement(P, last):
             return last  # the placement of the last frame (an interactive drag): nothing to resolve
         idx = self.placement.resolve(P)
-        if self._at is not None and np.array_equal(self._at["idx"], idx) and self._at["key"] is self.factors:
+        if self._at is not None and np.array_equal(self._at.idx, idx) and self._at.key is self.factors:
             return self._at
         hm = self.placement.handles_at(idx)[self.moving]
         Pm = self.mesh.V[hm]
         z0 = joint_z(self.mesh.V, self.placement.nominal, idx, hm, Pm[None], *self.scales)[0]
-        st = {
-            "idx": idx,
-            "key": self.factors,
-            "hm": hm,
-            "P": Pm,
-            "z0": z0,
-            "bumps": self.placement.bumps_at(idx),
-            "rows": self.placement.moving_rows(),
-            "fixed": self.handles[~self.moving],
-            "nominal": bool(np.array_equal(idx, self.placement.nominal)),
-        }
-        st["psi0"] = self.basis.delta_z(z0.reshape(1, -1))  # (1, |Ψ|−1), float64
-        k = self._fast_state()["kernel"]
-        st["X0"] = self._kernel(z0, k)
+        st = RestPlacement(
+            idx=idx,
+            hm=hm,
+            P=Pm,
+            bumps=self.placement.bumps_at(idx),
+            key=self.factors,
+            z0=z0,
+            rows=self.placement.moving_rows(),
+            fixed=self.handles[~self.moving],
+            nominal=bool(np.array_equal(idx, self.placement.nominal)),
+        )
+        st.psi0 = self.basis.delta_z(z0.reshape(1, -1))  # (1, |Ψ|−1), float64
+        st.X0 = self._kernel(z0, self.fast_state())
         self._at = st
         return st
 
-    def _fast_state(self):
-        if self._fast is None or self._fast["key"] is not self.factors:
-            f = fast_matrices(self.basis, self._WF, self.factors)
-            f["kernel"] = kernel_state(self.basis, f["mats"], None)
-            f["kernel"].update(zero=np.zeros(self.basis.P.shape), none=np.zeros(0, np.int64), nothing=np.zeros(0))
-            from .movable_kernels import finish_frame  # numba: compiled (or loaded from its cache) on first use
+    def make_fast_state(self):
+        """The :class:`core.FastState` of the joint basis; ``extra``: the kernel's empty handle arguments."""
+        f = fast_matrices(self.basis, self._WF, self.factors)
+        f.kernel = core.kernel_args(self.basis, f.mats, None)
+        f.extra.update(zero=np.zeros(self.basis.P.shape), none=np.zeros(0, np.int64), nothing=np.zeros(0))
+        return f
 
-            f["finish"] = finish_frame
-            self._fast = f
-        return self._fast
-
-    def _kernel(self, z, k):
+    def _kernel(self, z, f):
         """x + (ψ_raw(z) − ℓ(0)) A' B by the compiled frame (empty when beyond the overflow guard)."""
-        return k["tps_frame"](
-            z, k["zero"], self._fast["R2"], k["far2"], *k["tps"], k["A"], k["B"], self._x, k["none"], k["nothing"]
-        )[0]
+        k, e = f.kernel, f.extra
+        return k.lib.tps_frame(z, e["zero"], f.R2, k.far2, *k.tps, k.A, k.B, self._x, e["none"], e["nothing"])[0]
 
     # ------------------------------------------------------------------ evaluation
     def _check_Q(self, Q, st):
         if not (type(Q) is np.ndarray and Q.dtype == np.float64):
             Q = opt.real_array("Q", Q)
-        n, d = self.n_moving, self.d
-        if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, d):
-            raise ValueError(f"Q must have shape ({n}, {d}) or (k, {n}, {d}) for {n} moving handles, got {Q.shape}")
-        if not np.isfinite(Q).all():
-            raise ValueError(f"Q has NaN or infinite entries: {np.array2string(Q, threshold=20)}")
+        n = self.n_moving
+        Q = core.check_configurations(Q, n, self.d)  # the one check of Q: shape, real, finite
         if self.reach is not None:
-            dist = np.sqrt(np.square(Q - st["P"]).sum(axis=-1).reshape(-1, n).max(axis=0))
-            far = np.flatnonzero(dist > EXTRAPOLATION_FACTOR * self.reach + 1e-12)
+            diff = Q - st.P
+            if np.vdot(diff, diff) < 1e300:  # vdot: no overflow warning; below, no square overflows (the frame's case)
+                dist = np.sqrt(np.square(diff).sum(axis=-1).reshape(-1, n).max(axis=0, initial=0.0))
+            else:
+                with np.errstate(over="ignore"):  # a far Q: inf, refused where Ψ is evaluated
+                    dist = np.sqrt(np.square(diff).sum(axis=-1).reshape(-1, n).max(axis=0, initial=0.0))
+            far = np.flatnonzero(core.beyond_reach(dist, self.reach))
             if far.size:
                 j = int(far[0])
                 warnings.warn(
-                    f"moving handle {j} is {dist[j]:.3g} from its rest position P, beyond 1.5x the farthest "
-                    f"training offset ({self.reach[j]:.3g}): the operator extrapolates",
+                    core.extrapolation_message(
+                        j, dist[j], self.reach[j], "its rest position P", "the farthest training offset"
+                    ),
                     ExtrapolationWarning,
                     stacklevel=3,
                 )
@@ -291,56 +284,62 @@ class MovableOp:
     def __call__(self, Q, P=None):
         """D(·; P, Q): (n_vertices, d), or (k, n_vertices, d) for a batch Q (k, n, d) at one P, in float64.
 
-        Uncompressed: float64 W_F. Compressed: the factors (one frame by the compiled kernel).
+        Uncompressed: float64 W_F. Compressed: the factors (one frame by the compiled kernel). An empty batch gives
+        (0, n_vertices, d); a Q so far that Ψ is not finite raises ValueError naming Q.
         """
         st = self.at(P)
         Q = self._check_Q(Q, st)
+        empty = core.empty_frames(Q, self.n_vertices, self.d)
+        if empty is not None:
+            return empty
         Q2 = Q.reshape(-1, self.n_moving, self.d)
         if self.factors is not None and Q.ndim == 2:
             return self._frame(Q, st)
         out = self._finish(self.displacement(Q2, st), st, Q2)
         return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
 
+    def delta_psi(self, Qs, st):
+        """δψ(P, Q_k) (k, |Ψ|−1) in float64, checked finite (a ValueError naming Q where Ψ overflows)."""
+        z = joint_z(self.mesh.V, self.placement.nominal, st.idx, st.hm, Qs, *self.scales)
+        with np.errstate(over="ignore", invalid="ignore"):  # a far Q: the clear error below, not numpy's warning
+            dpsi = self.basis.delta_z(z.reshape(len(z), -1)) - st.psi0
+        core.check_finite(dpsi, Qs, st.P, self.basis, self.mesh)
+        return dpsi
+
     def displacement(self, Qs, st):
         """u = δψ(P, Q_k) W_F (k, d n_vertices) in float64 (the factors' product when compressed), no correction."""
-        z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Qs, *self.scales)
-        dpsi = self.basis.delta_z(z.reshape(len(z), -1)) - st["psi0"]
+        dpsi = self.delta_psi(Qs, st)
         if self.factors is None:
             return dpsi @ self._WF
         return self._product(dpsi)
 
     def _product(self, dpsi):
-        """δψ (k, |Ψ|−1) times the fast matrices (float32 W_F or the factors), cast to float64."""
-        mats = self._fast_state()["mats"]
-        dpsi = dpsi / self.basis.raw_scale
-        s = np.maximum(np.abs(dpsi).max(axis=1, keepdims=True), 1.0)  # scaled into float32's range and back
-        y = (dpsi / s).astype(mats[0].dtype)
-        for M in mats:
-            y = y @ M
-        return y.astype(float) * s
+        """δψ (k, |Ψ|−1) times the fast matrices (float32 W_F or the factors) by the one float32 rule, float64."""
+        mats = self.fast_state().mats
+        y = core.reduced_product(dpsi / self.basis.raw_scale, mats, self.F32_ROW_BOUND)
+        return y.astype(float)
 
     def _frame(self, Q, st):
-        z = st["z0"].copy()  # [(P_b − P_b⁰)/s_P, 0], kept per placement; the Q part is the frame's (joint_z's sums)
+        z = st.z0.copy()  # [(P_b − P_b⁰)/s_P, 0], kept per placement; the Q part is the frame's (joint_z's sums)
         np.divide(
-            np.subtract(Q, st["P"], out=z[self.placement.n_movable :]),
+            np.subtract(Q, st.P, out=z[self.placement.n_movable :]),
             self.scales[1],
             out=z[self.placement.n_movable :],
         )
-        Xz = self._kernel(z, self._fast_state()["kernel"])
-        if not Xz.size or not st["X0"].size:  # beyond the float32 guard: numpy with scaling
-            u = self._product(self.basis.delta_z(z.reshape(1, -1)) - st["psi0"])
+        f = self.fast_state()
+        Xz = self._kernel(z, f)
+        if not Xz.size or not st.X0.size:  # beyond the float32 guard: numpy with scaling, Ψ checked finite
+            u = self._product(self.delta_psi(Q[None], st))
             return self._finish(u, st, Q[None])[0].reshape(self.n_vertices, self.d)
-        sup, wt = st["bumps"]
-        out = self._fast["finish"](
-            Xz, st["X0"], self._x, Q, st["P"], st["idx"], st["rows"], st["hm"], sup, wt, st["fixed"]
-        )
+        sup, wt = st.bumps
+        out = f.kernel.lib.movable_correction(Xz, st.X0, self._x, Q, st.P, st.idx, st.rows, st.hm, sup, wt, st.fixed)
         return out.reshape(self.n_vertices, self.d)
 
     def evaluate_fast(self, Q, P=None):
         """One frame by the compiled kernel: float32 W_F (or the factors), the correction in float64."""
         st = self.at(P)
         Q = self._check_Q(Q, st)
-        if Q.shape != st["P"].shape:
+        if Q.shape != st.P.shape:
             raise ValueError(f"Q must have shape {st['P'].shape} (one frame), got {Q.shape}")
         return self._frame(Q, st)
 
@@ -351,9 +350,8 @@ class MovableOp:
         if Qs.ndim != 3:
             raise ValueError(f"Qs must have shape (k, {self.n_moving}, {self.d}), got {Qs.shape}")
         if len(Qs) == 0:
-            return np.empty((0, self.n_vertices, self.d))
-        z = joint_z(self.mesh.V, self.placement.nominal, st["idx"], st["hm"], Qs, *self.scales)
-        u = self._product(self.basis.delta_z(z.reshape(len(z), -1)) - st["psi0"])
+            return core.empty_frames(Qs, self.n_vertices, self.d)
+        u = self._product(self.delta_psi(Qs, st))
         return self._finish(u, st, Qs).reshape(len(Qs), self.n_vertices, self.d)
 
     def _finish(self, u, st, Qs):
@@ -364,21 +362,9 @@ class MovableOp:
         """W_F ≈ A B (:func:`defop.operator.compress.principal_factors`), the directions of δψ at ``samples``
         (joint z rows, (m, |Ψ|−1) δψ; default the basis' centres); the guarantees stay exact. Returns self."""
         dtype = compress_mod.check_options(rank, tol, dtype)
-        free = np.setdiff1d(np.arange(self.d * self.n_vertices), self.columns(self._still))
         C = self.basis.centers.reshape(len(self.basis.centers), -1)
         S = self.basis.delta_z(C) if samples is None else samples
-        mass = np.repeat(self.mesh.mass_matrix.diagonal(), self.d)
-        A, Bf = compress_mod.principal_factors(self._WF[:, free], mass[free], S, rank, tol)
-        B = np.zeros((A.shape[1], self.d * self.n_vertices))
-        B[:, free] = Bf
-        self.factors = (np.ascontiguousarray(A, dtype=dtype), np.ascontiguousarray(B, dtype=dtype))
-        self.meta["rank"] = A.shape[1]
-        return self
-
-    def decompress(self):
-        self.factors = None
-        self.meta.pop("rank", None)
-        return self
+        return self.set_factors(compress_mod.free_factors(self, self.still, S, rank, tol, dtype))
 
     def save(self, path):
         """Save to ``path`` (.npz, format ``defop-movable-1``, placement regions included): :func:`save_movable`."""
@@ -387,11 +373,24 @@ class MovableOp:
     @classmethod
     def load(cls, path):
         """Load a file written by :meth:`save`, checked before any work (:func:`load_movable`)."""
-        return load_movable(path, cls)
+        return io_mod.load_movable(path, cls)
+
+
+def load_movable(path, cls=None):
+    """A :class:`MovableOp` (or ``cls``) from a file of :func:`save_movable`
+    (:func:`defop.operator.io.load_movable`: checked before any work, errors naming the file)."""
+    return io_mod.load_movable(path, cls or MovableOp)
+
+
+def same_placement(P, last):
+    """Whether P names the placement ``last`` was made for (None: the nominal; int vertex indices: equal)."""
+    if P is None:
+        return last.nominal
+    return type(P) is np.ndarray and P.dtype.kind in "iu" and P.shape == last.idx.shape and bool((P == last.idx).all())
 
 
 class CarryOp:
-    """The second design of issue 38: the nominal fixed-P operator, carried with the rest handles.
+    """The second design: the nominal fixed-P operator, carried with the rest handles.
 
     A rest-space warp w_P(x) = x + Σ_ℓ g_{v_ℓ}(x) (p_ℓ⁰ − p_ℓ) (the placement bumps) takes each movable handle's
     vertex to its nominal position; the nominal operator D⁰ is evaluated with the same handle displacements,
@@ -415,7 +414,7 @@ class CarryOp:
         import scipy.sparse as sp
 
         idx = self.placement.resolve(P)
-        if self._at is not None and np.array_equal(self._at["idx"], idx):
+        if self._at is not None and np.array_equal(self._at.idx, idx):
             return self._at
         hm = self.placement.handles_at(idx)[self.moving]
         y = self.mesh.V.copy()
@@ -426,122 +425,23 @@ class CarryOp:
         elem, bary = self.mesh.locate(y)
         n = self.n_vertices
         S = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(n), self.d + 1), self.mesh.F[elem].ravel())), (n, n))
-        self._at = {
-            "idx": idx,
-            "hm": hm,
-            "P": self.mesh.V[hm],
-            "bumps": self.placement.bumps_at(idx),
-            "S": S,
-            "shift": self.op0.P - self.mesh.V[hm],
-        }
+        self._at = RestPlacement(
+            idx=idx,
+            hm=hm,
+            P=self.mesh.V[hm],
+            bumps=self.placement.bumps_at(idx),
+            S=S,
+            shift=self.op0.P - self.mesh.V[hm],
+        )
         return self._at
 
     def __call__(self, Q, P=None, fast=False):
         """D(·; P, Q) for Q (n, d) or (k, n, d) at one P; ``fast``: the nominal operator's fast path."""
         st = self.at(P)
         Q = opt.real_array("Q", Q)
-        Qs = Q.reshape(-1, *st["P"].shape)
-        Qn = Qs + st["shift"]
+        Qs = Q.reshape(-1, *st.P.shape)
+        Qn = Qs + st.shift
         X0 = np.stack([self.op0.evaluate_fast(q) for q in Qn]) if fast else self.op0(Qn)
-        u = np.stack([st["S"] @ (x - self.mesh.V) for x in X0]).reshape(len(Qs), -1)
+        u = np.stack([st.S @ (x - self.mesh.V) for x in X0]).reshape(len(Qs), -1)
         out = correct(self.mesh, self.placement, self.handles, self.moving, st, u, Qs)
         return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
-
-
-# ---------------------------------------------------------------------- files
-#: the movable-handle operator's file format (an .npz archive checked as every operator file, :mod:`.io`)
-FORMAT = "defop-movable-1"
-MEMBERS = (
-    "header",
-    "V",
-    "F",
-    "handles",
-    "moving",
-    "joint_W",
-    "joint_centers",
-    "reach",
-    "placement_movable",
-    "placement_vertices",
-    "placement_sizes",
-    "placement_reach",
-    "factor_A",
-    "factor_B",
-)
-
-
-def save_movable(op, path):
-    """Write ``op`` (:class:`MovableOp`) to ``path`` atomically: arrays, placement regions, JSON header."""
-    import json
-
-    arrays = {
-        "V": op.mesh.V,
-        "F": op.mesh.F,
-        "handles": op.handles,
-        "moving": op.moving,
-        "joint_W": op.W,
-        "joint_centers": op.basis.centers,
-        **op.placement.to_arrays(),
-    }
-    if op.reach is not None:
-        arrays["reach"] = op.reach
-    if op.factors is not None:
-        arrays["factor_A"], arrays["factor_B"] = op.factors
-    header = {
-        "format": FORMAT,
-        "format_version": 1,
-        "kind": "movable",
-        "dim": op.d,
-        "meta": op.meta,
-        "scales": list(op.scales),
-    }
-    arrays["header"] = np.array(json.dumps(header))
-    io_mod._write(path, arrays)
-
-
-def _check_declared(path, header, headers, version):
-    d = io_mod._field(path, "dim", header.get("dim"))
-    V = headers.get("V", (None,))[0]
-    if V is not None and (len(V) != 2 or V[1] != d):
-        raise io_mod.OperatorFileError(f"{path}: the header says dim = {d}, but V is {'×'.join(map(str, V))}")
-    C = headers.get("joint_centers", (None,))[0]
-    if C is not None and len(C) >= 1 and C[0] > io_mod.MAX_CENTERS:
-        raise io_mod.OperatorFileError(f"{path} declares {C[0]} TPS centres, limit {io_mod.MAX_CENTERS}")
-
-
-def load_movable(path, cls=None):
-    """Read a file of :func:`save_movable`, checked before any work (:func:`defop.operator.io.load`'s steps 1-6),
-    then every array against the others; a ValueError (``OperatorFileError``) names the file and the problem."""
-    header, data, _ = io_mod._read(path, {FORMAT: 1}, MEMBERS, len(MEMBERS), _check_declared)
-    A = io_mod._array
-    try:
-        V = A(data, "V", 2, "f")
-        d = V.shape[1]
-        mesh = Mesh(V, A(data, "F", 2, "iu", (None, d + 1)))
-        handles = A(data, "handles", 1, "iu")
-        moving = A(data, "moving", 1, "b", handles.shape)
-        regions = {k: A(data, k, 1, "iu") for k in ("placement_movable", "placement_vertices", "placement_sizes")}
-        regions["placement_reach"] = A(data, "placement_reach", 1, "f")
-        pr = PlacementRegions.from_arrays(mesh, handles, moving, regions)
-        C = A(data, "joint_centers", 3, "f", (None, pr.n_movable + int(moving.sum()), d))
-        basis = hb.TPSBasis(np.zeros(C.shape[1:]), C, 1.0)
-        W = A(data, "joint_W", 2, "f", (basis.size, d * len(V)))
-        reach = A(data, "reach", 1, "f", (int(moving.sum()),)) if "reach" in data else None
-        if reach is not None and np.any(reach < 0):
-            raise ValueError(f"array 'reach' must be {len(reach)} non-negative finite lengths, got {reach}")
-        s = [float(x) for x in header["scales"]]
-        if len(s) != 2 or not all(np.isfinite(s)) or min(s) <= 0:
-            raise ValueError(f"header 'scales' must be two positive numbers, got {s}")
-        op = (cls or MovableOp)(mesh, handles, moving, pr, basis, W, s, header["meta"], reach)
-        op.meta = header["meta"]
-        if "factor_A" in data:
-            fa = A(data, "factor_A", 2, "f", (basis.size - 1, None))
-            fb = A(data, "factor_B", 2, "f", (fa.shape[1], d * len(V)))
-            if fa.dtype != fb.dtype or np.any(fb[:, op.columns(op._still)] != 0):
-                raise ValueError(
-                    "factor_B must be zero on the columns of the handles that are not movable, in the dtype of factor_A"
-                )
-            op.factors = (fa, fb)
-        return op
-    except (KeyError, TypeError, ValueError, IndexError, OverflowError, MemoryError) as exc:
-        what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc) or type(exc).__name__
-        raise io_mod.OperatorFileError(f"{path} is not a valid movable-handle operator file: {what}") from exc

@@ -54,6 +54,7 @@ import numpy as np
 
 from .. import __version__, config
 from .. import options as opt
+from ..geometry.archive import Limits, NpzReader
 from ..variational.solver import VERSION as _solve_version
 
 __all__ = [
@@ -77,6 +78,8 @@ SOLVER_SALT = _solve_version
 FORMAT = 1
 
 _META = "__meta__"  # the entry's JSON metadata, stored as a 0-d string array
+#: what an entry read by :meth:`Cache.load` may declare (:class:`defop.geometry.archive.NpzReader`)
+ENTRY_LIMITS = Limits(max_members=64, max_array_bytes=4 * 2**30, max_total_bytes=16 * 2**30, max_ndim=6)
 #: a damaged .npz can make zipfile/numpy raise nearly anything (BadZipFile, EOFError, NotImplementedError for a
 #: flipped compression-method byte, struct.error, zlib.error, SyntaxError in the array header, ...): any failure
 #: to read an entry makes it unusable, and it is removed, with a warning naming the file and the exception
@@ -285,8 +288,8 @@ class Cache:
         """
 
         def read(path):
-            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # fh: closed on a bad zip too
-                arrays = {k: z[k] for k in z.files}
+            with NpzReader(path, f"cache entry {path}", "a defop cache entry", ENTRY_LIMITS) as z:
+                arrays = z.read_all(z.members())
             if _META not in arrays:  # every entry has one (store writes {} for no metadata)
                 raise CorruptEntry("missing its metadata")
             meta = json.loads(str(arrays.pop(_META)))
