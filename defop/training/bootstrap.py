@@ -111,13 +111,13 @@ def min_samples(basis, n, d=2):
 
 def check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds):
     """Validate :func:`train`'s options before any work (the shared checks of every training); returns
-    (m, samples or None)."""
+    (m, samples or None, n_jobs capped at the machine's cores)."""
     opt.choice("handle basis", basis, hb.KINDS)
     opt.choice("spatial basis", spatial, ("hat", "reduced"))
     if spatial == "reduced":  # reduced_basis solves for k + 3 eigenpairs: k + 3 < n_vertices
         opt.integer("k", k, minimum=3, maximum=shape.mesh.n_vertices - 4)
     opt.seed(seed)
-    opt.n_jobs(n_jobs)
+    n_jobs = opt.n_jobs(n_jobs)
     opt.integer("rounds", rounds, minimum=1)
     if samples is not None:
         samples = solves.check_samples(shape, samples)
@@ -133,7 +133,7 @@ def check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, roun
         )
     if samples is not None and basis == "tps":  # before any solve, not after
         check_distinct(samples)
-    return m, samples
+    return m, samples, n_jobs
 
 
 def _load_gt(store, key, m, n_vertices, d=2):
@@ -396,7 +396,7 @@ def train(
     """
     en.check_energy(energy)
     opt.choice("policy", policy, ml.POLICIES)
-    m, samples = check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds)
+    m, samples, n_jobs = check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds)
     store = cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
     if samples is None:
         samples = sample_shape(shape, m, np.random.default_rng(seed))
