@@ -11,6 +11,7 @@ same mesh forever.
 from __future__ import annotations
 
 import os
+import re
 import struct
 
 import numpy as np
@@ -226,3 +227,61 @@ def test_the_stored_obj_with_ngons_and_negative_indices_loads_to_the_l_prism():
         [5, 0, 6],
         [5, 6, 11],
     ]  # the quads as fans, as they always were
+
+
+# ------------------------------------------------------------------------------------------------ from_surface
+def _box_obj(path, V, F):
+    path.write_text(
+        "".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in V.tolist())
+        + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F.tolist())
+    )
+    return path
+
+
+HANDLES = np.array([[0.2, 0.2, 0.2], [0.8, 0.2, 0.2], [0.5, 0.8, 0.7]])
+
+
+def test_from_surface_reads_a_path(tmp_path):
+    """Before: a path was a TypeError."""
+    from defop.scene.shapes import from_surface
+
+    V, F = CUBE, cube_triangles()
+    path = _box_obj(tmp_path / "c.obj", V, F)
+    a = from_surface(path, handles=HANDLES, n_vertices=120)
+    b = from_surface(V, F, handles=HANDLES, n_vertices=120)
+    np.testing.assert_array_equal(a.mesh.V, b.mesh.V)
+    np.testing.assert_array_equal(a.mesh.F, b.mesh.F)
+    assert from_surface(str(path), handles=HANDLES, n_vertices=120).mesh.V.shape == a.mesh.V.shape
+    with pytest.raises(ValueError, match=r"give a surface file's path alone, or V and F"):
+        from_surface(path, F, handles=HANDLES)
+    with pytest.raises(ValueError, match=r"from_surface needs F"):
+        from_surface(V, handles=HANDLES)
+    with pytest.raises(ValueError, match=r"^no such surface file: .*missing\.stl"):
+        from_surface(tmp_path / "missing.stl", handles=HANDLES)
+
+
+def test_an_open_surface_names_the_gap_and_the_weld_tolerance_that_closes_it(tmp_path):
+    """Before: 'the surface is open: edge (0, 1) lies in only 1 triangle (0)', and nothing about weld_tolerance."""
+    from defop.scene.shapes import from_surface
+
+    rng = np.random.default_rng(3)
+    T = cube_triangles()
+    V = CUBE[T].reshape(-1, 3) + rng.uniform(-1e-9, 1e-9, (3 * len(T), 3))  # every triangle on its own corners
+    path = _box_obj(tmp_path / "cracked.obj", V, np.arange(len(V)).reshape(-1, 3))
+    with pytest.raises(
+        ValueError,
+        match=r"the surface is open: .*; every boundary vertex lies within [0-9.e-]+ × the "
+        r"bounding-box diagonal of another: read the file with weld_tolerance=([0-9.e-]+)",
+    ) as err:
+        from_surface(path, handles=HANDLES, n_vertices=120)
+    tol = float(re.search(r"weld_tolerance=([0-9.e-]+) ", str(err.value)).group(1))
+    assert 1e-9 < tol < 1e-8
+    shape = from_surface(path, handles=HANDLES, n_vertices=120, weld_tolerance=tol)
+    ref = from_surface(CUBE, T, handles=HANDLES, n_vertices=120)
+    np.testing.assert_array_equal(shape.mesh.F, ref.mesh.F)  # V: vertices snapped to the cube's edges may differ
+    exact = _box_obj(tmp_path / "copies.obj", CUBE[T].reshape(-1, 3), np.arange(3 * len(T)).reshape(-1, 3))
+    with pytest.raises(ValueError, match=r"have exact copies: read the file with weld_tolerance=0 to merge them"):
+        from_surface(exact, handles=HANDLES, n_vertices=120)
+    hole = _box_obj(tmp_path / "hole.obj", CUBE, T[2:])
+    with pytest.raises(ValueError, match=r"a hole, which weld_tolerance cannot close"):
+        from_surface(hole, handles=HANDLES, n_vertices=120)

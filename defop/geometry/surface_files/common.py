@@ -25,6 +25,7 @@ MAX_FILE_ELEMENTS = 10_000_000
 
 _COUNT = re.compile(r"[0-9]{1,19}")  # ASCII digits only: '²'.isdigit() is True, and int('²') fails
 _INT = re.compile(r"[-+]?[0-9]{1,18}")
+_INTS = re.compile(r"(?:[-+]?[0-9]{1,18} )*[-+]?[0-9]{1,18}")
 BOM = b"\xef\xbb\xbf"
 
 
@@ -111,6 +112,8 @@ def floats(tokens, where):
 
 def ints(tokens, where):
     """int64 array of the tokens (decimal integers); ValueError naming ``where(i)`` of the first that is not one."""
+    if _INTS.fullmatch(" ".join(tokens)):  # one regex over all: the common case, fast
+        return np.array(tokens).astype(np.int64) if tokens else np.zeros(0, dtype=np.int64)
     for i, t in enumerate(tokens):
         if not _INT.fullmatch(t):
             raise ValueError(f"{where(i)} is not an integer: {t[:40]!r}")

@@ -12,12 +12,15 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
+
 from .common import count, fits, floats, ints, text
 from .polygons import triangulate
 
 __all__ = ["read_off"]
 
 _KEYWORD = re.compile(r"(ST)?C?N?(4)?(n)?OFF")
+_INTS = re.compile(r"(?:[0-9]{1,18} )*[0-9]{1,18}")
 
 
 def read_off(data):
@@ -55,8 +58,22 @@ def read_off(data):
         [w for _, ln in body[:nv] for w in ln[:3]],
         lambda i: f"OFF line {body[i // 3][0]}: vertex {i // 3}, coordinate {i % 3}",
     ).reshape(-1, 3)
-    polys = [_face(f, no, ln, nv, len(body[0][1])) for f, (no, ln) in enumerate(body[nv:])]
+    polys = _uniform_faces(body[nv:])
+    if polys is None:
+        polys = [_face(f, no, ln, nv, len(body[0][1])) for f, (no, ln) in enumerate(body[nv:])]
     return V, triangulate(V, polys, lambda i: f"OFF line {body[nv + i][0]}: face {i}"), "off"
+
+
+def _uniform_faces(lines):
+    """(nf, k) indices when every face line is ``k i1 … ik`` with one k (no colours), else None (read line by line)."""
+    width = {len(w) for _, w in lines}
+    if len(width) != 1:
+        return None
+    words = [t for _, w in lines for t in w]
+    if not _INTS.fullmatch(" ".join(words)):
+        return None
+    M = np.array(words).astype(np.int64).reshape(len(lines), -1)
+    return M[:, 1:] if (M[:, 0] == M.shape[1] - 1).all() and M.shape[1] > 3 else None
 
 
 def _face(f, no, ln, nv, vk):

@@ -166,7 +166,7 @@ def _read_ascii(data, elements, start):
         part = rows[pos : pos + n]
         pos += n
         if any(p.count_code for p in props):
-            out[name] = _ascii_lists(part, name, props, _first_values(elements))
+            out[name] = _ascii_uniform(part, name, props) or _ascii_lists(part, name, props, _first_values(elements))
             continue
         bad = [i for i, (_, w) in enumerate(part) if len(w) != len(props)]
         if bad:
@@ -211,6 +211,33 @@ def _typed(tokens, p, where):
             f"{what(int(out[0]))} is {int(values[out[0]])}, outside the range of {p.typename} [{lo}, {hi}]"
         )
     return values
+
+
+def _ascii_uniform(part, name, props):
+    """Columns of an element with one list property whose lines all hold the same number of values (a mesh of
+    triangles): read column by column; None when the lines differ (they are walked one by one)."""
+    widths = {len(w) for _, w in part}
+    lists = [p for p in props if p.count_code]
+    m = len(part[0][1]) - len(props) if part else -1
+    if len(widths) != 1 or len(lists) != 1 or m < 0:
+        return None
+    out, c = {}, 0
+    for p in props:
+
+        def where(i, p=p):
+            return f"ASCII PLY line {part[i][0]}: {name} {i}, property {p.name!r}"
+
+        if p.count_code is None:
+            out[p.name] = _typed([w[c] for _, w in part], p, where)
+            c += 1
+            continue
+        counts = _typed([w[c] for _, w in part], Prop(p.name, p.count_code, None, "list count"), where)
+        if (counts != m).any():
+            return None
+        items = _typed([t for _, w in part for t in w[c + 1 : c + 1 + m]], p, lambda i, where=where: where(i // m))
+        out[p.name] = items.reshape(len(part), m)
+        c += 1 + m
+    return out
 
 
 def _first_values(elements):

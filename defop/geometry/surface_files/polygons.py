@@ -25,7 +25,7 @@ def triangulate(V, polygons, where):
     Parameters
     ----------
     V : (n, 3) numpy array
-    polygons : list of sequences of int
+    polygons : list of sequences of int, or (m, k) int numpy array
     where : callable
         ``where(i)`` names polygon i in a message, for example ``"OBJ line 12: the face"``.
 
@@ -35,7 +35,10 @@ def triangulate(V, polygons, where):
         A polygon with fewer than 3 vertices, an index outside V, or a polygon (k > 3) that is not planar, has no
         area, repeats a vertex or crosses itself; the message names it with ``where``.
     """
-    sizes = np.fromiter(map(len, polygons), dtype=np.int64, count=len(polygons))
+    if isinstance(polygons, np.ndarray):  # (m, k): polygons of one size
+        sizes = np.full(len(polygons), polygons.shape[1] if polygons.ndim == 2 else 0, dtype=np.int64)
+    else:
+        sizes = np.fromiter(map(len, polygons), dtype=np.int64, count=len(polygons))
     small = np.flatnonzero(sizes < 3)
     if len(small):
         raise ValueError(f"{where(int(small[0]))} has {sizes[small[0]]} vertices, a face needs at least 3")
@@ -43,7 +46,10 @@ def triangulate(V, polygons, where):
     F = np.empty((int(start[-1]), 3), dtype=np.int64)
     for k in np.unique(sizes).tolist():
         rows = np.flatnonzero(sizes == k)
-        P = np.array([polygons[i] for i in rows.tolist()], dtype=np.int64).reshape(len(rows), k)
+        if isinstance(polygons, np.ndarray):
+            P = np.asarray(polygons, dtype=np.int64)
+        else:
+            P = np.array([polygons[i] for i in rows.tolist()], dtype=np.int64).reshape(len(rows), k)
         out = (P < 0) | (P >= len(V))
         if out.any():
             r, j = (int(x) for x in np.argwhere(out)[0])

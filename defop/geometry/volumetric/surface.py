@@ -26,6 +26,7 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from ..mesh import check_closed_surface, signed_volumes
 from ..surface_files import bbox_diagonal, read_surface_file
@@ -43,6 +44,7 @@ __all__ = [
     "surface_projector",
     "surface_parts",
     "EmbeddedSurface",
+    "weld_hint",
 ]
 
 
@@ -265,7 +267,10 @@ def check_surface(V, F, self_intersection=True, overlapping_parts=False):
         raise ValueError(
             f"{int(tiny.sum())} surface triangles have zero area, first is triangle {int(np.flatnonzero(tiny)[0])}"
         )
-    check_closed_surface(F, what="the surface")
+    try:
+        check_closed_surface(F, what="the surface")
+    except ValueError as exc:
+        raise ValueError(f"{exc}{weld_hint(Vn, F)}") from None
     if enclosed_volume(Vn, F) < 0:
         F = np.ascontiguousarray(F[:, [0, 2, 1]])
     if self_intersection:
@@ -279,6 +284,38 @@ def check_surface(V, F, self_intersection=True, overlapping_parts=False):
             )
             raise ValueError(f"the surface intersects itself: triangles {i} and {j} cross{hint}")
     return V, F
+
+
+def weld_hint(Vn, F):
+    """For an open surface on a unit diagonal: the gap between its boundary vertices and the weld_tolerance that
+    would close it (``""`` when no edge is on a boundary).
+
+    Each boundary vertex (on an edge of one triangle) is paired with the nearest other boundary vertex that
+    shares no edge with it (among its 7 nearest); the largest of those distances is the gap. A gap of 0 means
+    unwelded copies of vertices (``weld_tolerance=0`` merges them); a gap of 0.05 or more (none found, or half
+    the largest tolerance) is a hole, which welding cannot close. The tolerance offered is twice the gap.
+    """
+    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    edges, counts = np.unique(E, axis=0, return_counts=True)
+    B = np.unique(edges[counts == 1])
+    if len(B) < 2:
+        return ""
+    k = min(len(B), 8)
+    dist, near = cKDTree(Vn[B]).query(Vn[B], k=k)
+    a, b = np.repeat(B, k - 1), B[near[:, 1:]].ravel()
+    linked = np.isin(np.minimum(a, b) * len(Vn) + np.maximum(a, b), edges[:, 0] * len(Vn) + edges[:, 1])
+    dist = np.where(linked.reshape(len(B), k - 1), np.inf, dist[:, 1:])  # a vertex of its own triangles: no crack
+    gap = float(dist.min(axis=1).max())
+    if not gap < 0.05:
+        return "; its boundary vertices are not copies of each other: a hole, which weld_tolerance cannot close"
+    if gap == 0:
+        return "; its boundary vertices have exact copies: read the file with weld_tolerance=0 to merge them"
+    e = 10.0 ** np.floor(np.log10(2 * gap))
+    tol = float(f"{np.ceil(2 * gap / e) * e:.1g}")  # twice the gap, rounded up to one digit
+    return (
+        f"; every boundary vertex lies within {gap:.2g} × the bounding-box diagonal of another: read the file "
+        f"with weld_tolerance={tol:g} (read_surface or from_surface) to merge them"
+    )
 
 
 def inside_surface(V, F):
