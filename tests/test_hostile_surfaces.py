@@ -1,4 +1,4 @@
-"""Hostile surface files and scales (issue 35): every file gets a surface or a ValueError naming it.
+"""Hostile surface files and scales: every file gets a surface or a ValueError naming it.
 
 PLY, STL, OBJ and OFF are read by numpy code that checks each stated count before it allocates
 (``defop.geometry.surface_files``); a closed STL is welded into the closed surface its OBJ describes;
@@ -518,7 +518,7 @@ def test_read_mesh_reads_obj_and_off_without_libigl(tmp_path, capfd):
 def test_a_surface_in_the_coordinate_range_also_solves(scale):
     """COORDINATE_RANGE promises the solver too: a box at 1e±30 passed from_surface, then libigl's 3D cotangent
     Laplacian underflowed to NaN (1e-30) or 0 (from about 1e27) and the first solve raised scipy's 'Factor is exactly
-    singular' (review of issue 35). On the unit box's mesh scaled, the solve is the unit one's, scaled."""
+    singular'. On the unit box's mesh scaled, the solve is the unit one's, scaled."""
     H = np.array([[0.2, 0.2, 0.1], [1.8, 0.2, 0.1], [0.2, 0.8, 0.4], [1.8, 0.8, 0.4]])
     shape = dop.scene.shapes.from_surface(V_BOX * scale, F_BOX, handles=H * scale, n_vertices=150)
     assert shape.mesh.bbox_diagonal > 0.5 * scale
@@ -538,7 +538,7 @@ def test_a_surface_in_the_coordinate_range_also_solves(scale):
 @settings(max_examples=40, deadline=None)
 def test_one_overflow_free_bounding_diagonal(exponent):
     """Welding, the coordinate range and the Laplacian's rescaling read one bounding-box diagonal (three copies of the
-    computation before the review of issue 35); it neither overflows nor underflows over float64's range."""
+    computation before); it neither overflows nor underflows over float64's range."""
     scale = 10.0**exponent
     d = sf.bbox_diagonal(V_BOX * scale)
     assert d == pytest.approx(np.sqrt(2**2 + 1 + 0.25) * scale, rel=1e-14)
@@ -548,7 +548,7 @@ def test_one_overflow_free_bounding_diagonal(exponent):
 
 @pytest.mark.parametrize("name", ["m.obj", "m.off"])
 def test_read_mesh_keeps_the_file_size_limit(tmp_path, monkeypatch, name):
-    """read_mesh read any OBJ/OFF whole: a 3 GiB one raised an empty MemoryError from pathlib (review of issue 35).
+    """read_mesh read any OBJ/OFF whole: a 3 GiB one raised an empty MemoryError from pathlib.
     It now has read_surface's MAX_FILE_BYTES (lowered here, so that nothing large is written or read)."""
     path = tmp_path / name
     V, F = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]])

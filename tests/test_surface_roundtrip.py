@@ -124,14 +124,22 @@ def expected(fmt, V, F, opt=None):
 
 
 # ------------------------------------------------------------------------------------------------ round trips
+def written(tmp_path_factory, fmt, V, F, draw, corrupted=False):
+    """(path, encoding choices, corruption kind or None) of V, F written in ``fmt``, corrupted if asked."""
+    opt = {}
+    raw, kind = write(fmt, V, F, draw, opt), None
+    if corrupted:
+        raw, kind = corrupt(fmt, raw, draw)
+    path = tmp_path_factory.mktemp("m") / f"m{EXT.get(fmt, '.' + fmt)}"
+    path.write_bytes(raw)
+    return path, opt, kind
+
+
 @settings(max_examples=60, **SETTINGS)
 @given(mesh=meshes(), fmt=st.sampled_from(FORMATS), data=st.data())
 def test_every_format_and_encoding_reads_back_the_same_mesh(tmp_path_factory, mesh, fmt, data):
     V, F = mesh
-    opt = {}
-    raw = write(fmt, V, F, data.draw, opt)
-    path = tmp_path_factory.mktemp("rt") / f"m{EXT.get(fmt, '.' + fmt)}"
-    path.write_bytes(raw)
+    path, opt, _ = written(tmp_path_factory, fmt, V, F, data.draw)
     s = sf.read_surface_file(path)
     assert len(s.F) == len(F) and triples(s.V, s.F) == expected(fmt, V, F, opt)
     assert len(s.V) == len(V)  # STL welded exactly back to the shared vertices
@@ -202,9 +210,7 @@ def _fraction(fmt, raw, draw):
         "stl-ascii": r"vertex (\S+)",
     }[fmt]
     found = list(re.finditer(spots, text))
-    m = found[draw(st.integers(0, len(found) - 1))]
-    if fmt == "stl-ascii":  # an STL has no indices: a coordinate with two points instead
-        return (text[: m.end(1)] + ".5" + text[m.end(1) :]).encode("latin-1")
+    m = found[draw(st.integers(0, len(found) - 1))]  # ASCII STL has no indices: a coordinate with two points
     return (text[: m.end(1)] + ".5" + text[m.end(1) :]).encode("latin-1")
 
 
@@ -212,11 +218,7 @@ def _fraction(fmt, raw, draw):
 @given(mesh=meshes(), fmt=st.sampled_from(FORMATS), data=st.data())
 def test_corrupted_files_are_refused_by_name_or_read_unchanged(tmp_path_factory, mesh, fmt, data):
     V, F = mesh
-    opt = {}
-    raw = write(fmt, V, F, data.draw, opt)
-    bad, kind = corrupt(fmt, raw, data.draw)
-    path = tmp_path_factory.mktemp("bad") / f"m{EXT.get(fmt, '.' + fmt)}"
-    path.write_bytes(bad)
+    path, opt, kind = written(tmp_path_factory, fmt, V, F, data.draw, corrupted=True)
     try:
         s = sf.read_surface_file(path)
     except ValueError as exc:
