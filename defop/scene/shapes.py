@@ -504,7 +504,8 @@ def from_surface(
 
     The solid is meshed by Kuhn cubes (:func:`defop.geometry.volumetric.surface.surface_mesh`: the cubes
     whose centre has winding number ≥ 1/2, boundary snapped toward the surface while every tetrahedron
-    keeps a tenth of its volume), the same on every CPU. The surface is embedded in the tetrahedra
+    keeps a tenth of its volume), the same on every CPU, and the same for every copy of the surface that rounds to
+    the same float32 coordinates (an STL and its OBJ). The surface is embedded in the tetrahedra
     (``shape.surface``) so that it can be drawn deformed.
 
     Parameters

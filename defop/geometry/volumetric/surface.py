@@ -9,7 +9,10 @@ diagonal of at least 1e-50) are all judged alike. :func:`read_surface` reads PLY
 decided by libigl's generalised winding number (``igl.winding_number``, core libigl, MPL-2.0; exact, not the fast
 approximation), the boundary of the tetrahedral mesh is snapped to the closest surface point
 (``igl.point_mesh_squared_distance``); :meth:`defop.geometry.mesh.Mesh.locate` gives each surface vertex
-its tetrahedron and barycentric coordinates, so the fine surface can be drawn deformed.
+its tetrahedron and barycentric coordinates, so the fine surface can be drawn deformed. The surface is meshed
+rounded to float32 (:func:`float32_canonical`), so copies of it that differ by float rounding (an STL and its OBJ)
+give one mesh. An open surface's error names the gap between its boundary vertices and the ``weld_tolerance`` that
+would close it (:func:`weld_hint`).
 
 libigl is compiled code without run-time CPU dispatch; its winding number uses libm's ``atan2``, whose
 last bit could differ between libm builds. Only a cube centre within about 1e-15 of winding number 1/2
@@ -45,6 +48,8 @@ __all__ = [
     "surface_parts",
     "EmbeddedSurface",
     "weld_hint",
+    "float32_canonical",
+    "FLOAT32_RANGE",
 ]
 
 
@@ -336,6 +341,24 @@ def surface_projector(V, F):
     return project
 
 
+#: the coordinates :func:`float32_canonical` rounds: magnitudes up to the upper bound, a diagonal of at least the lower
+FLOAT32_RANGE = (1e-30, 1e37)
+
+
+def float32_canonical(V):
+    """V rounded to float32 (as float64), when its coordinates are inside :data:`FLOAT32_RANGE`; else V unchanged.
+
+    The mesher is not continuous in the surface (a tetrahedron near its thickness floor halves a vertex's move),
+    so two copies of one surface that differ by float rounding, an STL (float32) and its OBJ (float64), could
+    mesh differently. Rounded to float32 first, every surface whose coordinates round to the same float32 values
+    meshes identically, bit for bit; a perturbation that changes a float32 value may still change the mesh.
+    """
+    lo, hi = FLOAT32_RANGE
+    if len(V) and float(np.abs(V).max()) <= hi and bbox_diagonal(V) >= lo:
+        return V.astype(np.float32).astype(np.float64)
+    return V
+
+
 def surface_mesh(V, F, n_vertices=2000, min_volume=0.1, checked=False, overlapping_parts=False):
     """A tetrahedral mesh of the solid bounded by a closed triangle surface.
 
@@ -355,9 +378,12 @@ def surface_mesh(V, F, n_vertices=2000, min_volume=0.1, checked=False, overlappi
     Returns
     -------
     mesh : defop.geometry.mesh.Mesh
+        Meshed from the surface rounded to float32 (:func:`float32_canonical`): an STL and an OBJ of one
+        surface give the same mesh.
     """
     if not checked:
         V, F = check_surface(V, F, overlapping_parts=overlapping_parts)
+    V = float32_canonical(V)
     bbox = np.array([V.min(axis=0), V.max(axis=0)])
     inside = inside_surface(V, F)
     h = grid_spacing(inside, bbox, n_vertices)
