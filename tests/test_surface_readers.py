@@ -163,6 +163,24 @@ def test_a_vertex_count_too_small_is_reported_as_a_count(tmp_path):
         read(tmp_path, "w.off", "OFF\n3 4 0\n" + verts + faces)
 
 
+@pytest.mark.parametrize("nv, nf", [(7, 12), (9, 12), (8, 11), (8, 13)])
+def test_a_binary_ply_whose_counts_miss_its_size_says_so_first(tmp_path, nv, nf):
+    """Binary lists may have any length, so a wrong count can fail anywhere while reading: the size the counts
+    give with triangle faces is named first (a vertex count too large reads the faces from the wrong place)."""
+    body = CUBE.astype("<f8").tobytes() + b"".join(struct.pack("<B3i", 3, *t) for t in cube_triangles().tolist())
+    with pytest.raises(
+        ValueError,
+        match=r"binary PLY size 521 bytes, but its header \(173 B\) and counts make [\d,]+ bytes with triangle faces "
+        r"\(are the counts right\?\); read as declared: ",
+    ):
+        read(tmp_path, "c.ply", ply_head("binary_little_endian", nv, nf).encode() + body)
+    twice = ply_head("binary_little_endian", 8, 12).replace(
+        "property double z\n", "property double z\nproperty int x\n"
+    )
+    with pytest.raises(ValueError, match=r"PLY header line 7: element vertex declares property 'x' twice"):
+        read(tmp_path, "d.ply", twice.encode() + body)
+
+
 def test_obj_negative_indices_and_corner_forms_are_read_and_errors_name_the_line(tmp_path):
     """Before: 'f -3 -2 -1' after more vertices was fine, but an error named no line, and a negative index past
     the start was reported as the converted index ('triangle 0 indexes vertex -1')."""

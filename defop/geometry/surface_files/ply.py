@@ -62,7 +62,8 @@ def read_ply(data):
         values = _read_binary(data, elements, start, ">" if fmt == "binary_big_endian" else "<")
         return (*_surface(values, key, "binary PLY"), f"ply-{fmt}")
     except ValueError as exc:
-        raise ValueError(f"{exc}{_size_hint(data, elements, start)}") from None
+        hint = _size_hint(data, elements, start)
+        raise ValueError(f"{hint}; read as declared: {exc}" if hint else str(exc)) from None
 
 
 def _surface(values, key, kind):
@@ -82,8 +83,8 @@ def _size_hint(data, elements, start):
     if size == len(data):
         return ""
     return (
-        f"; binary PLY size {len(data):,} bytes, but its header ({start} B) and counts make {size:,} bytes "
-        "with triangle faces"
+        f"binary PLY size {len(data):,} bytes, but its header ({start} B) and counts make {size:,} bytes "
+        "with triangle faces (are the counts right?)"
     )
 
 
@@ -124,6 +125,8 @@ def _header(data):
                 raise ValueError(f"the PLY header declares an element twice: {', '.join([*elements, w[1]])}")
             current = w[1]
             elements[current] = (count(w[2], f"{w[1]} elements"), [])
+        elif w[0] == "property" and current and len(w) in (3, 5) and w[-1] in {p.name for p in elements[current][1]}:
+            raise ValueError(f"PLY header line {no}: element {current} declares property {w[-1][:40]!r} twice")
         elif w[0] == "property" and current and len(w) == 3 and w[1] in PLY_TYPES:
             elements[current][1].append(Prop(w[2], PLY_TYPES[w[1]], None, w[1]))
         elif w[0] == "property" and current and len(w) == 5 and w[1] == "list" and {w[2], w[3]} <= set(PLY_TYPES):
@@ -295,10 +298,7 @@ def _read_binary(data, elements, start, order):
         out[name] = {p.name: a[p.name] for p in props}
         pos += n * rec.itemsize
     if pos != len(data):
-        raise ValueError(
-            f"binary PLY size {len(data):,} bytes, but its header ({start} B) and the elements it declares "
-            f"make {pos:,} bytes"
-        )
+        raise ValueError(f"binary PLY: {len(data) - pos:,} bytes are left after the elements its header declares")
     return out
 
 
