@@ -16,6 +16,7 @@ import re
 import struct
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import ConvexHull
@@ -229,3 +230,59 @@ def test_corrupted_files_are_refused_by_name_or_read_unchanged(tmp_path_factory,
         return
     assert kind in ("bom", "garbage", "truncate", "count"), f"{kind} read as a surface"
     assert triples(s.V, s.F) == expected(fmt, V, F, opt), f"{kind}: a different mesh was read silently"
+
+
+# ------------------------------------------------------------------------------------------------ polygons
+def star_prism(seed, k, h=0.7):
+    """A prism over a random star-shaped (often concave) k-gon: its caps are two k-gons, its sides quads."""
+    rng = np.random.default_rng(seed)
+    gaps = rng.uniform(1, 2, k)  # every angular gap below pi (at most 4 pi / 5): the origin sees every edge
+    angle = np.cumsum(gaps * 2 * np.pi / gaps.sum())
+    radius = rng.uniform(0.2, 1.0, k)
+    P = np.column_stack([radius * np.cos(angle), radius * np.sin(angle)])
+    area = 0.5 * float(np.sum(P[:, 0] * np.roll(P[:, 1], -1) - np.roll(P[:, 0], -1) * P[:, 1]))
+    V = np.vstack([np.column_stack([P, np.zeros(k)]), np.column_stack([P, np.full(k, h)])])
+    polys = [list(range(k - 1, -1, -1)), list(range(k, 2 * k))]
+    polys += [[i, (i + 1) % k, (i + 1) % k + k, i + k] for i in range(k)]
+    return V, polys, area * h
+
+
+def write_polygons(fmt, V, polys):
+    if fmt == "obj":
+        body = "".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in V.tolist())
+        return (body + "".join("f " + " ".join(str(i - len(V)) for i in p) + "\n" for p in polys)).encode()
+    if fmt == "off":
+        body = "".join(f"{x!r} {y!r} {z!r}\n" for x, y, z in V.tolist())
+        return (
+            f"OFF\n{len(V)} {len(polys)} 0\n" + body + "".join(f"{len(p)} {' '.join(map(str, p))}\n" for p in polys)
+        ).encode()
+    head = _ply_head_polygons("ascii" if fmt == "ply-ascii" else "binary_big_endian", len(V), len(polys))
+    if fmt == "ply-ascii":
+        rows = "".join(" ".join(map(repr, v)) + "\n" for v in V.tolist())
+        return head + (rows + "".join(f"{len(p)} {' '.join(map(str, p))}\n" for p in polys)).encode()
+    return head + V.astype(">f8").tobytes() + b"".join(struct.pack(f">B{len(p)}i", len(p), *p) for p in polys)
+
+
+def _ply_head_polygons(encoding, nv, nf):
+    return (
+        f"ply\nformat {encoding} 1.0\nelement vertex {nv}\nproperty double x\nproperty double y\nproperty double z\n"
+        f"element face {nf}\nproperty list uchar int vertex_indices\nend_header\n"
+    ).encode()
+
+
+@settings(max_examples=40, **SETTINGS)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    k=st.integers(4, 14),
+    fmt=st.sampled_from(["obj", "off", "ply-ascii", "ply-be"]),
+)
+def test_concave_polygons_are_triangulated_inside_themselves(tmp_path_factory, seed, k, fmt):
+    """Each cap becomes k-2 triangles inside it: the surface is closed, does not cross itself, and encloses the
+    prism's volume (a fan of a concave cap overlaps itself and fails here)."""
+    V, polys, volume = star_prism(seed, k)
+    path = tmp_path_factory.mktemp("poly") / f"p{EXT.get(fmt, '.' + fmt)}"
+    path.write_bytes(write_polygons(fmt, V, polys))
+    s = sf.read_surface_file(path)
+    assert len(s.F) == 2 * (k - 2) + 2 * k
+    W, F = surf.check_surface(*s)
+    assert surf.enclosed_volume(W, F) == pytest.approx(volume, rel=1e-9)
