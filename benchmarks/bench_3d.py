@@ -8,7 +8,7 @@ For ``bar_3d`` (and, with ``--octopus N``, ``octopus_3d`` meshed at about N vert
   checked) and ``evaluate_fast`` (float32 W_F; compressed: rank r), single thread (threadpoolctl), median and best;
   the handle error |D(·,Q) − Q| and the rest-pose error |D(·,P) − x| of ``op(Q)``, ``evaluate_fast`` and
   ``evaluate_batch`` on every held-out Q, checked ≤ 1e-9 of the bounding-box diagonal;
-* every peer of :mod:`defop.analysis.peers` on the same held-out Q (``dop.training.held_out``, solved like the
+* every peer of :mod:`defop.rivals.peers` on the same held-out Q (``dop.training.held_out``, solved like the
   training samples, seed 12345): precompute, frame time (median and best, the thread's CPU time, one BLAS thread),
   the paper's (8a)/n against the S-ARAP ground truth, the worst vertex error, and inverted tets per frame
   (signed volume ≤ 0), beside DefOp exact and compressed (:func:`defop.analysis.compare.score_all`).
@@ -34,9 +34,10 @@ import numpy as np
 from bench_operator import TOL, guarantees  # benchmarks/ is sys.path[0] when run as a script
 
 import defop as dop
-from defop.analysis import compare, peers
+from defop.analysis import compare
 from defop.analysis.metrics import frame_rate, repeat_timing
 from defop.operator.defop import ExtrapolationWarning
+from defop.rivals import peers
 
 GUARANTEE = 1e-9  # handle and rest-pose errors, relative to the bounding-box diagonal
 

@@ -11,7 +11,7 @@ samples, samples with more than two minima, the training cost in CPU seconds (mu
 and bisection; single-valued: the rest-pose multi-start), where each jumps, the errors, ``follow``'s frame time
 against a DefOp frame, issue 37's targets with pass/fail, and the load average.
 
-``--random N``: the first N accepted cases of :func:`defop.analysis.random_branches.random_cases` (seeds 0, 1, …;
+``--random N``: the first N accepted cases of :func:`defop.lessons.random_branches.random_cases` (seeds 0, 1, …;
 rejected seeds printed with the reason). ``--cases``: catalogue cases (default bar u_shape; plank_3d takes about
 20 minutes on one core).
 
@@ -28,7 +28,7 @@ import warnings
 import numpy as np
 
 from defop.analysis import branches as ab
-from defop.analysis import random_branches as rb
+from defop.lessons import random_branches as rb
 
 
 def frame_times(case, repeat=5):

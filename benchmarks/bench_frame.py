@@ -27,9 +27,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 import defop as dop
-from defop.analysis import peers
 from defop.analysis.metrics import approximation_error, copy_bandwidth
 from defop.operator import kernels
+from defop.rivals import peers
 
 N_HELD_OUT = 100
 OTHER_TOL = 1e-3  # the default before compress.TOL = 5e-3

@@ -37,8 +37,9 @@ import numpy as np
 os.environ.setdefault("DEFOP_N_JOBS", "1")
 
 import defop as dop  # noqa: E402
-from defop.analysis import metrics, peers  # noqa: E402
+from defop.analysis import metrics  # noqa: E402
 from defop.operator.movable import CarryOp, residual  # noqa: E402
+from defop.rivals import peers  # noqa: E402
 from defop.scene.placement import placement_regions  # noqa: E402
 from defop.training.movable import sample_joint, shape_at, solve_joint, train_movable  # noqa: E402
 

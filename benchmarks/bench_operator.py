@@ -184,7 +184,7 @@ def main(m=500, cache=False, octopus=False):
     quality_rows("aleph", op, Q, X)
     f_comp = speed_rows(op, Q)
     T = shape.targets(Q[0])
-    arap10 = dop.variational.solve_libigl_arap
+    arap10 = dop.rivals.solve_libigl_arap
     igl = repeat_timing(lambda: arap10(shape.mesh, shape.handles, T, iterations=10), 3, 0.0)
     print(
         f"\nlibigl ARAP, 10 iterations: {1e3 * igl['best']:.1f} ms per frame (best of 3) = "

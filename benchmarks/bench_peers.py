@@ -19,7 +19,8 @@ import warnings
 import numpy as np
 
 import defop as dop
-from defop.analysis import compare, peers
+from defop.analysis import compare
+from defop.rivals import peers
 
 ROUNDS = 3
 

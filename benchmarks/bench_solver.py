@@ -56,10 +56,10 @@ def run_problem(shape, energy, solver, tight, seed):
     base = solver.solve(T, X0=X0)  # also the warm-up: imports, symbolic factorisation
     tight.solve(T, X0=X0)
     newton = tight.solve(T, X0=X0, tol=1e-14, max_iter=400)
-    lbfgs = dop.variational.solve_lbfgs(shape.mesh, shape.handles, T, energy, X0=X0, tol=1e-15, max_iter=30000)
+    lbfgs = dop.rivals.solve_lbfgs(shape.mesh, shape.handles, T, energy, X0=X0, tol=1e-15, max_iter=30000)
     runs = {"Newton": newton, "L-BFGS": lbfgs}
     if energy == "arap":
-        runs["libigl ARAP"] = dop.variational.solve_libigl_arap(
+        runs["libigl ARAP"] = dop.rivals.solve_libigl_arap(
             shape.mesh, shape.handles, T, X0=X0, iterations=2000, history=True
         )
     E_star = min(r.energy_history.min() for r in runs.values())

@@ -8,9 +8,10 @@ A reproduction of Poranne & Lipman, *Simple Approximations of Planar Deformation
 - ``dop.train(shape, energy=..., basis=..., m=...)``: the closed-form :class:`DefOp` (problem 8, Eq. 3).
 
 The subpackages, lowest layer first (a module imports only its own subpackage or lower layers; import-linter
-checks it): ``geometry`` < ``scene`` < {``variational``, ``operator``} < ``training`` < ``analysis`` < ``view``
-< ``editor`` < ``figures``. Everything up to ``training`` imports neither matplotlib nor PyVista nor a widget
-library; ``view`` and ``editor`` are imported on first attribute access.
+checks it): ``geometry`` < ``scene`` < {``variational``, ``operator``} < {``training``, ``rivals``} < ``analysis``
+< ``view`` < ``editor`` < ``lessons`` < ``figures``. Everything up to ``analysis`` imports neither matplotlib nor
+PyVista nor a widget library; ``view`` and ``editor`` are imported on first attribute access. ``rivals`` holds the
+methods DefOp is compared with, ``lessons`` the notebooks' own figure data.
 """
 
 from importlib.metadata import PackageNotFoundError, version
@@ -30,9 +31,11 @@ _SUBPACKAGES = (
     "variational",
     "operator",
     "training",
+    "rivals",
     "analysis",
     "view",
     "editor",
+    "lessons",
     "figures",
 )
 #: the public face: name -> the subpackage it comes from

@@ -6,7 +6,8 @@ import argparse
 import sys
 
 
-def main(argv=None):
+def parser():
+    """The command line's argument parser: the subcommands ``figures``, ``normalise``, ``runtimes`` and ``doctor``."""
     parser = argparse.ArgumentParser(prog="defop", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     fig = sub.add_parser("figures", help="regenerate every figure into figures/ by running the notebooks")
@@ -31,7 +32,12 @@ def main(argv=None):
     doc = sub.add_parser("doctor", help="check (and, as root on Debian, install) what headless rendering needs")
     doc.add_argument("--no-install", action="store_true")
     doc.add_argument("--browser", action="store_true", help="also make sure chromium is there (browser test)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None):
+    """Run one subcommand of ``python -m defop`` with the arguments ``argv`` (default: ``sys.argv``); the exit code."""
+    args = parser().parse_args(argv)
 
     if args.command == "figures":
         from .figures import CELL_TIMEOUT, RUNTIMES, regenerate

@@ -1,15 +1,18 @@
 """Lazy attributes of a package: its modules and re-exported names are imported on first access.
 
 One policy for the top-level package and the subpackages whose modules pull in heavy libraries (``view``:
-matplotlib and PyVista; ``editor``: anywidget; ``analysis``: libigl's peers), so ``import defop`` stays light.
+matplotlib and PyVista; ``editor``: anywidget; ``rivals``: libigl), so ``import defop`` stays light. :func:`moved`
+keeps a moved module's old names working, and :func:`renamed` a module's renamed names, each with a
+``DeprecationWarning``: the one deprecation policy of the library.
 """
 
 from __future__ import annotations
 
 import sys
+import warnings
 from importlib import import_module
 
-__all__ = ["attach"]
+__all__ = ["attach", "moved", "renamed"]
 
 
 def attach(package, modules=(), names=None):
@@ -46,3 +49,84 @@ def attach(package, modules=(), names=None):
         return sorted(set(vars(sys.modules[package])) | set(modules) | set(names))
 
     return __getattr__, __dir__
+
+
+def moved(old, new, load, names=None, stacklevel=2):
+    """``(__getattr__, __dir__)`` for a module whose public names moved: each access warns and returns the new one.
+
+    Parameters
+    ----------
+    old : str
+        The old module's ``__name__`` (named in the warning).
+    new : str
+        The new module's name, for names that are not functions or classes (those name their own module).
+    load : callable
+        ``load()`` returns the new module. Write its import inside ``load`` (``from ..rivals import peers``),
+        so the import graph and import-linter see the link.
+    names : collection of str, optional
+        The names forwarded; by default the new module's ``__all__`` (else every public name).
+    stacklevel : int
+        The warning's, counted from ``__getattr__`` (2: the code that reads the old name).
+
+    Returns
+    -------
+    __getattr__, __dir__ : callables
+        To assign at the old module's level (PEP 562). Each access raises a ``DeprecationWarning`` that names
+        the new home.
+    """
+
+    def forwarded(module):
+        if names is not None:
+            return sorted(n for n in names if hasattr(module, n))
+        return sorted(getattr(module, "__all__", [n for n in dir(module) if not n.startswith("_")]))
+
+    def __getattr__(name):
+        module = load()
+        if name not in forwarded(module):
+            raise AttributeError(f"module {old!r} has no attribute {name!r}")
+        value = getattr(module, name)
+        home = getattr(value, "__module__", None) if callable(value) else None
+        home = home if isinstance(home, str) else new
+        warnings.warn(
+            f"{old}.{name} is deprecated and will be removed: use {home}.{name}",
+            DeprecationWarning,
+            stacklevel=stacklevel,
+        )
+        return value
+
+    def __dir__():
+        return forwarded(load())
+
+    return __getattr__, __dir__
+
+
+def renamed(module, names, stacklevel=2):
+    """``__getattr__`` for a module some of whose names were renamed: each old name warns and returns the new object.
+
+    Parameters
+    ----------
+    module : str
+        The module's ``__name__``.
+    names : dict of str -> str
+        Old name -> new name, both in ``module``.
+    stacklevel : int
+        The warning's, counted from ``__getattr__`` (2: the code that reads the old name).
+
+    Returns
+    -------
+    __getattr__ : callable
+        To assign at the module's level (PEP 562).
+    """
+    names = dict(names)
+
+    def __getattr__(name):
+        if name not in names:
+            raise AttributeError(f"module {module!r} has no attribute {name!r}")
+        warnings.warn(
+            f"{module}.{name} is renamed {names[name]} and will be removed: use {module}.{names[name]}",
+            DeprecationWarning,
+            stacklevel=stacklevel,
+        )
+        return getattr(sys.modules[module], names[name])
+
+    return __getattr__

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 import defop as dop
 from defop.variational import Solver
-from defop.variational import problem as pb
+from defop.variational import backend as pb
 
 needs_pardiso = pytest.mark.skipif(not pb.HAVE_PARDISO, reason="pypardiso (the mkl extra) is not installed")
 

@@ -1,10 +1,11 @@
-"""Branches on shapes nobody tuned for (issue 37): certified presence and absence, the domain fitted from both
+"""Branches on shapes nobody tuned for: certified presence and absence, the domain fitted from both
 sides, the far-Q warning, files of both versions, and a random bistable case.
 
 The bar of Fig. 10 on 200 vertices and 9 × 9 samples of its end handle (±0.3), one continuation sweep, then
-:func:`defop.training.branch_domains.certify_branches` (3 bisection levels): ``exists_b`` agrees with every certified
+:func:`defop.training.branches.certify_branches` (bisection depth 3): ``exists_b`` agrees with every certified
 label, and past each fold point it does not claim the branch; every branch path warns outside the samples' box
-enlarged by one spacing (and its warning names the caller's line); version-1 files (λ²_b as the domain) still load.
+enlarged by one spacing (and its warning names the caller's line); version-1 files (λ²_b as the domain, built by
+hand) still load.
 The random case: the first accepted seed of :mod:`defop.analysis.random_branches` on 120 vertices, 13 × 13 samples
 and a path of 40 steps each way: ``follow`` jumps where the solver's continuation jumps, within 1 step (on 9 × 9
 samples it jumps 2 steps early on the way out: that path runs almost along the fold, where a fold point's error
@@ -21,8 +22,9 @@ import pytest
 import defop as dop
 from defop.analysis import random_branches as rb
 from defop.operator import ExtrapolationWarning
+from defop.operator.branched import Branch as OperatorBranch
 from defop.operator.branched import BranchedOperator
-from defop.training import branch_domains as bd
+from defop.operator.fit import fit_shape, fit_values
 from defop.training import branches as br
 
 N, R = 9, 0.3
@@ -34,7 +36,7 @@ def certified():
     Q = br.grid_samples(shape, R, N)
     minima = br.discover(shape, Q, [br.scan_order(N, N)])
     B = br.group(shape, minima, margins=False)
-    C = bd.certify_branches(shape, B, levels=3)
+    C = br.certify_branches(shape, B, depth=3)
     return shape, Q, minima, B, C, br.fit_branched(shape, C)
 
 
@@ -77,14 +79,25 @@ def test_a_margin_past_the_fold_does_not_claim_the_branch():
     labels = np.array([b for b, _ in beyond])
     assert not ex_out[np.arange(len(labels)), labels].any()  # past every fold point: not claimed
     assert ex_in[np.arange(len(labels)), labels].mean() >= 0.9  # and before it, claimed
-    # the stability margin λ²_b fitted on b's own samples (the domain of format 1) claims the branch past folds
-    old = br.fit_branched(shape, br.group(shape, _minima(), margins=True))
-    old_out = quiet(old.exists, np.array([q for _, q in beyond]))
-    assert old_out[np.arange(len(labels)), labels].sum() > 0
 
 
 def _minima():
     return certified()[2]
+
+
+def lambda_operator(shape, B, energy="sarap"):
+    """The format-1 model (built by hand: the training no longer fits it): each branch's domain is λ²_b, its
+    stability margin squared, fitted on its own samples with the rest pose's λ_min²."""
+    solver = dop.variational.solver.Solver(shape.mesh, shape.handles, energy=energy)
+    lam_rest = br.stability_margin(solver, shape.mesh.V, B.mode)
+    out = []
+    for b in B.branches:
+        Q = B.samples[b.samples]
+        op = fit_shape(shape, Q, b.X, "tps", "hat", 100, meta={"energy": energy, "branch": b.label})
+        e = fit_values(op, br.values_at_train(op, b.energy, 0.0, Q))
+        lam = fit_values(op, br.values_at_train(op, b.margin**2, lam_rest**2, Q))
+        out.append(OperatorBranch(b.label, op, e, lam, b.side))
+    return BranchedOperator(out, B.mode, B.threshold, {"shape": shape.name, "energy": energy, "conflicts": 0})
 
 
 def _paths(bop, Q):
@@ -135,8 +148,8 @@ def test_files_version_2_round_trip_and_version_1_loads(tmp_path):
         assert a.domain.own and np.array_equal(a.domain.w, b.domain.w)
     assert np.array_equal(quiet(back.exists, Q), quiet(bop.exists, Q))
     assert np.array_equal(quiet(back, Q), quiet(bop, Q))
-    # a version-1 file (issue 29: λ²_b on Ψ_b, no box) loads with its λ²_b as the domain
-    old = br.fit_branched(shape, br.group(shape, _minima(), margins=True))
+    # a version-1 file (λ²_b on Ψ_b, no box) loads with its λ²_b as the domain
+    old = lambda_operator(shape, br.group(shape, _minima(), margins=True))
     old.save(tmp_path / "old.npz")
     _as_version_1(tmp_path / "old.npz", tmp_path / "v1.npz")
     v1 = BranchedOperator.load(tmp_path / "v1.npz")
@@ -179,9 +192,9 @@ def test_certify_refuses_several_independent_handles():
     shape = dop.shapes.load("u_shape", 200)  # two moving tips, moved independently: a 4D space of Q
     Q = shape.P_moving + np.random.default_rng(0).uniform(-0.1, 0.1, (12, *shape.P_moving.shape))
     m = len(Q)
-    B = br.Branches(Q, [], np.zeros_like(shape.mesh.V), np.zeros(5), np.ones(m, int), 0, np.zeros(m, int))
+    B = br.SampledBranches(Q, [], np.zeros_like(shape.mesh.V), np.zeros(5), np.ones(m, int), 0, np.zeros(m, int))
     with pytest.raises(ValueError, match="one moving handle"):
-        bd.certify(shape, B)
+        br.certify(shape, B)
 
 
 @functools.cache

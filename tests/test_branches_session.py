@@ -1,4 +1,4 @@
-"""A follow session changes nothing on a rejected call (issue 35): random sequences of valid and invalid calls.
+"""A follow session changes nothing on a rejected call: random sequences of valid and invalid calls.
 
 Hypothesis draws sequences of session calls (``step``, ``__call__``, ``run``, ``set``, ``reset``) with valid
 handle positions (near the samples, or far: an ExtrapolationWarning) and invalid ones (NaN, ±inf, a wrong shape,

@@ -82,7 +82,7 @@ def test_solver_settings_hold_everything_that_changes_a_solution(bar):
 def test_train_keys_read_the_settings_of_the_solver_train_uses(bar, energy):
     """train reads the settings from a one-triangle Solver: they must equal the real one's."""
     real = cm.solver_settings(dop.variational.Solver(bar.mesh, bar.handles, energy))
-    assert dop.training.bootstrap._solver_key(bar, energy) == real and real["energy"] == energy
+    assert dop.training.solves.solver_key(bar, energy) == real and real["energy"] == energy
 
 
 # ------------------------------------------------------------------------------ store and load
@@ -272,7 +272,7 @@ def test_train_cache_misses_when_a_solver_setting_the_version_or_the_salt_change
             self.stage_tol = 1e-6
 
     with monkeypatch.context() as mp:
-        mp.setattr(dop.training.bootstrap, "Solver", LooserSolver)
+        mp.setattr(dop.training.solves, "Solver", LooserSolver)
         assert dop.train(bar, **TRAIN)[1].cache == "none"
     with monkeypatch.context() as mp:
         mp.setattr(cm, "SOLVER_SALT", cm.SOLVER_SALT + 1)
@@ -308,9 +308,9 @@ def test_trajectories_recompute_a_truncated_entry(bar, folder):
 
 def test_trajectory_keys_see_the_solver_settings_and_the_salt(bar, monkeypatch):
     g = tr.handle_grid(bar.P_moving[0], 0.05, 2)
-    solver = dop.variational.Solver(bar.mesh, bar.handles, "sarap")
+    solver = {}  # the solver's options (the defaults)
     k = tr._cache_key(bar, g, "sarap", "global", 0, None, solver, {})
-    tighter = dop.variational.Solver(bar.mesh, bar.handles, "sarap", smoothing=(1e-5, 1e-9))
+    tighter = {"smoothing": (1e-5, 1e-9)}
     assert tr._cache_key(bar, g, "sarap", "global", 0, None, tighter, {}) != k
     assert tr._cache_key(bar, g, "sarap", "global", 0, None, solver, {"tol": 1e-6}) != k
     monkeypatch.setattr(cm, "SOLVER_SALT", cm.SOLVER_SALT + 1)

@@ -1,4 +1,4 @@
-"""defop.analysis.figure_data: the helpers behind Figs. 2, 7, 8 and 10."""
+"""defop.lessons.figure_data: the helpers behind Figs. 2, 7, 8 and 10."""
 
 import numpy as np
 import pytest
@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import defop as dop
-from defop.analysis import figure_data as fd
 from defop.analysis.trajectories import check_path
+from defop.lessons import figure_data as fd
 
 
 @given(st.integers(1, 12), st.integers(1, 12), st.sampled_from(["bottom", "top"]))
@@ -201,41 +201,3 @@ def test_fig9_grid_marks_missing_operators_and_prints_notes(bar):
     assert "not fitted\nm < |Ψ|" in texts[0] and "cubic, m = 3" in texts[0] and not fig.axes[0].lines
     assert "not fitted" not in texts[2] and "a" in texts[2] and "b" in texts[3]
     assert [fig.axes[c].get_title() for c in range(2)] == ["one", "two"]
-
-
-@given(
-    st.floats(-3.0, 3.0),
-    st.tuples(*[st.floats(-1.0, 1.0)] * 3),
-    st.integers(0, 2),
-    st.integers(0, 2**16),
-)
-@settings(max_examples=25, deadline=None)
-def test_patch_motions_are_rigid_with_the_given_twist_and_shift(angle, shift, axis, seed):
-    P = np.random.default_rng(seed).uniform(-1, 1, size=(5, 3))
-    Q = fd.patch_motions(P, [angle], [shift], axis=axis)[0]
-    c = P.mean(0)
-    assert np.allclose(Q.mean(0), c + shift, atol=1e-12)  # the centroid moves by the shift
-    D0, D1 = P[:, None] - P[None], Q[:, None] - Q[None]
-    assert np.allclose(np.linalg.norm(D0, axis=-1), np.linalg.norm(D1, axis=-1), atol=1e-12)  # rigid
-    assert np.allclose((Q - c - shift)[:, axis], (P - c)[:, axis], atol=1e-12)  # no motion along the axis
-    i, j = [k for k in range(3) if k != axis]  # the turn about +axis is `angle` (right-hand rule)
-    u, v = (P - c)[:, [i, j]], (Q - c - shift)[:, [i, j]]
-    turn = np.arctan2(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0], (u * v).sum(1))
-    big = np.linalg.norm(u, axis=1) > 1e-3
-    assert np.allclose(np.angle(np.exp(1j * (turn[big] - angle))), 0.0, atol=1e-9)
-
-
-def test_twist_bend_samples_stay_in_their_ranges_and_reject_bad_input():
-    P = np.array([[1.0, 0.04, 0.04], [1.0, 0.16, 0.04], [1.0, 0.16, 0.16], [1.0, 0.04, 0.16]])
-    rigid = fd.twist_bend_samples(P, 1.0, 0.3, 200, np.random.default_rng(0), jitter=0.0)
-    assert rigid.shape == (200, 4, 3)
-    shift = rigid.mean(1) - P.mean(0)
-    assert np.abs(shift[:, 0]).max() < 1e-12 and np.linalg.norm(shift, axis=1).max() <= 0.3
-    assert np.linalg.matrix_rank((rigid - rigid.mean(0)).reshape(200, -1), tol=1e-9) == 4  # cos, sin, two shifts
-    Q = fd.twist_bend_samples(P, 1.0, 0.3, 200, np.random.default_rng(0), jitter=0.02)
-    assert np.linalg.norm(Q - rigid, axis=-1).max() <= 0.02  # each handle within its ball around the rigid motion
-    assert np.linalg.matrix_rank((Q - Q.mean(0)).reshape(200, -1)) == 12  # the jitter fills R^12
-    with pytest.raises(ValueError, match="angle"):
-        fd.twist_bend_samples(P, 4.0, 0.3, 5, np.random.default_rng(0))
-    with pytest.raises(ValueError, match=r"shifts \(k,3\)"):
-        fd.patch_motions(P, [0.1, 0.2], [[0, 0, 0]])

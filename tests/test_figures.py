@@ -234,7 +234,7 @@ def test_the_run_time_sentence_states_both_caches_and_reads_back():
     assert figures.parse_run_time(text) == (11.0, 8.0)
     assert figures.parse_run_time(text, cold=True) == (250.0, None)
     assert figures.parse_run_time("**Run time:** full 95 s, fast 20 s.", cold=True) is None
-    again = figures._replace_run_time(text, figures.run_time_sentence(12.0, 9.0, 700.0, 30.0))
+    again = figures.replace_run_time(text, figures.run_time_sentence(12.0, 9.0, 700.0, 30.0))
     assert again.count("Run time") == 1 and again.endswith(".\n\nMath.") and "11.7 min from an empty cache" in again
 
 

@@ -258,7 +258,7 @@ def test_flip_free_step_is_the_numpy_one(seed):
 def test_3d_flip_free_step_screen_changes_nothing(seed, monkeypatch):
     """volumetric.max_flip_free_step solves the cubic only where det(J + t dJ) may drop below det J / 2 before the
     step cap: the same step as solving every tetrahedron, for small and large moves, near-double roots included."""
-    from defop.variational import volumetric
+    from defop.variational import volumetric, volumetric_step
 
     rng = np.random.default_rng(seed)
     J = np.eye(3) + 0.3 * rng.normal(size=(400, 3, 3))
@@ -270,8 +270,8 @@ def test_3d_flip_free_step_screen_changes_nothing(seed, monkeypatch):
             dJ[:20] = -J[:20] * rng.uniform(0.5, 2.0)  # det(J (1 − a t)): a triple root at 1/a
         for safety in (0.9, 1.0):
             screened = volumetric.max_flip_free_step(J, dJ, safety)
-            monkeypatch.setattr(volumetric, "STEP_SCREEN", np.inf)
+            monkeypatch.setattr(volumetric_step, "STEP_SCREEN", np.inf)
             assert screened == volumetric.max_flip_free_step(J, dJ, safety)
-            monkeypatch.setattr(volumetric, "STEP_SCREEN", 0.5)
+            monkeypatch.setattr(volumetric_step, "STEP_SCREEN", 0.5)
             steps.append(screened)
     assert min(steps) < 0.5 and max(steps) == 1.0  # both regimes were exercised

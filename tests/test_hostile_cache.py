@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 import defop as dop
 from defop.analysis import trajectories as tr
-from defop.training import adaptive, batch, bootstrap
+from defop.training import adaptive, batch, bootstrap, solves
 from defop.training import branches as tb
 from defop.training import cache as cm
 
@@ -217,17 +217,17 @@ def _fake_solves(monkeypatch):
     """Replace the solves by a cheap map that depends on the whole problem; returns the list of solve counts."""
     calls = []
 
-    def solve(solver, jobs, rest=True):
+    def solve(problem, jobs):
         calls.append(len(jobs))
         out = []
         for T, *_ in jobs:
-            X = solver.mesh.V + {"arap": 0.0, "sarap": 1.0, "isometric": 2.0}[solver.energy]
-            X[solver.handles] = T
-            X += 1e-3 * len(solver.handles)
-            out.append((X, True))
+            X = problem.mesh.V + {"arap": 0.0, "sarap": 1.0, "isometric": 2.0}[problem.energy]
+            X[problem.handles] = T
+            X += 1e-3 * len(problem.handles)
+            out.append(solves.Item(X, 0.0, True))
         return out
 
-    monkeypatch.setattr(bootstrap, "_solve_chunk", solve)
+    monkeypatch.setattr(solves, "solve_chunk", solve)
     return calls
 
 

@@ -29,7 +29,7 @@ import defop as dop
 from defop import config
 from defop.analysis import peers
 from defop.variational import Solver
-from defop.variational import problem as pb
+from defop.variational import backend as pb
 from defop.view import warp
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -122,7 +122,7 @@ import warnings
 import numpy as np
 import reference3d as r3
 import defop as dop
-from defop.variational import Solver, problem as pb
+from defop.variational import Solver, backend as pb
 pb.PARDISO_MIN_VERTICES_3D = 8
 V, T = r3.grid_tets(2)
 h = np.flatnonzero((V[:, 0] == 0) | (V[:, 0] == 1))

@@ -10,8 +10,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import defop as dop
+from defop.geometry.coarse import CoarseningError, coarse_mesh_of, prolongate, prolongation
 from defop.geometry.mesh import Mesh
-from defop.geometry.multilevel import CoarseningError, coarse_mesh_of, prolongate, prolongation
 from defop.training import bootstrap
 from defop.training import multilevel as ml
 from defop.variational.solver import Solver
@@ -24,7 +24,7 @@ def bar():
 
 @pytest.fixture(scope="module")
 def levels(bar):
-    return ml.levels(bar)
+    return ml.coarse_level(bar)
 
 
 @pytest.fixture(autouse=True)
@@ -36,7 +36,7 @@ def _cache(tmp_path, monkeypatch):
 @pytest.mark.parametrize("name", ["bar", "u_shape", "aleph", "octopus"])
 def test_coarse_mesh_keeps_the_handles_and_the_shape(name):
     shape = dop.shapes.load(name)
-    lv = ml.levels(shape)
+    lv = ml.coarse_level(shape)
     fine, coarse = shape.mesh, lv.coarse.mesh
     assert 0.08 < coarse.n_vertices / fine.n_vertices < 0.5
     assert np.array_equal(coarse.V[lv.coarse.handles], fine.V[shape.handles])  # the same points, bit for bit
@@ -47,7 +47,7 @@ def test_coarse_mesh_keeps_the_handles_and_the_shape(name):
 @pytest.mark.parametrize("name", ["bar", "aleph"])
 def test_prolongation_is_exact_at_rest_and_on_handles(name):
     shape = dop.shapes.load(name)
-    lv = ml.levels(shape)
+    lv = ml.coarse_level(shape)
     Vc = lv.coarse.mesh.V
     assert np.array_equal(lv.prolongate(Vc), shape.mesh.V)  # rest pose -> rest pose, bit for bit
     rng = np.random.default_rng(7)
@@ -66,7 +66,7 @@ def test_prolongation_is_exact_at_rest_and_on_handles(name):
 def test_prolongation_any_handle_subset_and_order(seed, order):
     """Handles in any order and subset go to their coarse vertices exactly (a stranger's handle sets)."""
     shape = dop.shapes.load("u_shape", n_vertices=400)
-    lv = ml.levels(shape)
+    lv = ml.coarse_level(shape)
     rng = np.random.default_rng(seed)
     Xc = lv.coarse.mesh.V + 0.1 * rng.standard_normal(lv.coarse.mesh.V.shape)
     fh, ch = shape.handles[order], lv.coarse.handles[order]
@@ -134,7 +134,7 @@ def test_every_sample_a_verified_minimum_under_every_policy(bar, policy):
     if used == "multilevel":
         info = rec.multilevel
         assert len(info["rule"]) == 14 and set(info["rule"]) <= {"", *ml.RULES}
-        assert info["coarse_vertices"] == ml.levels(bar).coarse.mesh.n_vertices
+        assert info["coarse_vertices"] == ml.coarse_level(bar).coarse.mesh.n_vertices
         assert all(k >= 1 for k in info["minima"])
         assert op.meta["safeguard_fired"] == sum(rec.safeguard.values())
         assert set(rec.stage_times) >= {"coarse", "fine", "fit"}
@@ -234,7 +234,7 @@ def test_policy_in_the_cache_keys(bar):
     assert rc.multilevel["rule"] == rb.multilevel["rule"]  # the decisions come back with the cached ground truth
     d, rd = dop.train(bar, m=12, seed=4, n_jobs=1, progress=False, policy="auto")
     assert rd.cache == "operator" and rd.policy == "full"  # auto chose full: the full policy's entry
-    lv = ml.levels(bar)
+    lv = ml.coarse_level(bar)
     keys = {
         bootstrap._gt_key(bar, "sarap", ra.samples, 2, p, lv if p == "multilevel" else None)
         for p in ("full", "multilevel")
@@ -289,11 +289,11 @@ def test_same_operator_with_dask(bar):
 
 
 def test_multilevel_modules_are_exported():
-    """train's docstring names defop.training.multilevel.MultilevelWarning: both multilevel modules are in their
-    subpackage's ``__all__`` as the other modules are (the merged main had neither; review of issue 36)."""
+    """train's docstring names defop.training.multilevel.MultilevelWarning: the multilevel policy and the coarse
+    meshes are in their subpackage's ``__all__`` as the other modules are."""
     import defop.geometry as geometry
     import defop.training as training
 
-    assert "multilevel" in training.__all__ and "multilevel" in geometry.__all__
+    assert "multilevel" in training.__all__ and "coarse" in geometry.__all__
     assert training.multilevel.MultilevelWarning is ml.MultilevelWarning
-    assert geometry.multilevel.coarse_mesh_of is coarse_mesh_of
+    assert geometry.coarse.coarse_mesh_of is coarse_mesh_of

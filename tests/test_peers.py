@@ -1,4 +1,4 @@
-"""The peers of notebook 12 (defop.analysis.peers) and the harness that scores them (defop.analysis.compare)."""
+"""The peers of notebook 12 (defop.rivals.peers) and the harness that scores them (defop.analysis.compare)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop.analysis import compare, peers
+from defop.analysis import compare
+from defop.rivals import peers
 from defop.view import warp
 
 

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from reference3d import box_tets, volumes  # tests/ is on sys.path (rootdir conftest)
 
 import defop as dop
-from defop.analysis import compare, peers
+from defop.analysis import compare
+from defop.rivals import peers
 
 
 def _corners(V, x):

@@ -1,4 +1,4 @@
-"""Geometry checks before Triangle (issue #14): every bad outline is a ValueError naming the offender.
+"""Geometry checks before Triangle: every bad outline is a ValueError naming the offender.
 
 Triangle itself segfaults on a pinched polygon, a zero-width spike and a hole identical to the outline
 (measured with triangle 20250106: exit code 139 on all three), so those run in a subprocess here.

@@ -47,8 +47,8 @@ def test_configure_headless_in_a_clean_process():
 def test_no_window_gives_the_apt_line(monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("VTK_DEFAULT_OPENGL_WINDOW", raising=False)
-    monkeypatch.setattr(dop.view.render, "_chosen", None)
-    monkeypatch.setattr(dop.view.render, "candidates", lambda: [])
+    monkeypatch.setattr(dop.view.headless, "_chosen", None)
+    monkeypatch.setattr(dop.view.headless, "candidates", lambda: [])
     if sys.platform in ("win32", "darwin"):
         pytest.skip("headless selection only applies to Linux")
     with pytest.raises(RuntimeError, match="apt-get install -y --no-install-recommends libosmesa6"):

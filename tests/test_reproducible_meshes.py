@@ -1,4 +1,4 @@
-"""Meshes, planar and tetrahedral, are identical on every CPU and BLAS build (issue #13, #27).
+"""Meshes, planar and tetrahedral, are identical on every CPU and BLAS build.
 
 OpenBLAS picks its kernels per CPU and numpy dispatches some ufuncs (e.g. ``exp``) to AVX-512 code, so
 anything on the way to Triangle that goes through them can round differently on another machine, and

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import defop as dop
-from defop.training import batch, bootstrap
+from defop.training import batch, bootstrap, solves
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +20,7 @@ def _cache(tmp_path, monkeypatch):
     monkeypatch.setattr(batch, "CHUNK", 3)  # small checkpoints, so a short training has several
 
 
-_SOLVE = bootstrap._solve_chunk  # the real one, wrapped afresh by each _counting
+_SOLVE = solves.solve_chunk  # the real one, wrapped afresh by each _counting
 
 
 def _counting(monkeypatch, stop_after=None):
@@ -28,13 +28,13 @@ def _counting(monkeypatch, stop_after=None):
     calls = []
     solve = _SOLVE
 
-    def counted(solver, jobs, rest=True):
+    def counted(problem, jobs):
         if stop_after is not None and len(calls) >= stop_after:
             raise KeyboardInterrupt
         calls.append(len(jobs))
-        return solve(solver, jobs, rest=rest)
+        return solve(problem, jobs)
 
-    monkeypatch.setattr(bootstrap, "_solve_chunk", counted)
+    monkeypatch.setattr(solves, "solve_chunk", counted)
     return calls
 
 

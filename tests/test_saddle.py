@@ -1,4 +1,4 @@
-"""The saddle between the bar's two minima (issue 29): a mountain pass over the pinned mid-bar vertex.
+"""The saddle between the bar's two minima: a mountain pass over the pinned mid-bar vertex.
 
 The bar of Fig. 10 with its handle pushed in by 0.3 along its axis; the two minima are solved directly from the
 rest pose bent up and down (no branch discovery). From the bent-up minimum the pinned profile climbs monotonically
@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import defop as dop
-from defop.analysis import saddle as sd
+from defop.analysis import mountain_pass as sd
 from defop.analysis.branches import one_moving
 from defop.variational import kink
 from defop.variational import problem as pb
@@ -198,7 +198,7 @@ def test_the_held_hessian_at_the_saddle_shows_its_negative_curvature(bar, climb)
     from defop.variational.inertia import INERTIA_SHIFT, inertia_shift
 
     _, S, _, _, _ = bar
-    E, g, data, _ = S.grad_hess(climb[1].X, 0.0, project=False, kink=S._kink)
+    E, g, data, _ = S.grad_hess(climb[1].X, 0.0, project=False, kink=S.kink_threshold)
     negative = {}
     for name, shift in (("old", INERTIA_SHIFT), ("one", inertia_shift(S, data))):
         S.newton_direction(g[S.free], data, rel_shift=shift)

@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import defop as dop
+from defop.training import sampling
 from defop.training.sampling import sample_handles
 
 P = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
@@ -172,3 +173,59 @@ def test_sample_handles_reads_d_from_P():
         sample_handles(np.zeros((2, 4)), [{"kind": "ball", "radius": 1}] * 2, 3, 0)
     with pytest.raises(ValueError, match="a disc region is defined in 2D, not 3D"):
         sample_handles(P, [{"kind": "disc", "radius": 0.2}] * 2, 3, 0)
+
+
+@given(
+    st.floats(-3.0, 3.0),
+    st.tuples(*[st.floats(-1.0, 1.0)] * 3),
+    st.integers(0, 2),
+    st.integers(0, 2**16),
+)
+@settings(max_examples=25, deadline=None)
+def test_patch_motions_are_rigid_with_the_given_twist_and_shift(angle, shift, axis, seed):
+    P = np.random.default_rng(seed).uniform(-1, 1, size=(5, 3))
+    Q = sampling.patch_motions(P, [angle], [shift], axis=axis)[0]
+    c = P.mean(0)
+    assert np.allclose(Q.mean(0), c + shift, atol=1e-12)  # the centroid moves by the shift
+    D0, D1 = P[:, None] - P[None], Q[:, None] - Q[None]
+    assert np.allclose(np.linalg.norm(D0, axis=-1), np.linalg.norm(D1, axis=-1), atol=1e-12)  # rigid
+    assert np.allclose((Q - c - shift)[:, axis], (P - c)[:, axis], atol=1e-12)  # no motion along the axis
+    i, j = [k for k in range(3) if k != axis]  # the turn about +axis is `angle` (right-hand rule)
+    u, v = (P - c)[:, [i, j]], (Q - c - shift)[:, [i, j]]
+    turn = np.arctan2(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0], (u * v).sum(1))
+    big = np.linalg.norm(u, axis=1) > 1e-3
+    assert np.allclose(np.angle(np.exp(1j * (turn[big] - angle))), 0.0, atol=1e-9)
+
+
+def test_twist_bend_samples_stay_in_their_ranges_and_reject_bad_input():
+    P = np.array([[1.0, 0.04, 0.04], [1.0, 0.16, 0.04], [1.0, 0.16, 0.16], [1.0, 0.04, 0.16]])
+    rigid = sampling.twist_bend_samples(P, 1.0, 0.3, 200, np.random.default_rng(0), jitter=0.0)
+    assert rigid.shape == (200, 4, 3)
+    shift = rigid.mean(1) - P.mean(0)
+    assert np.abs(shift[:, 0]).max() < 1e-12 and np.linalg.norm(shift, axis=1).max() <= 0.3
+    assert np.linalg.matrix_rank((rigid - rigid.mean(0)).reshape(200, -1), tol=1e-9) == 4  # cos, sin, two shifts
+    Q = sampling.twist_bend_samples(P, 1.0, 0.3, 200, np.random.default_rng(0), jitter=0.02)
+    assert np.linalg.norm(Q - rigid, axis=-1).max() <= 0.02  # each handle within its ball around the rigid motion
+    assert np.linalg.matrix_rank((Q - Q.mean(0)).reshape(200, -1)) == 12  # the jitter fills R^12
+    with pytest.raises(ValueError, match="angle"):
+        sampling.twist_bend_samples(P, 4.0, 0.3, 5, np.random.default_rng(0))
+    with pytest.raises(ValueError, match=r"shifts \(k,3\)"):
+        sampling.patch_motions(P, [0.1, 0.2], [[0, 0, 0]])
+
+
+@pytest.mark.parametrize("axis", [3, -1, True, "x"])
+def test_the_patch_axis_is_named_when_it_is_not_a_coordinate_axis(axis):
+    P = np.eye(3)
+    with pytest.raises(ValueError, match="axis must be 0, 1 or 2"):
+        sampling.twist_bend_samples(P, 0.5, 0.1, 3, np.random.default_rng(0), axis=axis)
+    with pytest.raises(ValueError, match="axis must be 0, 1 or 2"):
+        sampling.patch_motions(P, [0.1], [[0.0, 0.0, 0.0]], axis=axis)
+
+
+def test_the_3d_patch_sampling_is_the_lessons_old_one_and_the_old_path_warns():
+    P = np.array([[1.0, 0.0, 0.0], [1.0, 0.2, 0.0], [1.0, 0.0, 0.2]])
+    new = sampling.twist_bend_samples(P, 0.8, 0.2, 7, np.random.default_rng(3), axis=0)
+    with pytest.warns(DeprecationWarning, match="defop.training.sampling.twist_bend_samples"):
+        old = dop.analysis.figure_data.twist_bend_samples
+    assert old is sampling.twist_bend_samples
+    np.testing.assert_array_equal(old(P, 0.8, 0.2, 7, np.random.default_rng(3), axis=0), new)

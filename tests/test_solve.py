@@ -145,8 +145,8 @@ def test_smoothing_schedule_reaches_eq11_minimum(ginger):
 
 class _TetMesh:
     """A structured tetrahedral mesh of the unit cube with the attributes the solver reads from a Mesh, computed
-    here for d = 3 (defop.geometry.mesh.Mesh is 2D until the volumetric meshes land): the reduced problem and
-    its assembly must read d from V and need nothing else."""
+    here for d = 3 independently of defop.geometry.mesh.Mesh: the reduced problem and its assembly read d from
+    ``dim`` (the mesh's) and need nothing else."""
 
     def __init__(self, k=2):
         g = np.linspace(0.0, 1.0, k + 1)
@@ -174,6 +174,7 @@ class _TetMesh:
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(9 * m, 3 * n)
         )
         self.n_vertices = n
+        self.dim = 3
         self.bbox_diagonal = float(np.sqrt(3.0))
 
     def jacobians(self, X):

@@ -14,7 +14,7 @@ from defop.analysis import branches as ab
 from defop.analysis import trajectories as tr
 from defop.operator.branched import Branch, BranchedOperator
 from defop.operator.defop import ExtrapolationWarning
-from defop.training import adaptive, batch, bootstrap
+from defop.training import adaptive, batch, bootstrap, solves
 from defop.training import cache as cm
 from defop.variational.solver import NotConvergedWarning
 
@@ -105,12 +105,12 @@ def test_solver_solve_and_solve_best_and_dop_solve(bar):
 
 
 def _unconverged(monkeypatch):
-    real = bootstrap._solve_chunk
+    real = solves.solve_chunk
 
-    def solve(solver, jobs, rest=True):
-        return [(X, False) for X, _ in real(solver, jobs, rest=rest)]
+    def solve(problem, jobs):
+        return [r._replace(converged=False) for r in real(problem, jobs)]
 
-    monkeypatch.setattr(bootstrap, "_solve_chunk", solve)
+    monkeypatch.setattr(solves, "solve_chunk", solve)
 
 
 def test_train_with_unconverged_samples(bar, monkeypatch):

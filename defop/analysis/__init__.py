@@ -1,7 +1,9 @@
 """Measuring deformations and operators (layer 5): the Fig. 8 error, distortion, trajectories (Figs. 3, 5),
-the peers (MLS, TPS warps, BBW + LBS, biharmonic coordinates, ARAP iterations), figure data and multi-valued
-operators against the solver (:mod:`.branches`, on random bistable shapes: :mod:`.random_branches`) and the saddle
-between two minima (:mod:`.saddle`).
+one harness to score DefOp against its rivals (:mod:`.compare`; the rivals are :mod:`defop.rivals`), multi-valued
+operators against the solver (:mod:`.branches`) and the mountain pass between two minima (:mod:`.mountain_pass`).
+
+Moved, the old names warn: ``peers`` (:mod:`defop.rivals.peers`), ``figure_data`` and ``random_branches``
+(:mod:`defop.lessons`), ``saddle`` (:mod:`.mountain_pass`).
 """
 
 from ..lazy import attach
@@ -12,6 +14,7 @@ _MODULES = (
     "distortion",
     "figure_data",
     "metrics",
+    "mountain_pass",
     "peers",
     "random_branches",
     "saddle",

@@ -19,9 +19,8 @@ import numpy as np
 
 from .. import options as opt
 from ..scene import shapes
-from ..training import branch_domains as bd
 from ..training import branches as br
-from ..variational.solver import NotConvergedWarning, Solver
+from ..variational.solver import Solver
 
 __all__ = [
     "CASES",
@@ -73,7 +72,7 @@ def line_path(P, moving, start, end, steps):
 
 def solver_path(shape, Qs, energy="sarap", X0=None):
     """The solver's warm-started continuation along Qs: frame 0 from the rest pose's multi-start, then each frame
-    from the previous minimum (no other start: the drag of a variational editor).
+    from the previous minimum (no other start: the drag of a variational editor; :func:`defop.training.branches.sweep`).
 
     Returns
     -------
@@ -82,15 +81,15 @@ def solver_path(shape, Qs, energy="sarap", X0=None):
     converged : (k,) numpy bool array
     """
     solver = Solver(shape.mesh, shape.handles, energy=energy)
-    X, E, ok = [], [], []
-    prev = X0
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotConvergedWarning)
-        for k, q in enumerate(Qs):
-            r = solver.solve(shape.targets(q), X0=prev, start="global" if k == 0 and X0 is None else "local")
-            prev = r.X
-            X.append(r.X), E.append(r.energy), ok.append(r.converged)
-    return np.array(X), np.array(E), np.array(ok)
+    targets = [shape.targets(q) for q in Qs]
+    if not targets:
+        return np.zeros((0, *shape.mesh.V.shape)), np.zeros(0), np.zeros(0, bool)
+    if X0 is None:  # frame 0: the multi-start from the rest pose
+        x, e, ok = br.solve_quietly(solver, targets[0], None, "global")
+        X, E, conv, _ = br.sweep(solver, targets[1:], x)
+        return np.concatenate([x[None], X]), np.concatenate([[e], E]), np.concatenate([[ok], conv])
+    X, E, conv, _ = br.sweep(solver, targets, X0)
+    return X, E, conv
 
 
 def jump_frames(X, diag, factor=8.0):
@@ -206,7 +205,7 @@ def near_error(c, window=5):
 
 
 def targets_met(c, catalogue=True, cost=None, window=5):
-    """Issue 37's targets on one :class:`PathComparison`: a dict of name -> (value, passed).
+    """The targets of a multi-valued operator on one :class:`PathComparison`: a dict of name -> (value, passed).
 
     * ``follow`` jumps as often as the solver, each within 1 step of a solver jump;
     * near the solver's jumps (``window`` steps, :func:`near_error`), ``follow``'s mean error ≤ 1e-2 of the diagonal;
@@ -244,11 +243,11 @@ CASES = {
 }
 #: the axes of every case's grid plane and path
 AXES = (0, 1)
-#: one set of parameters for every case (catalogue and random, issue 37): the grid's samples per side ``n``, its
+#: one set of parameters for every case (catalogue and random): the grid's samples per side ``n``, its
 #: half width ``radius`` (the shapes are about 1 long), its centre (the path's midpoint, a rule, not a number), one
-#: continuation sweep along the path's main direction, bisection ``levels`` towards each fold, the edge minima kept,
-#: the grouping ``tol``, TPS Ψ and hat Φ; ``FOLLOW_RATIO`` is :data:`defop.training.branches.FOLLOW_RATIO`
-PARAMS = {"n": 17, "radius": 0.3, "sweeps": 1, "levels": 3, "edges": True, "tol": 1e-3, "basis": "tps"}
+#: continuation sweep along the path's main direction, bisection ``depth`` steps towards each fold, the edge minima
+#: kept, the grouping ``tol``, TPS Ψ and hat Φ; ``FOLLOW_RATIO`` is :data:`defop.training.branches.FOLLOW_RATIO`
+PARAMS = {"n": 17, "radius": 0.3, "sweeps": 1, "depth": 3, "edges": True, "tol": 1e-3, "basis": "tps"}
 
 
 @dataclasses.dataclass
@@ -282,13 +281,15 @@ def build(shape, moving, path, n=None, energy="sarap", cache=True):
     Returns
     -------
     minima, branches, bop, single, fit_seconds
-        The discovery's minima, the certified Branches, the BranchedOperator, the single-valued DefOp (the lowest
+        The discovery's minima, the certified SampledBranches, the BranchedOperator, the single-valued DefOp (the lowest
         minimum per sample), the CPU seconds of the two fits.
     """
     Q, sweeps = grid_for(shape, moving, path, n)
     minima = br.discover(shape, Q, sweeps, energy, cache=cache)
     branches = br.group(shape, minima, PARAMS["tol"], energy, margins=False)
-    branches = bd.certify_branches(shape, branches, PARAMS["levels"], PARAMS["edges"], PARAMS["tol"], energy)
+    branches = br.certify_branches(
+        shape, branches, PARAMS["depth"], PARAMS["edges"], PARAMS["tol"], energy, cache=cache
+    )
     t0 = time.process_time()
     bop = br.fit_branched(shape, branches, energy, PARAMS["basis"])
     single = br.fit_single(shape, minima, energy, PARAMS["basis"])

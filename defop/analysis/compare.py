@@ -1,7 +1,7 @@
-"""One harness to time and score DefOp and its peers (:mod:`defop.analysis.peers`) against a ground truth.
+"""One harness to time and score DefOp and its peers (:mod:`defop.rivals.peers`) against a ground truth.
 
 Every method is a callable ``method(Q) → X`` on the moving handles (a :class:`~defop.operator.DefOp` or a
-:class:`~defop.analysis.peers.Peer`). :func:`score` runs it once over the held-out frames, in order (so ARAP
+:class:`~defop.rivals.peers.Peer`). :func:`score` runs it once over the held-out frames, in order (so ARAP
 iterations warm-start from the previous frame), timing each frame with BLAS pinned to one thread, and
 scores the frames with the paper's Fig. 8 metric (:func:`defop.analysis.metrics.approximation_error`).
 
@@ -108,7 +108,7 @@ def run_frames(method, Q):
     A frame's time is the CPU time of the calling thread (:func:`time.thread_time`): other jobs on a shared
     machine preempt the process but do not add to it, so ratios between methods hold under load. With BLAS
     pinned to one thread this is the frame's single-thread cost; a method that ran work on other threads
-    would be under-counted (none of :mod:`defop.analysis.peers` does with one BLAS thread).
+    would be under-counted (none of :mod:`defop.rivals.peers` does with one BLAS thread).
 
     One untimed warm-up frame runs first (at ``Q[0]``); a method with ``reset`` is reset after it, so the
     frames see the same history with or without the warm-up.
@@ -160,7 +160,7 @@ def score(method, shape, Q, X_true, name=None, precompute=None):
     Parameters
     ----------
     method : callable
-        A DefOp or a :class:`~defop.analysis.peers.Peer` (n_moving,d) → (n_vertices,d).
+        A DefOp or a :class:`~defop.rivals.peers.Peer` (n_moving,d) → (n_vertices,d).
     shape : defop.scene.shapes.Shape
         The shape both were built on (mesh and handles); d = ``shape.mesh.dim``.
     Q : (k,n_moving,d) numpy array

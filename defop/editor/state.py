@@ -1,6 +1,6 @@
 """The handle editor's state, without any view: Q, X, the operators per basis and the ground truth.
 
-This is the pure part of the interactive editor (issue #18): a view (the in-page editor of
+This is the pure part of the interactive editor: a view (the in-page editor of
 :mod:`defop.editor.browser`, or a matplotlib figure) draws it and calls its methods; tests drive the same
 methods. Nothing here imports matplotlib, ipywidgets or anywidget.
 

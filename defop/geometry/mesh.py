@@ -20,10 +20,32 @@ from pathlib import Path
 import igl
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .surface_files import MAX_FILE_ELEMENTS, bbox_diagonal, check_file, check_size, parse_surface
+from .mesh_checks import (
+    check_closed_surface,
+    check_elements,
+    check_tet_manifold,
+    check_triangle_manifold,
+    check_vertices,
+    dim_of,
+    orient_elements,
+)
+from .mesh_text import igl_write as _igl_write
+from .mesh_text import read_text_mesh as _read_text
+from .simplices import (
+    ELEMENT,
+    ELEMENTS,
+    FACETS,
+    boundary_facets,
+    cotangent_laplacian,
+    degenerate_scale,
+    signed_areas,
+    signed_volumes,
+    simplex_volumes,
+)
+from .simplices import SAFE_DIAGONAL as SAFE_DIAGONAL  # re-exported
+from .surface_files import MAX_FILE_ELEMENTS, check_file
 
 __all__ = [
     "Mesh",
@@ -37,299 +59,6 @@ __all__ = [
     "ELEMENT",
     "FACETS",
 ]
-
-#: the name of an element of a d-dimensional mesh
-ELEMENT = {2: "triangle", 3: "tetrahedron"}
-_ELEMENTS = {2: "triangles", 3: "tetrahedra"}
-
-#: facet j of an element is the one opposite its vertex j, ordered so that it faces outward:
-#: for a positive element, the simplex ``(p, *facet)`` is positive exactly when p is on the element's side
-FACETS = {
-    2: np.array([[1, 2], [2, 0], [0, 1]]),
-    3: np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]),
-}
-
-
-def _simplex_volumes(P0, P):
-    """Signed volume of the simplices (P0, P[:, 0], ..., P[:, d-1]); element-wise, no BLAS.
-
-    P0 : (m, d), P : (m, d, d) (the other vertices). Area in 2D, volume in 3D.
-    """
-    d = P0.shape[1]
-    e = [P[:, i] - P0 for i in range(d)]
-    if d == 2:
-        return 0.5 * (e[0][:, 0] * e[1][:, 1] - e[0][:, 1] * e[1][:, 0])
-    c0 = e[1][:, 1] * e[2][:, 2] - e[1][:, 2] * e[2][:, 1]
-    c1 = e[1][:, 2] * e[2][:, 0] - e[1][:, 0] * e[2][:, 2]
-    c2 = e[1][:, 0] * e[2][:, 1] - e[1][:, 1] * e[2][:, 0]
-    return (e[0][:, 0] * c0 + e[0][:, 1] * c1 + e[0][:, 2] * c2) / 6.0
-
-
-def signed_volumes(V, F):
-    """Signed volume of every element: the area of a triangle in 2D, the volume of a tetrahedron in 3D.
-
-    Parameters
-    ----------
-    V : (n, d) numpy array
-        Vertex positions, d = 2 or 3.
-    F : (m, d + 1) numpy int array
-        Triangles (d = 2) or tetrahedra (d = 3).
-
-    Returns
-    -------
-    vol : (m,) numpy array
-        Positive for counter-clockwise triangles and positively oriented tetrahedra (det J > 0),
-        negative for flipped ones. Element-wise arithmetic: the same bits on every CPU.
-
-    Raises
-    ------
-    ValueError
-        F does not hold integer indices from 0 to n - 1 (a negative index would wrap around silently);
-        the message names the element, the index and the vertex count.
-    """
-    V = np.asarray(V, dtype=float)
-    F = np.asarray(F)
-    if F.ndim != 2 or F.shape[1] != V.shape[-1] + 1:
-        raise ValueError(f"F must have shape (m,{V.shape[-1] + 1}) for V of shape {V.shape}, got {F.shape}")
-    if F.size and (F.dtype == bool or not np.issubdtype(F.dtype, np.integer)):
-        raise ValueError(f"F must hold integer vertex indices, got dtype {F.dtype}")
-    if F.size and (F.min() < 0 or F.max() >= len(V)):
-        t, j = (int(x) for x in np.argwhere((F < 0) | (F >= len(V)))[0])
-        raise ValueError(
-            f"element {t} of F indexes vertex {F[t, j].item()!r}, but V has {len(V)} vertices "
-            f"(valid indices 0 to {len(V) - 1})"
-        )
-    P = V[F]
-    return _simplex_volumes(P[:, 0], P[:, 1:])
-
-
-#: the planar name of :func:`signed_volumes` (triangles: signed areas)
-signed_areas = signed_volumes
-
-
-#: a mesh whose bounding-box diagonal lies outside this range has its Laplacian computed on a copy scaled by a power
-#: of 4 into it: libigl's tetrahedral cotangent weights underflow to NaN at 1e-30 and to 0 from about 1e27
-SAFE_DIAGONAL = (2.0**-20, 2.0**20)
-
-
-def cotangent_laplacian(V, F):
-    """(n, n) scipy sparse CSR: the cotangent Laplacian (libigl's ``cotmatrix``), exact at any supported scale.
-
-    It scales as length^(d-2); outside :data:`SAFE_DIAGONAL` it is computed on ``V / 4^k`` and multiplied by
-    ``4^(k(d-2))``: exact powers of two, so inside the range nothing changes (bit for bit).
-    """
-    diag = bbox_diagonal(V)
-    k = 0 if diag == 0 or SAFE_DIAGONAL[0] <= diag <= SAFE_DIAGONAL[1] else int(round(np.log2(diag) / 2))
-    if k == 0:
-        return igl.cotmatrix(V, F).tocsr()
-    s = 4.0**k
-    return (igl.cotmatrix(V / s, F) * s ** (V.shape[1] - 2)).tocsr()
-
-
-def _dim_of(V, F):
-    """d from F's columns (3: triangles, 4: tetrahedra), else from V; V's columns must agree."""
-    F_ = np.asarray(F)
-    if F_.ndim == 2 and F_.shape[1] in (3, 4):
-        return F_.shape[1] - 1
-    V_ = np.asarray(V)
-    return V_.shape[1] if V_.ndim == 2 and V_.shape[1] in (2, 3) else 2
-
-
-def _check_V(V, name="V", d=2, F_note=""):
-    V = np.asarray(V, dtype=np.float64)
-    if V.ndim != 2 or V.shape[1] != d:
-        raise ValueError(f"{name} must have shape (n,{d}){F_note}, got {V.shape}")
-    bad = ~np.isfinite(V).all(axis=1)
-    if bad.any():
-        raise ValueError(
-            f"{name} has {int(bad.sum())} non-finite (NaN or inf) rows, first at row {int(np.flatnonzero(bad)[0])}"
-        )
-    return V
-
-
-def _check_F(F, n, d=2):
-    """F as an (m, d + 1) int64 array of indices into n vertices; ValueError naming the bad entry."""
-    F = np.asarray(F)
-    el, els = ELEMENT[d], _ELEMENTS[d]
-    if F.ndim != 2 or F.shape[1] != d + 1:
-        raise ValueError(f"F must have shape (m,{d + 1}), got {F.shape}")
-    if len(F) == 0:
-        raise ValueError(f"F has no {els}")
-    if F.dtype == bool or not (np.issubdtype(F.dtype, np.integer) or np.issubdtype(F.dtype, np.floating)):
-        raise ValueError(f"F must hold integer vertex indices, got dtype {F.dtype}")
-    if not np.issubdtype(F.dtype, np.integer):
-        bad = ~np.isfinite(F) | (F != np.round(F))
-        if bad.any():
-            t, j = (int(x) for x in np.argwhere(bad)[0])
-            raise ValueError(f"F must hold integer vertex indices: {el} {t} has {F[t, j].item()!r}")
-    bad = (F < 0) | (F >= n)
-    if bad.any():
-        t, j = (int(x) for x in np.argwhere(bad)[0])
-        raise ValueError(
-            f"{el} {t} indexes vertex {F[t, j].item()!r}, but V has {n} vertices (valid indices 0 to {n - 1})"
-        )
-    return F.astype(np.int64)
-
-
-def _orient(F, a):
-    """F positively oriented: all-negative input is flipped; a mix means inverted elements."""
-    cw = a < 0
-    if cw.all():
-        return np.ascontiguousarray(F[:, [0, 2, 1, *range(3, F.shape[1])]])
-    if cw.any():
-        t = int(np.flatnonzero(cw)[0])
-        if F.shape[1] == 3:
-            raise ValueError(
-                f"triangle {t} is inverted (clockwise, signed area {a[t]:.3g}) while {int((~cw).sum())} triangles "
-                f"are counter-clockwise ({int(cw.sum())} inverted in all): the mesh folds over itself"
-            )
-        raise ValueError(
-            f"tetrahedron {t} is inverted (signed volume {a[t]:.3g}) while {int((~cw).sum())} tetrahedra are "
-            f"positively oriented ({int(cw.sum())} inverted in all): the mesh folds over itself"
-        )
-    return F
-
-
-def _facets(F):
-    """All facets of the elements, outward-oriented: (m(d+1), d) and the element of each."""
-    d = F.shape[1] - 1
-    facets = np.concatenate([F[:, f] for f in FACETS[d]])
-    return facets, np.tile(np.arange(len(F)), d + 1)
-
-
-def boundary_facets(F):
-    """(k, d) int numpy array: the facets of the elements F (m, d + 1) that lie in one element only,
-    outward-oriented (edges of triangles, triangles of tetrahedra)."""
-    facets, _ = _facets(F)
-    _, inv, counts = np.unique(np.sort(facets, axis=1), axis=0, return_inverse=True, return_counts=True)
-    return np.ascontiguousarray(facets[counts[inv.ravel()] == 1])
-
-
-def _check_manifold(F):
-    """Every edge in at most two triangles, an interior edge used once in each direction, one fan per vertex."""
-    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    tri = np.tile(np.arange(len(F)), 3)
-    key = np.sort(E, axis=1)
-    uniq, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    if (counts > 2).any():
-        k = int(np.flatnonzero(counts > 2)[0])
-        ts = np.sort(tri[inv == k])
-        raise ValueError(
-            f"edge ({int(uniq[k, 0])}, {int(uniq[k, 1])}) is shared by {int(counts[k])} triangles "
-            f"({', '.join(map(str, ts))}): the mesh is not a manifold"
-        )
-    boundary = uniq[counts == 1]
-    per_vertex = np.bincount(boundary.ravel(), minlength=int(F.max()) + 1)
-    if (per_vertex > 2).any():
-        v = int(np.flatnonzero(per_vertex > 2)[0])
-        raise ValueError(
-            f"vertex {v} is not a manifold vertex: {int(per_vertex[v])} boundary edges meet there (its triangles "
-            "form separate fans, as where two pieces touch at a corner)"
-        )
-    d_uniq, d_counts = np.unique(E, axis=0, return_counts=True)
-    if (d_counts > 1).any():
-        k = int(np.flatnonzero(d_counts > 1)[0])
-        i, j = (int(x) for x in d_uniq[k])
-        ts = np.sort(tri[(E[:, 0] == i) & (E[:, 1] == j)])
-        raise ValueError(
-            f"edge ({i}, {j}) is used in the same direction by triangles {', '.join(map(str, ts))}: "
-            "their orientations disagree (the mesh folds over itself)"
-        )
-
-
-def _check_manifold_tets(T):
-    """Every triangle in at most two tetrahedra, from opposite sides; the boundary a closed manifold surface."""
-    facets, tet = _facets(T)
-    uniq, inv, counts = np.unique(np.sort(facets, axis=1), axis=0, return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    if (counts > 2).any():
-        k = int(np.flatnonzero(counts > 2)[0])
-        raise ValueError(
-            f"triangle {tuple(int(x) for x in uniq[k])} is shared by {int(counts[k])} tetrahedra "
-            f"({', '.join(map(str, np.sort(tet[inv == k])))}): the mesh is not a manifold"
-        )
-    shared = np.flatnonzero(counts[inv] == 2)
-    if len(shared):  # two tetrahedra on the same side of their common triangle overlap
-        order = np.argsort(inv[shared], kind="stable")
-        a, b = shared[order[0::2]], shared[order[1::2]]
-        same = _same_cyclic(facets[a], facets[b])
-        if same.any():
-            k = int(np.flatnonzero(same)[0])
-            raise ValueError(
-                f"tetrahedra {min(tet[a[k]], tet[b[k]])} and {max(tet[a[k]], tet[b[k]])} lie on the same side of "
-                f"their common triangle {tuple(int(x) for x in np.sort(facets[a[k]]))}: the mesh folds over itself"
-            )
-    check_closed_surface(facets[counts[inv] == 1], what="the boundary surface of the tetrahedra")
-
-
-def _same_cyclic(A, B):
-    """(k,) bool: whether triangles A[i] and B[i] (same vertex set) have the same orientation."""
-    return (A == B).all(axis=1) | (A == B[:, [1, 2, 0]]).all(axis=1) | (A == B[:, [2, 0, 1]]).all(axis=1)
-
-
-def check_closed_surface(S, what="the surface"):
-    """Raise ValueError unless the triangles S (k, 3) form a closed, oriented 2-manifold.
-
-    Every edge lies in exactly two triangles that traverse it in opposite directions, and the
-    triangles around each vertex form a single fan (no two pieces touching at a vertex).
-
-    Parameters
-    ----------
-    S : (k, 3) int numpy array
-        Triangles (indices into some vertex array).
-    what : str
-        How the message names the surface.
-    """
-    S = np.asarray(S, dtype=np.int64)
-    E = np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [2, 0]]])
-    uniq, inv, counts = np.unique(np.sort(E, axis=1), axis=0, return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    if (counts != 2).any():
-        k = int(np.flatnonzero(counts != 2)[0])
-        e, c = (int(uniq[k, 0]), int(uniq[k, 1])), int(counts[k])
-        kind = (
-            f"open: edge {e} lies in only 1 triangle" if c == 1 else f"not a manifold: edge {e} lies in {c} triangles"
-        )
-        ts = np.sort(np.tile(np.arange(len(S)), 3)[inv == k])
-        raise ValueError(f"{what} is {kind} ({', '.join(map(str, ts))})")
-    d_uniq, d_counts = np.unique(E, axis=0, return_counts=True)
-    if (d_counts > 1).any():
-        i, j = (int(x) for x in d_uniq[int(np.flatnonzero(d_counts > 1)[0])])
-        raise ValueError(
-            f"{what} is not consistently oriented: edge ({i}, {j}) is traversed in the same direction by two "
-            "triangles (a flipped triangle or a Möbius-like fold)"
-        )
-    _check_single_fans(S, E, inv)
-
-
-def _check_single_fans(S, E, inv):
-    """Each vertex's triangles form one fan: corners (t, v) linked across the edges at v are one component."""
-    k = len(S)
-    order = np.argsort(inv, kind="stable")
-    a, b = order[0::2], order[1::2]  # the two half-edges of every edge; half-edge h belongs to triangle h % k
-    ta, tb = a % k, b % k
-    # half-edge h = block*k + t runs S[t, block] -> S[t, (block+1)%3]; its ends are corners (t, block), (t, block+1)
-    ja, jb = a // k, b // k
-    # edge (u -> w) in triangle ta and (w -> u) in tb: corner (ta, u) ~ (tb, u), corner (ta, w) ~ (tb, w)
-    src = np.concatenate([3 * ta + ja, 3 * ta + (ja + 1) % 3])
-    dst = np.concatenate([3 * tb + (jb + 1) % 3, 3 * tb + jb])
-    G = sp.coo_matrix((np.ones(len(src)), (src, dst)), shape=(3 * k, 3 * k))
-    _, label = connected_components(G, directed=False)
-    vertex = S.ravel()  # corner 3t + j is vertex S[t, j]
-    pairs = np.unique(np.column_stack([vertex, label]), axis=0)
-    fans = np.bincount(pairs[:, 0])
-    if (fans > 1).any():
-        v = int(np.flatnonzero(fans > 1)[0])
-        raise ValueError(
-            f"vertex {v} is not a manifold vertex: its triangles form {int(fans[v])} separate fans on the boundary "
-            "surface (as where two pieces touch at a corner)"
-        )
-
-
-def _degenerate_scale(V, d):
-    """The volume below which an element counts as degenerate: 1e-14 × (largest extent)^d."""
-    return max(np.ptp(V, axis=0).max(), 1e-300) ** d
 
 
 class Mesh:
@@ -354,27 +83,27 @@ class Mesh:
     """
 
     def __init__(self, V, F):
-        d = _dim_of(V, F)
+        d = dim_of(V, F)
         V_cols = np.shape(V)[1] if np.ndim(V) == 2 else None
-        note = f" for F of {d + 1} columns ({_ELEMENTS[d]})" if d == 3 else ""
+        note = f" for F of {d + 1} columns ({ELEMENTS[d]})" if d == 3 else ""
         if d == 2 and V_cols == 3:
             note = " for triangles F (m,3); a 3D mesh is made of tetrahedra, F (m,4)"
-        V = _check_V(V, d=d, F_note=note)
-        F = _check_F(F, len(V), d)
+        V = check_vertices(V, d=d, F_note=note)
+        F = check_elements(F, len(V), d)
         a = signed_volumes(V, F)
-        tiny = np.abs(a) <= 1e-14 * _degenerate_scale(V, d)
+        tiny = np.abs(a) <= 1e-14 * degenerate_scale(V, d)
         if tiny.any():
             first = int(np.flatnonzero(tiny)[0])
             what = "zero-area" if d == 2 else "zero-volume"
             raise ValueError(
-                f"{int(tiny.sum())} degenerate ({what}) {_ELEMENTS[d]}, first is {ELEMENT[d]} {first}"
+                f"{int(tiny.sum())} degenerate ({what}) {ELEMENTS[d]}, first is {ELEMENT[d]} {first}"
                 + ("" if d == 2 else f" (volume {a[first]:.3g})")
             )
-        F = _orient(F, a)
+        F = orient_elements(F, a)
         if d == 2:
-            _check_manifold(F)
+            check_triangle_manifold(F)
         else:
-            _check_manifold_tets(F)
+            check_tet_manifold(F)
         unused = np.flatnonzero(np.bincount(F.ravel(), minlength=len(V)) == 0)
         if len(unused):
             raise ValueError(
@@ -544,13 +273,13 @@ class Mesh:
         idx : (k,) int array
         dist : (k,) numpy array
         """
-        points = _check_V(np.atleast_2d(points), "points", d=self.dim)
+        points = check_vertices(np.atleast_2d(points), "points", d=self.dim)
         dist, idx = self._kdtree.query(points)
         return np.asarray(idx, dtype=np.int64), np.asarray(dist)
 
     def contains(self, points):
         """(k,) bool array: whether each point lies in Ω (inside some element, with a 1e-12 tolerance)."""
-        points = _check_V(np.atleast_2d(points), "points", d=self.dim)
+        points = check_vertices(np.atleast_2d(points), "points", d=self.dim)
         P = self.V[self.F]  # (m, d+1, d)
         facets = FACETS[self.dim]
         eps = -0.5e-12 * self.bbox_diagonal**self.dim
@@ -559,7 +288,7 @@ class Mesh:
             p0 = np.broadcast_to(p, (len(P), self.dim))
             inside = np.ones(len(P), dtype=bool)
             for f in facets:
-                inside &= _simplex_volumes(p0, P[:, f]) >= eps
+                inside &= simplex_volumes(p0, P[:, f]) >= eps
             out[k] = bool(inside.any())
         return out
 
@@ -587,13 +316,13 @@ class Mesh:
             Barycentric coordinates (rows sum to 1, all ≥ 0 inside the element). A point outside the
             mesh gets the candidate element where it is least outside (some coordinates negative).
         """
-        points = _check_V(np.atleast_2d(points), "points", d=self.dim)
+        points = check_vertices(np.atleast_2d(points), "points", d=self.dim)
         k = min(k, self.n_faces)
         _, cand = self._centroid_tree.query(points, k=k)
         cand = np.asarray(cand).reshape(len(points), k)
         P = self.V[self.F[cand.ravel()]]  # (p*k, d+1, d)
         p0 = np.repeat(points, k, axis=0)
-        lam = np.stack([_simplex_volumes(p0, P[:, f]) for f in FACETS[self.dim]], axis=1)
+        lam = np.stack([simplex_volumes(p0, P[:, f]) for f in FACETS[self.dim]], axis=1)
         lam = lam / self.volumes[cand.ravel()][:, None]
         lam = lam.reshape(len(points), k, self.dim + 1)
         best = np.argmax(lam.min(axis=2), axis=1)
@@ -729,44 +458,3 @@ def _read_member(fh, path, key):
         raise ValueError(f"mesh file {path}: {key} is truncated ({len(data)} of {count * dtype.itemsize} bytes)")
     arr = np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
     return np.array(arr)
-
-
-def _read_text(path, ext):
-    """V and F of an OBJ/OFF (numpy reader, :mod:`.surface_files`), the OFF header's counts checked first."""
-    size = check_size(path, "mesh file")  # read whole below: a 3 GiB file raised an empty MemoryError
-    if ext == ".off":
-        _check_off_header(path, size)
-    try:
-        V, F, _ = parse_surface(path.read_bytes(), ext)
-    except ValueError as exc:
-        raise ValueError(f"mesh file {path} could not be read as {ext} ({exc})") from None
-    if V.shape[1] == 3:
-        if np.abs(V[:, 2]).max(initial=0) > 0:
-            raise ValueError(f"{path} is not planar (z is not 0)")
-        V = V[:, :2]
-    return V, F
-
-
-def _check_off_header(path, size):
-    with open(path, "rb") as fh:
-        head = fh.read(4096).decode("ascii", "replace").split("\n")
-    words = []
-    for line in head:
-        words += line.split("#")[0].split()
-        if len(words) >= 4:
-            break
-    if not words or not words[0].upper().endswith("OFF"):
-        raise ValueError(f"mesh file {path} is not an OFF file (no OFF header)")
-    try:
-        n_v, n_f = int(words[1]), int(words[2])
-    except (IndexError, ValueError):
-        raise ValueError(f"mesh file {path}: the OFF header has no vertex and face counts") from None
-    if min(n_v, n_f) < 0 or max(n_v, n_f) > MAX_FILE_ELEMENTS or 2 * (n_v + n_f) > size:
-        raise ValueError(
-            f"mesh file {path} declares {n_v:,} vertices and {n_f:,} faces in {size:,} bytes "
-            f"(limit {MAX_FILE_ELEMENTS:,} each, and at least 2 bytes per entry)"
-        )
-
-
-def _igl_write(path, V3, F):
-    igl.write_triangle_mesh(str(path), V3, F, igl.FileEncoding.Ascii)

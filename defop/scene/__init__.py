@@ -1,10 +1,11 @@
 """Scenes: a mesh with point handles and sampling regions (layer 2).
 
 :mod:`.regions` are the sampling regions of §3.3, :mod:`.models` the paper's catalogue (Table 1) and
-:mod:`.shapes` the :class:`Shape` and its constructors (``load``, ``from_polygon``, ``from_image``).
+:mod:`.shapes` the :class:`Shape` and its constructors (``load``, ``from_polygon``, ``from_image``,
+``from_surface``), from :mod:`.shape`, :mod:`.handles` and :mod:`.planar_shapes`.
 """
 
-from . import models, placement, regions, shapes
+from . import handles, models, placement, planar_shapes, regions, shape, shapes
 from .shapes import Shape
 
-__all__ = ["Shape", "models", "placement", "regions", "shapes"]
+__all__ = ["Shape", "handles", "models", "placement", "planar_shapes", "regions", "shape", "shapes"]

@@ -1,4 +1,4 @@
-"""Placement regions: where a movable handle's rest position p_ℓ may sit (§5's open question, issue 38).
+"""Placement regions: where a movable handle's rest position p_ℓ may sit (§5's open question).
 
 A *movable* handle has a placement region, a set of mesh vertices around its nominal rest position: the
 vertices within a ball (a disc in 2D) of given radius that are connected to the handle inside that ball (a

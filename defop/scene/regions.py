@@ -67,6 +67,12 @@ class Region:
 
     kind = ""
     dims = (2, 3)  # the dimensions the region is defined in
+    positive_fields = ()  # the fields that must be positive numbers, checked on construction
+
+    def __post_init__(self):
+        for name in self.positive_fields:
+            what = f"{self.kind} needs a positive {name!r}, got {{value!r}}"
+            object.__setattr__(self, name, _positive(getattr(self, name), what))
 
     def sample(self, rng, center, m, P=None, index=None):
         """m points of the region around ``center``.
@@ -124,10 +130,7 @@ class Ball(Region):
 
     radius: float
     kind = "ball"
-
-    def __post_init__(self):
-        what = f"{self.kind} needs a positive 'radius', got {{value!r}}"
-        object.__setattr__(self, "radius", _positive(self.radius, what))
+    positive_fields = ("radius",)
 
     def _offsets(self, rng, m, c, P, index):
         return _ball(rng, m, self.radius, len(c))
@@ -181,9 +184,7 @@ class Circle(Region):
     radius: float
     kind = "circle"
     dims = (2,)
-
-    def __post_init__(self):
-        object.__setattr__(self, "radius", _positive(self.radius, "circle needs a positive 'radius', got {value!r}"))
+    positive_fields = ("radius",)
 
     def _offsets(self, rng, m, c, P, index):
         t = rng.uniform(0, 2 * np.pi, size=m)
@@ -199,9 +200,7 @@ class Gaussian(Region):
 
     sigma: float
     kind = "gaussian"
-
-    def __post_init__(self):
-        object.__setattr__(self, "sigma", _positive(self.sigma, "gaussian needs a positive 'sigma', got {value!r}"))
+    positive_fields = ("sigma",)
 
     def _offsets(self, rng, m, c, P, index):
         return rng.normal(scale=self.sigma, size=(m, len(c)))
@@ -217,9 +216,7 @@ class Voronoi(Region):
 
     radius: float
     kind = "voronoi"
-
-    def __post_init__(self):
-        object.__setattr__(self, "radius", _positive(self.radius, "voronoi needs a positive 'radius', got {value!r}"))
+    positive_fields = ("radius",)
 
     def _offsets(self, rng, m, c, P, index):
         others = np.delete(np.asarray(P, float), index, axis=0) if P is not None else np.zeros((0, len(c)))

@@ -1,14 +1,15 @@
 """Training a DefOp (layer 4, §3.3): sample Q_k, solve D^E at each (in parallel, cached), fit.
 
-:mod:`.sampling` draws the Q_k, :mod:`.cache` stores ground truths and operators on disk and
-:mod:`.bootstrap` runs the pipeline (:func:`train`); :mod:`.adaptive` chooses the samples where the operator is
-least certain (:func:`train_adaptive`); :mod:`.branches` finds every branch of D^E and fits a multi-valued operator,
-:mod:`.branch_domains` certifies where each branch is present and absent; :mod:`.multilevel` is ``train``'s
-multilevel policy (decisions on a coarse mesh) and :mod:`.movable` trains handles that move at rest
-(:func:`train_movable`).
+:mod:`.sampling` draws the Q_k, :mod:`.cache` stores ground truths and operators on disk, :mod:`.solves` (the
+sample engine) is the one code that solves problem (6) for many samples and :mod:`.portfolios` builds the training
+policies on it; :mod:`.bootstrap` runs the pipeline (:func:`train`); :mod:`.adaptive` chooses the samples where
+the operator is least certain (:func:`train_adaptive`); :mod:`.branches` finds every branch of D^E and fits a
+multi-valued operator and certifies where each branch is present and absent;
+:mod:`.multilevel` is ``train``'s multilevel policy (decisions on a coarse mesh) and :mod:`.movable` trains handles
+that move at rest (:func:`train_movable`).
 """
 
-from . import adaptive, bootstrap, branch_domains, branches, cache, movable, multilevel, sampling
+from . import adaptive, bootstrap, branches, cache, movable, multilevel, portfolios, sampling, solves
 from .adaptive import train_adaptive
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
 from .movable import train_movable
@@ -17,16 +18,25 @@ __all__ = [
     "TrainingRecord",
     "adaptive",
     "bootstrap",
-    "branch_domains",
     "branches",
     "cache",
     "held_out",
     "min_samples",
     "movable",
     "multilevel",
+    "portfolios",
     "sampling",
     "solve_samples",
+    "solves",
     "train",
     "train_adaptive",
     "train_movable",
 ]
+
+
+def __getattr__(name):
+    if name == "branch_domains":  # the deprecated module path: imported (and warning) on first use only
+        import importlib
+
+        return importlib.import_module(".branch_domains", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

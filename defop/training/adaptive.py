@@ -1,4 +1,4 @@
-"""Adaptive sampling (issue 28): choose the next samples Q_k where the current operator is least certain.
+"""Adaptive sampling: choose the next samples Q_k where the current operator is least certain.
 
 Training by :func:`defop.training.bootstrap.train` solves problem (6) at m configurations drawn uniformly from the
 shape's sampling regions. :func:`train_adaptive` chooses each next batch of samples where the operator is least
@@ -25,7 +25,6 @@ on its own (``DEFOP_CACHE``), so an interrupted adaptive training resumes at the
 
 from __future__ import annotations
 
-import time
 import warnings
 
 import numpy as np
@@ -35,7 +34,7 @@ from ..operator.defop import ExtrapolationWarning
 from ..operator.fit import fit
 from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning
-from . import bootstrap
+from . import bootstrap, solves
 from .batch import warm_starts
 from .sampling import sample_shape
 
@@ -261,14 +260,15 @@ def train_adaptive(
     en.check_energy(energy)
     opt.choice("criterion", criterion, ("residual", "disagreement"))
     m, n_initial, batch, pool = _check_schedule(shape, m, n_initial, batch, pool, basis)
-    bootstrap._check_train_options(shape, basis, m, spatial, k, seed, None, n_jobs, 1)
-    t0 = time.perf_counter()
+    bootstrap.check_train_options(shape, basis, m, spatial, k, seed, None, n_jobs, 1)
     Q = sample_shape(shape, n_initial, np.random.default_rng(seed))
     candidates = sample_shape(shape, pool, np.random.default_rng([seed, 1]))
     _, rec = bootstrap.train(
         shape, energy, "linear", samples=Q, rounds=1, n_jobs=n_jobs, cache=cache, progress=progress
     )  # the initial solves exactly as train's, cached
     X, conv = rec.X, rec.converged
+    initial = sum(rec.stage_times.get(s, 0.0) for s in ("bootstrap", "solve", "fit", "fold"))
+    clock = solves.Stopwatch()  # the batches (the initial training's CPU seconds are its record's)
     taken = np.zeros(pool, bool)
     counts = [n_initial]
     while len(Q) < m:
@@ -281,10 +281,12 @@ def train_adaptive(
         new = select_batch(scores, candidates, Q, min(batch, m - len(Q)))
         taken[new] = True
         starts = warm_starts(current, candidates[new], shape.mesh, energy)
-        Xn, cn = bootstrap.sample_ground_truth(shape, candidates[new], energy, starts, n_jobs, progress, cache)
+        Xn, cn = bootstrap.sample_ground_truth(
+            shape, candidates[new], energy, starts, n_jobs, progress, cache, clock=clock
+        )
         Q, X, conv = np.concatenate([Q, candidates[new]]), np.concatenate([X, Xn]), np.concatenate([conv, cn])
         counts.append(len(Q))
-    times = {"solve": time.perf_counter() - t0}
+    times = {"solve": initial + clock.cpu}
     if not conv.all():
         warnings.warn(
             f"{int((~conv).sum())} of {m} sample solves did not converge; they are used as they are",

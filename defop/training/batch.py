@@ -1,7 +1,7 @@
-"""The one batch-solve layer: many independent solves of problem (6), in parallel, with progress and a cache.
+"""The parallel layer under the sample engine: chunks over joblib workers, progress bars, checkpoints, the cache policy.
 
-Training (:func:`defop.training.bootstrap.solve_samples`) and the ground-truth trajectories
-(:func:`defop.analysis.trajectories.ground_truth_trajectories`) both run through :func:`parallel_map` and
+The sample engine (:mod:`defop.training.solves`, the only code that solves problem (6) for many samples) runs
+through :func:`parallel_map` and :func:`map_checkpointed`, and its callers cache whole results through
 :func:`load_or_compute`, so the split into chunks, the joblib backend (a Dask cluster included), the progress bars
 and the cache policy are written once; :func:`map_checkpointed` adds the checkpoints that let an interrupted run
 resume (:class:`Checkpoints`).

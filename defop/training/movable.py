@@ -1,17 +1,15 @@
-"""Training the movable-handle operator D(x; P, Q) (issue 38): joint samples (P_k, Q_k), their truth, the fit.
+"""Training the movable-handle operator D(x; P, Q): joint samples (P_k, Q_k), their truth, the fit.
 
 P_k draws each movable handle's rest vertex uniformly from its placement region
 (:mod:`defop.scene.placement`); Q_k is drawn from the shape's sampling regions centred at P_k (the Q regions travel
 with P). The truth at each sample is problem (6) with the handles at those vertices, solved by the verified
-solver from the rest pose (:meth:`defop.variational.solver.Solver.solve_best`), through the one batch layer
-(:mod:`defop.training.batch`: parallel, checkpointed, cached; the placement regions are part of the key).
+solver from the rest pose (:meth:`defop.variational.solver.Solver.solve_best`), through the sample engine
+(:func:`defop.training.solves.solve`: parallel, checkpointed, cached; the placement regions are part of the key).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
-import time
 import warnings
 
 import numpy as np
@@ -21,10 +19,9 @@ from ..operator.movable import fit_movable
 from ..scene.placement import PlacementRegions
 from ..scene.shapes import Shape
 from ..variational import energies as en
-from ..variational.solver import NotConvergedWarning, Solver
-from . import batch
+from ..variational.solver import NotConvergedWarning
+from . import batch, solves
 from . import cache as cache_mod
-from .bootstrap import _gt_expect, _solver_key
 from .sampling import sample_handles
 
 
@@ -43,6 +40,7 @@ def sample_joint(shape, placement, m, rng, n_q=1):
     Q : (m n_q, n, d) numpy array
     """
     m = opt.integer("m", m, minimum=1)
+    n_q = opt.integer("n_q", n_q, minimum=1)
     rng = np.random.default_rng(rng)
     idx = sample_placements(placement, m, rng)
     Q = np.stack(
@@ -51,94 +49,124 @@ def sample_joint(shape, placement, m, rng, n_q=1):
     return np.repeat(idx, n_q, axis=0), Q.reshape(m * n_q, shape.n_moving, shape.mesh.dim)
 
 
+def vertex_indices(name, idx, shape):
+    """``idx`` as an int64 array of the given shape (None in it: any length), refusing fractional or non-finite
+    entries instead of truncating them.
+
+    Raises
+    ------
+    ValueError
+        Naming ``name``: not numbers, the wrong shape, or an entry that is not a whole number.
+    """
+    a = np.asarray(idx)
+    if a.dtype.kind not in "iuf" or np.iscomplexobj(a):
+        raise ValueError(f"{name} must hold integer vertex indices, got an array of {a.dtype}")
+    if a.ndim != len(shape) or any(want is not None and got != want for got, want in zip(a.shape, shape)):
+        want = ", ".join("m" if w is None else str(w) for w in shape)
+        raise ValueError(f"{name} must have shape ({want}), got {a.shape}")
+    if a.dtype.kind == "f" and not (np.isfinite(a).all() and (a == np.round(a)).all()):
+        bad = a[~(np.isfinite(a) & (a == np.round(a)))]
+        raise ValueError(f"{name} must hold integer vertex indices, got {bad.ravel()[0]!r} (not a whole number)")
+    return a.astype(np.int64)
+
+
 def shape_at(shape, placement, idx):
     """The shape with its movable handles at vertices ``idx`` (b,): a fixed-P :class:`Shape` (same regions)."""
-    idx = placement.resolve(np.asarray(idx, np.int64))
+    idx = placement.resolve(vertex_indices("idx", idx, (placement.n_movable,)))
     name = f"{shape.name}@{'-'.join(map(str, idx))}"
     return Shape(
         name, shape.mesh, placement.handles_at(idx), shape.moving, shape.regions, shape.description, shape.outline
     )
 
 
-def _solve_chunk(mesh, handles0, moving, movable, energy, jobs):
-    out = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotConvergedWarning)
-        for idx, q in jobs:
-            h = handles0.copy()
-            h[movable] = idx
-            T = mesh.V[h].copy()
-            T[moving] = q
-            r = Solver(mesh, h, energy).solve_best(T, rest=True)
-            out.append((r.X, r.converged))
-    return out
+def check_joint(shape, placement, idx, Q):
+    """The joint samples as (idx (m, b) int64, Q (m, n, d) float), checked before any solve: Q through the checks of
+    :func:`defop.training.bootstrap.train` (one configuration of every moving handle, finite), the placements
+    whole vertex indices in their regions, and as many placements as configurations."""
+    Q = solves.check_samples(shape, Q, "Q")
+    idx = vertex_indices("idx", idx, (None, placement.n_movable))
+    if len(idx) != len(Q):
+        raise ValueError(f"idx and Q must give one placement per configuration: {len(idx)} placements, {len(Q)} Q")
+    for i in np.unique(idx, axis=0):
+        placement.resolve(i)  # every placement in its regions
+    return idx, Q
+
+
+def _joint_key(shape, placement, idx, Q, energy):
+    """The cache key of the joint solves: mesh, handles, placement regions, energy, solver settings, samples."""
+    mesh = shape.mesh
+    regions = placement.to_arrays().values()
+    settings = solves.solver_key(shape, energy)
+    return cache_mod.key("gt-movable", mesh.V, mesh.F, shape.handles, shape.moving, *regions, energy, settings, idx, Q)
 
 
 def solve_joint(shape, placement, idx, Q, energy="sarap", n_jobs=None, progress=True, cache=True):
     """The verified solutions of problem (6) at joint samples (handles at ``idx`` (m, b), targets Q (m, n, d)).
 
+    Each sample is solved from the rest pose by the sample engine (:func:`defop.training.solves.solve` with the
+    handles per sample), cached and checkpointed.
+
     Returns
     -------
     X : (m, n_vertices, d) numpy array
     converged : (m,) bool numpy array
+
+    Raises
+    ------
+    ValueError
+        Before any solve: Q not (m, n, d) for the n moving handles (one target each, no broadcast) or not finite;
+        idx not (m, b) whole vertex indices in their regions; idx and Q of different lengths.
     """
+    return _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache)[:2]
+
+
+def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache):
+    """:func:`solve_joint` plus the CPU seconds its solves spent in other processes."""
     en.check_energy(energy)
-    idx, Q = np.asarray(idx, np.int64), np.asarray(Q, float)
-    for i in np.unique(idx, axis=0):
-        placement.resolve(i)  # every placement in its regions, before any solve
-    mesh = shape.mesh
-    store = cache_mod.open_cache(cache)
-    pa = placement.to_arrays()
-    key = (
-        None
-        if store is None
-        else cache_mod.key(
-            "gt-movable",
-            mesh.V,
-            mesh.F,
-            shape.handles,
-            shape.moving,
-            *pa.values(),
-            energy,
-            _solver_key(shape, energy),
-            idx,
-            Q,
-        )
-    )
+    check_placement(shape, placement)
+    idx, Q = check_joint(shape, placement, idx, Q)
+    mesh, store = shape.mesh, cache_mod.open_cache(cache)
+    key = None if store is None else _joint_key(shape, placement, idx, Q, energy)
     ck = None if store is None else batch.Checkpoints(store)
-
-    def chunk(a, b, compute):
-        ckey = cache_mod.key("chunk-movable", key, a, b)
-
-        def arrays():
-            res = compute()
-            return {"X": np.array([r[0] for r in res]), "converged": np.array([r[1] for r in res], dtype=bool)}
-
-        got = ck.load_or_compute(ckey, _gt_expect(b - a, mesh.n_vertices, mesh.dim), arrays)
-        return list(zip(got["X"], got["converged"]))
+    handles = []
+    for i in idx:
+        h = shape.handles.copy()
+        h[placement.movable] = i
+        handles.append(h)
+    spent = []
 
     def compute():
-        fn = functools.partial(_solve_chunk, mesh, shape.handles, shape.moving, placement.movable, energy)
-        res = batch.map_checkpointed(
-            fn, list(zip(idx, Q)), n_jobs, progress, "joint solves", None if ck is None else chunk
+        r = solves.solve(
+            shape,
+            Q,
+            energy,
+            n_jobs=n_jobs,
+            progress=progress,
+            desc="joint solves",
+            checkpoint=ck,
+            handles=handles,
+            key_of=lambda a, b: cache_mod.key("chunk-movable", key, a, b),
         )
-        return {"X": np.array([r[0] for r in res]), "converged": np.array([r[1] for r in res], dtype=bool)}
+        spent.append(r.cpu_seconds - r.local_cpu_seconds)
+        return {"X": r.X, "converged": r.converged}
 
-    gt = batch.load_or_compute(store, "gt", key, _gt_expect(len(Q), mesh.n_vertices, mesh.dim), compute)
+    gt = batch.load_or_compute(store, "gt", key, solves.gt_expect(len(Q), mesh.n_vertices, mesh.dim), compute)
     if ck is not None:
         ck.discard()
-    return gt["X"], gt["converged"]
+    return gt["X"], gt["converged"], sum(spent)
 
 
 @dataclasses.dataclass
 class MovableRecord:
-    """What :func:`train_movable` did: the joint samples, their truth and the seconds it took (wall)."""
+    """What :func:`train_movable` did: the joint samples, their truth, the wall seconds it took and its CPU seconds
+    (summed over every process that solved)."""
 
     idx: np.ndarray
     Q: np.ndarray
     X: np.ndarray
     converged: np.ndarray
     seconds: float
+    cpu_seconds: float = 0.0
 
 
 def check_placement(shape, placement):
@@ -173,9 +201,10 @@ def train_movable(shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs
     n_q = opt.integer("n_q", n_q, minimum=1)
     opt.seed(seed)
     check_placement(shape, placement)
-    t0 = time.perf_counter()
+    clock = solves.Stopwatch()
     idx, Q = sample_joint(shape, placement, -(-m // n_q), np.random.default_rng(seed), n_q)
-    X, conv = solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache)
+    X, conv, remote = _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache)
+    clock.remote += remote
     if not conv.all():
         warnings.warn(
             f"{int((~conv).sum())} of {len(conv)} joint solves did not converge; used as they are",
@@ -184,4 +213,4 @@ def train_movable(shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs
         )
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
     op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta)
-    return op, MovableRecord(idx, Q, X, conv, time.perf_counter() - t0)
+    return op, MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu)

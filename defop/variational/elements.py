@@ -65,14 +65,9 @@ class ElementKernels:
     def kernel(self, kernel):
         self._kernel = self.hessian.kernel = check_kernel(kernel)
 
-    @property
-    def dim(self) -> int:
-        """d: 2 for triangles, 3 for tetrahedra."""
-        return self.mesh.V.shape[1]
-
     def jacobians(self, X):
         """(m, d, d) Jacobians of the map X (n, d), from the mesh's sparse operator."""
-        d = self.dim
+        d = self.mesh.dim
         return (self.mesh.jacobian_operator @ np.asarray(X, dtype=float).ravel()).reshape(-1, d, d)
 
     def _fused(self):
@@ -82,7 +77,7 @@ class ElementKernels:
         from . import fused
 
         code = fused.CODES.get(self.energy)
-        return None if code is None or self.dim not in fused.DIMS else (fused, code)
+        return None if code is None or self.mesh.dim not in fused.DIMS else (fused, code)
 
     def _vertex_order(self, fused):
         """Each element's vertices in the fused kernels' order of summation (``fused.vertex_order``)."""
@@ -138,12 +133,12 @@ class ElementKernels:
     def _grad_hess_fused(self, fk, X, mu, project, kink):
         """:meth:`grad_hess` by :func:`defop.variational.fused.grad_hess`."""
         fused, code = fk
-        mesh, H, d = self.mesh, self.hessian, self.dim
+        mesh, H, d = self.mesh, self.hessian, self.mesh.dim
         m = len(mesh.F)
         kink = np.asarray(kink, dtype=float)
         hold = bool(self.energy == "sarap" and mu == 0 and np.any(kink > 0))
         kink = np.ascontiguousarray(np.broadcast_to(kink[:, None] if kink.ndim == 1 else kink, (m, 2)))
-        g, data = np.empty(d * len(mesh.V)), np.empty(H._nnz)
+        g, data = np.empty(d * len(mesh.V)), np.empty(H.nnz)
         W, lamA = np.empty((m, (d + 1) * d, d * d)), np.empty((m, d * d))
         args = (mesh.F, mesh.local_gradients, self._vertex_order(fused), mesh.areas, code, float(mu), kink, hold)
         E = fused.grad_hess(self._map(X), *args, bool(project), H.slot, g, data, W, lamA)

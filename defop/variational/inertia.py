@@ -10,8 +10,8 @@ One function, :func:`inertia_shift`, serves every exact-Hessian factorisation ou
 * the held set's pull (:func:`defop.variational.kink.kink_gap` and :func:`defop.variational.newton.kink_active_set`):
   the shift regularises the Newton direction whose held-mode amplitudes give the pull on the kink.
 
-Before issue 35 the last two used ``INERTIA_SHIFT`` of the *mean* |diagonal|, which the stiff held modes of
-S-ARAP triangles on the kink dominate (benchmarks/bench_inertia_shift.py compares both policies sample by sample).
+A shift of the *mean* |diagonal| (``INERTIA_SHIFT`` of it) would be dominated by the stiff held modes of S-ARAP
+triangles on the kink (benchmarks/bench_inertia_shift.py compares both policies sample by sample).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def inertia_shift(solver, data):
     rel_shift : float
         At most ``INERTIA_SHIFT``.
     """
-    d = np.abs(data[solver.hessian._diag])
+    d = np.abs(data[solver.hessian.diag])
     mean = max(float(d.mean()), 1e-300)
     shift = max(INERTIA_SHIFT * float(np.median(d)), ROUNDOFF * np.finfo(float).eps * float(d.max()))
     return min(shift, INERTIA_SHIFT * mean) / mean

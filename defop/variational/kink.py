@@ -251,13 +251,13 @@ def kink_gap(solver, X, target):
     pull itself) are screened without a Newton system: below ``target`` the screen is returned. The Newton system's
     diagonal shift is :func:`defop.variational.inertia.inertia_shift`'s.
     """
-    _, S, on, held = held_on_kink(solver, X, solver._kink)
+    _, S, on, held = held_on_kink(solver, X, solver.kink_threshold)
     screen = 2 * offset_cost(S[held], on[held], solver.mesh.areas[held]) / solver.scale(solver.energy_of(X))
     if screen <= target:
         return screen
-    E, g, data, local = solver.grad_hess(X, 0.0, project=False, kink=solver._kink)
+    E, g, data, local = solver.grad_hess(X, 0.0, project=False, kink=solver.kink_threshold)
     p = solver.newton_direction(g[solver.free], data, rel_shift=inertia_shift(solver, data))
-    gain, _, _, _, offset = kink_pull(solver, X, local, p, solver._kink)
+    gain, _, _, _, offset = kink_pull(solver, X, local, p, solver.kink_threshold)
     return (gain + offset) / solver.scale(E)
 
 

@@ -185,7 +185,7 @@ def kink_active_set(solver, log, X, tol):
     is released (from both sets): the solve steps along the pull (a line search on the true energy) and Newton
     continues without holding it. Returns (X, converged, reason) like :func:`newton_stage`.
     """
-    hold = np.full(len(solver.mesh.F), solver._kink)
+    hold = np.full(len(solver.mesh.F), solver.kink_threshold)
     released = 0
     while True:
         X, converged, reason = newton_stage(solver, log, X, tol, 0.0, hold)
@@ -207,7 +207,7 @@ def newton_stage(solver, log, X, tol, mu, hold=None):
 
     ``hold``: S-ARAP at μ = 0, the per-triangle kink thresholds (default ``KINK``; see
     :func:`defop.variational.planar.on_kink`)."""
-    hold = solver._kink if hold is None else hold
+    hold = solver.kink_threshold if hold is None else hold
     E, E_true = solver.energies(X, mu)
     log.record(E_true)
     stalls, rel_dec, exact_ok = 0, np.inf, True

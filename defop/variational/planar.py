@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import smoothed_max
 from .definitions import EXP_SCALE, MAX_POWER
 
 
@@ -109,17 +110,11 @@ def psi_sarap_smooth(t1, t2, ok, mu):
     g1, g2 = 2 * (t1 - 1) / t1**3, 2 * (t2 - 1)
     f11, f22 = np.full_like(t1, 2.0), 6 / t2**4 - 4 / t2**3
     g11, g22 = 6 / t1**4 - 4 / t1**3, np.full_like(t1, 2.0)
-    a, b = (f + g) / 2, (f - g) / 2
-    a1, a2, b1, b2 = (f1 + g1) / 2, (f2 + g2) / 2, (f1 - g1) / 2, (f2 - g2) / 2
-    a11, a22, b11, b22 = (f11 + g11) / 2, (f22 + g22) / 2, (f11 - g11) / 2, (f22 - g22) / 2
+    a, b, *ab = smoothed_max.half_sums(f, g, f1, f2, g1, g2, f11, f22, g11, g22)
     r = np.sqrt(b * b + mu * mu)
     w, c = b / r, mu * mu / r**3
     psi = np.where(ok, a + r - mu, np.inf)
-    p1, p2 = a1 + w * b1, a2 + w * b2
-    p11 = a11 + w * b11 + c * b1 * b1
-    p22 = a22 + w * b22 + c * b2 * b2
-    p12 = c * b1 * b2
-    twist = (p1 + p2) / (t1 + t2)
+    p1, p2, p11, p22, p12, twist = smoothed_max.derivatives(t1, t2, *ab, w, c)
     gap = t1 - t2
     with np.errstate(divide="ignore", invalid="ignore"):
         flip = np.where(gap > 1e-6 * t1, (p1 - p2) / gap, p11 - p12)

@@ -1,16 +1,17 @@
 """The variational DefOp D^E: minimise a deformation energy subject to point-handle constraints.
 
 Problem (6) of the paper: min_X E(X) = Σ_t A_t ψ(J_t(X)) subject to X[handles] = targets, over
-piecewise-linear maps X (n, d). :class:`Solver` is the facade: the reduced problem
+piecewise-linear maps X (n, d). :class:`Solver` is the facade: it holds the reduced problem
 (:class:`defop.variational.problem.ReducedProblem`: handles eliminated, the Hessian's fixed sparsity pattern and
-its LDLᵀ) plus the settings of the solve, which runs
+its LDLᵀ) as ``problem``, reads its attributes through (``mesh``, ``free``, ``grad_hess``...), and adds the settings
+of the solve, which runs
 
 * continuation and projected Newton with its line search (:mod:`defop.variational.newton`);
 * the five checks behind ``converged``, a **verified local minimum** (:mod:`defop.variational.verify`): a finite
   energy, handles on their targets, no flipped element for barrier energies, a small true decrement (and S-ARAP's
   kink in equilibrium), no negative eigenvalue of the exact reduced Hessian; ``reason`` names the check that
   failed;
-* escapes from saddles and from S-ARAP's kink (:mod:`defop.variational.saddle`).
+* escapes from saddles and from S-ARAP's kink (:mod:`defop.variational.escape`).
 
 Starts: any flip-free map can warm-start a local solve (``X0``); its handles need not be at the targets.
 :meth:`Solver.solve_best` is the one multi-start policy: local solves from several starts (the rest pose, a
@@ -27,14 +28,15 @@ import warnings
 import numpy as np
 
 from .. import options as opt
+from .checks import check_handle_span, check_handles, check_max_iter, check_tol, count_flips
+from .escape import escape
 from .newton import Log, continuation
-from .problem import ReducedProblem, check_handle_span, check_handles, check_max_iter, check_tol, count_flips
-from .saddle import escape
+from .problem import ReducedProblem
 from .verify import KINK, verify_point
 
 #: bumped whenever a change to the solver moves its solutions (cache keys of ground truth should include it)
 VERSION = 5  # 5: check 5 shifts by the median diagonal (a saddle on the kink was accepted as a minimum)
-# not bumped when the kink code took check 5's shift too (issue 35): no minimum moved by more than 5.3e-16 of E or
+# not bumped when the kink code took check 5's shift too: no minimum moved by more than 5.3e-16 of E or
 # 5.5e-13 of the diagonal on 889 samples (aleph, bar, U, Fig. 10's grid; benchmarks/bench_inertia_shift.py)
 
 
@@ -93,7 +95,13 @@ class SolveResult:
     candidates: list = dataclasses.field(default_factory=list)
 
 
-class Solver(ReducedProblem):
+def _held(name, doc, settable=False):
+    """An attribute of the solver that is its held problem's ``name`` (read-only unless ``settable``)."""
+    fset = (lambda self, value: setattr(self.problem, name, value)) if settable else None
+    return property(lambda self: getattr(self.problem, name), fset, doc=doc)
+
+
+class Solver:
     """Projected-Newton solver of problem (6) on one mesh, one handle set and one energy.
 
     Parameters
@@ -159,7 +167,10 @@ class Solver(ReducedProblem):
 
     def __init__(self, mesh, handles, energy="sarap", tol=1e-9, max_iter=300, smoothing=None, backend=None):
         check_handle_span(mesh, check_handles(mesh, handles))
-        super().__init__(mesh, handles, energy, backend)
+        #: the reduced problem this solver minimises (mesh, handles, energy, Hessian pattern and factorisation)
+        self.problem = ReducedProblem(mesh, handles, energy, backend)
+        #: the energy's name and whether it is a barrier: settings of the solve (a cache key reads them from here)
+        self.energy, self.barrier = self.problem.energy, self.problem.barrier
         self.tol = check_tol(tol)
         self.max_iter = check_max_iter(max_iter)
         self.mu_schedule = (0.0,)
@@ -179,6 +190,31 @@ class Solver(ReducedProblem):
         self.stage_tol = 1e-8
         #: saddle escapes per solve (each tries both directions)
         self.max_escapes = 4
+
+    mesh = _held("mesh", "The mesh (:class:`defop.geometry.mesh.Mesh`).")
+    dim = _held("dim", "d: 2 for triangles, 3 for tetrahedra.")
+    handles = _held("handles", "(u,) int numpy array: the unique handle vertices, sorted.")
+    handles_given = _held("handles_given", "(h,) int numpy array: the handles in the constructor's order.")
+    free_vertices = _held("free_vertices", "(n_free,) int numpy array: the vertices that are not handles.")
+    free = _held("free", "(n_free·d,) int numpy array: the free dofs d·v + c, the unknowns.")
+    hessian = _held("hessian", "The Hessian's pattern and factorisation (:class:`ReducedHessian`).")
+    elements = _held("elements", "The element kernels (:class:`defop.variational.elements.ElementKernels`).")
+    scale = _held("scale", ":meth:`ReducedProblem.scale`.")
+    targets_of = _held("targets_of", ":meth:`ReducedProblem.targets_of`.")
+    jacobians = _held("jacobians", ":meth:`ReducedProblem.jacobians`.")
+    energy_of = _held("energy_of", ":meth:`ReducedProblem.energy_of`.")
+    energies = _held("energies", ":meth:`ReducedProblem.energies`.")
+    grad_hess = _held("grad_hess", ":meth:`ReducedProblem.grad_hess`.")
+    newton_direction = _held("newton_direction", ":meth:`ReducedProblem.newton_direction`.")
+    full = _held("full", ":meth:`ReducedProblem.full`.")
+    extend = _held("extend", ":meth:`ReducedProblem.extend`.")
+    check_start = _held("check_start", ":meth:`ReducedProblem.check_start`.")
+    kernel = _held("kernel", "The element kernels in use (:attr:`ReducedProblem.kernel`); settable.", settable=True)
+
+    @property
+    def kink_threshold(self) -> float:
+        """S-ARAP elements within this (relative) of Σ = σ count as on the kink (check 4, the μ = 0 stage)."""
+        return self._kink
 
     def verify(self, X, T, tol=None):
         """The five checks behind ``converged`` at X (n, d), targets T (u, d) per unique handle (:meth:`targets_of`),
@@ -206,7 +242,7 @@ class Solver(ReducedProblem):
             ``"local"``: one path from ``X0`` (warm start, path following; saddles are still escaped).
             ``"global"``: :meth:`solve_best` from the rest pose and ``X0`` (when given), the lower
             verified minimum. This is a documented multi-start, not a certificate: where the energy has
-            several minima it can miss a lower one that no start leads to (a stranger's test found an
+            several minima it can miss a lower one that no start leads to (a test found an
             ARAP bar pushed 0.35 along its axis whose up-bent start verified at 3% lower energy).
 
         Returns
@@ -245,96 +281,85 @@ class Solver(ReducedProblem):
         return self.finish(log, X, T, reason, label, ok and reached, check)
 
     def finish(self, log, X, T, reason, label, ok, check=None):
-        """The :class:`SolveResult` of a solve ended at X: :func:`finish`."""
-        return finish(self, log, X, T, reason, label, ok, check)
+        """The :class:`SolveResult` of a solve ended at X: ``converged`` when ``ok`` and X passes :meth:`verify`."""
+        check = self.verify(X, T) if check is None else check
+        converged = bool(ok and check.ok)
+        if not check.ok:
+            reason = f"{reason}; check failed: {check.reason}"
+        return SolveResult(
+            X=X,
+            energy=check.energy,
+            energy_history=np.array(log.E),
+            time_history=np.array(log.t),
+            iterations=log.iters,
+            time=time.perf_counter() - log.t0,
+            converged=converged,
+            reason=reason,
+            flips=count_flips(self.mesh, X),
+            start=label,
+            candidates=list(log.candidates),
+        )
 
     # ------------------------------------------------------------------ the one multi-start policy
     def solve_best(self, targets, starts=(), rest=True, keep="lowest", tol=None, max_iter=None):
-        """Local solves from several starts; the lowest-energy verified minimum: :func:`solve_best`."""
-        return solve_best(self, targets, starts, rest, keep, tol, max_iter)
+        """Local solves from several starts; the lowest-energy verified minimum (the one multi-start policy).
 
+        Every local solve escapes saddles along negative curvature (both directions), so the candidates
+        are: each given start, the rest pose (for barrier energies reached through flip-free continuation),
+        and the escapes from any saddle on the way.
 
-def finish(solver, log, X, T, reason, label, ok, check=None):
-    """The :class:`SolveResult` of a solve ended at X: ``converged`` when ``ok`` and X passes :meth:`Solver.verify`."""
-    check = solver.verify(X, T) if check is None else check
-    converged = bool(ok and check.ok)
-    if not check.ok:
-        reason = f"{reason}; check failed: {check.reason}"
-    return SolveResult(
-        X=X,
-        energy=check.energy,
-        energy_history=np.array(log.E),
-        time_history=np.array(log.t),
-        iterations=log.iters,
-        time=time.perf_counter() - log.t0,
-        converged=converged,
-        reason=reason,
-        flips=count_flips(solver.mesh, X),
-        start=label,
-        candidates=list(log.candidates),
-    )
+        Parameters
+        ----------
+        targets : (h, d) numpy array
+            One row per handle given to the constructor.
+        starts : sequence of (n, d) numpy arrays or None
+            Extra starts (a bootstrap prediction, a previous solution); None entries are ignored, and
+            starts that are flipped (barrier energies) or otherwise rejected are skipped.
+        rest : bool
+            Also solve from the rest pose (tried after ``starts``; also used when every start is rejected).
+        keep : {"lowest", "first"}
+            ``"lowest"``: run every start and keep the lowest verified minimum (global). ``"first"``: stop at
+            the first start that yields a verified minimum (warm, path-following: the interactive editor).
+        tol, max_iter : optional
+            As in :meth:`Solver.solve` (``max_iter`` per start).
 
-
-def solve_best(solver, targets, starts=(), rest=True, keep="lowest", tol=None, max_iter=None):
-    """Local solves from several starts; the lowest-energy verified minimum (the one multi-start policy).
-
-    Every local solve escapes saddles along negative curvature (both directions), so the candidates
-    are: each given start, the rest pose (for barrier energies reached through flip-free continuation),
-    and the escapes from any saddle on the way.
-
-    Parameters
-    ----------
-    solver : Solver
-    targets : (h, d) numpy array
-        One row per handle given to the constructor.
-    starts : sequence of (n, d) numpy arrays or None
-        Extra starts (a bootstrap prediction, a previous solution); None entries are ignored, and
-        starts that are flipped (barrier energies) or otherwise rejected are skipped.
-    rest : bool
-        Also solve from the rest pose (tried after ``starts``; also used when every start is rejected).
-    keep : {"lowest", "first"}
-        ``"lowest"``: run every start and keep the lowest verified minimum (global). ``"first"``: stop at
-        the first start that yields a verified minimum (warm, path-following: the interactive editor).
-    tol, max_iter : optional
-        As in :meth:`Solver.solve` (``max_iter`` per start).
-
-    Returns
-    -------
-    result : SolveResult
-        ``start`` names the winning start (``"start k"`` or ``"rest"``, plus any escapes);
-        ``candidates`` lists (start, energy, converged) for every end point reached.
-    """
-    if keep not in ("lowest", "first"):
-        raise ValueError(f"keep must be 'lowest' or 'first', got {keep!r}")
-    solver.targets_of(targets)  # bad targets raise here, not once per start
-    runs = [(f"start {k}", X0) for k, X0 in enumerate(starts) if X0 is not None]
-    runs += [("rest", None)] if rest else []
-    results, skipped = [], []
-    for label, X0 in runs:
-        try:
+        Returns
+        -------
+        result : SolveResult
+            ``start`` names the winning start (``"start k"`` or ``"rest"``, plus any escapes);
+            ``candidates`` lists (start, energy, converged) for every end point reached.
+        """
+        if keep not in ("lowest", "first"):
+            raise ValueError(f"keep must be 'lowest' or 'first', got {keep!r}")
+        self.targets_of(targets)  # bad targets raise here, not once per start
+        runs = [(f"start {k}", X0) for k, X0 in enumerate(starts) if X0 is not None]
+        runs += [("rest", None)] if rest else []
+        results, skipped = [], []
+        for label, X0 in runs:
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", NotConvergedWarning)
+                    r = self.solve(targets, X0=X0, tol=tol, max_iter=max_iter)
+            except ValueError as exc:  # a rejected start (flipped, wrong shape): the next one
+                skipped.append((label, str(exc)))
+                continue
+            if X0 is not None:  # "X0 > escape ..." -> "start k > escape ..."
+                r.start = label + r.start[2:]
+                r.candidates = [(label + lab[2:], E, ok) for lab, E, ok in r.candidates]
+            results.append(r)
+            if keep == "first" and r.converged:
+                break
+        if not results:  # every given start was rejected (flipped): the rest pose is always a valid start
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", NotConvergedWarning)
-                r = solver.solve(targets, X0=X0, tol=tol, max_iter=max_iter)
-        except ValueError as exc:  # a rejected start (flipped, wrong shape): the next one
-            skipped.append((label, str(exc)))
-            continue
-        if X0 is not None:  # "X0 > escape ..." -> "start k > escape ..."
-            r.start = label + r.start[2:]
-            r.candidates = [(label + lab[2:], E, ok) for lab, E, ok in r.candidates]
-        results.append(r)
-        if keep == "first" and r.converged:
-            break
-    if not results:  # every given start was rejected (flipped): the rest pose is always a valid start
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotConvergedWarning)
-            results.append(solver.solve(targets, tol=tol, max_iter=max_iter))
-    best = min(results, key=lambda r: (not r.converged, r.energy if np.isfinite(r.energy) else np.inf))
-    best.candidates = [c for r in results for c in r.candidates] + [
-        (f"{label} (rejected: {why})", np.inf, False) for label, why in skipped
-    ]
-    if not best.converged:
-        _not_converged(f"{solver.energy} solve did not converge from any start: {best.reason}")
-    return best
+                results.append(self.solve(targets, tol=tol, max_iter=max_iter))
+        best = min(results, key=lambda r: (not r.converged, r.energy if np.isfinite(r.energy) else np.inf))
+        best.candidates = [c for r in results for c in r.candidates] + [
+            (f"{label} (rejected: {why})", np.inf, False) for label, why in skipped
+        ]
+        if not best.converged:
+            _not_converged(f"{self.energy} solve did not converge from any start: {best.reason}")
+        return best
 
 
 def solve(mesh, handles, targets, energy="sarap", X0=None, backend=None, **kw):

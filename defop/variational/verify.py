@@ -97,7 +97,7 @@ def verify_point(solver, X, T, tol=None):
         return Verification(False, "handles", f"a handle is {err:.2e} of the diagonal off its target", E)
     if solver.barrier and flips:
         return Verification(False, "flips", f"{flips} flipped or collapsed {el}(s)", E)
-    E, g, data, local = solver.grad_hess(X, 0.0, project=False, kink=solver._kink)  # true energy, exact Hessian
+    E, g, data, local = solver.grad_hess(X, 0.0, project=False, kink=solver.kink_threshold)  # true E, exact Hessian
     gf = g[solver.free]
     p = solver.newton_direction(gf, data, rel_shift=inertia_shift(solver, data))
     negative = solver.hessian.inertia()
@@ -109,7 +109,7 @@ def verify_point(solver, X, T, tol=None):
         why = f"the true energy's Newton decrement λ²/2 = {dec:.2e} > {tol:g}·E"
         return Verification(False, "decrement", why, E, dec)
     if solver.energy == "sarap":
-        gain, worst, D, _, offset = kink_pull(solver, X, local, p, solver._kink)
+        gain, worst, D, _, offset = kink_pull(solver, X, local, p, solver.kink_threshold)
         bound = gain + offset
         if bound > tol * solver.scale(E):
             cert = kink.smoothing_certificate(

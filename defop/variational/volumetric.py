@@ -38,6 +38,8 @@ from __future__ import annotations
 import numpy as np
 
 from .definitions import EXP_SCALE, MAX_POWER, check_energy
+from .volumetric_step import STEP_SCREEN, max_flip_free_step  # noqa: F401 (public here too)
+from .volumetric_svd import signed_singular_values, signed_svd, svd_frame  # noqa: F401 (public here too)
 
 #: value of ψ at rotations, per energy (3D)
 REST_VALUE = {"arap": 0.0, "sarap": 0.0, "isometric": 6.0, "isometric_max": 0.0, "isometric_exp": 0.0}
@@ -46,57 +48,6 @@ PAIRS = ((0, 1), (0, 2), (1, 2))
 #: the two kink sets of S-ARAP, as the pairs that meet there: σ₁ = σ₂ and σ₂ = σ₃
 KINK_PAIRS = ((0, 1), (1, 2))
 _R2 = np.sqrt(2.0)
-
-
-def _jacobians(J):
-    """J as a float (m,3,3) array, finite."""
-    J = np.asarray(J, dtype=float)
-    if J.ndim != 3 or J.shape[1:] != (3, 3):
-        raise ValueError(f"J must be an (m,3,3) array of 3×3 Jacobians, got shape {J.shape}")
-    if not np.all(np.isfinite(J)):
-        raise ValueError("J must be finite, got NaN or inf entries")
-    return J
-
-
-def signed_svd(J):
-    """Rotation-variant SVD J = U diag(S) Vᵀ of J (m,3,3): rotations U, V (m,3,3) and S (m,3), σ₁ ≥ σ₂ ≥ |σ₃|.
-
-    σ₃ < 0 exactly when det J < 0. From LAPACK's SVD, a reflection in U or V moves into σ₃ (Irving, Teran & Fedkiw
-    2004): the last column of U (of V) is negated where det U < 0 (det V < 0), and σ₃ with it, once per negation.
-    """
-    J = _jacobians(J)
-    U, S, Vt = np.linalg.svd(J)
-    V = np.swapaxes(Vt, 1, 2).copy()
-    for M in (U, V):
-        neg = _det(M) < 0  # ±1 for these orthogonal matrices: the sign of the cofactor formula is exact
-        M[neg, :, 2] *= -1
-        S[neg, 2] *= -1
-    return U, S, V
-
-
-def _det(M):
-    """det of 3×3 matrices (m,3,3) by the cofactor formula (np.linalg.det's LU costs more on small matrices)."""
-    return (
-        M[:, 0, 0] * (M[:, 1, 1] * M[:, 2, 2] - M[:, 1, 2] * M[:, 2, 1])
-        - M[:, 0, 1] * (M[:, 1, 0] * M[:, 2, 2] - M[:, 1, 2] * M[:, 2, 0])
-        + M[:, 0, 2] * (M[:, 1, 0] * M[:, 2, 1] - M[:, 1, 1] * M[:, 2, 0])
-    )
-
-
-def signed_singular_values(J):
-    """The signed singular values S (m,3) of :func:`signed_svd` without U and V: σ₃ < 0 exactly when det J < 0.
-
-    LAPACK without singular vectors (cheaper); the same values up to round-off (a few ulps of σ₁)."""
-    J = _jacobians(J)
-    S = np.linalg.svd(J, compute_uv=False)
-    S[:, 2] *= np.where(_det(J) < 0, -1.0, 1.0)
-    return S
-
-
-def svd_frame(J):
-    """Signed singular values and frame of 3×3 matrices: (S, U, V) of :func:`signed_svd`."""
-    U, S, V = signed_svd(J)
-    return S, U, V
 
 
 def _positive(S):
@@ -317,9 +268,6 @@ _HOLD_BASES = (
 
 
 _DIAG = [0, 4, 8]  # vec indices of the diagonal of a 3×3 matrix
-#: :func:`max_flip_free_step` solves only the tetrahedra whose det(J + t dJ) may fall below this share of det J
-#: before the step cap (+inf: all of them)
-STEP_SCREEN = 0.5
 
 
 def kink_stiff_modes(on):
@@ -505,57 +453,3 @@ def hessian(J, energy, project=True, mu=0.0):
     psi, grad, lam, modes = eigensystem(J, energy, project, mu)
     H = np.matmul(modes * lam[:, None, :], np.swapaxes(modes, 1, 2))
     return psi, grad.reshape(-1, 3, 3), H
-
-
-def _cofactor(A):
-    """Cofactor matrices (m,3,3): rows A₁×A₂, A₂×A₀, A₀×A₁ (so det A = A₀·cof(A)₀)."""
-    return np.stack([np.cross(A[:, 1], A[:, 2]), np.cross(A[:, 2], A[:, 0]), np.cross(A[:, 0], A[:, 1])], axis=1)
-
-
-def max_flip_free_step(J, dJ, safety=0.9):
-    """Largest t in (0, 1] such that det(J + s·dJ) > 0 for all s in [0, t) (Smith & Schaefer 2015), in 3D.
-
-    Per tetrahedron det(J + t dJ) = c₀ + c₁t + c₂t² + c₃t³ with c₀ = det J, c₁ = cof(J):dJ, c₂ = cof(dJ):J,
-    c₃ = det dJ. Its roots are found as s = 1/t, the eigenvalues of the companion matrix of
-    s³ + (c₁/c₀)s² + (c₂/c₀)s + c₃/c₀, whose leading coefficient c₀ > 0 never vanishes: the lower-degree cases
-    (c₃ = 0, …) are roots s = 0, t = ∞, with no special case. The largest real s > 0 (imaginary part below 1e-4 of
-    it: a near-double root counts, conservatively) is polished by two Newton steps on the cubic in t. The step is
-    ``safety`` times the smallest root over all tetrahedra, capped at 1. Only the tetrahedra whose cubic may fall below
-    :data:`STEP_SCREEN` · c₀ before t = 1/safety are solved: the others cannot shorten the step.
-
-    J (all det > 0) and dJ, its change along the search direction, are (m,3,3); returns t (float).
-    """
-    J, dJ = _jacobians(J), _jacobians(dJ)
-    if dJ.shape != J.shape:
-        raise ValueError(f"dJ must have the shape of J {J.shape}, got {dJ.shape}")
-    cJ, cD = _cofactor(J), _cofactor(dJ)
-    c0 = np.einsum("mij,mij->m", cJ, J) / 3
-    if np.any(c0 <= 0):
-        raise ValueError(f"J must have det J > 0 for every element, got min det {c0.min():.3g}")
-    c1, c2 = np.einsum("mij,mij->m", cJ, dJ), np.einsum("mij,mij->m", cD, J)
-    c3 = np.einsum("mij,mij->m", cD, dJ) / 3
-    # only a root t < 1/safety can shorten the step: skip the tetrahedra whose cubic stays above c₀/2 on
-    # [0, 1/safety] by the bound c₀ + Σₖ min(cₖ, 0) Tᵏ (no root there, nor a near-double pair: no flip)
-    T = 1 / safety if safety > 0 else np.inf
-    with np.errstate(invalid="ignore", over="ignore"):
-        low = c0 + np.minimum(c1, 0) * T + np.minimum(c2, 0) * T**2 + np.minimum(c3, 0) * T**3
-    near = ~(low > STEP_SCREEN * c0)
-    c0, c1, c2, c3 = c0[near], c1[near], c2[near], c3[near]
-    C = np.zeros((len(c0), 3, 3))
-    C[:, 0, 0], C[:, 0, 1], C[:, 0, 2] = -c1 / c0, -c2 / c0, -c3 / c0
-    C[:, 1, 0] = C[:, 2, 1] = 1.0
-    s = np.linalg.eigvals(C)
-    real = (np.abs(s.imag) <= 1e-4 * np.abs(s)) & (s.real > 0)
-    smax = np.where(real, s.real, 0.0).max(axis=1) if len(c0) else np.zeros(0)
-    cand = smax > 0
-    if not cand.any():
-        return 1.0
-    t = 1 / smax[cand]
-    p = np.stack([c0, c1, c2, c3])[:, cand]
-    for _ in range(2):
-        f = p[0] + t * (p[1] + t * (p[2] + t * p[3]))
-        df = p[1] + t * (2 * p[2] + 3 * t * p[3])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tn = t - f / df
-        t = np.where(np.isfinite(tn) & (tn > 0) & (np.abs(tn - t) < 0.1 * t), tn, t)
-    return min(1.0, safety * float(t.min()))

@@ -36,6 +36,38 @@ def _box(extent):
     return (extent.x0, extent.y0, extent.x1, extent.y1)
 
 
+def _best_label(ax, renderer, xy, text, taken, frame, scale, place):
+    """The cheapest of the candidate placements of one label (overlap with ``taken``, a large cost outside
+    ``frame``; the first free one wins): its annotation (the others are removed) and its display box."""
+    best = None
+    for r, (dx, dy) in itertools.product(_RADII, _DIRECTIONS):
+        norm = np.hypot(dx, dy)
+        leader = dict(arrowstyle="-", color=place["color"], lw=0.6, shrinkA=1, shrinkB=3) if r > _RADII[0] else None
+        ann = ax.annotate(
+            text,
+            xy,
+            xytext=(r * dx / norm, r * dy / norm),
+            textcoords="offset points",
+            ha="left" if dx > 0 else "right" if dx < 0 else "center",
+            va="bottom" if dy > 0 else "top" if dy < 0 else "center",
+            fontsize=place["fontsize"],
+            arrowprops=leader,
+            **place["text_kw"],
+        )
+        box = _box(text_extent(ann, renderer))
+        inside = box[0] >= frame[0] and box[1] >= frame[1] and box[2] <= frame[2] and box[3] <= frame[3]
+        cost = sum(_overlap(box, t, pad=1.0 * scale) for t in taken) + (0.0 if inside else 1e6)
+        if best is None or cost < best[0]:
+            if best is not None:
+                best[1].remove()
+            best = (cost, ann, box)
+        else:
+            ann.remove()
+        if cost == 0:
+            break
+    return best[1], best[2]
+
+
 def place_labels(ax, x, y, texts, fontsize=7, marker_px=6.0, avoid=(), color="0.35", **text_kw):
     """Label each point (x[i], y[i]) with texts[i], with no label over another label, a marker or the axes' edge.
 
@@ -68,37 +100,12 @@ def place_labels(ax, x, y, texts, fontsize=7, marker_px=6.0, avoid=(), color="0.
     points = ax.transData.transform(np.column_stack([x, y])) if len(x) else np.zeros((0, 2))
     taken = [(px - marker_px, py - marker_px, px + marker_px, py + marker_px) for px, py in points]
     taken += [_box(a.get_window_extent(renderer)) for a in avoid]
-    scale = fig.dpi / 72.0
     out = []
+    place = dict(fontsize=fontsize, color=color, text_kw=text_kw)
     for i in np.argsort(-points[:, 1], kind="stable") if len(x) else []:  # top to bottom
-        best = None
-        for r, (dx, dy) in itertools.product(_RADII, _DIRECTIONS):
-            norm = np.hypot(dx, dy)
-            leader = dict(arrowstyle="-", color=color, lw=0.6, shrinkA=1, shrinkB=3) if r > _RADII[0] else None
-            ann = ax.annotate(
-                texts[i],
-                (x[i], y[i]),
-                xytext=(r * dx / norm, r * dy / norm),
-                textcoords="offset points",
-                ha="left" if dx > 0 else "right" if dx < 0 else "center",
-                va="bottom" if dy > 0 else "top" if dy < 0 else "center",
-                fontsize=fontsize,
-                arrowprops=leader,
-                **text_kw,
-            )
-            box = _box(text_extent(ann, renderer))
-            inside = box[0] >= frame[0] and box[1] >= frame[1] and box[2] <= frame[2] and box[3] <= frame[3]
-            cost = sum(_overlap(box, t, pad=1.0 * scale) for t in taken) + (0.0 if inside else 1e6)
-            if best is None or cost < best[0]:
-                if best is not None:
-                    best[1].remove()
-                best = (cost, ann, box)
-            else:
-                ann.remove()
-            if cost == 0:
-                break
-        taken.append(best[2])
-        out.append((i, best[1]))
+        ann, box = _best_label(ax, renderer, (x[i], y[i]), texts[i], taken, frame, fig.dpi / 72.0, place)
+        taken.append(box)
+        out.append((i, ann))
     return [ann for _, ann in sorted(out, key=lambda t: t[0])]
 
 

@@ -1,199 +1,36 @@
-"""PyVista rendering that works on a machine without a display.
+"""PyVista pictures of a (deformed) mesh, off-screen: one pose, panels of poses, height fields, and the standard
+files (VTK, PLY, STL, OBJ) of a deformed mesh.
 
-VTK segfaults in ``supports_open_gl`` when there is no X display and no off-screen
-window class is chosen (measured on Debian 12, VTK 9.7). :func:`configure_headless`
-picks one by itself before the first ``Plotter`` is made:
-
-1. ``vtkEGLRenderWindow`` when libEGL and a Mesa DRI driver are installed
-   (Debian: ``libegl1 libgl1-mesa-dri``);
-2. ``vtkOSOpenGLRenderWindow`` when OSMesa is installed (Debian: ``libosmesa6``).
-
-Each candidate is probed in a child process (a crash there cannot take the caller down)
-and the first that renders is exported through ``VTK_DEFAULT_OPENGL_WINDOW``, so that child
-processes (Jupyter kernels started by nbclient) inherit it. A user's own setting of that
-variable, or a ``DISPLAY``, is respected. The module configures itself on import.
+The off-screen window is chosen by :mod:`.headless` (imported here, it configures itself); its names are importable
+from this module as well.
 """
 
 from __future__ import annotations
 
-import ctypes.util
-import glob
-import os
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from ..geometry.mesh import boundary_facets
+from . import headless
+from .headless import *  # noqa: F403 (the names in headless.__all__)
+from .headless import configure_headless
+
+__all__ = [
+    "FILL",
+    "EXPORT_FORMATS",
+    "to_polydata",
+    "to_unstructured_grid",
+    "save_deformed",
+    "mesh_plotter",
+    "render_mesh",
+    "render_panels",
+    "render_height_fields",
+    *headless.__all__,
+]
 
 #: surface colour of a mesh without scalars
 FILL = "#f2d7a6"
-
-#: Debian packages that provide each off-screen window class.
-APT_PACKAGES = {
-    "vtkEGLRenderWindow": ["libegl1", "libgl1-mesa-dri"],
-    "vtkOSOpenGLRenderWindow": ["libosmesa6"],
-}
-APT_LINE = "apt-get install -y --no-install-recommends " + " ".join(APT_PACKAGES["vtkOSOpenGLRenderWindow"])
-
-_DRI_GLOBS = (
-    "/usr/lib/*/dri/swrast_dri.so",
-    "/usr/lib/dri/swrast_dri.so",
-    "/usr/lib64/dri/swrast_dri.so",
-    "/usr/lib/*/dri/kms_swrast_dri.so",
-)
-
-_PROBE = """
-import pyvista as pv
-p = pv.Plotter(off_screen=True, window_size=(32, 32))
-p.add_mesh(pv.Sphere(), color="red")
-img = p.screenshot(return_img=True)
-p.close()
-assert img.std() > 0, "blank image"
-print("ok")
-"""
-
-_chosen: str | None = None
-
-
-def _has_egl() -> bool:
-    return ctypes.util.find_library("EGL") is not None and any(glob.glob(g) for g in _DRI_GLOBS)
-
-
-def _has_osmesa() -> bool:
-    return ctypes.util.find_library("OSMesa") is not None
-
-
-def candidates() -> list[str]:
-    """Off-screen window classes whose system libraries are present, best first.
-
-    Returns
-    -------
-    names : list of str
-        A subset of ``["vtkEGLRenderWindow", "vtkOSOpenGLRenderWindow"]``.
-    """
-    out = []
-    if _has_egl():
-        out.append("vtkEGLRenderWindow")
-    if _has_osmesa():
-        out.append("vtkOSOpenGLRenderWindow")
-    return out
-
-
-def probe(window: str, timeout: float = 60.0) -> bool:
-    """Whether a Plotter with ``VTK_DEFAULT_OPENGL_WINDOW=window`` renders, tested in a child process.
-
-    Parameters
-    ----------
-    window : str
-        A VTK render-window class name.
-    timeout : float
-        Seconds before the child is considered hung.
-
-    Returns
-    -------
-    ok : bool
-    """
-    env = dict(os.environ, VTK_DEFAULT_OPENGL_WINDOW=window)
-    env.pop("DISPLAY", None)
-    try:
-        res = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        return False
-    return res.returncode == 0 and "ok" in res.stdout
-
-
-def configure_headless(force: bool = False) -> str | None:
-    """Choose a working off-screen VTK window when there is no display.
-
-    Parameters
-    ----------
-    force : bool
-        Probe again even if a choice was made already in this process.
-
-    Returns
-    -------
-    window : str or None
-        The chosen class, ``None`` when a display exists (nothing to do).
-
-    Raises
-    ------
-    RuntimeError
-        When no candidate renders; the message gives the apt line that fixes it.
-    """
-    global _chosen
-    if _chosen is not None and not force:
-        return _chosen
-    if os.environ.get("VTK_DEFAULT_OPENGL_WINDOW"):
-        _chosen = os.environ["VTK_DEFAULT_OPENGL_WINDOW"]
-        return _chosen
-    if os.environ.get("DISPLAY") or sys.platform in ("win32", "darwin"):
-        return None
-    tried = []
-    for window in candidates():
-        tried.append(window)
-        if probe(window):
-            os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = window
-            _chosen = window
-            return window
-    raise RuntimeError(
-        "no off-screen OpenGL window works on this machine (no DISPLAY; tried "
-        f"{tried or 'nothing: neither libEGL+Mesa DRI nor OSMesa is installed'}). "
-        f"Install OSMesa with:  {APT_LINE}   (or run under xvfb-run -a)"
-    )
-
-
-def ensure_system_packages(install: bool = True) -> str:
-    """Make headless rendering possible: install the missing Debian package when root, else explain.
-
-    Used by ``python -m defop doctor`` (which ``make`` runs once after creating ``.venv``).
-
-    Parameters
-    ----------
-    install : bool
-        Run apt-get when no candidate exists and we are root on a Debian-like system.
-
-    Returns
-    -------
-    message : str
-        What was found or done.
-    """
-    if os.environ.get("DISPLAY"):
-        return "DISPLAY is set: on-screen rendering"
-    if candidates():
-        return f"off-screen windows available: {', '.join(candidates())}"
-    can_apt = shutil.which("apt-get") is not None and hasattr(os, "geteuid") and os.geteuid() == 0
-    if install and can_apt:
-        subprocess.run(["apt-get", "update", "-qq"], check=False)
-        subprocess.run(APT_LINE.split(), check=True)
-        if candidates():
-            return f"installed {APT_PACKAGES['vtkOSOpenGLRenderWindow']}: {', '.join(candidates())}"
-    return f"no off-screen OpenGL library found. Run as root:  {APT_LINE}"
-
-
-def ensure_chromium(install=True):
-    """Make sure Debian's chromium exists for the browser end-to-end test (apt-get as root).
-
-    Parameters
-    ----------
-    install : bool
-
-    Returns
-    -------
-    message : str
-    """
-    line = "apt-get install -y --no-install-recommends chromium"
-    if shutil.which("chromium") or shutil.which("chromium-browser"):
-        return f"chromium found at {shutil.which('chromium') or shutil.which('chromium-browser')}"
-    can_apt = shutil.which("apt-get") is not None and hasattr(os, "geteuid") and os.geteuid() == 0
-    if install and can_apt:
-        subprocess.run(["apt-get", "update", "-qq"], check=False)
-        res = subprocess.run(line.split(), check=False)
-        if res.returncode == 0 and shutil.which("chromium"):
-            return "installed chromium"
-    return f"no chromium: the browser test will be skipped. Run as root:  {line}"
 
 
 def _pyvista():
@@ -414,11 +251,32 @@ def render_mesh(mesh, X=None, screenshot=None, **kw):
     img : (H,W,3) uint8 numpy array
     """
     plotter = mesh_plotter(mesh, X, off_screen=True, **kw)
+    return _snapshot(plotter, screenshot)
+
+
+def _snapshot(plotter, screenshot=None, draw=None):
+    """The plotter's image (also written to ``screenshot`` when given), after ``draw()``; the plotter is closed."""
     try:
+        if draw is not None:
+            draw()
         img = plotter.screenshot(filename=None if screenshot is None else str(screenshot), return_img=True)
     finally:
         plotter.close()
     return np.asarray(img)
+
+
+def _check_poses(mesh, poses):
+    """The poses as float arrays; ValueError unless they are a non-empty list of arrays shaped like ``mesh.V``."""
+    poses = [np.asarray(p, dtype=float) for p in poses]
+    if not poses or any(p.shape != mesh.V.shape for p in poses):
+        raise ValueError(f"poses must be a non-empty list of {mesh.V.shape} arrays, got {[p.shape for p in poses]}")
+    return poses
+
+
+def _common_bounds(poses):
+    """The VTK bounds (xmin, xmax, ymin, ymax, zmin, zmax) of all poses together (z = 0 for planar ones)."""
+    bounds = np.array([p.min(0) for p in poses]).min(0), np.array([p.max(0) for p in poses]).max(0)
+    return [v for pair in zip(*(np.append(b, 0.0)[:3] for b in bounds)) for v in pair]
 
 
 def render_panels(
@@ -464,65 +322,26 @@ def render_panels(
     img : (H,W,3) uint8 numpy array
     """
     pv = _pyvista()
-    poses = [np.asarray(p, dtype=float) for p in poses]
-    if not poses or any(p.shape != mesh.V.shape for p in poses):
-        raise ValueError(f"poses must be a non-empty list of {mesh.V.shape} arrays, got {[p.shape for p in poses]}")
+    poses = _check_poses(mesh, poses)
     ncols = len(poses) if ncols is None else int(ncols)
     nrows = -(-len(poses) // ncols)
     size = (panel_size[0] * ncols, panel_size[1] * nrows)
     plotter = pv.Plotter(off_screen=True, shape=(nrows, ncols), window_size=size, border=False)
-    bounds = np.array([p.min(0) for p in poses]).min(0), np.array([p.max(0) for p in poses]).max(0)
-    box = [v for pair in zip(*(np.append(b, 0.0)[:3] for b in bounds)) for v in pair]
-    try:
+    box = _common_bounds(poses)
+
+    def draw():
         for k, P in enumerate(poses):
             plotter.subplot(k // ncols, k % ncols)
             plotter.set_background("white")
-            _add_shape(
-                plotter,
-                pv,
-                mesh,
-                P,
-                show_edges=show_edges,
-                surface=surface,
-                color=FILL if colors is None else colors[k],
-            )
+            color = FILL if colors is None else colors[k]
+            _add_shape(plotter, pv, mesh, P, show_edges=show_edges, surface=surface, color=color)
             if handles is not None and len(handles):
                 _add_handles(plotter, pv, P, handles, moving, 0.012 * mesh.bbox_diagonal)
             if titles:
                 plotter.add_text(titles[k], font_size=9, color="black")
             _place_camera(plotter, mesh, box, view)
-        img = plotter.screenshot(filename=None if screenshot is None else str(screenshot), return_img=True)
-    finally:
-        plotter.close()
-    return np.asarray(img)
 
-
-def jupyter_backend():
-    """The PyVista notebook backend: ``$PYVISTA_JUPYTER_BACKEND`` if set, else ``"trame"`` when the
-    trame packages are installed and a display or a Jupyter server can show it, else ``"static"``
-    (a PNG; what CI and headless runs use).
-
-    Returns
-    -------
-    backend : str
-    """
-    env = os.environ.get("PYVISTA_JUPYTER_BACKEND")
-    if env:
-        return env
-    try:
-        import trame  # noqa: F401
-        import trame_vtk  # noqa: F401
-    except ImportError:
-        return "static"
-    return "static" if os.environ.get("DEFOP_FAST") or os.environ.get("CI") else "trame"
-
-
-if __name__ != "__main__":
-    # configure on import, but never raise here: the error surfaces on first use
-    try:
-        configure_headless()
-    except RuntimeError:
-        pass
+    return _snapshot(plotter, screenshot, draw)
 
 
 def render_height_fields(xs, ys, fields, titles=None, window_size=(1200, 450), screenshot=None, cmap="coolwarm"):
@@ -551,7 +370,8 @@ def render_height_fields(xs, ys, fields, titles=None, window_size=(1200, 450), s
     zmax = max(float(np.abs(f).max()) for f in fields) or 1.0
     scale = 0.5 * span / zmax
     plotter = pv.Plotter(off_screen=True, shape=(1, len(fields)), window_size=tuple(window_size), border=False)
-    try:
+
+    def draw():
         for k, f in enumerate(fields):
             plotter.subplot(0, k)
             plotter.set_background("white")
@@ -571,7 +391,5 @@ def render_height_fields(xs, ys, fields, titles=None, window_size=(1200, 450), s
                 plotter.add_text(titles[k], font_size=10, color="black")
             plotter.camera_position = "iso"
             plotter.reset_camera(bounds=surf.bounds)
-        img = plotter.screenshot(filename=None if screenshot is None else str(screenshot), return_img=True)
-    finally:
-        plotter.close()
-    return np.asarray(img)
+
+    return _snapshot(plotter, screenshot, draw)

@@ -2,7 +2,7 @@
 
 The outline is validated first (:func:`defop.geometry.planar.polygon.validate_polygon`): Triangle segfaults on a
 pinched polygon, a zero-width spike or a hole identical to the outline. Every step before Triangle is
-element-wise arithmetic, so the mesh is the same on every CPU and BLAS build (issue #13).
+element-wise arithmetic, so the mesh is the same on every CPU and BLAS build.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Procedural shapes are unions of tapered capsules and ellipses, given as "inside-ness" fields
 (positive inside, about a distance near the boundary), sampled on a grid and contoured by contourpy.
 All fields are element-wise arithmetic, never BLAS (``@``, ``np.dot``): the outline, and so the
-Triangle mesh, is the same on every CPU (issue #13).
+Triangle mesh, is the same on every CPU.
 """
 
 from __future__ import annotations

@@ -2,10 +2,10 @@
 
 Everything here is element-wise numpy arithmetic (and ``np.sum``/``np.min`` reductions), never a
 BLAS call (``@``, ``np.dot``, ``np.einsum``, a vector ``np.linalg.norm``): OpenBLAS picks its kernels
-per CPU, and a rounding difference of 3e-16 in an outline becomes a different Triangle mesh
-(issue #13). :func:`validate_polygon` rejects what Triangle cannot mesh (it segfaults on a pinched
+per CPU, and a rounding difference of 3e-16 in an outline becomes a different Triangle mesh.
+:func:`validate_polygon` rejects what Triangle cannot mesh (it segfaults on a pinched
 polygon, a zero-width spike or a hole identical to the outline) with a ``ValueError`` that names the
-offending vertex, edge or hole (issue #14). Tolerances are relative to the outline's size, so a
+offending vertex, edge or hole. Tolerances are relative to the outline's size, so a
 1e-12-sized square is as valid as a unit one.
 """
 
@@ -226,6 +226,26 @@ def spikes(P, tol):
 SCALE_RANGE = (1e-60, 1e60)  # fourth powers (products of squared lengths) stay normal floats
 
 
+def _check_crossings(loops, what, scale):
+    """ValueError for two edges that cross or a vertex that touches an edge (a pinch), naming both."""
+    crossings = self_intersections(loops)
+    if crossings:
+        (a, i), (b, j) = crossings[0]
+        raise ValueError(
+            f"the polygon is self-intersecting: edge {i} of the {what[a]} crosses edge {j} of the {what[b]} "
+            f"({len(crossings)} crossing(s) in all)"
+        )
+    touches = touching_vertices(loops, TOUCH_TOL * scale)
+    if touches:
+        (a, i), (b, j), d = touches[0]
+        v = loops[a][i]
+        where = "the same polygon" if a == b else f"the {what[b]}"
+        raise ValueError(
+            f"vertex {i} of the {what[a]} at ({v[0]:.6g}, {v[1]:.6g}) touches edge {j} of {where} "
+            f"(distance {d:.3g}); a pinched polygon cannot be meshed"
+        )
+
+
 def validate_polygon(outer, holes=()):
     """Check that an outline with holes is something Triangle can mesh.
 
@@ -271,22 +291,7 @@ def validate_polygon(outer, holes=()):
         if len(s):
             v = L[s[0]]
             raise ValueError(f"the {w} has a zero-width spike at vertex {int(s[0])} ({v[0]:.6g}, {v[1]:.6g})")
-    crossings = self_intersections(loops)
-    if crossings:
-        (a, i), (b, j) = crossings[0]
-        raise ValueError(
-            f"the polygon is self-intersecting: edge {i} of the {what[a]} crosses edge {j} of the {what[b]} "
-            f"({len(crossings)} crossing(s) in all)"
-        )
-    touches = touching_vertices(loops, TOUCH_TOL * scale)
-    if touches:
-        (a, i), (b, j), d = touches[0]
-        v = loops[a][i]
-        where = "the same polygon" if a == b else f"the {what[b]}"
-        raise ValueError(
-            f"vertex {i} of the {what[a]} at ({v[0]:.6g}, {v[1]:.6g}) touches edge {j} of {where} "
-            f"(distance {d:.3g}); a pinched polygon cannot be meshed"
-        )
+    _check_crossings(loops, what, scale)
     for L, w in zip(loops, what):
         if abs(polygon_area(L)) <= 1e-14 * diagonal(L) ** 2:
             raise ValueError(f"the {w} has zero area")

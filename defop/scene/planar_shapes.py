@@ -1,0 +1,170 @@
+"""Planar shapes from a polygon with holes (:func:`from_polygon`) or from the silhouette of an image
+(:func:`from_image`, handles placed by itself when none are given)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import options as opt
+from ..geometry.planar.meshing import triangulate
+from ..geometry.planar.outlines import image_outline
+from ..geometry.planar.polygon import SCALE_RANGE, distance_to_outline, points_in_polygon, validate_polygon
+from .regions import Disc
+from .shape import Shape
+
+__all__ = ["from_polygon", "from_image", "MAX_AUTO_HANDLES", "auto_handles"]
+
+#: most handles ``from_image`` places by itself (farthest-point picks on a 60 x 60 grid)
+MAX_AUTO_HANDLES = 100
+
+
+def from_polygon(
+    outer,
+    holes=(),
+    handles=None,
+    moving=None,
+    regions=None,
+    n_vertices=None,
+    max_area=None,
+    name="polygon",
+    description="",
+    region_scale=0.25,
+):
+    """A :class:`Shape` from a polygon with holes and handle points.
+
+    Parameters
+    ----------
+    outer : (k,2) numpy array
+        Outer boundary: a simple polygon (see :func:`defop.geometry.planar.polygon.validate_polygon`).
+    holes : list of (l,2) numpy array
+        Hole boundaries, strictly inside ``outer``, disjoint and not nested.
+    handles : (h,2) numpy array
+        Handle positions; each becomes a mesh vertex.
+    moving : (h,) bool numpy array, optional
+        Which handles move (default: all).
+    regions : list of defop.scene.regions.Region or dict, optional
+        One per moving handle (default: discs of radius ``region_scale`` × bounding-box diagonal / 2).
+    n_vertices : int, optional
+        About how many mesh vertices, 3 to ``MAX_VERTICES`` (default 1500 unless ``max_area`` is given).
+    max_area : float, optional
+        Maximum triangle area instead of ``n_vertices``.
+    name, description : str
+    region_scale : float
+
+    Returns
+    -------
+    shape : Shape
+
+    Raises
+    ------
+    ValueError
+        A bad polygon (the message names the vertex, edge or hole), a handle outside the shape, a bad
+        vertex count or area.
+    """
+    if handles is None:
+        raise ValueError("from_polygon needs handles: an (h,2) array of handle positions")
+    H = np.atleast_2d(opt.real_array("handles", handles))
+    if H.ndim != 2 or H.shape[1] != 2 or len(H) == 0:
+        raise ValueError(f"handles must have shape (h,2), got {np.shape(handles)}")
+    if n_vertices is None and max_area is None:
+        n_vertices = 1500
+    outer, holes = validate_polygon(outer, holes)
+    mesh = triangulate(outer, holes, points=H, n_vertices=n_vertices, max_area=max_area)
+    idx = _exact_vertices(mesh, H)
+    moving = np.ones(len(H), bool) if moving is None else moving  # Shape checks the flags
+    if regions is None:
+        r = region_scale * mesh.bbox_diagonal / 2
+        regions = [Disc(r) for _ in range(int(np.count_nonzero(moving)))]
+    return Shape(name, mesh, idx, moving, list(regions), description, [outer, *holes])
+
+
+def _exact_vertices(mesh, H):
+    """The mesh vertex at each handle point H (h,2); ValueError for a point that is not exactly a vertex."""
+    idx, dist = mesh.nearest_vertex(H)
+    if not np.all(dist == 0):  # Triangle keeps input points exactly, unless resampling left one outside
+        k = int(np.argmax(dist))
+        raise ValueError(
+            f"handle {k} at ({H[k, 0]:.4g}, {H[k, 1]:.4g}) is not a mesh vertex: it lies outside the outline "
+            f"resampled at the mesh spacing (nearest vertex {dist[k]:.3g} away); move it inside or use more vertices"
+        )
+    return idx
+
+
+def from_image(
+    image,
+    handles=None,
+    moving=None,
+    regions=None,
+    threshold=0.5,
+    size=1.0,
+    n_vertices=1500,
+    name="image",
+    n_auto_handles=2,
+    foreground="auto",
+):
+    """A :class:`Shape` from the silhouette of a binary, greyscale, RGB or RGBA image (e.g. a PNG).
+
+    Parameters
+    ----------
+    image : numpy array or path
+        (H,W), (H,W,3) or (H,W,4), bool, integer or float in [0,1]; see
+        :func:`defop.geometry.planar.outlines.load_image`.
+    handles : (h,2) numpy array, optional
+        Handle positions in the output units (the silhouette is scaled so its bounding-box
+        diagonal equals ``size``, origin at its bounding-box corner). Default: the
+        ``n_auto_handles`` interior points farthest apart.
+    moving, regions : see :func:`from_polygon`
+    threshold : float
+        In (0,1): a pixel is inside when its foreground value exceeds it.
+    size : float
+    n_vertices : int
+    name : str
+    n_auto_handles : int
+    foreground : str
+        ``"auto"`` (default: the alpha channel if it varies, else whatever differs from the
+        image border, so a grey, RGB or RGBA copy of the same picture gives the same shape),
+        ``"dark"``, ``"light"`` or ``"alpha"``; see :func:`defop.geometry.planar.outlines.foreground`.
+
+    Returns
+    -------
+    shape : Shape
+    """
+    size = opt.positive("size", size)  # a negative size mirrored the silhouette
+    if not SCALE_RANGE[0] <= size <= SCALE_RANGE[1]:  # 1e300 overflowed into "too thin to place handles"
+        raise ValueError(
+            f"size must be a positive number in [{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}] (the "
+            f"coordinate range meshing supports), got {size!r}"
+        )
+    if handles is None:
+        # 0 gave one handle; the candidates are a 60 x 60 grid
+        n_auto_handles = opt.integer("n_auto_handles", n_auto_handles, minimum=1, maximum=MAX_AUTO_HANDLES)
+    outer, holes = image_outline(image, threshold, foreground_mode=foreground)
+    lo = outer.min(axis=0)
+    ext = outer.max(axis=0) - lo
+    scale = size / np.sqrt(ext[0] * ext[0] + ext[1] * ext[1])
+    outer = (outer - lo) * scale
+    holes = [(H - lo) * scale for H in holes]
+    if handles is None:
+        handles = auto_handles(outer, holes, n_auto_handles)
+    return from_polygon(
+        outer, holes, handles, moving, regions, n_vertices=n_vertices, name=name, description="silhouette of an image"
+    )
+
+
+def auto_handles(outer, holes, k):
+    """k well-spread points inside the shape: farthest-point picks on a grid of interior points."""
+    lo, hi = outer.min(0), outer.max(0)
+    g = np.stack(np.meshgrid(np.linspace(lo[0], hi[0], 60), np.linspace(lo[1], hi[1], 60)), -1).reshape(-1, 2)
+    loops = [outer, *holes]
+    d = distance_to_outline(g, loops)
+    ext = hi - lo
+    ok = points_in_polygon(g, loops) & (d > 0.02 * np.sqrt(ext[0] * ext[0] + ext[1] * ext[1]))
+    cand = g[ok]
+    if len(cand) < k:
+        raise ValueError("the shape is too thin to place handles automatically; pass handles=")
+    pick = [int(np.argmin(cand[:, 0]))]
+    for _ in range(k - 1):
+        diff = cand[:, None] - cand[pick][None]
+        dist = np.min(np.sqrt(diff[..., 0] ** 2 + diff[..., 1] ** 2), axis=1)
+        pick.append(int(np.argmax(dist)))
+    return cand[pick]

@@ -1,0 +1,178 @@
+"""The training policies on the sample engine (:mod:`defop.training.solves`): the start portfolio and the multilevel
+fine stage.
+
+:func:`portfolio` is the one start portfolio of training: the first dn + 1 samples from the rest pose and a linear
+fit to them; every other sample from the rest pose and that fit's prediction; then ``rounds - 1`` rounds from a
+smooth fit's prediction, the current solution verified as the incumbent, the lowest verified minimum kept. The full
+policy runs it on the shape's mesh; the multilevel policy runs the same code on a coarse mesh, keeping every end
+point, and :func:`refine` runs the fine stage (the per-sample rule :func:`defop.training.multilevel.refine_one`
+decides from them).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import time
+import warnings
+
+import numpy as np
+
+from ..operator import handle_bases as hb
+from ..operator.fit import fit
+from ..variational.solver import NotConvergedWarning, Solver
+from . import batch, solves
+
+__all__ = ["portfolio", "refine"]
+
+
+def _smooth(m, n, d):
+    """The smooth predictor of the later rounds (not an interpolant, which would reproduce a bad local minimum)."""
+    return "quadratic" if m + 1 >= hb.basis_size("quadratic", n, d=d) else "linear"
+
+
+def portfolio(shape, samples, energy, n_jobs=None, progress=True, rounds=2, checkpoint=None, keep="best", meta=None):
+    """The start portfolio of every sample (see the module docstring).
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+        The mesh it runs on (the fine shape, or a coarse level's).
+    samples : (m, n, d) numpy array
+    energy : str
+    n_jobs, progress
+        As :func:`defop.training.solves.solve`.
+    rounds : int
+    checkpoint : defop.training.batch.Checkpoints, optional
+    keep : str
+        ``"best"`` or ``"all"``: keep every end point of every round (no checkpoints).
+    meta : dict, optional
+        The fitted predictors' metadata.
+
+    Returns
+    -------
+    X : (m, n_vertices, d) numpy array
+    converged : (m,) bool numpy array
+    times : dict
+        CPU seconds of the stages ``bootstrap`` (its solves and the linear fit) and ``solve``.
+    wall : dict
+        Their wall seconds.
+    runs : list or None
+        Per sample every end point ``(X, energy, converged)`` (``keep="all"``).
+    """
+    mesh, m, n, d = shape.mesh, len(samples), shape.n_moving, shape.mesh.V.shape[1]
+    meta = {"shape": shape.name, "energy": energy} if meta is None else meta
+    run = functools.partial(solves.solve, shape, energy=energy, n_jobs=n_jobs, progress=progress, keep=keep)
+    ck = checkpoint if keep == "best" else None
+    nb = min(m, hb.basis_size("linear", n, d=d))  # dn + 1: the linear bootstrap fit
+    clock = solves.Stopwatch()
+    first = clock.add(run(samples[:nb], desc="bootstrap solves", checkpoint=ck))
+    lin = fit(mesh, shape.handles, shape.moving, samples[:nb], first.X, "linear", "hat", meta=meta)
+    times, wall = {"bootstrap": clock.cpu}, {"bootstrap": clock.wall}
+    clock = solves.Stopwatch()
+    X, conv, runs = first.X, first.converged, first.runs
+    if m > nb:
+        starts = batch.warm_starts(lin, samples[nb:], mesh, energy)
+        more = clock.add(run(samples[nb:], starts=starts, desc="sample solves", checkpoint=ck))
+        X, conv = np.concatenate([X, more.X]), np.concatenate([conv, more.converged])
+        runs = None if runs is None else runs + more.runs
+    for _ in range(rounds - 1):
+        inter = fit(mesh, shape.handles, shape.moving, samples, X, _smooth(m, n, d), "hat", meta=meta)
+        starts = batch.warm_starts(inter, samples, mesh, energy)
+        again = clock.add(run(samples, starts=starts, incumbents=X, rest=False, desc="re-solves", checkpoint=ck))
+        X, conv = again.X, again.converged
+        runs = None if runs is None else [a + b for a, b in zip(runs, again.runs)]
+    times["solve"], wall["solve"] = clock.cpu, clock.wall
+    return X, conv, times, wall, runs
+
+
+def _refine_chunk(decide, lv, solver, jobs):
+    """``decide`` (:func:`defop.training.multilevel.refine_one`) per (targets, candidates) job, with its CPU seconds."""
+    out, pid = [], os.getpid()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotConvergedWarning)
+        for T, c in jobs:
+            t0 = time.process_time()
+            res = decide(lv, solver, T, c)
+            out.append((*res, time.process_time() - t0, pid))
+    return out
+
+
+_FIELDS = ("X", "converged", "rule", "iterations", "minima", "coarse_energy")
+
+
+def _refine_cache(checkpoint, key_of, n, d, rules):
+    """``map_checkpointed``'s chunk callable for :func:`refine`: every field of a chunk's results in one entry."""
+    if checkpoint is None or key_of is None:
+        return None
+
+    def expect(k):
+        kinds = ("f", "b", "i", "i", "i", "f")
+        return {f: ((k, n, d) if f == "X" else (k,), kind) for f, kind in zip(_FIELDS, kinds)}
+
+    def chunk(a, b, compute):
+        def arrays():
+            cols = list(zip(*compute()))
+            return {
+                "X": np.array(cols[0]),
+                "converged": np.array(cols[1], bool),
+                "rule": np.array([rules.index(r) + 1 if r else 0 for r in cols[2]]),
+                "iterations": np.array(cols[3], int),
+                "minima": np.array(cols[4], int),
+                "coarse_energy": np.nan_to_num(np.array(cols[5], float), nan=-1.0),
+            }
+
+        got = checkpoint.load_or_compute(key_of(a, b), expect(b - a), arrays)
+        names = ["" if r == 0 else rules[r - 1] for r in got["rule"]]
+        cols = (got["X"], got["converged"], names, got["iterations"], got["minima"], got["coarse_energy"])
+        return [(*row, 0.0, 0) for row in zip(*cols)]
+
+    return chunk
+
+
+def refine(lv, samples, energy, candidates, decide, rules, n_jobs=None, progress=True, checkpoint=None, key_of=None):
+    """The fine stage of every sample, in parallel and checkpointed.
+
+    Parameters
+    ----------
+    lv : defop.training.multilevel.CoarseLevel
+    samples : (m, n, d) numpy array
+    energy : str
+    candidates : list of m lists
+        Every coarse end point per sample (:func:`portfolio` with ``keep="all"`` on ``lv.coarse``).
+    decide : callable
+        The per-sample rule, ``decide(lv, solver, T, candidates) -> (X, converged, rule, iterations, minima,
+        coarse_energy)`` (:func:`defop.training.multilevel.refine_one`).
+    rules : tuple of str
+        Its safeguard rules (:data:`defop.training.multilevel.RULES`), for the checkpoints.
+    checkpoint : defop.training.batch.Checkpoints, optional
+    key_of : callable, optional
+        ``key_of(a, b)``: the checkpoint key of samples a..b (everything that determines them).
+
+    Returns
+    -------
+    X : (m, n, d) numpy array
+    converged : (m,) bool numpy array
+    info : dict
+        Per sample: ``rule`` (str, "" when the safeguard did not fire), ``iterations`` (the single fine run's),
+        ``minima`` (distinct verified coarse minima), ``coarse_energy``.
+    cpu : float
+        CPU seconds of the runs in other processes (:class:`defop.training.solves.Stopwatch` adds this one's).
+    """
+    fine = lv.fine
+    solver = Solver(fine.mesh, fine.handles, energy)
+    jobs = [(fine.targets(q), c) for q, c in zip(samples, candidates)]
+    n, d = fine.mesh.V.shape
+    chunk = _refine_cache(checkpoint, key_of, n, d, tuple(rules))
+    res = batch.map_checkpointed(
+        functools.partial(_refine_chunk, decide, lv, solver), jobs, n_jobs, progress, "fine runs", chunk
+    )
+    cols = list(zip(*res))
+    info = {
+        "rule": [str(r) for r in cols[2]],
+        "iterations": [int(i) for i in cols[3]],
+        "minima": [int(k) for k in cols[4]],
+        "coarse_energy": [float(e) for e in cols[5]],
+    }
+    remote = float(sum(t for t, pid in zip(cols[6], cols[7]) if pid not in (0, os.getpid())))
+    return np.array(cols[0]), np.array(cols[1], bool), info, remote

@@ -1,0 +1,448 @@
+"""The sample engine: the one code that solves problem (6) for many samples.
+
+Every batch of solves in the library runs here: :func:`solve` (each sample independently: its starts, the rest pose
+and an incumbent, the lowest verified minimum kept, or every end point) and :func:`sweep` (a continuation path, each
+sample warm-started from the previous solution). :mod:`defop.training.portfolios` builds the training policies on
+them (the full start portfolio, on the fine or a coarse mesh, and the multilevel fine stage).
+
+The work is split by :func:`defop.training.batch.parallel_map` (joblib, a Dask cluster included), checkpointed by
+:func:`~defop.training.batch.map_checkpointed` under a key of everything that determines it (:func:`chunk_key`) and
+shown by progress bars. Timing follows one rule: every solve returns its own CPU seconds
+(``time.process_time`` deltas, measured where it ran: the loky workers persist, so the parent's view of its
+children's usage misses them); :class:`Solves` sums them, and reports the wall seconds beside.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+import time
+import typing
+import warnings
+
+import numpy as np
+
+from .. import options as opt
+from ..geometry.mesh import Mesh
+from ..variational import energies as en
+from ..variational.solver import NotConvergedWarning, Solver
+from . import batch
+from . import cache as cache_mod
+
+__all__ = [
+    "Item",
+    "Problem",
+    "Solves",
+    "Stopwatch",
+    "check_samples",
+    "chunk_key",
+    "continuation",
+    "gt_expect",
+    "solve",
+    "solve_chunk",
+    "solver_key",
+    "starts_parts",
+    "sweep",
+]
+
+
+class Item(typing.NamedTuple):
+    """One sample's result: its solution, energy and verification, the CPU seconds of its solves in process ``pid``,
+    and every end point ``(X, energy, converged)`` when the engine keeps them all (else None)."""
+
+    X: np.ndarray
+    energy: float
+    converged: bool
+    cpu: float = 0.0
+    pid: int = 0
+    runs: list | None = None
+
+
+@dataclasses.dataclass
+class Solves:
+    """The engine's result for m samples.
+
+    Attributes
+    ----------
+    X : (m, n_vertices, d) numpy array
+    energy : (m,) numpy array
+        The energy of each solution (NaN where it was loaded from a checkpoint that did not hold it).
+    converged : (m,) bool numpy array
+        Verified local minimum (:meth:`defop.variational.solver.Solver.verify`).
+    cpu_seconds : float
+        CPU seconds of the solves, summed over the processes they ran in (0 for checkpoints loaded).
+    wall_seconds : float
+    local_cpu_seconds : float
+        The part of ``cpu_seconds`` spent in this process (:class:`Stopwatch` counts it once).
+    runs : list or None
+        Per sample every end point ``(X, energy, converged)`` (``keep="all"``), else None.
+    """
+
+    X: np.ndarray
+    energy: np.ndarray
+    converged: np.ndarray
+    cpu_seconds: float = 0.0
+    wall_seconds: float = 0.0
+    local_cpu_seconds: float = 0.0
+    runs: list | None = None
+
+
+def collect(items, wall):
+    """:class:`Solves` of a list of :class:`Item` and the wall seconds they took."""
+    here = os.getpid()
+    cpu = float(sum(it[3] for it in items))
+    local = float(sum(it[3] for it in items if it[4] == here))
+    runs = [it[5] for it in items] if items and items[0][5] is not None else None
+    return Solves(
+        np.array([it[0] for it in items]),
+        np.array([it[1] for it in items], float),
+        np.array([it[2] for it in items], bool),
+        cpu,
+        float(wall),
+        local,
+        runs,
+    )
+
+
+class Stopwatch:
+    """CPU and wall seconds of a stage: this process's own work plus the engine's solves wherever they ran."""
+
+    def __init__(self):
+        self.t0, self.w0, self.remote = time.process_time(), time.perf_counter(), 0.0
+
+    def add(self, solves):
+        """Count a :class:`Solves` (its solves in other processes; those here are in this process's clock)."""
+        self.remote += solves.cpu_seconds - solves.local_cpu_seconds
+        return solves
+
+    @property
+    def cpu(self):
+        return time.process_time() - self.t0 + self.remote
+
+    @property
+    def wall(self):
+        return time.perf_counter() - self.w0
+
+
+def check_samples(shape, samples, name="samples"):
+    """(m,n,d) float array of configurations of the shape's n moving handles, finite, m >= 1 (d from the mesh)."""
+    samples = np.asarray(samples, float)
+    n, d = shape.n_moving, shape.mesh.V.shape[1]
+    if samples.ndim != 3 or samples.shape[1:] != (n, d) or len(samples) == 0:
+        raise ValueError(f"{name} must have shape (m, {n}, {d}), m >= 1, for {n} moving handles, got {samples.shape}")
+    if not np.isfinite(samples).all():
+        raise ValueError(f"{name} has NaN or infinite entries")
+    return samples
+
+
+def solver_key(shape, energy):
+    """The settings of the engine's solver, for the cache keys.
+
+    Read from a Solver built like the engine's but on one triangle: its settings do not depend on the mesh, and
+    this takes 0.1 ms instead of 45 ms on the octopus (3911 vertices).
+    """
+    tiny = Mesh(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([[0, 1, 2]]))
+    return cache_mod.solver_settings(Solver(tiny, np.array([0]), energy))
+
+
+def gt_expect(m, n_vertices, d=2):
+    """The arrays of a cached ground truth of m samples (:meth:`defop.training.cache.Cache.load`'s ``expect``)."""
+    return {"X": ((m, n_vertices, d), "f"), "converged": ((m,), "b")}
+
+
+def as_list(X0):
+    """A sample's extra starts as a list: None -> [], one map -> [map], a list of maps as it is."""
+    return [] if X0 is None else list(X0) if isinstance(X0, (list, tuple)) else [X0]
+
+
+def starts_parts(starts):
+    """The extra starts of some samples as :func:`defop.training.cache.key` parts (None, or arrays)."""
+    parts = []
+    for X0 in starts:
+        group = as_list(X0)
+        parts.append(len(group))
+        parts += [np.asarray(x, float) for x in group]
+    return parts
+
+
+def chunk_key(shape, energy, samples, starts, rest, incumbents):
+    """``key_of(a, b)``: the checkpoint key of samples a..b of :func:`solve` (mesh, handles, energy, the solver's
+    settings, the samples, their starts, ``rest`` and the incumbents)."""
+    mesh, settings = shape.mesh, solver_key(shape, energy)
+
+    def key_of(a, b):
+        return cache_mod.key(
+            "chunk",
+            mesh.V,
+            mesh.F,
+            shape.handles,
+            shape.moving,
+            energy,
+            settings,
+            samples[a:b],
+            *starts_parts(starts[a:b]),
+            rest,
+            "incumbents",
+            *starts_parts(incumbents[a:b]),
+        )
+
+    return key_of
+
+
+@dataclasses.dataclass
+class Problem:
+    """What every sample of a batch shares: the mesh, the default handles, the energy, the solver's settings and
+    the policy (``rest``: also solve from the rest pose; ``keep``: ``"best"`` or ``"all"`` end points)."""
+
+    mesh: object
+    handles: np.ndarray
+    energy: str
+    rest: bool = True
+    keep: str = "best"
+    solver_kw: dict = dataclasses.field(default_factory=dict)
+    solve_kw: dict = dataclasses.field(default_factory=dict)
+    solver: object = None
+
+    def solver_for(self, handles):
+        """The solver with the handles at ``handles`` (None: the default ones, built once)."""
+        if handles is None:
+            if self.solver is None:
+                self.solver = Solver(self.mesh, self.handles, self.energy, **self.solver_kw)
+            return self.solver
+        return Solver(self.mesh, handles, self.energy, **self.solver_kw)
+
+
+def best_of(solver, T, starts, incumbent, rest, solve_kw):
+    """(X, energy, converged): the lowest verified minimum of the local solves from ``starts`` (and the rest pose
+    if ``rest``) and of ``incumbent`` as it is.
+
+    Re-solving a verified minimum can only move it within the solver's tolerance, so the incumbent is verified
+    (:meth:`Solver.verify`: one factorisation and the kink checks, against about four factorisations for a
+    re-solve) and competes as it is; it wins ties. An incumbent that fails verification is re-solved like a start
+    (before the others).
+    """
+    check = None
+    if incumbent is not None:
+        check = solver.verify(incumbent, solver.targets_of(T))
+        if not check.ok:
+            starts, check = [incumbent, *starts], None
+    if check is not None and not starts and not rest:
+        return incumbent, check.energy, True
+    r = solver.solve_best(T, starts=starts, rest=rest, **solve_kw)
+    if check is not None and (not r.converged or check.energy <= r.energy):
+        return incumbent, check.energy, True
+    return r.X, r.energy, r.converged
+
+
+def winner(candidates):
+    """The lowest verified end point (the lowest of all when none verified): ``Solver.solve_best``'s rule."""
+    return min(candidates, key=lambda c: (not c[2], c[1] if np.isfinite(c[1]) else np.inf))
+
+
+def all_of(solver, T, starts, incumbent, rest, solve_kw):
+    """(X, energy, converged, runs): every local solve's end point kept (one solve per start that is not None, and
+    one from the rest pose if ``rest``); the incumbent competes as in :func:`best_of` (it wins ties) and is not a
+    new end point unless it fails verification and is re-solved."""
+    cands = []
+    if incumbent is not None:
+        check = solver.verify(incumbent, solver.targets_of(T))
+        if check.ok:
+            cands.append((incumbent, float(check.energy), True))
+        else:
+            starts = [incumbent, *starts]
+    runs = [solver.solve_best(T, starts=[X0], rest=False, **solve_kw) for X0 in starts if X0 is not None]
+    if rest or not (runs or cands):
+        runs.append(solver.solve_best(T, rest=True, **solve_kw))
+    runs = [(r.X, float(r.energy), bool(r.converged)) for r in runs]
+    X, E, ok = winner(cands + runs)
+    return X, E, ok, runs
+
+
+def solve_chunk(problem, jobs):
+    """The engine's worker: per job ``(T, starts, incumbent, handles)`` the policy's :class:`Item`."""
+    out, pid = [], os.getpid()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotConvergedWarning)
+        for T, starts, incumbent, handles in jobs:
+            t0 = time.process_time()
+            solver = problem.solver_for(handles)
+            if problem.keep == "all":
+                X, E, ok, runs = all_of(solver, T, as_list(starts), incumbent, problem.rest, problem.solve_kw)
+            else:
+                (X, E, ok), runs = best_of(solver, T, as_list(starts), incumbent, problem.rest, problem.solve_kw), None
+            out.append(Item(X, float(E), bool(ok), time.process_time() - t0, pid, runs))
+    return out
+
+
+def checkpointed(checkpoint, key_of, n_vertices, d):
+    """``map_checkpointed``'s chunk callable: every chunk's X, energies and flags in one entry under ``key_of(a, b)``
+    (None without a checkpoint)."""
+    if checkpoint is None or key_of is None:
+        return None
+
+    def chunk(a, b, compute):
+        def arrays():
+            res = compute()
+            return {"X": np.array([r[0] for r in res]), "converged": np.array([r[2] for r in res], dtype=bool)}
+
+        got = checkpoint.load_or_compute(key_of(a, b), gt_expect(b - a, n_vertices, d), arrays)
+        return [Item(X, np.nan, bool(ok)) for X, ok in zip(got["X"], got["converged"])]
+
+    return chunk
+
+
+def solve(
+    shape,
+    samples,
+    energy="sarap",
+    starts=None,
+    incumbents=None,
+    rest=True,
+    n_jobs=None,
+    progress=True,
+    desc="solving",
+    checkpoint=None,
+    handles=None,
+    keep="best",
+    key_of=None,
+    solver_kw=None,
+    solve_kw=None,
+    clock=None,
+):
+    """Solve problem (6) at every sample, independently and in parallel: the engine's batch policy.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    samples : (m, n, d) numpy array
+        Configurations of the moving handles.
+    energy : str
+    starts : list, optional
+        Extra starts per sample: None, one (n_vertices, d) map, or a list of maps.
+    incumbents : list, optional
+        A previous solution per sample (or None): verified, not re-solved, kept where it is the lowest verified
+        minimum (:func:`best_of`).
+    rest : bool
+        Also solve from the rest pose (through flip-free continuation).
+    n_jobs, progress, desc
+        As :func:`defop.training.batch.parallel_map`.
+    checkpoint : defop.training.batch.Checkpoints, optional
+        Cache every :data:`~defop.training.batch.CHUNK` finished samples under ``key_of`` (default
+        :func:`chunk_key`), so an interrupted run resumes where it stopped and returns the same.
+    handles : (m, h) int array, optional
+        Per sample the handle vertices (movable handles); default ``shape.handles`` for every sample. The targets
+        then are the rest positions of those vertices with the moving ones at the sample.
+    keep : str
+        ``"best"``: the lowest verified minimum; ``"all"``: also every end point (``Solves.runs``; no checkpoints).
+    solver_kw, solve_kw : dict, optional
+        Passed to ``Solver(...)`` and ``Solver.solve_best(...)`` (``tol``, ``max_iter``).
+    clock : Stopwatch, optional
+        Counts the solves' CPU seconds (those in other processes too).
+
+    Returns
+    -------
+    Solves
+    """
+    en.check_energy(energy)
+    samples = check_samples(shape, samples)
+    opt.choice("keep", keep, ("best", "all"))
+    m = len(samples)
+    starts = [None] * m if starts is None else list(starts)
+    held = [None] * m if incumbents is None else list(incumbents)
+    if len(starts) != m:
+        raise ValueError(f"X0 must give one warm start (or None) per sample: {len(starts)} for {m} samples")
+    if len(held) != m:
+        raise ValueError(f"incumbents must give one map (or None) per sample: {len(held)} for {m} samples")
+    problem = Problem(shape.mesh, shape.handles, energy, rest, keep, dict(solver_kw or {}), dict(solve_kw or {}))
+    if handles is None:
+        problem.solver_for(None)  # built once here, shipped to the workers
+        targets, per = [shape.targets(q) for q in samples], [None] * m
+    else:
+        targets, per = [targets_at(shape, h, q) for h, q in zip(handles, samples)], list(handles)
+    if checkpoint is not None and key_of is None and keep == "best":
+        if handles is not None:  # the default key holds shape.handles, not the handles per sample
+            raise ValueError("a checkpointed solve with handles per sample needs key_of (its checkpoint keys)")
+        key_of = chunk_key(shape, energy, samples, starts, rest, held)
+    n_vertices, d = shape.mesh.V.shape
+    chunk = checkpointed(checkpoint if keep == "best" else None, key_of, n_vertices, d)
+    w0 = time.perf_counter()
+    items = batch.map_checkpointed(
+        functools.partial(solve_chunk, problem), list(zip(targets, starts, held, per)), n_jobs, progress, desc, chunk
+    )
+    out = collect(items, time.perf_counter() - w0)
+    return out if clock is None else clock.add(out)
+
+
+def targets_at(shape, handles, q):
+    """The targets of handles at vertices ``handles``: their rest positions, the moving ones at ``q``."""
+    T = shape.mesh.V[handles].copy()
+    T[shape.moving] = q
+    return T
+
+
+def continuation(solver, targets, start, bar=None, solve_start="local", solve_kw=None):
+    """Solves along ``targets``, each warm-started from the previous solution (the first from ``start``), the
+    solver's NotConvergedWarning silenced as in every engine batch: a list of :class:`Item`.
+
+    The one continuation of the library: :func:`sweep` runs it on a shape's samples, branch discovery
+    (:func:`defop.training.branches.sweep`) on a solver's targets inside its parallel map.
+    """
+    out, X, pid = [], start, os.getpid()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotConvergedWarning)
+        for T in targets:
+            t0 = time.process_time()
+            r = solver.solve(T, X0=X, start=solve_start, **dict(solve_kw or {}))
+            X = np.asarray(r.X)
+            out.append(Item(X, float(r.energy), bool(r.converged), time.process_time() - t0, pid))
+            if bar:
+                bar.update(1)
+    return out
+
+
+def sweep(shape, samples, energy="sarap", start=None, progress=False, desc="sweep", solver_kw=None, solve_kw=None):
+    """A continuation sweep: the samples solved in the order given, each warm-started from the previous solution.
+
+    Every solve is one local path (:meth:`defop.variational.solver.Solver.solve` with ``start="local"``: the solver
+    moves the handles from the previous solution's positions to the sample's, through flip-free continuation
+    stages where a barrier energy needs them, and escapes saddles), like a user dragging the handles; no other
+    start is tried, so the result depends on the path.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    samples : (m, n, d) numpy array
+        The path's configurations of the moving handles, in order.
+    energy : str
+    start : (n_vertices, d) numpy array, optional
+        The first solve's start (default the rest pose).
+    progress : bool or callable
+        A progress bar (:func:`defop.training.batch.progress`).
+    desc : str
+    solver_kw, solve_kw : dict, optional
+        Passed to ``Solver(...)`` and ``Solver.solve(...)`` (``tol``, ``max_iter``, ``max_stages``).
+
+    Returns
+    -------
+    Solves
+        In the order of ``samples``. The sweep runs in this process (each solve needs the previous one).
+    """
+    en.check_energy(energy)
+    samples = check_samples(shape, samples)
+    problem = Problem(shape.mesh, shape.handles, energy, solver_kw=dict(solver_kw or {}), solve_kw=dict(solve_kw or {}))
+    targets = [shape.targets(q) for q in samples]
+    w0 = time.perf_counter()
+    bar = batch.progress(len(targets), desc, progress)
+    try:
+        items = continuation(problem.solver_for(None), targets, start, bar, solve_kw=problem.solve_kw)
+    finally:
+        if bar:
+            bar.close()
+    return collect(items, time.perf_counter() - w0)
+
+
+def settings_of(shape, energy, solver_kw=None):
+    """The settings of the solver built on ``shape`` with ``solver_kw`` (:func:`defop.training.cache.solver_settings`),
+    for the cache keys of callers that pass solver options."""
+    return cache_mod.solver_settings(Solver(shape.mesh, shape.handles, energy, **dict(solver_kw or {})))
