@@ -132,7 +132,7 @@ def load(name, n_vertices=None):
 
 def from_surface(
     V,
-    F,
+    F=None,
     handles=None,
     moving=None,
     regions=None,
@@ -141,18 +141,21 @@ def from_surface(
     description="",
     region_scale=0.25,
     overlapping_parts=False,
+    weld_tolerance=None,
 ):
-    """A 3D :class:`Shape` from a closed triangle surface: a tetrahedral mesh of the solid it bounds.
+    """A 3D :class:`Shape` from a closed triangle surface or a surface file: a tetrahedral mesh of the solid it bounds.
 
     The solid is meshed by Kuhn cubes (:func:`defop.geometry.volumetric.surface.surface_mesh`: the cubes
     whose centre has winding number ≥ 1/2, boundary snapped toward the surface while every tetrahedron
-    keeps a tenth of its volume), the same on every CPU. The surface is embedded in the tetrahedra
+    keeps a tenth of its volume), the same on every CPU, and the same for every copy of the surface that rounds to
+    the same float32 coordinates (an STL and its OBJ). The surface is embedded in the tetrahedra
     (``shape.surface``) so that it can be drawn deformed.
 
     Parameters
     ----------
-    V : (n,3) numpy array
-        Surface vertices (read a file with :func:`defop.geometry.volumetric.surface.read_surface`).
+    V : (n,3) numpy array, or str or pathlib.Path
+        Surface vertices, or the path of a PLY, STL, OBJ or OFF file
+        (read by :func:`defop.geometry.volumetric.surface.read_surface`; then F is not given).
     F : (k,3) int numpy array
         Surface triangles: a closed, consistently oriented, manifold surface that does not cross itself
         (inward-facing orientation is flipped).
@@ -169,6 +172,9 @@ def from_surface(
     region_scale : float
     overlapping_parts : bool
         Accept separate closed parts that cross each other, meshed as their union.
+    weld_tolerance : float, optional
+        With a path: also merge vertices closer than this fraction of the bounding-box diagonal (a surface
+        whose copies of one vertex differ slightly reads as open without it).
 
     Returns
     -------
@@ -177,11 +183,22 @@ def from_surface(
     Raises
     ------
     ValueError
-        An open or non-manifold surface (the message names the edge or vertex), inconsistent orientation,
+        A surface file that cannot be read (the message names it), an open or non-manifold surface (the message
+        names the edge or vertex, and for an open one the weld_tolerance that would close it), inconsistent orientation,
         two triangles that cross (pairs sharing a vertex are not tested:
         :func:`defop.geometry.volumetric.surface.self_intersections`), a handle outside the mesh, handles
         on one line, or a bad vertex count.
     """
+    import os
+
+    if isinstance(V, (str, bytes, os.PathLike)):
+        if F is not None:
+            raise ValueError("from_surface: give a surface file's path alone, or V and F, not a path and F")
+        V, F = surfaces.read_surface(V, weld_tolerance=weld_tolerance)
+    elif F is None:
+        raise ValueError("from_surface needs F, the (k,3) surface triangles, with V (or the path of a surface file)")
+    elif weld_tolerance is not None:
+        raise ValueError("weld_tolerance applies to a surface file's path; weld V and F with surface_files.weld")
     if handles is None:
         raise ValueError("from_surface needs handles: an (h,3) array of handle positions inside the solid")
     n_vertices = check_n_vertices(n_vertices)

@@ -9,7 +9,10 @@ diagonal of at least 1e-50) are all judged alike. :func:`read_surface` reads PLY
 decided by libigl's generalised winding number (``igl.winding_number``, core libigl, MPL-2.0; exact, not the fast
 approximation), the boundary of the tetrahedral mesh is snapped to the closest surface point
 (``igl.point_mesh_squared_distance``); :meth:`defop.geometry.mesh.Mesh.locate` gives each surface vertex
-its tetrahedron and barycentric coordinates, so the fine surface can be drawn deformed.
+its tetrahedron and barycentric coordinates, so the fine surface can be drawn deformed. The surface is meshed
+rounded to float32 (:func:`float32_canonical`), so copies of it that differ by float rounding (an STL and its OBJ)
+give one mesh. An open surface's error names the gap between its boundary vertices and the ``weld_tolerance`` that
+would close it (:func:`weld_hint`).
 
 libigl is compiled code without run-time CPU dispatch; its winding number uses libm's ``atan2``, whose
 last bit could differ between libm builds. Only a cube centre within about 1e-15 of winding number 1/2
@@ -26,6 +29,7 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from ..mesh import check_closed_surface, signed_volumes
 from ..surface_files import bbox_diagonal, read_surface_file
@@ -43,6 +47,9 @@ __all__ = [
     "surface_projector",
     "surface_parts",
     "EmbeddedSurface",
+    "weld_hint",
+    "float32_canonical",
+    "FLOAT32_RANGE",
 ]
 
 
@@ -265,7 +272,10 @@ def check_surface(V, F, self_intersection=True, overlapping_parts=False):
         raise ValueError(
             f"{int(tiny.sum())} surface triangles have zero area, first is triangle {int(np.flatnonzero(tiny)[0])}"
         )
-    check_closed_surface(F, what="the surface")
+    try:
+        check_closed_surface(F, what="the surface")
+    except ValueError as exc:
+        raise ValueError(f"{exc}{weld_hint(Vn, F)}") from None
     if enclosed_volume(Vn, F) < 0:
         F = np.ascontiguousarray(F[:, [0, 2, 1]])
     if self_intersection:
@@ -279,6 +289,38 @@ def check_surface(V, F, self_intersection=True, overlapping_parts=False):
             )
             raise ValueError(f"the surface intersects itself: triangles {i} and {j} cross{hint}")
     return V, F
+
+
+def weld_hint(Vn, F):
+    """For an open surface on a unit diagonal: the gap between its boundary vertices and the weld_tolerance that
+    would close it (``""`` when no edge is on a boundary).
+
+    Each boundary vertex (on an edge of one triangle) is paired with the nearest other boundary vertex that
+    shares no edge with it (among its 7 nearest); the largest of those distances is the gap. A gap of 0 means
+    unwelded copies of vertices (``weld_tolerance=0`` merges them); a gap of 0.05 or more (none found, or half
+    the largest tolerance) is a hole, which welding cannot close. The tolerance offered is twice the gap.
+    """
+    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    edges, counts = np.unique(E, axis=0, return_counts=True)
+    B = np.unique(edges[counts == 1])
+    if len(B) < 2:
+        return ""
+    k = min(len(B), 8)
+    dist, near = cKDTree(Vn[B]).query(Vn[B], k=k)
+    a, b = np.repeat(B, k - 1), B[near[:, 1:]].ravel()
+    linked = np.isin(np.minimum(a, b) * len(Vn) + np.maximum(a, b), edges[:, 0] * len(Vn) + edges[:, 1])
+    dist = np.where(linked.reshape(len(B), k - 1), np.inf, dist[:, 1:])  # a vertex of its own triangles: no crack
+    gap = float(dist.min(axis=1).max())
+    if not gap < 0.05:
+        return "; its boundary vertices are not copies of each other: a hole, which weld_tolerance cannot close"
+    if gap == 0:
+        return "; its boundary vertices have exact copies: read the file with weld_tolerance=0 to merge them"
+    e = 10.0 ** np.floor(np.log10(2 * gap))
+    tol = float(f"{np.ceil(2 * gap / e) * e:.1g}")  # twice the gap, rounded up to one digit
+    return (
+        f"; every boundary vertex lies within {gap:.2g} × the bounding-box diagonal of another: read the file "
+        f"with weld_tolerance={tol:g} (read_surface or from_surface) to merge them"
+    )
 
 
 def inside_surface(V, F):
@@ -297,6 +339,24 @@ def surface_projector(V, F):
         return np.asarray(igl.point_mesh_squared_distance(np.ascontiguousarray(P, dtype=float), V, F)[2])
 
     return project
+
+
+#: the coordinates :func:`float32_canonical` rounds: magnitudes up to the upper bound, a diagonal of at least the lower
+FLOAT32_RANGE = (1e-30, 1e37)
+
+
+def float32_canonical(V):
+    """V rounded to float32 (as float64), when its coordinates are inside :data:`FLOAT32_RANGE`; else V unchanged.
+
+    The mesher is not continuous in the surface (a tetrahedron near its thickness floor halves a vertex's move),
+    so two copies of one surface that differ by float rounding, an STL (float32) and its OBJ (float64), could
+    mesh differently. Rounded to float32 first, every surface whose coordinates round to the same float32 values
+    meshes identically, bit for bit; a perturbation that changes a float32 value may still change the mesh.
+    """
+    lo, hi = FLOAT32_RANGE
+    if len(V) and float(np.abs(V).max()) <= hi and bbox_diagonal(V) >= lo:
+        return V.astype(np.float32).astype(np.float64)
+    return V
 
 
 def surface_mesh(V, F, n_vertices=2000, min_volume=0.1, checked=False, overlapping_parts=False):
@@ -318,9 +378,12 @@ def surface_mesh(V, F, n_vertices=2000, min_volume=0.1, checked=False, overlappi
     Returns
     -------
     mesh : defop.geometry.mesh.Mesh
+        Meshed from the surface rounded to float32 (:func:`float32_canonical`): an STL and an OBJ of one
+        surface give the same mesh.
     """
     if not checked:
         V, F = check_surface(V, F, overlapping_parts=overlapping_parts)
+    V = float32_canonical(V)
     bbox = np.array([V.min(axis=0), V.max(axis=0)])
     inside = inside_surface(V, F)
     h = grid_spacing(inside, bbox, n_vertices)
