@@ -2,7 +2,8 @@
 
 The layer rule itself is import-linter's (``[tool.importlinter]`` in pyproject.toml); this file runs it, so that
 ``pytest`` alone checks it too, and checks what import-linter does not: private names across subpackages, the
-public face, and that the core loads no plotting or widget library at run time.
+public face, that the core loads no plotting or widget library at run time, and the house's sizes (modules, functions,
+classes).
 """
 
 from __future__ import annotations
@@ -78,18 +79,81 @@ def test_the_public_face():
         dop.experiments  # noqa: B018
 
 
-def test_no_private_name_is_imported_across_subpackages():
+def test_no_private_name_is_imported_from_another_module():
+    """Splitting a module never opens its insides: a name that starts with an underscore is used only in the module
+    that defines it (any other module, in its subpackage or not; ``__version__`` and other dunders aside)."""
     reach_ins = []
     for path, module in _modules():
         for target, names, line in _imports(path, module):
-            if not target.startswith("defop"):
+            if not target.startswith("defop") or target == module:
                 continue
-            other = _subpackage(target) != _subpackage(module)
             private_module = any(p.startswith("_") and p != "__init__" for p in target.split(".")[1:])
-            private_names = [n for n in names if n.startswith("_") and n != "__version__"]
-            if other and (private_module or private_names):
+            private_names = [n for n in names if n.startswith("_") and not n.startswith("__")]
+            if private_module or private_names:
                 reach_ins.append(f"{module}:{line} imports {target} {private_names}")
     assert reach_ins == []
+
+
+def test_the_private_import_check_sees_a_reach_in_inside_a_subpackage(tmp_path):
+    pkg = tmp_path / "defop" / "sub"
+    pkg.mkdir(parents=True)
+    (pkg / "a.py").write_text("def f():\n    from .b import _hidden\n")
+    found = [t for t, names, _ in _imports(pkg / "a.py", "defop.sub.a") if any(n.startswith("_") for n in names)]
+    assert found == ["defop.sub.b"]
+
+
+#: the house's limits (CONTRIBUTING.md): modules under 500 lines, functions about 60
+MAX_MODULE_LINES = 500
+MAX_FUNCTION_LINES = 60
+
+#: functions whose code (the docstring left out) is longer than MAX_FUNCTION_LINES, each with the reason it stays
+#: whole; the list may only shrink (a test fails on an entry that is no longer long)
+LONG_FUNCTIONS: dict[str, str] = {}
+
+
+def test_no_module_is_over_500_lines():
+    """Counted on the formatted source (``ruff format --check`` runs in make test), the vendored JavaScript aside."""
+    over = {module: n for path, module in _modules() if (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES}
+    assert over == {}
+
+
+def _code_lines(path, module):
+    """{qualified name: lines of code} of every function and method of a file, its docstring left out."""
+    out = {}
+
+    def visit(node, prefix):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                body = child.body
+                if len(body) > 1 and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+                    body = body[1:]
+                out[f"{prefix}{child.name}"] = child.end_lineno - body[0].lineno + 1
+                visit(child, f"{prefix}{child.name}.")
+            elif isinstance(child, ast.ClassDef):
+                visit(child, f"{prefix}{child.name}.")
+
+    visit(ast.parse(path.read_text()), f"{module}.")
+    return out
+
+
+def _long_functions():
+    return {q: n for path, module in _modules() for q, n in _code_lines(path, module).items() if n > MAX_FUNCTION_LINES}
+
+
+def test_every_function_over_60_lines_is_listed_with_its_reason():
+    assert sorted(set(_long_functions()) - set(LONG_FUNCTIONS)) == []
+
+
+def test_the_list_of_long_functions_only_shrinks():
+    assert sorted(set(LONG_FUNCTIONS) - set(_long_functions())) == []
+
+
+def test_the_function_count_leaves_the_docstring_out(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text(
+        'def f():\n    """doc\n\n    more"""\n' + "    a = 1\n" * 61 + "\n\nclass C:\n    def g(self):\n        pass\n"
+    )
+    assert _code_lines(f, "m") == {"m.f": 61, "m.C.g": 1}
 
 
 def test_no_module_reaches_the_package_through_import_defop():
