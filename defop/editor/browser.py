@@ -1,4 +1,4 @@
-"""The in-browser editor: D(·, Q) evaluated in the page, not through the kernel (issue #18).
+"""The in-browser editor: D(·, Q) evaluated in the page, not through the kernel.
 
 Python sends the trained operator once (:func:`defop_to_payload`: Ψ's kind and centres or monomial
 plan, the float32 factors, the mesh and the handles); ``static/defop_editor.js`` evaluates

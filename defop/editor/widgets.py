@@ -1,6 +1,6 @@
 """Views of the handle editor's state in matplotlib and ipywidgets (the browser view is :mod:`defop.editor.browser`).
 
-The editor is split three ways (issue #18):
+The editor is split three ways:
 
 - :class:`defop.editor.state.EditorState`: Q, X = D(·, Q), the operators and the ground truth (pure numpy);
 - :class:`CanvasView`: the state drawn on a matplotlib figure. It is the static picture a stored notebook

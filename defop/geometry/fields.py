@@ -4,7 +4,7 @@ Procedural shapes are unions (maxima) of tapered capsules, chains of capsules an
 outlines contour these fields (:mod:`defop.geometry.planar.outlines`), volumetric meshes keep the cubes
 whose centre is inside them (:mod:`defop.geometry.volumetric`). Every field is element-wise arithmetic
 (``+ - * /`` and ``sqrt``, correctly rounded), never BLAS or a transcendental function, so it gives the
-same bits on every CPU (issue #13).
+same bits on every CPU.
 """
 
 from __future__ import annotations
