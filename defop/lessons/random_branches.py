@@ -78,7 +78,13 @@ def random_case(seed, vertices=VERTICES):
     moving = np.zeros(len(handles), bool)
     moving[0] = True
     shape = shapes.from_polygon(
-        outer, hole_polys, handles, moving, n_vertices=vertices, name=f"random_{seed}", description="a random strip with holes and supports"
+        outer,
+        hole_polys,
+        handles,
+        moving,
+        n_vertices=vertices,
+        name=f"random_{seed}",
+        description="a random strip with holes and supports",
     )
     dx, a = -float(rng.uniform(0.1, 0.2)), float(rng.uniform(0.22, 0.29))
     s = float(rng.choice([-1, 1]) * rng.uniform(0.02, 0.1))
