@@ -353,7 +353,7 @@ def render_height_fields(xs, ys, fields, titles=None, window_size=(1200, 450), s
         One surface per subplot; all share one vertical scale.
     titles : list of str, optional
     window_size, screenshot
-        As in :func:`render_mesh`.
+        As in :func:`mesh_plotter` and :func:`render_mesh`.
     cmap : str
         Colormap for the heights.
 
