@@ -355,16 +355,8 @@ def ground_truth_text(state):
 
 
 def readout_text(state):
-    """One line: basis, evaluation time, flips, extrapolating handles and (when on) the ground truth.
-
-    Parameters
-    ----------
-    state : EditorState
-
-    Returns
-    -------
-    str
-    """
+    """One line (str) of an :class:`EditorState`: basis, evaluation time, flips, extrapolating handles and (when on)
+    the ground truth (:func:`ground_truth_text`)."""
     parts = [
         f"{state.kind}: evaluation {1e3 * state.eval_time:.2f} ms",
         f"flipped triangles: {int(state.flipped.sum())}",

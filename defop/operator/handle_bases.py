@@ -83,16 +83,7 @@ class HandleBasis:
         return ((Q - self.P) / self.scale).reshape(*Q.shape[:-2], self.dim)
 
     def __call__(self, Q):
-        """Ψ(Q).
-
-        Parameters
-        ----------
-        Q : (n,d) or (k,n,d) numpy array
-
-        Returns
-        -------
-        psi : (|Ψ|,) or (k,|Ψ|) numpy array
-        """
+        """Ψ(Q): (|Ψ|,) for Q (n,d), (k,|Ψ|) for Q (k,n,d)."""
         z = self.z(Q)
         out = self.evaluate_z(np.atleast_2d(z))
         return out[0] if z.ndim == 1 else out

@@ -96,16 +96,7 @@ class SpatialBasis:
 
 
 def hat_basis(mesh):
-    """Hat functions: Φ is the identity over the vertices.
-
-    Parameters
-    ----------
-    mesh : defop.geometry.mesh.Mesh
-
-    Returns
-    -------
-    basis : SpatialBasis
-    """
+    """The :class:`SpatialBasis` of hat functions over ``mesh``: Φ is the identity over the vertices."""
     return SpatialBasis("hat", sp.identity(mesh.n_vertices, format="csr"), mesh.mass_matrix)
 
 
@@ -135,21 +126,14 @@ def hessian_energy(mesh):
 
 
 def affine_residual_operator(mesh):
-    """R (n,n): (R u)_i = u_i − (the minimum-norm affine extrapolation of u from the 1-ring of i).
+    """R, an (n,n) scipy.sparse.csr_matrix on ``mesh``'s vertices: (R u)_i = u_i − (the minimum-norm affine
+    extrapolation of u from the 1-ring of i).
 
     R annihilates exactly the affine functions (on a connected mesh), so Σ_i (R u)_i² is a linearly
     precise smoothness energy. The mixed-FEM Hessian energy measures second derivatives on interior edges
     only, so a vertex at a sharp boundary corner gets almost no stiffness and adds a spurious null vector
     (measured: 2 extra on the aleph's acute corners). Adding 1% of RᵀR (scaled to Q's diagonal) removes
     them and keeps the null space exactly {1, x, y}.
-
-    Parameters
-    ----------
-    mesh : defop.geometry.mesh.Mesh
-
-    Returns
-    -------
-    R : (n,n) scipy.sparse.csr_matrix
     """
     n = mesh.n_vertices
     k = mesh.F.shape[1]  # vertices per element: 3 (triangles) or 4 (tetrahedra)

@@ -162,14 +162,11 @@ def from_surface(
     handles : (h,3) numpy array
         Handle points inside the solid; each becomes its nearest mesh vertex. At least 3, not all on one
         line (a rotation about that line would be free).
-    moving : (h,) bool numpy array, optional
-        Which handles move (default: all).
-    regions : list of defop.scene.regions.Region or dict, optional
-        One per moving handle (default: ``{"kind": "ball", "radius": region_scale × bounding-box diagonal / 2}``).
+    moving, regions, name, description, region_scale
+        As in :func:`defop.scene.planar_shapes.from_polygon`; the default regions are balls
+        (``{"kind": "ball", "radius": region_scale × bounding-box diagonal / 2}``).
     n_vertices : int
         About how many tetrahedral mesh vertices, 100 to ``MAX_VERTICES``.
-    name, description : str
-    region_scale : float
     overlapping_parts : bool
         Accept separate closed parts that cross each other, meshed as their union.
     weld_tolerance : float, optional
@@ -179,6 +176,7 @@ def from_surface(
     Returns
     -------
     shape : Shape
+        Its ``surface`` holds the surface embedded in the tetrahedra.
 
     Raises
     ------

@@ -180,25 +180,10 @@ def solve_samples(
 
     Parameters
     ----------
-    shape : defop.scene.shapes.Shape
-    samples : (m,n,d) numpy array
-    energy : str
+    shape, samples, energy, n_jobs, progress, desc, rest, checkpoint, incumbents, clock
+        As in :func:`defop.training.solves.solve`.
     X0 : (m,n_vertices,d) numpy array or list, optional
-        Extra starts per sample: None, one (n_vertices,d) map, or a list of maps.
-    n_jobs : int, optional
-        Workers (default ``dop.config.n_jobs()``: all cores); 1 solves in this process.
-    progress : bool
-        A tqdm progress bar (with the ETA).
-    rest : bool
-        Also solve from the rest pose (through flip-free continuation).
-    checkpoint : defop.training.batch.Checkpoints, optional
-        Cache every :data:`~defop.training.batch.CHUNK` finished samples, so that a run interrupted midway
-        (killed, Ctrl-C) and started again solves only the samples it had not finished, and returns the same.
-    incumbents : (m,n_vertices,d) numpy array or list, optional
-        A previous solution per sample (or None): verified, not re-solved, and kept where it is the lowest verified
-        minimum (:func:`defop.training.solves.best_of`).
-    clock : defop.training.solves.Stopwatch, optional
-        Counts the solves' CPU seconds, wherever they ran.
+        Its ``starts``: extra starts per sample, None, one (n_vertices,d) map, or a list of maps.
 
     Returns
     -------

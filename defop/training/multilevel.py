@@ -89,14 +89,14 @@ class MultilevelWarning(UserWarning):
 
 def constants():
     """The policy's constants, for the cache keys and the operator's metadata (dict)."""
-    return dict(
-        auto_vertices=AUTO_VERTICES,
-        coarse_factor=COARSE_FACTOR,
-        min_coarse_vertices=MIN_COARSE_VERTICES,
-        margin=MARGIN,
-        distinct=DISTINCT,
-        max_fine_iterations=MAX_FINE_ITERATIONS,
-    )
+    return {
+        "auto_vertices": AUTO_VERTICES,
+        "coarse_factor": COARSE_FACTOR,
+        "min_coarse_vertices": MIN_COARSE_VERTICES,
+        "margin": MARGIN,
+        "distinct": DISTINCT,
+        "max_fine_iterations": MAX_FINE_ITERATIONS,
+    }
 
 
 @dataclasses.dataclass

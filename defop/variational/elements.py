@@ -52,9 +52,7 @@ class ElementKernels:
         self._order = None
 
     def __getstate__(self):
-        state = self.__dict__.copy()
-        state["_order"] = None
-        return state
+        return {**self.__dict__, "_order": None}
 
     @property
     def kernel(self) -> str:

@@ -216,9 +216,7 @@ class ReducedProblem:
         self._energy_floor = 1e-12 * float(mesh.areas.sum())
 
     def __getstate__(self):
-        state = self.__dict__.copy()
-        state["_biharmonic"] = None
-        return state
+        return {**self.__dict__, "_biharmonic": None}
 
     @property
     def dim(self) -> int:

@@ -282,10 +282,8 @@ def plot_handle_zoom(ax, shape, X, vertex, radius=0.12, vmax=90.0, flip_color=FL
 
     Parameters
     ----------
-    ax : matplotlib Axes
-    shape : defop.scene.shapes.Shape
-    X : (n,2) numpy array
-        Deformed positions.
+    ax, shape, X
+        As in :func:`plot_deformation`.
     vertex : int
         The handle vertex to centre on.
     radius : float

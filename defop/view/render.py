@@ -302,13 +302,10 @@ def render_panels(
     poses : list of (n,d) numpy array
         Deformed positions, one panel each.
     titles : list of str, optional
-    handles : (h,) int numpy array, optional
-    moving : (h,) bool numpy array, optional
+    handles, moving, surface, view
+        As in :func:`mesh_plotter`.
     colors : list of str, optional
         Surface colour per panel.
-    surface : defop.geometry.volumetric.surface.EmbeddedSurface, optional
-        Draw this fine surface instead of the tetrahedra's boundary.
-    view : str or camera position, optional
     ncols : int, optional
         Panels per row (all in one row when None).
     panel_size : (2,) tuple
@@ -355,10 +352,10 @@ def render_height_fields(xs, ys, fields, titles=None, window_size=(1200, 450), s
     fields : list of (ny,nx) numpy array
         One surface per subplot; all share one vertical scale.
     titles : list of str, optional
-    window_size : (2,) tuple
-    screenshot : path, optional
-        Also write a PNG.
+    window_size, screenshot
+        As in :func:`mesh_plotter` and :func:`render_mesh`.
     cmap : str
+        Colormap for the heights.
 
     Returns
     -------

@@ -342,16 +342,8 @@ def points_in_polygon(points, loops):
 
 
 def interior_point(loop):
-    """A point strictly inside a simple polygon (its centroid if inside, else a probe near a vertex).
-
-    Parameters
-    ----------
-    loop : (k,2) numpy array
-
-    Returns
-    -------
-    p : (2,) numpy array
-    """
+    """A (2,) point strictly inside the simple polygon ``loop``, a (k,2) array: its centroid if inside, else a
+    probe near a vertex."""
     c = loop.mean(axis=0)
     if points_in_polygon(c[None], [loop])[0]:
         return c

@@ -364,8 +364,8 @@ def surface_mesh(V, F, n_vertices=2000, min_volume=0.1, checked=False, overlappi
 
     Parameters
     ----------
-    V : (n, 3) numpy array
-    F : (k, 3) int numpy array
+    V, F : (n, 3) numpy array, (k, 3) int numpy array
+        The closed surface's vertices and triangles.
     n_vertices : int
         About how many tetrahedral mesh vertices.
     min_volume : float
