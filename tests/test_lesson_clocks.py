@@ -197,3 +197,13 @@ def test_no_checked_cell_reads_a_clock(stem, index, src):
         f"{stem} (code cell {index}, with the functions it calls) reads a clock or a time ({hits}): "
         "print it in an unchecked cell"
     )
+
+
+def test_make_test_runs_the_lessons_with_the_slowed_clocks():
+    """The nbval run of ``make test`` is the slowed-clock run: its kernels start with this IPYTHONDIR."""
+    make = (ROOT / "Makefile").read_text()
+    recipe = re.search(r"^test:.*\n((?:\t.*\n)+)", make, re.MULTILINE)
+    assert recipe, "Makefile has no test recipe"
+    nbval = [line for line in recipe[1].splitlines() if "$(NBVAL)" in line]
+    assert nbval and all("IPYTHONDIR=$(CURDIR)/tests/slow_clock" in line for line in nbval), nbval
+    assert STARTUP.is_file()
