@@ -28,11 +28,15 @@ $(STAMP): pyproject.toml $(CONSTRAINTS)
 figures: $(STAMP)
 	$(BIN)/python -m defop figures
 
-# the book is built first, from the stored outputs, and tests/test_book.py opens every page of it in Chromium
+# the book is built first, from the stored outputs, and tests/test_book.py opens every page of it in Chromium.
+# The lessons run under nbval with slowed clocks: every kernel starts with IPYTHONDIR=tests/slow_clock, whose startup
+# file makes time.perf_counter, process_time, thread_time and time (and their _ns forms) run 10x slow with ±30% jitter
+# per call; the checked outputs, stored by the main job on real clocks, must still match (tests/test_lesson_clocks.py)
 test: book
 	$(BIN)/ruff format --check --quiet defop tests benchmarks notebooks docs
 	$(BIN)/lint-imports --no-cache
-	DEFOP_FAST=1 DEFOP_BOOK=build/book $(BIN)/python -m pytest -p no:cacheprovider tests notebooks $(NBVAL)
+	DEFOP_FAST=1 DEFOP_BOOK=build/book $(BIN)/python -m pytest -p no:cacheprovider tests
+	DEFOP_FAST=1 IPYTHONDIR=$(CURDIR)/tests/slow_clock $(BIN)/python -m pytest -p no:cacheprovider notebooks $(NBVAL)
 
 # the lessons as a static site (Sphinx + myst-nb, nothing executed, nothing fetched): build/book/index.html
 book: $(STAMP)

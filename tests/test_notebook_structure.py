@@ -49,14 +49,32 @@ def _prose(source):
     return re.sub(r"`[^`]*`", "", source)  # code spans name things (a function may have "version" in its name)
 
 
+def _outputs(cell):
+    """The text a code cell's stored outputs show a reader: streams, plain text, markdown and error messages."""
+    parts = []
+    for out in cell.get("outputs", []):
+        parts.append("".join(out.get("text", "")))
+        data = out.get("data", {})
+        parts += ["".join(data.get(kind, "")) for kind in ("text/plain", "text/markdown")]
+        if out.get("output_type") == "error":
+            parts.append(f"{out.get('ename', '')}: {out.get('evalue', '')}")
+    return "\n".join(p for p in parts if p)
+
+
+def _texts(cell):
+    """What a reader sees of a cell: a markdown cell's prose, or a code cell's stored outputs."""
+    return _prose("".join(cell["source"])) if cell["cell_type"] == "markdown" else _outputs(cell)
+
+
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_no_markdown_cell_speaks_of_development_history(path):
+    """Neither the prose nor what the code cells print (their stored outputs) speaks of issues or earlier runs."""
     cells = json.loads(path.read_text())["cells"]
     found = [
-        (i, m.group(0), _prose("".join(c["source"]))[max(0, m.start() - 40) : m.end() + 40])
+        (i, c["cell_type"], m.group(0), text[max(0, m.start() - 40) : m.end() + 40])
         for i, c in enumerate(cells)
-        if c["cell_type"] == "markdown"
-        for m in HISTORY.finditer(_prose("".join(c["source"])))
+        for text in [_texts(c)]
+        for m in HISTORY.finditer(text)
     ]
     assert not found, f"{path.name}: history in a lesson (state what is, with numbers): {found}"
 
@@ -72,3 +90,7 @@ def test_the_history_check_catches_what_it_is_for():
         assert HISTORY.search(_prose(text)), text
     assert not HISTORY.search(_prose(figures.run_time_sentence(10, 5)))
     assert not HISTORY.search(_prose("each solve warm-started from the previous one"))
+    printed = {"cell_type": "code", "outputs": [{"output_type": "stream", "text": ["issue 38's target, met: False\n"]}]}
+    assert HISTORY.search(_texts(printed))
+    shown = {"cell_type": "code", "outputs": [{"output_type": "execute_result", "data": {"text/plain": "see #7"}}]}
+    assert HISTORY.search(_texts(shown))
