@@ -3,7 +3,7 @@
 For each case: discover the branches on the grid of :data:`defop.analysis.branches.PARAMS` around the case's path
 (the same parameters for every case: n × n samples of the moving handle, half width, centre at the path's
 midpoint, one continuation sweep), certify each branch's presence and absence at every sample bordering its
-domain and bisect towards its folds (:mod:`defop.training.branch_domains`), fit one DefOp per branch with its
+domain and bisect towards its folds (:mod:`defop.training.branches.certify`), fit one DefOp per branch with its
 domain function and the single-valued DefOp (the lowest minimum per sample), then drag the handle along the
 there-and-back path (100 steps each way) and compare, frame by frame, with the solver's warm-started continuation
 (the error of a frame: max vertex distance / bbox diagonal). Prints per case the branches, certified / uncertified

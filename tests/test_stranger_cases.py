@@ -124,11 +124,11 @@ def test_grid_error_rejects_a_ground_truth_of_another_moving_handle():
     Xk = shape.mesh.V[None] + Qk.mean(axis=1, keepdims=True) - shape.P_moving.mean(axis=0)
     Xk[:, shape.moving_handles] = Qk
     op = dop.operator.fit.fit_shape(shape, Qk, Xk, "linear")
-    assert dop.analysis.figure_data.grid_error(op, truth, moving=1) >= 0.0
+    assert dop.lessons.figure_data.grid_error(op, truth, moving=1) >= 0.0
     with pytest.raises(ValueError, match="another moving handle"):
-        dop.analysis.figure_data.grid_error(op, truth)
+        dop.lessons.figure_data.grid_error(op, truth)
     with pytest.raises(ValueError, match="integer index"):
-        dop.analysis.figure_data.grid_error(op, truth, moving=1.5)
+        dop.lessons.figure_data.grid_error(op, truth, moving=1.5)
 
 
 def test_local_rotation_rejects_nan_and_a_center_of_the_wrong_shape():
@@ -139,12 +139,12 @@ def test_local_rotation_rejects_nan_and_a_center_of_the_wrong_shape():
     near = np.linalg.norm(V - V[3], axis=1) <= 1.0
     assert near.sum() >= 2
     with pytest.raises(ValueError, match="NaN"):
-        dop.analysis.figure_data.local_rotation(V, X, V[3], 1.0)
+        dop.lessons.figure_data.local_rotation(V, X, V[3], 1.0)
     with pytest.raises(ValueError, match="center"):
-        dop.analysis.figure_data.local_rotation(V, V, [0.0, 0.0, 0.0], 10.0)
+        dop.lessons.figure_data.local_rotation(V, V, [0.0, 0.0, 0.0], 10.0)
     c, s = np.cos(0.5), np.sin(0.5)
     turned = V @ np.array([[c, s], [-s, c]])  # rows rotated counter-clockwise by 0.5 rad
-    assert dop.analysis.figure_data.local_rotation(V, turned, V[3], 1.0) == pytest.approx(np.degrees(0.5))
+    assert dop.lessons.figure_data.local_rotation(V, turned, V[3], 1.0) == pytest.approx(np.degrees(0.5))
 
 
 def test_range_and_error_rejects_nan_at_measured_points():
