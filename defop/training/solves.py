@@ -44,6 +44,7 @@ __all__ = [
     "solver_key",
     "starts_parts",
     "sweep",
+    "sweeps",
 ]
 
 
@@ -440,6 +441,30 @@ def sweep(shape, samples, energy="sarap", start=None, progress=False, desc="swee
         if bar:
             bar.close()
     return collect(items, time.perf_counter() - w0)
+
+
+def sweep_paths(solver, items):
+    """:func:`sweeps`' worker: one :func:`continuation` per item ``(targets, start)``, each a list of :class:`Item`."""
+    return [continuation(solver, targets, start) for targets, start in items]
+
+
+def sweeps(solver, paths, n_jobs=None, progress=False, desc="continuation sweeps"):
+    """Several continuation paths at once, in parallel (one path per item): a list of :class:`Solves`.
+
+    Parameters
+    ----------
+    solver : defop.variational.solver.Solver
+        Built on the mesh and handles the targets are for (picklable: the workers get a copy).
+    paths : sequence of (targets, start)
+        Per path: the handles' targets in order ((k, h, d) or a list of (h, d) arrays) and the first solve's start
+        ((n_vertices, d), or None for the rest pose).
+    n_jobs, progress, desc
+        As :func:`defop.training.batch.parallel_map`; the result does not depend on ``n_jobs``.
+    """
+    w0 = time.perf_counter()
+    runs = batch.parallel_map(functools.partial(sweep_paths, solver), list(paths), n_jobs, progress, desc)
+    wall = time.perf_counter() - w0
+    return [collect(items, wall) for items in runs]
 
 
 def settings_of(shape, energy, solver_kw=None):

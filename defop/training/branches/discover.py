@@ -4,15 +4,13 @@ At each Q_k the multi-start of the single-valued training (:meth:`defop.variatio
 the rest pose, saddles escaped: source 0), plus the minima that **continuation** reaches: each sweep visits the
 samples in an order where consecutive samples are neighbours and warm-starts every solve from the previous minimum
 (a user's drag; sources 1..). The multi-starts are independent solves and the sweeps are independent of each
-other: both run through :func:`defop.training.batch.parallel_map`, and the result is cached through
-:func:`defop.training.batch.load_or_compute`.
+other: both run on the sample engine (:func:`defop.training.solves.solve` and :func:`defop.training.solves.sweeps`),
+and the result is cached through :func:`defop.training.batch.load_or_compute`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
-import time
 import warnings
 
 import numpy as np
@@ -87,36 +85,24 @@ def sweep(solver, targets, X0, start="local"):
     return X, E, ok, float(sum(i.cpu for i in items))
 
 
-def _multistarts(solver, chunk):
-    """:func:`batch.parallel_map`'s item function: the rest-pose multi-start at each target, with its CPU seconds."""
-    out = []
-    for T in chunk:
-        t0 = time.process_time()
-        out.append((*solve_quietly(solver, T, None, "global"), time.process_time() - t0))
-    return out
-
-
-def _sweeps(solver, chunk):
-    """:func:`batch.parallel_map`'s item function: one continuation (:func:`sweep`) per item (targets, X0)."""
-    return [sweep(solver, T, X0) for T, X0 in chunk]
-
-
-def _compute(shape, solver, samples, sweeps, progress, n_jobs):
+def _compute(shape, solver, samples, sweeps, progress, n_jobs, solver_kw):
     m, s = len(samples), 1 + len(sweeps)
     X = np.empty((m, s, shape.mesh.n_vertices, shape.mesh.V.shape[1]))
     E, conv = np.full((m, s), np.nan), np.zeros((m, s), bool)
+    single = solves.solve(
+        shape, samples, solver.energy, n_jobs=n_jobs, progress=progress, desc="multi-starts", solver_kw=solver_kw
+    )
+    X[:, 0], E[:, 0], conv[:, 0] = single.X, single.energy, single.converged
     targets = [shape.targets(q) for q in samples]
-    single = batch.parallel_map(functools.partial(_multistarts, solver), targets, n_jobs, progress, "multi-starts")
-    for k, (x, e, c, _) in enumerate(single):
-        X[k, 0], E[k, 0], conv[k, 0] = x, e, c
-    items = [([targets[k] for k in order[1:]], X[order[0], 0]) for order in sweeps]
-    runs = batch.parallel_map(functools.partial(_sweeps, solver), items, n_jobs, progress, "continuation sweeps")
-    for c, (order, (x, e, ok, _)) in enumerate(zip(sweeps, runs), start=1):
+    paths = [([targets[k] for k in order[1:]], X[order[0], 0]) for order in sweeps]
+    runs = solves.sweeps(solver, paths, n_jobs, progress)
+    for c, (order, run) in enumerate(zip(sweeps, runs), start=1):
         first = order[0]  # each sweep starts from the multi-start's minimum there
         X[first, c], E[first, c], conv[first, c] = X[first, 0], E[first, 0], conv[first, 0]
-        X[order[1:], c], E[order[1:], c], conv[order[1:], c] = x, e, ok
+        if len(order) > 1:
+            X[order[1:], c], E[order[1:], c], conv[order[1:], c] = run.X, run.energy, run.converged
     E[~conv | ~np.isfinite(E)] = 0.0  # the cache stores finite numbers only; discover masks them out again
-    seconds = [sum(r[-1] for r in single), sum(r[-1] for r in runs)]
+    seconds = [single.cpu_seconds, sum(r.cpu_seconds for r in runs)]
     return {"X": X, "energy": E, "converged": conv, "seconds": np.array(seconds, dtype=float)}
 
 
@@ -171,7 +157,7 @@ def discover(shape, samples, sweeps=(), energy="sarap", cache=True, progress=Fal
 
     def compute():
         fresh.append(True)
-        return _compute(shape, solver, samples, sweeps, progress, n_jobs)
+        return _compute(shape, solver, samples, sweeps, progress, n_jobs, solver_kw)
 
     z = batch.load_or_compute(store, "branch-minima", key, expect, compute)
     sec = z["seconds"]  # measured when computed (a cache hit returns the stored cost)
