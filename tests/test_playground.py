@@ -57,7 +57,7 @@ def test_the_stored_output_is_a_picture_and_a_line(tmp_path, monkeypatch):
     editor = BrowserEditor("u_shape", m=5)
     bundle = editor._repr_mimebundle_()
     assert figures.WIDGET_VIEW in bundle
-    out = figures._static_outputs([{"output_type": "display_data", "data": dict(bundle), "metadata": {}}])
+    out = figures.storing._static_outputs([{"output_type": "display_data", "data": dict(bundle), "metadata": {}}])
     assert set(out[0]["data"]) == {"image/png", "text/plain"}
     assert out[0]["data"]["text/plain"].startswith("Handle editor: u_shape")
 
