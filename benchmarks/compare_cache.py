@@ -11,7 +11,8 @@ own, then compare::
 Entries are ``<kind>-<key>.npz`` (``defop.training.cache``); the key hashes every input, so a key present on one
 side only is an input that changed (or a migration, which this script reports). Arrays are compared by shape,
 dtype and values: floats by the largest absolute difference, everything else exactly. The metadata (a JSON dict in
-``__meta__``) is compared with its timing fields left out. Exits 1 on any difference beyond ``--tol``.
+``__meta__``) and JSON headers (an operator file's ``header``) are compared with their timing fields left out, and
+arrays named for a clock (``seconds``, ``*_time*``) are skipped. Exits 1 on any difference beyond ``--tol``.
 """
 
 from __future__ import annotations
@@ -38,9 +39,20 @@ def _read(path):
     return arrays, (json.loads(str(meta)) if meta is not None else {})
 
 
+def _timed(name):
+    return any(t in name.lower() for t in TIMING)
+
+
+def _json(a):
+    try:
+        return json.loads(str(a))
+    except ValueError:
+        return str(a)
+
+
 def _untimed(meta):
     if isinstance(meta, dict):
-        return {k: _untimed(v) for k, v in meta.items() if not any(t in k.lower() for t in TIMING)}
+        return {k: _untimed(v) for k, v in meta.items() if not _timed(k)}
     if isinstance(meta, list):
         return [_untimed(v) for v in meta]
     return meta
@@ -54,6 +66,12 @@ def compare_entry(a, b, tol):
         out.append(f"arrays {sorted(xa)} != {sorted(xb)}")
     for k in sorted(set(xa) & set(xb)):
         u, v = xa[k], xb[k]
+        if _timed(k):
+            continue  # a clock (CPU or wall seconds), not a result
+        if u.ndim == 0 and u.dtype.kind == "U":  # a JSON header (an operator file's): compared without its clocks
+            if _untimed(_json(u)) != _untimed(_json(v)):
+                out.append(f"{k}: {_untimed(_json(u))} != {_untimed(_json(v))}")
+            continue
         if u.shape != v.shape or u.dtype != v.dtype:
             out.append(f"{k}: {u.dtype}{u.shape} != {v.dtype}{v.shape}")
         elif u.dtype.kind in "fc":

@@ -111,8 +111,11 @@ def _refine_cache(checkpoint, key_of, n, d, rules):
         return {f: ((k, n, d) if f == "X" else (k,), kind) for f, kind in zip(_FIELDS, kinds)}
 
     def chunk(a, b, compute):
+        fresh = []
+
         def arrays():
-            cols = list(zip(*compute()))
+            fresh.extend(compute())
+            cols = list(zip(*fresh))
             return {
                 "X": np.array(cols[0]),
                 "converged": np.array(cols[1], bool),
@@ -125,7 +128,8 @@ def _refine_cache(checkpoint, key_of, n, d, rules):
         got = checkpoint.load_or_compute(key_of(a, b), expect(b - a), arrays)
         names = ["" if r == 0 else rules[r - 1] for r in got["rule"]]
         cols = (got["X"], got["converged"], names, got["iterations"], got["minima"], got["coarse_energy"])
-        return [(*row, 0.0, 0) for row in zip(*cols)]
+        clocks = [r[-2:] for r in fresh] or [(0.0, 0)] * (b - a)  # refined now: its CPU seconds; loaded: none
+        return [(*row, *clock) for row, clock in zip(zip(*cols), clocks)]
 
     return chunk
 
