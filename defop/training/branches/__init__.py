@@ -101,7 +101,7 @@ def removed(name):
     return gone
 
 
-_renamed = renamed(__name__, RENAMED)
+_renamed = renamed(__name__, RENAMED, stacklevel=3)  # 3: through this module's __getattr__
 
 
 def __getattr__(name):
