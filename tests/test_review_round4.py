@@ -42,3 +42,21 @@ def test_solver_module_functions_still_work_and_warn(name):
         old = call(solver, bar.targets(bar.P[bar.moving]))
         new = solver.solve_best(bar.targets(bar.P[bar.moving]))
         assert old.converged and np.array_equal(old.X, new.X)
+
+
+@pytest.fixture(scope="module")
+def bar_op(tmp_path_factory):
+    import os
+
+    os.environ.setdefault("DEFOP_CACHE", str(tmp_path_factory.mktemp("cache")))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return dop.train(dop.shapes.load("bar"), m=10, rounds=1, n_jobs=1, progress=False)[0]
+
+
+@pytest.mark.parametrize(
+    ("Qs", "what"), [([[["a", "b"]]], "strings"), ([[[True, False]]], "booleans"), ([[[None, 1.0]]], "Python objects")]
+)
+def test_evaluate_batch_names_qs_for_input_that_is_not_real(bar_op, Qs, what):
+    with pytest.raises(ValueError, match=f"Qs must be an array of real numbers, got {what}"):
+        bar_op.evaluate_batch(np.array(Qs))

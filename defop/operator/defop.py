@@ -218,9 +218,7 @@ class DefOp(OperatorCore):
         -------
         X : (k,n_vertices,d) numpy array
         """
-        if np.iscomplexobj(Qs):
-            raise ValueError("Q must be real; got a complex array")
-        Qs = np.asarray(Qs, dtype=float)
+        Qs = opt.real_array("Qs", Qs)  # complex, bool, strings, objects: named, not cast
         if Qs.ndim != 3:
             raise ValueError(f"Qs must have shape (k, {self.n_moving}, {self.d}), got {Qs.shape}")
         if Qs.shape[1:] != self.P.shape:
