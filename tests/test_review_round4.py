@@ -60,3 +60,13 @@ def bar_op(tmp_path_factory):
 def test_evaluate_batch_names_qs_for_input_that_is_not_real(bar_op, Qs, what):
     with pytest.raises(ValueError, match=f"Qs must be an array of real numbers, got {what}"):
         bar_op.evaluate_batch(np.array(Qs))
+
+
+@pytest.mark.parametrize("name", ["operator-3_tps_rank3.npz", "movable-1.npz", "branched-2.npz"])
+def test_mesh_load_names_an_operator_file(name):
+    """The operator loaders name a mesh file; Mesh.load said "moving must hold numbers" of an operator file."""
+    from pathlib import Path
+
+    path = Path(__file__).parent / "data" / "files" / name
+    with pytest.raises(ValueError, match=f"{name} is a defop operator file, not a mesh file: load it with DefOp.load"):
+        dop.Mesh.load(path)
