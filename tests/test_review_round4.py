@@ -70,3 +70,37 @@ def test_mesh_load_names_an_operator_file(name):
     path = Path(__file__).parent / "data" / "files" / name
     with pytest.raises(ValueError, match=f"{name} is a defop operator file, not a mesh file: load it with DefOp.load"):
         dop.Mesh.load(path)
+
+
+@pytest.fixture(scope="module")
+def bar_samples():
+    bar = dop.shapes.load("bar")
+    return bar, bar.P[bar.moving][None] + np.array([[[0.05, 0.0]], [[0.0, 0.05]], [[0.02, 0.02]]])
+
+
+@pytest.mark.parametrize("cast", [lambda S: S + 0j, lambda S: S.astype(str), lambda S: np.ones(S.shape, bool)])
+def test_engine_refuses_samples_that_are_not_real(bar_samples, cast):
+    """complex samples lost their imaginary part (a ComplexWarning), strings and booleans were cast."""
+    from defop.training import solves
+
+    bar, S = bar_samples
+    with pytest.raises(ValueError, match="samples must be an array of real numbers"):
+        solves.solve(bar, cast(S), n_jobs=1, progress=False)
+
+
+@pytest.mark.parametrize(
+    ("bad", "match"),
+    [
+        (lambda H: H[:2], r"handles must have shape \(3, 4\)"),  # zip() dropped the third sample
+        (lambda H: H[:, :1], r"handles must have shape \(3, 4\)"),
+        (lambda H: H + 0.5, "integer vertex indices"),
+        (lambda H: H + 10**6, r"vertex indices in \[0, 596\)"),
+    ],
+)
+def test_engine_checks_handles_per_sample(bar_samples, bad, match):
+    from defop.training import solves
+
+    bar, S = bar_samples
+    H = np.tile(bar.handles, (len(S), 1))
+    with pytest.raises(ValueError, match=match):
+        solves.solve(bar, S, handles=bad(H), n_jobs=1, progress=False)
