@@ -104,3 +104,18 @@ def test_engine_checks_handles_per_sample(bar_samples, bad, match):
     H = np.tile(bar.handles, (len(S), 1))
     with pytest.raises(ValueError, match=match):
         solves.solve(bar, S, handles=bad(H), n_jobs=1, progress=False)
+
+
+@pytest.mark.parametrize("method", ["exists", "estimates", "__call__"])
+@pytest.mark.parametrize(("cast", "what"), [(lambda Q: Q.astype(str), "strings"), (lambda Q: Q > 0, "booleans")])
+def test_branched_operator_checks_q_once_on_every_path(method, cast, what):
+    """exists/estimates cast strings and booleans to numbers; __call__ warned of extrapolation before refusing."""
+    from pathlib import Path
+
+    from defop.operator.branched import BranchedOperator
+
+    op = BranchedOperator.load(Path(__file__).parent / "data" / "files" / "branched-2.npz")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=f"Q must be an array of real numbers, got {what}"):
+            getattr(op, method)(cast(op.P + 0.01))

@@ -21,6 +21,8 @@ import dataclasses
 
 import numpy as np
 
+from .. import options as opt
+
 #: a moving handle farther from rest than this times its farthest training sample extrapolates (a warning)
 EXTRAPOLATION_FACTOR = 1.5
 #: bound on |δψ| of a row (in raw units) below which the float32 products of :func:`reduced_product` stay finite
@@ -289,9 +291,7 @@ class OperatorCore:
 def check_configurations(Q, n, d=2):
     """The one check of handle configurations: Q (n, d) or (k, n, d), real and finite, as a float array
     (a ValueError naming Q and the condition)."""
-    if np.iscomplexobj(Q):  # float() would drop the imaginary part with only a ComplexWarning
-        raise ValueError("Q must be real; got a complex array")
-    Q = np.asarray(Q, dtype=float)
+    Q = opt.real_array("Q", Q)  # complex, bool, strings, objects: named, not cast (float() drops an imaginary part)
     if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, d):
         raise ValueError(f"Q must have shape ({n}, {d}) or (k, {n}, {d}) for {n} moving handles, got {Q.shape}")
     if not np.isfinite(Q).all():
