@@ -119,3 +119,23 @@ def test_branched_operator_checks_q_once_on_every_path(method, cast, what):
         warnings.simplefilter("error")
         with pytest.raises(ValueError, match=f"Q must be an array of real numbers, got {what}"):
             getattr(op, method)(cast(op.P + 0.01))
+
+
+@pytest.mark.parametrize(
+    ("samples", "sweep", "match"),
+    [
+        (None, [0.0, 1.2, 2.9, 3.0], "sweep 0 must be a permutation"),  # truncated to 0, 1, 2, 3 and used
+        (None, [True, False, True, True], "sweep 0 must be a permutation"),
+        ("complex", [0, 1, 2, 3], "samples must be an array of real numbers"),  # the imaginary part was dropped
+    ],
+)
+def test_discover_refuses_fractional_sweeps_and_complex_samples(samples, sweep, match):
+    from defop.training import branches as br
+
+    bar = dop.shapes.load("bar")
+    Q = br.grid_samples(bar, 0.1, 2)
+    Q = Q + 0j if samples == "complex" else Q
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=match):
+            br.discover(bar, Q, [sweep], cache=False)
