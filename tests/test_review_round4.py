@@ -139,3 +139,27 @@ def test_discover_refuses_fractional_sweeps_and_complex_samples(samples, sweep, 
         warnings.simplefilter("error")
         with pytest.raises(ValueError, match=match):
             br.discover(bar, Q, [sweep], cache=False)
+
+
+def test_movable_sampling_names_m_and_rng():
+    """sample_placements(m=-1) raised numpy's 'negative dimensions'; a bad rng, SeedSequence's TypeError."""
+    from defop.scene.placement import placement_regions
+    from defop.training.movable import sample_joint, sample_placements
+
+    outer = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
+    H = np.array([[1.8, 0.5], [1.0, 0.8], [0.1, 0.5]])
+    rect = dop.shapes.from_polygon(
+        outer,
+        handles=H,
+        moving=[True, True, False],
+        n_vertices=120,
+        name="rect",
+        regions=[{"kind": "disc", "radius": 0.15}] * 2,
+    )
+    placement = placement_regions(rect, [0, 1], radius=0.15)
+    with pytest.raises(ValueError, match="m must be an integer >= 1, got -1"):
+        sample_placements(placement, -1, 0)
+    with pytest.raises(ValueError, match="rng must be a numpy.random.Generator or a seed"):
+        sample_joint(rect, placement, 2, "x")
+    a, b = sample_joint(rect, placement, 3, 5), sample_joint(rect, placement, 3, np.random.default_rng(5))
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))  # a seed and its generator: the same samples
