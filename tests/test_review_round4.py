@@ -163,3 +163,26 @@ def test_movable_sampling_names_m_and_rng():
         sample_joint(rect, placement, 2, "x")
     a, b = sample_joint(rect, placement, 3, 5), sample_joint(rect, placement, 3, np.random.default_rng(5))
     assert all(np.array_equal(x, y) for x, y in zip(a, b))  # a seed and its generator: the same samples
+
+
+@pytest.mark.parametrize(
+    ("ext", "text", "where"),
+    [
+        (".obj", "v 1_0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "OBJ line 1, coordinate 0"),
+        (".off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1_5 0\n3 0 1 2\n", "OFF line 5"),
+        (
+            ".stl",
+            "solid t\nfacet normal 0 0 0\nouter loop\nvertex 0 0 0\nvertex 1_0 0 0\nvertex 0 1 0\nendloop\n"
+            "endfacet\nendsolid t\n",
+            "ASCII STL facet 0, coordinate 3",
+        ),
+    ],
+)
+def test_a_digit_separator_is_not_a_number_in_surface_files(tmp_path, ext, text, where):
+    """Python's float() read '1_0' as 10: a coordinate no surface format writes, silently taken as another number."""
+    from defop.geometry.surface_files import read_surface_file
+
+    path = tmp_path / f"s{ext}"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=f"{where}.*is not a number"):
+        read_surface_file(path)
