@@ -186,3 +186,16 @@ def test_a_digit_separator_is_not_a_number_in_surface_files(tmp_path, ext, text,
     path.write_text(text)
     with pytest.raises(ValueError, match=f"{where}.*is not a number"):
         read_surface_file(path)
+
+
+def test_fast_state_and_kernel_state_keep_their_mapping_access(bar_op):
+    """fast_matrices returned a dict and kernel_state a dict of the kernel's arguments; both became dataclasses,
+    so f["mats"] and state["A"] raised TypeError ('not subscriptable'), the deprecated name included."""
+    from defop.operator import defop as od
+
+    f = od.fast_matrices(bar_op.handle_basis, bar_op.WF)
+    assert f["mats"] is f.mats and f["R2"] == f.R2 and f["key"] is None
+    state, _ = _one_deprecation(lambda: od.kernel_state(bar_op.handle_basis, f.mats))
+    args = od.core.kernel_args(bar_op.handle_basis, f.mats)
+    assert set(state) == {"A", "B", "tps", "far2", "tps_frame", "apply", "beyond"}
+    assert np.array_equal(state["B"], args.B) and state["apply"] is args.lib.frame_from_raw

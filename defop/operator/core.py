@@ -127,6 +127,14 @@ class FastState:
     kernel: KernelArgs | None = None
     extra: dict = dataclasses.field(default_factory=dict)
 
+    def __getitem__(self, name):
+        """``state["mats"]``: the mapping access of earlier versions (a field, else an ``extra`` entry)."""
+        return getattr(self, name) if name in FAST_FIELDS else self.extra[name]
+
+
+#: the fields of :class:`FastState` (the keys of the dict it replaces)
+FAST_FIELDS = ("key", "mats", "R2", "dtype", "kernel")
+
 
 def fast_matrices(basis, WF, factors=None):
     """The matrices of the fast paths and their overflow guard, as a :class:`FastState` (no kernel yet).
