@@ -114,6 +114,11 @@ class KernelArgs:
     tps: tuple | None
     far2: np.ndarray
 
+    def __getitem__(self, name):
+        """``state["A"]``: the dict of earlier versions (``tps_frame``, ``apply`` and ``beyond``: the kernels)."""
+        kernels = {"tps_frame": "tps_frame", "apply": "frame_from_raw", "beyond": "beyond_bound"}
+        return getattr(self.lib, kernels[name]) if name in kernels else getattr(self, name)
+
 
 @dataclasses.dataclass
 class FastState:

@@ -382,17 +382,7 @@ def not_finite_error(op, Q, what="Ψ(Q)"):
 
 
 def kernel_state(basis, mats, far2=None):
-    """The single-frame kernel's arguments as the dict of earlier versions (deprecated: use
-    :func:`defop.operator.core.kernel_args`, a :class:`~defop.operator.core.KernelArgs`)."""
+    """The single-frame kernel's arguments (a deprecated name of :func:`defop.operator.core.kernel_args`; its
+    :class:`~defop.operator.core.KernelArgs` also answers the keys of the dict this returned)."""
     warnings.warn("kernel_state is deprecated: use defop.operator.core.kernel_args", DeprecationWarning, stacklevel=2)
-    k = core.kernel_args(basis, mats, far2)
-    lib = k.lib
-    return {
-        "A": k.A,
-        "B": k.B,
-        "tps": k.tps,
-        "far2": k.far2,
-        "tps_frame": lib.tps_frame,
-        "apply": lib.frame_from_raw,
-        "beyond": lib.beyond_bound,
-    }
+    return core.kernel_args(basis, mats, far2)
