@@ -244,3 +244,16 @@ def test_every_public_name_of_the_moved_operator_modules_is_still_there():
     from defop.operator import core, movable
 
     assert movable.EXTRAPOLATION_FACTOR == core.EXTRAPOLATION_FACTOR == 1.5
+
+
+@pytest.mark.parametrize("moving", [0.5, True, "0", None])
+def test_defop_trajectories_names_a_moving_index_that_is_not_an_integer(moving):
+    """moving=0.5 passed the range check and raised numpy's IndexError; True was read as handle 1."""
+    from pathlib import Path
+
+    from defop.analysis import trajectories as tr
+    from defop.operator.defop import DefOp
+
+    op = DefOp.load(Path(__file__).parent / "data" / "files" / "operator-3_tps_rank3.npz")
+    with pytest.raises(ValueError, match="moving handle index .* out of range"):
+        tr.defop_trajectories(op, tr.handle_grid(op.P[0], 0.1, 3), moving=moving)
