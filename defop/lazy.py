@@ -12,7 +12,7 @@ import sys
 import warnings
 from importlib import import_module
 
-__all__ = ["attach", "moved", "renamed"]
+__all__ = ["attach", "from_import_probe", "moved", "renamed"]
 
 
 def attach(package, modules=(), names=None):
@@ -82,16 +82,19 @@ def moved(old, new, load, names=None, stacklevel=2):
 
     def __getattr__(name):
         module = load()
+        if name == "__all__":  # ``from old import *``: every forwarded name, each warning as it is read
+            return forwarded(module)
         if name not in forwarded(module):
             raise AttributeError(f"module {old!r} has no attribute {name!r}")
         value = getattr(module, name)
         home = getattr(value, "__module__", None) if callable(value) else None
         home = home if isinstance(home, str) else new
-        warnings.warn(
-            f"{old}.{name} is deprecated and will be removed: use {home}.{name}",
-            DeprecationWarning,
-            stacklevel=stacklevel,
-        )
+        if not from_import_probe(stacklevel):
+            warnings.warn(
+                f"{old}.{name} is deprecated and will be removed: use {home}.{name}",
+                DeprecationWarning,
+                stacklevel=stacklevel,
+            )
         return value
 
     def __dir__():
@@ -122,11 +125,20 @@ def renamed(module, names, stacklevel=2):
     def __getattr__(name):
         if name not in names:
             raise AttributeError(f"module {module!r} has no attribute {name!r}")
-        warnings.warn(
-            f"{module}.{name} is renamed {names[name]} and will be removed: use {module}.{names[name]}",
-            DeprecationWarning,
-            stacklevel=stacklevel,
-        )
+        if not from_import_probe(stacklevel):
+            warnings.warn(
+                f"{module}.{name} is renamed {names[name]} and will be removed: use {module}.{names[name]}",
+                DeprecationWarning,
+                stacklevel=stacklevel,
+            )
         return getattr(sys.modules[module], names[name])
 
     return __getattr__
+
+
+def from_import_probe(stacklevel):
+    """Whether the code a shim's warning would name (``stacklevel`` counted from the shim's ``__getattr__``) is
+    importlib's check of ``from package import name``, which reads the name once (``hasattr``) before the import
+    statement reads it again: that statement's read warns, so the user sees one warning, not two."""
+    code = sys._getframe(stacklevel).f_code  # 0: this function, 1: the shim's __getattr__
+    return code.co_name == "_handle_fromlist" and "importlib" in code.co_filename

@@ -23,6 +23,8 @@ _sampling = moved(__name__, "defop.training.sampling", _load_sampling, names=_SA
 
 
 def __getattr__(name):
+    if name == "__all__":  # ``from defop.analysis.figure_data import *``: both homes' names
+        return __dir__()
     return (_sampling if name in _SAMPLING else _figure_data)[0](name)
 
 

@@ -230,8 +230,8 @@ class Trajectory:
 
 def moving_batch(grid, n_moving, moving, P_moving):
     """(k, n_moving, 2) handle batch: handle ``moving`` on the grid, the others at rest."""
-    if not 0 <= moving < n_moving:
-        raise ValueError(f"moving handle index {moving} out of range [0, {n_moving})")
+    if isinstance(moving, (bool, np.bool_)) or not isinstance(moving, (int, np.integer)) or not 0 <= moving < n_moving:
+        raise ValueError(f"moving handle index {moving!r} out of range [0, {n_moving}) (an integer)")
     Q = np.repeat(np.asarray(P_moving, dtype=float)[None], grid.size, axis=0)
     Q[:, moving] = grid.positions.reshape(-1, 2)
     return Q

@@ -434,6 +434,11 @@ def _read_npz(path):
 
     limits = Limits(max_members=64, kinds="iuf", exact_size=False)  # reads stop at the declared size
     with NpzReader(path, label, "an .npz archive", limits) as z:
+        if "header.npy" in z.names():  # what every operator file holds and a mesh file never does
+            raise ValueError(
+                f"mesh file {path} is a defop operator file, not a mesh file: load it with DefOp.load, "
+                "MovableOp.load or BranchedOperator.load (its mesh is the operator's .mesh)"
+            )
         if not {"V.npy", "F.npy"} <= set(z.names()):
             raise ValueError(f"mesh file {path} holds no mesh (arrays V and F are missing)")
         members = z.members(check=check)

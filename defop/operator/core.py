@@ -21,6 +21,8 @@ import dataclasses
 
 import numpy as np
 
+from .. import options as opt
+
 #: a moving handle farther from rest than this times its farthest training sample extrapolates (a warning)
 EXTRAPOLATION_FACTOR = 1.5
 #: bound on |δψ| of a row (in raw units) below which the float32 products of :func:`reduced_product` stay finite
@@ -112,6 +114,11 @@ class KernelArgs:
     tps: tuple | None
     far2: np.ndarray
 
+    def __getitem__(self, name):
+        """``state["A"]``: the dict of earlier versions (``tps_frame``, ``apply`` and ``beyond``: the kernels)."""
+        kernels = {"tps_frame": "tps_frame", "apply": "frame_from_raw", "beyond": "beyond_bound"}
+        return getattr(self.lib, kernels[name]) if name in kernels else getattr(self, name)
+
 
 @dataclasses.dataclass
 class FastState:
@@ -124,6 +131,14 @@ class FastState:
     dtype: np.dtype
     kernel: KernelArgs | None = None
     extra: dict = dataclasses.field(default_factory=dict)
+
+    def __getitem__(self, name):
+        """``state["mats"]``: the mapping access of earlier versions (a field, else an ``extra`` entry)."""
+        return getattr(self, name) if name in FAST_FIELDS else self.extra[name]
+
+
+#: the fields of :class:`FastState` (the keys of the dict it replaces)
+FAST_FIELDS = ("key", "mats", "R2", "dtype", "kernel")
 
 
 def fast_matrices(basis, WF, factors=None):
@@ -289,9 +304,7 @@ class OperatorCore:
 def check_configurations(Q, n, d=2):
     """The one check of handle configurations: Q (n, d) or (k, n, d), real and finite, as a float array
     (a ValueError naming Q and the condition)."""
-    if np.iscomplexobj(Q):  # float() would drop the imaginary part with only a ComplexWarning
-        raise ValueError("Q must be real; got a complex array")
-    Q = np.asarray(Q, dtype=float)
+    Q = opt.real_array("Q", Q)  # complex, bool, strings, objects: named, not cast (float() drops an imaginary part)
     if Q.ndim not in (2, 3) or Q.shape[-2:] != (n, d):
         raise ValueError(f"Q must have shape ({n}, {d}) or (k, {n}, {d}) for {n} moving handles, got {Q.shape}")
     if not np.isfinite(Q).all():

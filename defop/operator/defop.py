@@ -218,9 +218,7 @@ class DefOp(OperatorCore):
         -------
         X : (k,n_vertices,d) numpy array
         """
-        if np.iscomplexobj(Qs):
-            raise ValueError("Q must be real; got a complex array")
-        Qs = np.asarray(Qs, dtype=float)
+        Qs = opt.real_array("Qs", Qs)  # complex, bool, strings, objects: named, not cast
         if Qs.ndim != 3:
             raise ValueError(f"Qs must have shape (k, {self.n_moving}, {self.d}), got {Qs.shape}")
         if Qs.shape[1:] != self.P.shape:
@@ -384,6 +382,7 @@ def not_finite_error(op, Q, what="Ψ(Q)"):
 
 
 def kernel_state(basis, mats, far2=None):
-    """The single-frame kernel's arguments (a deprecated name of :func:`defop.operator.core.kernel_args`)."""
+    """The single-frame kernel's arguments (a deprecated name of :func:`defop.operator.core.kernel_args`; its
+    :class:`~defop.operator.core.KernelArgs` also answers the keys of the dict this returned)."""
     warnings.warn("kernel_state is deprecated: use defop.operator.core.kernel_args", DeprecationWarning, stacklevel=2)
     return core.kernel_args(basis, mats, far2)

@@ -38,7 +38,7 @@ from . import compress as compress_mod
 from . import core
 from . import handle_bases as hb
 from . import io as io_mod
-from .core import ExtrapolationWarning, OperatorCore, fast_matrices
+from .core import EXTRAPOLATION_FACTOR, ExtrapolationWarning, OperatorCore, fast_matrices  # noqa: F401  (exported)
 from .fit import structure
 from .io.movable_file import FORMAT, MEMBERS, save_movable  # noqa: F401  (public names)
 

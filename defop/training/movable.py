@@ -27,8 +27,8 @@ from .sampling import sample_handles
 
 def sample_placements(placement, m, rng):
     """m rest placements: each movable handle's vertex uniform over its region, (m, b) int numpy array."""
-    rng = np.random.default_rng(rng)
-    return np.stack([rng.choice(v, size=int(m)) for v in placement.vertices], axis=1).astype(np.int64)
+    m, rng = opt.integer("m", m, minimum=1), opt.rng(rng)
+    return np.stack([rng.choice(v, size=m) for v in placement.vertices], axis=1).astype(np.int64)
 
 
 def sample_joint(shape, placement, m, rng, n_q=1):
@@ -41,7 +41,7 @@ def sample_joint(shape, placement, m, rng, n_q=1):
     """
     m = opt.integer("m", m, minimum=1)
     n_q = opt.integer("n_q", n_q, minimum=1)
-    rng = np.random.default_rng(rng)
+    rng = opt.rng(rng)
     idx = sample_placements(placement, m, rng)
     Q = np.stack(
         [sample_handles(shape.mesh.V[placement.handles_at(i)[shape.moving]], shape.regions, n_q, rng) for i in idx]

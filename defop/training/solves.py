@@ -25,6 +25,7 @@ import numpy as np
 
 from .. import options as opt
 from ..geometry.mesh import Mesh
+from ..operator import core
 from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning, Solver
 from . import batch
@@ -35,6 +36,7 @@ __all__ = [
     "Problem",
     "Solves",
     "Stopwatch",
+    "check_handles",
     "check_samples",
     "chunk_key",
     "continuation",
@@ -128,13 +130,23 @@ class Stopwatch:
 
 def check_samples(shape, samples, name="samples"):
     """(m,n,d) float array of configurations of the shape's n moving handles, finite, m >= 1 (d from the mesh)."""
-    samples = np.asarray(samples, float)
+    samples = opt.real_array(name, samples)  # complex, bool, strings, objects: named, not cast
     n, d = shape.n_moving, shape.mesh.V.shape[1]
     if samples.ndim != 3 or samples.shape[1:] != (n, d) or len(samples) == 0:
         raise ValueError(f"{name} must have shape (m, {n}, {d}), m >= 1, for {n} moving handles, got {samples.shape}")
     if not np.isfinite(samples).all():
         raise ValueError(f"{name} has NaN or infinite entries")
     return samples
+
+
+def check_handles(shape, handles, m):
+    """(m, h) int64 handle vertices per sample (h the shape's handles), whole numbers in range; a ValueError naming
+    ``handles`` otherwise (a shorter list would drop samples)."""
+    a = np.asarray(handles)
+    h = len(shape.handles)
+    if a.shape != (m, h):
+        raise ValueError(f"handles must have shape ({m}, {h}): the {h} handle vertices of each sample, got {a.shape}")
+    return core.vertex_indices("handles", a.reshape(-1), shape.mesh.n_vertices).reshape(m, h)
 
 
 def solver_key(shape, energy):
@@ -364,6 +376,7 @@ def solve(
         problem.solver_for(None)  # built once here, shipped to the workers
         targets, per = [shape.targets(q) for q in samples], [None] * m
     else:
+        handles = check_handles(shape, handles, m)
         targets, per = [targets_at(shape, h, q) for h, q in zip(handles, samples)], list(handles)
     if checkpoint is not None and key_of is None and keep == "best":
         if handles is not None:  # the default key holds shape.handles, not the handles per sample

@@ -372,3 +372,24 @@ def solve(mesh, handles, targets, energy="sarap", X0=None, backend=None, **kw):
     result : SolveResult
     """
     return Solver(mesh, handles, energy, backend=backend).solve(targets, X0=X0, **kw)
+
+
+#: module functions that became :class:`Solver` methods (the old names warn and call the method)
+METHODS = ("finish", "solve_best")
+
+
+def __getattr__(name):
+    """``finish(solver, ...)`` and ``solve_best(solver, ...)``, the old module functions: warn, call the method."""
+    if name not in METHODS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    warnings.warn(
+        f"{__name__}.{name}(solver, ...) is deprecated and will be removed: use Solver.{name}",
+        DeprecationWarning,
+        stacklevel=2,
+    )
+
+    def call(solver, *args, **kwargs):
+        return getattr(solver, name)(*args, **kwargs)
+
+    call.__name__ = call.__qualname__ = name
+    return call

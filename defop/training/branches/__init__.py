@@ -1,7 +1,7 @@
 """Branch discovery: every verified minimum of problem (6) at the samples Q_k, grouped into branches (§5).
 
 D^E is multi-valued where problem (6) has several local minima (the bar of Fig. 10 buckles up or down). The
-single-valued training keeps one minimum per Q_k; here every verified minimum we can reach is kept, in four steps,
+single-valued training keeps one minimum per Q_k; here every verified minimum we can reach is kept, in five steps,
 one module each:
 
 1. :mod:`.grid`: the samples (a grid of one handle's displacements), their scans and neighbours;
@@ -101,7 +101,7 @@ def removed(name):
     return gone
 
 
-_renamed = renamed(__name__, RENAMED)
+_renamed = renamed(__name__, RENAMED, stacklevel=3)  # 3: through this module's __getattr__
 
 
 def __getattr__(name):

@@ -107,15 +107,19 @@ def _compute(shape, solver, samples, sweeps, progress, n_jobs, solver_kw):
 
 
 def _check(shape, samples, sweeps):
-    samples = np.asarray(samples, dtype=float)
-    P = np.asarray(shape.P_moving, dtype=float)
-    if samples.ndim != 3 or samples.shape[1:] != P.shape or len(samples) < 1 or not np.isfinite(samples).all():
-        raise ValueError(f"samples must be a finite (m, {P.shape[0]}, {P.shape[1]}) array, got {samples.shape}")
-    sweeps = [np.asarray(o, dtype=np.int64) for o in sweeps]
+    """The samples (:func:`defop.training.solves.check_samples`) and each sweep as (m,) int64, a permutation of the
+    sample indices (whole numbers: a fraction was truncated into a permutation)."""
+    samples = solves.check_samples(shape, samples)
+    m, out = len(samples), []
     for c, o in enumerate(sweeps):
-        if o.shape != (len(samples),) or not np.array_equal(np.sort(o), np.arange(len(samples))):
-            raise ValueError(f"sweep {c} must be a permutation of the {len(samples)} sample indices, got {o.shape}")
-    return samples, sweeps
+        a = np.asarray(o)
+        whole = a.dtype.kind in "iu" or (a.dtype.kind == "f" and np.array_equal(a, np.round(a)))
+        if a.shape != (m,) or not whole or not np.array_equal(np.sort(a), np.arange(m)):
+            raise ValueError(
+                f"sweep {c} must be a permutation of the {m} sample indices 0..{m - 1}, got {a.dtype} {a.shape}"
+            )
+        out.append(a.astype(np.int64))
+    return samples, out
 
 
 def discover(shape, samples, sweeps=(), energy="sarap", cache=True, progress=False, solver_kw=None, n_jobs=None):
