@@ -79,3 +79,23 @@ def test_the_bad_lengths_are_refused(bar, Q):
 def test_renamed_multilevel_names_warn(old, new):
     with pytest.warns(DeprecationWarning, match=f"{old} is renamed {new}"):
         assert getattr(ml, old) is getattr(ml, new)
+
+
+def test_checkpointed_solves_count_their_cpu_seconds(bar, tmp_path):
+    """A batch longer than a checkpoint chunk, solved now: every solve's CPU seconds reach the record (they were
+    dropped for checkpointed chunks, so a cached training recorded a few CPU seconds for a thousand solves); loaded
+    again, the same chunks cost nothing and give the same solutions."""
+    import time
+
+    from defop.training import batch
+    from defop.training.cache import Cache
+
+    Q = sample_shape(bar, batch.CHUNK + 3, np.random.default_rng(5))
+    store = Cache(tmp_path)
+    t0 = time.process_time()
+    fresh = solves.solve(bar, Q, "arap", n_jobs=1, progress=False, checkpoint=batch.Checkpoints(store))
+    spent = time.process_time() - t0
+    assert fresh.cpu_seconds == fresh.local_cpu_seconds > 0.5 * spent  # the solves are most of the call
+    again = solves.solve(bar, Q, "arap", n_jobs=1, progress=False, checkpoint=batch.Checkpoints(store))
+    assert np.array_equal(again.X, fresh.X) and np.array_equal(again.converged, fresh.converged)
+    assert again.cpu_seconds == 0.0
