@@ -275,10 +275,11 @@ def test_the_import_graph_holds_the_imports_inside_functions():
 
 
 #: classes whose size counts a base that is a class in its own right, not a mixin: HandleBasis, the abstract base of
-#: all four handle bases (TPSBasis overrides 8 of its methods and is 155 lines alone). Measured with the base on the
-#: formatted source, a ceiling that may only go down. Solver with ReducedProblem (422 when this list was made) is
-#: 294 since the element kernels (variational.elements), the starts and the multi-start policy became functions.
-OVER_WITH_BASES = {"defop.operator.handle_bases.TPSBasis": 326}
+#: all four handle bases (TPSBasis overrides 8 of its methods and is under 160 lines alone). Getting the pair under
+#: 300 would move TPSBasis's fast raw-value methods out as functions only to pass this count, the method/function
+#: doubles this rule is meant to prevent. Measured with the base on the formatted source, a ceiling that may only go
+#: down. (Solver no longer inherits its problem: it holds one, 259 lines.)
+OVER_WITH_BASES = {"defop.operator.handle_bases.TPSBasis": 317}
 MAX_CLASS_LINES = 300
 
 
@@ -327,7 +328,7 @@ def class_sizes():
 
 
 def test_no_class_is_over_300_lines():
-    """A class with its defop bases and mixins, on formatted source (issue 35: EditorState was 306, split into
+    """A class with its defop bases and mixins, on formatted source (EditorState was 306, split into
     :mod:`defop.editor.state` and the pure functions of :mod:`defop.editor.logic`)."""
     sizes = class_sizes()
     assert "defop.editor.state.EditorState" in sizes and len(sizes) > 40
