@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -99,3 +100,21 @@ def test_checkpointed_solves_count_their_cpu_seconds(bar, tmp_path):
     again = solves.solve(bar, Q, "arap", n_jobs=1, progress=False, checkpoint=batch.Checkpoints(store))
     assert np.array_equal(again.X, fresh.X) and np.array_equal(again.converged, fresh.converged)
     assert again.cpu_seconds == 0.0
+
+
+def test_the_run_keywords_are_named_and_a_misspelt_one_is_refused(bar, Q):
+    """``solve``'s run settings (workers, progress, checkpoints, clock) travel as one :class:`solves.Run`; a
+    misspelt keyword is a TypeError naming it, before any solve, never silently ignored."""
+    with pytest.raises(TypeError, match="n_job"):
+        solves.solve(bar, Q, "arap", n_job=1)
+    clock = solves.Stopwatch()
+    got = solves.solve(bar, Q, "arap", n_jobs=2, progress=False, clock=clock)
+    assert clock.remote == got.cpu_seconds - got.local_cpu_seconds > 0.0  # the caller's clock counted the workers
+    assert [f.name for f in dataclasses.fields(solves.Run)] == [
+        "n_jobs",
+        "progress",
+        "desc",
+        "checkpoint",
+        "key_of",
+        "clock",
+    ]

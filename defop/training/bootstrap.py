@@ -193,7 +193,19 @@ def solve_samples(
     """
     en.check_energy(energy)
     n_jobs = opt.n_jobs(n_jobs)
-    r = solves.solve(shape, samples, energy, X0, incumbents, rest, n_jobs, progress, desc, checkpoint, clock=clock)
+    r = solves.solve(
+        shape,
+        samples,
+        energy,
+        X0,
+        incumbents,
+        rest,
+        n_jobs=n_jobs,
+        progress=progress,
+        desc=desc,
+        checkpoint=checkpoint,
+        clock=clock,
+    )
     return r.X, r.converged
 
 

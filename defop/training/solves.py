@@ -34,6 +34,7 @@ from . import cache as cache_mod
 __all__ = [
     "Item",
     "Problem",
+    "Run",
     "Solves",
     "Stopwatch",
     "check_handles",
@@ -309,6 +310,19 @@ def checkpointed(checkpoint, key_of, n_vertices, d):
     return chunk
 
 
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """How a batch runs, apart from what it solves: workers, progress, checkpoints and the clock (the keywords of
+    :func:`solve` after ``solve_kw``; an unknown one is a TypeError naming it)."""
+
+    n_jobs: int | None = None
+    progress: object = True
+    desc: str = "solving"
+    checkpoint: object = None
+    key_of: object = None
+    clock: object = None
+
+
 def solve(
     shape,
     samples,
@@ -316,16 +330,11 @@ def solve(
     starts=None,
     incumbents=None,
     rest=True,
-    n_jobs=None,
-    progress=True,
-    desc="solving",
-    checkpoint=None,
     handles=None,
     keep="best",
-    key_of=None,
     solver_kw=None,
     solve_kw=None,
-    clock=None,
+    **run,
 ):
     """Solve problem (6) at every sample, independently and in parallel: the engine's batch policy.
 
@@ -342,11 +351,6 @@ def solve(
         minimum (:func:`best_of`).
     rest : bool
         Also solve from the rest pose (through flip-free continuation).
-    n_jobs, progress, desc
-        As :func:`defop.training.batch.parallel_map`.
-    checkpoint : defop.training.batch.Checkpoints, optional
-        Cache every :data:`~defop.training.batch.CHUNK` finished samples under ``key_of`` (default
-        :func:`chunk_key`), so an interrupted run resumes where it stopped and returns the same.
     handles : (m, h) int array, optional
         Per sample the handle vertices (movable handles); default ``shape.handles`` for every sample. The targets
         then are the rest positions of those vertices with the moving ones at the sample.
@@ -354,13 +358,19 @@ def solve(
         ``"best"``: the lowest verified minimum; ``"all"``: also every end point (``Solves.runs``; no checkpoints).
     solver_kw, solve_kw : dict, optional
         Passed to ``Solver(...)`` and ``Solver.solve_best(...)`` (``tol``, ``max_iter``).
-    clock : Stopwatch, optional
-        Counts the solves' CPU seconds (those in other processes too).
+    **run
+        The :class:`Run` keywords: ``n_jobs``, ``progress``, ``desc`` (as
+        :func:`defop.training.batch.parallel_map`); ``checkpoint`` (a :class:`defop.training.batch.Checkpoints`:
+        every :data:`~defop.training.batch.CHUNK` finished samples cached under ``key_of``, default
+        :func:`chunk_key`, so an interrupted run resumes where it stopped and returns the same); ``clock`` (a
+        :class:`Stopwatch` that counts the solves' CPU seconds, those in other processes too).
 
     Returns
     -------
     Solves
     """
+    run = Run(**run)  # the caller's objects themselves (a checkpoint, a clock), never copies
+    n_jobs, progress, desc, checkpoint, key_of, clock = (getattr(run, f.name) for f in dataclasses.fields(run))
     en.check_energy(energy)
     samples = check_samples(shape, samples)
     opt.choice("keep", keep, ("best", "all"))
