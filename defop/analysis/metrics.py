@@ -337,7 +337,8 @@ def timing_row(shape, op, rec, samples, spatial="hat", k=100, tol=5e-3):
 
     The frame rates are :func:`frame_rate` of ``op.evaluate_fast`` with the guarantees on: first the exact
     operator (float32 W_F), then after ``op.compress(tol=tol)`` (rank r factors); ``op`` is left compressed.
-    Preprocess is the training's own stage times (sampling, ground-truth solves, fit, fold).
+    Preprocess is the training's own stage times (sampling, ground-truth solves, fit, fold): CPU seconds summed
+    over the processes that solved (the sample engine's one timing rule), not wall seconds.
 
     Parameters
     ----------
