@@ -21,8 +21,6 @@ ENGINE = ("defop/training/solves.py", "defop/training/portfolios.py", "defop/var
 
 #: path prefix -> why its batch solves stay for now (only ever remove entries)
 ALLOWED = {
-    "defop/training/branches/certify.py": "certification's flood fill and bisection: each step warm-started from a "
-    "neighbour decided by the previous step (run per branch inside parallel_map)",
     "defop/analysis/mountain_pass.py": "the saddle probe: single interactive solves along one mountain pass",
 }
 

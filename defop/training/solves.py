@@ -48,6 +48,8 @@ __all__ = [
     "starts_parts",
     "sweep",
     "sweeps",
+    "walk",
+    "walks",
 ]
 
 
@@ -492,6 +494,49 @@ def sweeps(solver, paths, n_jobs=None, progress=False, desc="continuation sweeps
     runs = batch.parallel_map(functools.partial(sweep_paths, solver), list(paths), n_jobs, progress, desc)
     wall = time.perf_counter() - w0
     return [collect(items, wall) for items in runs]
+
+
+def walk(solver, path, solve_kw=None):
+    """Run one decision path: ``path`` (a generator) yields ``(targets, X0)``, one local solve warm-started from X0,
+    and receives its ``(X, energy, converged)``, until it returns. The engine's policy for paths whose next step
+    depends on the last result (a flood fill over a branch's domain, a bisection towards its fold); a continuation
+    (:func:`continuation`) is the path that always steps on.
+
+    Returns
+    -------
+    value, cpu : object, float
+        What the path returns, and the CPU seconds of the walk (``time.process_time`` where it ran).
+    """
+    t0 = time.process_time()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotConvergedWarning)
+        try:
+            T, X0 = next(path)
+            while True:
+                r = solver.solve(T, X0=X0, start="local", **dict(solve_kw or {}))
+                T, X0 = path.send((np.asarray(r.X), float(r.energy), bool(r.converged)))
+        except StopIteration as stop:
+            return stop.value, time.process_time() - t0
+
+
+def walk_paths(solver, path, chunk):
+    """:func:`walks`' worker: :func:`walk` of ``path(item)`` for every item of the chunk."""
+    return [walk(solver, path(item)) for item in chunk]
+
+
+def walks(solver, path, items, n_jobs=None, progress=False, desc="paths"):
+    """:func:`walk` of ``path(item)`` for every item, in parallel (independent paths; the result does not depend on
+    ``n_jobs``).
+
+    Returns
+    -------
+    values : list
+        Each path's return value, in the order of ``items``.
+    cpu : float
+        CPU seconds summed over the paths (each measured where it ran).
+    """
+    res = batch.parallel_map(functools.partial(walk_paths, solver, path), list(items), n_jobs, progress, desc)
+    return [v for v, _ in res], float(sum(c for _, c in res))
 
 
 def settings_of(shape, energy, solver_kw=None):

@@ -19,8 +19,9 @@ into the signed distance to b's fold points, which :mod:`defop.operator.branched
 counts in the multi-valued training's cost (``certify_seconds``).
 
 The flood fills of the branches, then all the bisections, then all the segments' bisections are independent of
-each other: each stage runs through :func:`defop.training.batch.parallel_map`, and the result does not depend on
-the number of workers.
+each other: each stage runs on the sample engine as paths of solves (:func:`defop.training.solves.walks`: each
+step of a path is one warm-started solve, the next chosen by the last), and the result does not depend on the
+number of workers.
 
 Scope: a 2D grid of displacements of one moving handle (or of a patch of handles moved together,
 :func:`defop.training.branches.grid_samples`). Several handles moving independently span a space of more than two
@@ -31,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import time
 import warnings
 
 import numpy as np
@@ -39,11 +39,10 @@ import numpy as np
 from ... import options as opt
 from ...operator.domains import fold_pairs
 from ...variational.solver import Solver
-from .. import batch
+from .. import batch, solves
 from .. import cache as cache_mod
 from ..minima import rms
 from . import records
-from .discover import solve_quietly
 from .grid import check_planar, grid_neighbours
 from .group import check_mesh, plane, score
 
@@ -118,9 +117,9 @@ class _Judge:
         return 1 if s - plane(self.t, Q, self.shape.P_moving) >= 0 else -1
 
     def step(self, q0, q1, X0, side):
-        """(X, E, verdict) of the solve at q1 from X0 (b's minimum at q0): verdict True (stays), False (leaves),
-        None (did not verify)."""
-        X, E, ok = solve_quietly(self.solver, self.shape.targets(q1), X0, "local")
+        """A path of one solve (:func:`defop.training.solves.walk`): at q1 from X0 (b's minimum at q0); returns
+        (X, E, verdict), verdict True (stays), False (leaves), None (did not verify)."""
+        X, E, ok = yield self.shape.targets(q1), X0
         if not ok:
             return X, E, None
         moved = np.abs(X - X0).max() <= FOLLOW_RATIO * np.abs(q1 - q0).max()
@@ -142,13 +141,14 @@ def depth_of(depth, levels, default=3):
 
 
 def bisect(step, lo, hi, X_lo, E_lo, depth):
-    """The bisection of branch edges: halve the segment lo (on the branch, minimum X_lo) → hi ``depth`` times.
+    """The bisection of branch edges: halve the segment lo (on the branch, minimum X_lo) → hi ``depth`` times. A path
+    for :func:`defop.training.solves.walk` (it returns what is listed below).
 
     Parameters
     ----------
     step : callable
-        ``step(q0, q1, X0) -> (X, E, stays)``: one solve at q1 warm-started from the minimum X0 at q0, and whether
-        it stays on the branch (True; False or None leave it).
+        ``step(q0, q1, X0)``: the path (:func:`defop.training.solves.walk`) of one solve at q1 warm-started from the
+        minimum X0 at q0, returning (X, E, stays): whether it stays on the branch (True; False or None leave it).
     lo, hi : (n_moving, d) numpy arrays
     X_lo : (n_vertices, d) numpy array
     E_lo : float
@@ -166,7 +166,7 @@ def bisect(step, lo, hi, X_lo, E_lo, depth):
     moved = False
     for _ in range(depth):
         mid = (lo + hi) / 2
-        X, E, stays = step(lo, mid, X_lo)
+        X, E, stays = yield from step(lo, mid, X_lo)
         if stays:
             lo, X_lo, E_lo, moved = mid, X, E, True
         else:
@@ -177,14 +177,15 @@ def bisect(step, lo, hi, X_lo, E_lo, depth):
 def bracket_fold(judge, qa, qb, Xa, Ea, side, depth=None, *, levels=None):
     """Bisect qa (b present, minimum Xa) → qb (b absent) ``depth`` times (:func:`bisect`): (fold point, (q, X, E)
     last on b). Each half step is one solve warm-started from the last minimum on b; an unverified solve counts as
-    leaving."""
+    leaving. Run by the sample engine: ``solves.walk(judge.solver, bracket_fold(judge, ...))``."""
     depth = depth_of(depth, levels)
-    lo, hi, X, E, _ = bisect(lambda q0, q1, X0: judge.step(q0, q1, X0, side), qa, qb, Xa, Ea, depth)
+    lo, hi, X, E, _ = yield from bisect(lambda q0, q1, X0: judge.step(q0, q1, X0, side), qa, qb, Xa, Ea, depth)
     return (lo + hi) / 2, (lo, X, E)
 
 
 def _flood(judge, Q, nbrs, b, known, tol):
-    """b's :class:`Certified` labels on the grid (module docstring): a flood fill over its border."""
+    """b's :class:`Certified` labels on the grid (module docstring): a flood fill over its border, as a path of
+    solves for :func:`defop.training.solves.walk`."""
     grid, mesh = len(nbrs), judge.shape.mesh
     c = Certified({int(k): (X, E) for k, X, E in zip(b.samples, b.X, b.energy) if k < grid})
     todo = sorted({int(j) for k in c.present for j in nbrs[k] if j not in c.present})
@@ -195,7 +196,7 @@ def _flood(judge, Q, nbrs, b, known, tol):
             continue
         done.add(j)
         k = min((k for k in nbrs[j] if k in c.present), key=lambda k: np.linalg.norm(Q[k] - Q[j]))
-        X, E, stays = judge.step(Q[k], Q[j], c.present[k][0], b.side)
+        X, E, stays = yield from judge.step(Q[k], Q[j], c.present[k][0], b.side)
         if stays is None:
             c.uncertified.append(j)
             continue
@@ -210,34 +211,21 @@ def _flood(judge, Q, nbrs, b, known, tol):
     return c
 
 
-def _timed(fn, chunk):
-    """Each item's result with the CPU seconds (``time.process_time`` of the worker) it took."""
-    out = []
-    for item in chunk:
-        t0 = time.process_time()
-        out.append((fn(item), time.process_time() - t0))
-    return out
-
-
-def _map(fn, items, n_jobs, desc):
-    """:func:`batch.parallel_map` of ``fn`` over ``items``: (results, CPU seconds summed over the items)."""
-    res = batch.parallel_map(functools.partial(_timed, fn), items, n_jobs, False, desc)
-    return [r for r, _ in res], float(sum(s for _, s in res))
-
-
 def _flood_item(judge, Q, nbrs, known, tol, b):
-    return _flood(judge, Q, nbrs, b, known, tol)
+    return (yield from _flood(judge, Q, nbrs, b, known, tol))
 
 
 def _bracket_item(judge, depth, item):
     qa, qb, Xa, Ea, side = item
-    return bracket_fold(judge, qa, qb, Xa, Ea, side, depth)
+    return (yield from bracket_fold(judge, qa, qb, Xa, Ea, side, depth))
 
 
 def _segment_item(judge, depth, item):
     q0, X0, qs, qe, side = item
-    Xs, Es, stays = judge.step(q0, qs, X0, side)
-    return bracket_fold(judge, qs, qe, Xs, Es, side, depth)[0] if stays else None
+    Xs, Es, stays = yield from judge.step(q0, qs, X0, side)
+    if not stays:
+        return None
+    return (yield from bracket_fold(judge, qs, qe, Xs, Es, side, depth))[0]
 
 
 def _brackets(judge, Q, nbrs, certified, branches, depth, n_jobs):
@@ -249,7 +237,8 @@ def _brackets(judge, Q, nbrs, certified, branches, depth, n_jobs):
                 if k in c.present:
                     items.append((Q[k], Q[j], *c.present[k], b.side))
                     owner.append((i, int(k), int(j)))
-    results, seconds = _map(functools.partial(_bracket_item, judge, depth), items, n_jobs, "fold bisections")
+    path = functools.partial(_bracket_item, judge, depth)
+    results, seconds = solves.walks(judge.solver, path, items, n_jobs, desc="fold bisections")
     lows = [[] for _ in certified]
     for (i, k, j), (fold, low) in zip(owner, results):
         c = certified[i]
@@ -297,7 +286,8 @@ def refine_segments(judge, Q, certified, lows, sides, depth, n_jobs=None):
             for a, b, (q0, X0, qs, qe) in segment_starts(Q, c, lows[i]):
                 items.append((q0, X0, qs, qe, sides[i]))
                 owner.append((i, a, b))
-    results, seconds = _map(functools.partial(_segment_item, judge, depth), items, n_jobs, "edge bisections")
+    path = functools.partial(_segment_item, judge, depth)
+    results, seconds = solves.walks(judge.solver, path, items, n_jobs, desc="edge bisections")
     out = [[] for _ in certified]
     for (i, a, b), fold in zip(owner, results):
         F = certified[i].folds
@@ -366,7 +356,7 @@ def _certify(shape, branches, Q, judge, depth, tol, n_jobs):
             if k < len(Q):
                 known[k].append(X)
     flood = functools.partial(_flood_item, judge, Q, nbrs, known, tol)
-    out, s0 = _map(flood, branches.branches, n_jobs, "certification")
+    out, s0 = solves.walks(judge.solver, flood, branches.branches, n_jobs, desc="certification")
     lows, s1 = _brackets(judge, Q, nbrs, out, branches.branches, depth, n_jobs)
     s2 = refine_segments(judge, Q, out, lows, [b.side for b in branches.branches], depth, n_jobs)
     return out, s0 + s1 + s2
