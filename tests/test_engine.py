@@ -10,7 +10,7 @@ import pytest
 
 import defop as dop
 from defop.training import multilevel as ml
-from defop.training import solves
+from defop.training import paths, solves
 from defop.training.sampling import sample_shape
 from defop.variational.solver import NotConvergedWarning
 
@@ -26,7 +26,7 @@ def Q(bar):
 
 
 def test_sweep_is_the_path_of_local_solves(bar, Q):
-    got = solves.sweep(bar, Q, "arap")
+    got = paths.sweep(bar, Q, "arap")
     solver, X, ref = dop.variational.Solver(bar.mesh, bar.handles, "arap"), None, []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotConvergedWarning)

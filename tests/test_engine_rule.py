@@ -17,7 +17,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "defop"
 
 #: the engine's modules, and the solver itself (its multi-start loops over the starts of one sample)
-ENGINE = ("defop/training/solves.py", "defop/training/portfolios.py", "defop/variational/")
+ENGINE = ("defop/training/solves.py", "defop/training/paths.py", "defop/training/portfolios.py", "defop/variational/")
 
 #: path prefix -> why its batch solves stay for now (only ever remove entries)
 ALLOWED = {

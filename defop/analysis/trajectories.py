@@ -22,7 +22,7 @@ Facts the notebooks check with this module:
   (``start="global"``: rest pose, saddles escaped, lowest verified minimum; no history). "Local"
   ground truth: the solves are warm-started along a path through the grid (a serpentine scan, like a user
   dragging the handle), so the result depends on the path (§5, Fig. 10). Both run on the sample engine
-  (:func:`defop.training.solves.solve` and :func:`defop.training.solves.sweep`).
+  (:func:`defop.training.solves.solve` and :func:`defop.training.paths.sweep`).
 
 Everything here is pure computation; drawing lives in ``defop.view.plot`` / ``defop.view.render``.
 """
@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import options as opt
-from ..training import batch, solves
+from ..training import batch, paths, solves
 from ..training import cache as cache_mod
 from ..variational.energies import check_energy
 from ..variational.solver import NotConvergedWarning
@@ -390,7 +390,7 @@ def ground_truth_trajectories(
             X, E, conv = res.X, res.energy, res.converged
         else:
             order = path[:, 0] * nx + path[:, 1]
-            res = solves.sweep(shape, Qm[order], energy, None, progress, "warm-started solves", solver_kw, solve_kw)
+            res = paths.sweep(shape, Qm[order], energy, None, progress, "warm-started solves", solver_kw, solve_kw)
             X, E, conv = (np.empty_like(a) for a in (res.X, res.energy, res.converged))
             X[order], E[order], conv[order] = res.X, res.energy, res.converged
         if not conv.all():

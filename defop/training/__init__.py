@@ -9,7 +9,7 @@ multi-valued operator and certifies where each branch is present and absent;
 that move at rest (:func:`train_movable`).
 """
 
-from . import adaptive, bootstrap, branches, cache, movable, multilevel, portfolios, sampling, solves
+from . import adaptive, bootstrap, branches, cache, movable, multilevel, paths, portfolios, sampling, solves
 from .adaptive import train_adaptive
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
 from .movable import train_movable
@@ -24,6 +24,7 @@ __all__ = [
     "min_samples",
     "movable",
     "multilevel",
+    "paths",
     "portfolios",
     "sampling",
     "solve_samples",

@@ -1,9 +1,10 @@
 """The sample engine: the one code that solves problem (6) for many samples.
 
 Every batch of solves in the library runs here: :func:`solve` (each sample independently: its starts, the rest pose
-and an incumbent, the lowest verified minimum kept, or every end point) and :func:`sweep` (a continuation path, each
-sample warm-started from the previous solution). :mod:`defop.training.portfolios` builds the training policies on
-them (the full start portfolio, on the fine or a coarse mesh, and the multilevel fine stage).
+and an incumbent, the lowest verified minimum kept, or every end point), and :mod:`defop.training.paths` (paths of
+solves, each step warm-started from the last: continuation sweeps and decision-dependent paths).
+:mod:`defop.training.portfolios` builds the training policies on them (the full start portfolio, on the fine or a
+coarse mesh, and the multilevel fine stage).
 
 The work is split by :func:`defop.training.batch.parallel_map` (joblib, a Dask cluster included), checkpointed by
 :func:`~defop.training.batch.map_checkpointed` under a key of everything that determines it (:func:`chunk_key`) and
@@ -40,16 +41,11 @@ __all__ = [
     "check_handles",
     "check_samples",
     "chunk_key",
-    "continuation",
     "gt_expect",
     "solve",
     "solve_chunk",
     "solver_key",
     "starts_parts",
-    "sweep",
-    "sweeps",
-    "walk",
-    "walks",
 ]
 
 
@@ -409,134 +405,6 @@ def targets_at(shape, handles, q):
     T = shape.mesh.V[handles].copy()
     T[shape.moving] = q
     return T
-
-
-def continuation(solver, targets, start, bar=None, solve_start="local", solve_kw=None):
-    """Solves along ``targets``, each warm-started from the previous solution (the first from ``start``), the
-    solver's NotConvergedWarning silenced as in every engine batch: a list of :class:`Item`.
-
-    The one continuation of the library: :func:`sweep` runs it on a shape's samples, branch discovery
-    (:func:`defop.training.branches.sweep`) on a solver's targets inside its parallel map.
-    """
-    out, X, pid = [], start, os.getpid()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotConvergedWarning)
-        for T in targets:
-            t0 = time.process_time()
-            r = solver.solve(T, X0=X, start=solve_start, **dict(solve_kw or {}))
-            X = np.asarray(r.X)
-            out.append(Item(X, float(r.energy), bool(r.converged), time.process_time() - t0, pid))
-            if bar:
-                bar.update(1)
-    return out
-
-
-def sweep(shape, samples, energy="sarap", start=None, progress=False, desc="sweep", solver_kw=None, solve_kw=None):
-    """A continuation sweep: the samples solved in the order given, each warm-started from the previous solution.
-
-    Every solve is one local path (:meth:`defop.variational.solver.Solver.solve` with ``start="local"``: the solver
-    moves the handles from the previous solution's positions to the sample's, through flip-free continuation
-    stages where a barrier energy needs them, and escapes saddles), like a user dragging the handles; no other
-    start is tried, so the result depends on the path.
-
-    Parameters
-    ----------
-    shape : defop.scene.shapes.Shape
-    samples : (m, n, d) numpy array
-        The path's configurations of the moving handles, in order.
-    energy : str
-    start : (n_vertices, d) numpy array, optional
-        The first solve's start (default the rest pose).
-    progress : bool or callable
-        A progress bar (:func:`defop.training.batch.progress`).
-    desc : str
-    solver_kw, solve_kw : dict, optional
-        Passed to ``Solver(...)`` and ``Solver.solve(...)`` (``tol``, ``max_iter``, ``max_stages``).
-
-    Returns
-    -------
-    Solves
-        In the order of ``samples``. The sweep runs in this process (each solve needs the previous one).
-    """
-    en.check_energy(energy)
-    samples = check_samples(shape, samples)
-    problem = Problem(shape.mesh, shape.handles, energy, solver_kw=dict(solver_kw or {}), solve_kw=dict(solve_kw or {}))
-    targets = [shape.targets(q) for q in samples]
-    w0 = time.perf_counter()
-    bar = batch.progress(len(targets), desc, progress)
-    try:
-        items = continuation(problem.solver_for(None), targets, start, bar, solve_kw=problem.solve_kw)
-    finally:
-        if bar:
-            bar.close()
-    return collect(items, time.perf_counter() - w0)
-
-
-def sweep_paths(solver, items):
-    """:func:`sweeps`' worker: one :func:`continuation` per item ``(targets, start)``, each a list of :class:`Item`."""
-    return [continuation(solver, targets, start) for targets, start in items]
-
-
-def sweeps(solver, paths, n_jobs=None, progress=False, desc="continuation sweeps"):
-    """Several continuation paths at once, in parallel (one path per item): a list of :class:`Solves`.
-
-    Parameters
-    ----------
-    solver : defop.variational.solver.Solver
-        Built on the mesh and handles the targets are for (picklable: the workers get a copy).
-    paths : sequence of (targets, start)
-        Per path: the handles' targets in order ((k, h, d) or a list of (h, d) arrays) and the first solve's start
-        ((n_vertices, d), or None for the rest pose).
-    n_jobs, progress, desc
-        As :func:`defop.training.batch.parallel_map`; the result does not depend on ``n_jobs``.
-    """
-    w0 = time.perf_counter()
-    runs = batch.parallel_map(functools.partial(sweep_paths, solver), list(paths), n_jobs, progress, desc)
-    wall = time.perf_counter() - w0
-    return [collect(items, wall) for items in runs]
-
-
-def walk(solver, path, solve_kw=None):
-    """Run one decision path: ``path`` (a generator) yields ``(targets, X0)``, one local solve warm-started from X0,
-    and receives its ``(X, energy, converged)``, until it returns. The engine's policy for paths whose next step
-    depends on the last result (a flood fill over a branch's domain, a bisection towards its fold); a continuation
-    (:func:`continuation`) is the path that always steps on.
-
-    Returns
-    -------
-    value, cpu : object, float
-        What the path returns, and the CPU seconds of the walk (``time.process_time`` where it ran).
-    """
-    t0 = time.process_time()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotConvergedWarning)
-        try:
-            T, X0 = next(path)
-            while True:
-                r = solver.solve(T, X0=X0, start="local", **dict(solve_kw or {}))
-                T, X0 = path.send((np.asarray(r.X), float(r.energy), bool(r.converged)))
-        except StopIteration as stop:
-            return stop.value, time.process_time() - t0
-
-
-def walk_paths(solver, path, chunk):
-    """:func:`walks`' worker: :func:`walk` of ``path(item)`` for every item of the chunk."""
-    return [walk(solver, path(item)) for item in chunk]
-
-
-def walks(solver, path, items, n_jobs=None, progress=False, desc="paths"):
-    """:func:`walk` of ``path(item)`` for every item, in parallel (independent paths; the result does not depend on
-    ``n_jobs``).
-
-    Returns
-    -------
-    values : list
-        Each path's return value, in the order of ``items``.
-    cpu : float
-        CPU seconds summed over the paths (each measured where it ran).
-    """
-    res = batch.parallel_map(functools.partial(walk_paths, solver, path), list(items), n_jobs, progress, desc)
-    return [v for v, _ in res], float(sum(c for _, c in res))
 
 
 def settings_of(shape, energy, solver_kw=None):

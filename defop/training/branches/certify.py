@@ -19,7 +19,7 @@ into the signed distance to b's fold points, which :mod:`defop.operator.branched
 counts in the multi-valued training's cost (``certify_seconds``).
 
 The flood fills of the branches, then all the bisections, then all the segments' bisections are independent of
-each other: each stage runs on the sample engine as paths of solves (:func:`defop.training.solves.walks`: each
+each other: each stage runs on the sample engine as paths of solves (:func:`defop.training.paths.walks`: each
 step of a path is one warm-started solve, the next chosen by the last), and the result does not depend on the
 number of workers.
 
@@ -39,7 +39,7 @@ import numpy as np
 from ... import options as opt
 from ...operator.domains import fold_pairs
 from ...variational.solver import Solver
-from .. import batch, solves
+from .. import batch, paths
 from .. import cache as cache_mod
 from ..minima import rms
 from . import records
@@ -117,7 +117,7 @@ class _Judge:
         return 1 if s - plane(self.t, Q, self.shape.P_moving) >= 0 else -1
 
     def step(self, q0, q1, X0, side):
-        """A path of one solve (:func:`defop.training.solves.walk`): at q1 from X0 (b's minimum at q0); returns
+        """A path of one solve (:func:`defop.training.paths.walk`): at q1 from X0 (b's minimum at q0); returns
         (X, E, verdict), verdict True (stays), False (leaves), None (did not verify)."""
         X, E, ok = yield self.shape.targets(q1), X0
         if not ok:
@@ -142,12 +142,12 @@ def depth_of(depth, levels, default=3):
 
 def bisect(step, lo, hi, X_lo, E_lo, depth):
     """The bisection of branch edges: halve the segment lo (on the branch, minimum X_lo) → hi ``depth`` times. A path
-    for :func:`defop.training.solves.walk` (it returns what is listed below).
+    for :func:`defop.training.paths.walk` (it returns what is listed below).
 
     Parameters
     ----------
     step : callable
-        ``step(q0, q1, X0)``: the path (:func:`defop.training.solves.walk`) of one solve at q1 warm-started from the
+        ``step(q0, q1, X0)``: the path (:func:`defop.training.paths.walk`) of one solve at q1 warm-started from the
         minimum X0 at q0, returning (X, E, stays): whether it stays on the branch (True; False or None leave it).
     lo, hi : (n_moving, d) numpy arrays
     X_lo : (n_vertices, d) numpy array
@@ -177,7 +177,7 @@ def bisect(step, lo, hi, X_lo, E_lo, depth):
 def bracket_fold(judge, qa, qb, Xa, Ea, side, depth=None, *, levels=None):
     """Bisect qa (b present, minimum Xa) → qb (b absent) ``depth`` times (:func:`bisect`): (fold point, (q, X, E)
     last on b). Each half step is one solve warm-started from the last minimum on b; an unverified solve counts as
-    leaving. Run by the sample engine: ``solves.walk(judge.solver, bracket_fold(judge, ...))``."""
+    leaving. Run by the sample engine: ``paths.walk(judge.solver, bracket_fold(judge, ...))``."""
     depth = depth_of(depth, levels)
     lo, hi, X, E, _ = yield from bisect(lambda q0, q1, X0: judge.step(q0, q1, X0, side), qa, qb, Xa, Ea, depth)
     return (lo + hi) / 2, (lo, X, E)
@@ -185,7 +185,7 @@ def bracket_fold(judge, qa, qb, Xa, Ea, side, depth=None, *, levels=None):
 
 def _flood(judge, Q, nbrs, b, known, tol):
     """b's :class:`Certified` labels on the grid (module docstring): a flood fill over its border, as a path of
-    solves for :func:`defop.training.solves.walk`."""
+    solves for :func:`defop.training.paths.walk`."""
     grid, mesh = len(nbrs), judge.shape.mesh
     c = Certified({int(k): (X, E) for k, X, E in zip(b.samples, b.X, b.energy) if k < grid})
     todo = sorted({int(j) for k in c.present for j in nbrs[k] if j not in c.present})
@@ -238,7 +238,7 @@ def _brackets(judge, Q, nbrs, certified, branches, depth, n_jobs):
                     items.append((Q[k], Q[j], *c.present[k], b.side))
                     owner.append((i, int(k), int(j)))
     path = functools.partial(_bracket_item, judge, depth)
-    results, seconds = solves.walks(judge.solver, path, items, n_jobs, desc="fold bisections")
+    results, seconds = paths.walks(judge.solver, path, items, n_jobs, desc="fold bisections")
     lows = [[] for _ in certified]
     for (i, k, j), (fold, low) in zip(owner, results):
         c = certified[i]
@@ -287,7 +287,7 @@ def refine_segments(judge, Q, certified, lows, sides, depth, n_jobs=None):
                 items.append((q0, X0, qs, qe, sides[i]))
                 owner.append((i, a, b))
     path = functools.partial(_segment_item, judge, depth)
-    results, seconds = solves.walks(judge.solver, path, items, n_jobs, desc="edge bisections")
+    results, seconds = paths.walks(judge.solver, path, items, n_jobs, desc="edge bisections")
     out = [[] for _ in certified]
     for (i, a, b), fold in zip(owner, results):
         F = certified[i].folds
@@ -356,7 +356,7 @@ def _certify(shape, branches, Q, judge, depth, tol, n_jobs):
             if k < len(Q):
                 known[k].append(X)
     flood = functools.partial(_flood_item, judge, Q, nbrs, known, tol)
-    out, s0 = solves.walks(judge.solver, flood, branches.branches, n_jobs, desc="certification")
+    out, s0 = paths.walks(judge.solver, flood, branches.branches, n_jobs, desc="certification")
     lows, s1 = _brackets(judge, Q, nbrs, out, branches.branches, depth, n_jobs)
     s2 = refine_segments(judge, Q, out, lows, [b.side for b in branches.branches], depth, n_jobs)
     return out, s0 + s1 + s2

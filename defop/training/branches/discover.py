@@ -4,7 +4,7 @@ At each Q_k the multi-start of the single-valued training (:meth:`defop.variatio
 the rest pose, saddles escaped: source 0), plus the minima that **continuation** reaches: each sweep visits the
 samples in an order where consecutive samples are neighbours and warm-starts every solve from the previous minimum
 (a user's drag; sources 1..). The multi-starts are independent solves and the sweeps are independent of each
-other: both run on the sample engine (:func:`defop.training.solves.solve` and :func:`defop.training.solves.sweeps`),
+other: both run on the sample engine (:func:`defop.training.solves.solve` and :func:`defop.training.paths.sweeps`),
 and the result is cached through :func:`defop.training.batch.load_or_compute`.
 """
 
@@ -17,7 +17,7 @@ import numpy as np
 
 from ...variational.energies import check_energy
 from ...variational.solver import NotConvergedWarning, Solver
-from .. import batch, solves
+from .. import batch, paths, solves
 from .. import cache as cache_mod
 
 __all__ = ["Minima", "discover", "solve_quietly", "sweep"]
@@ -78,7 +78,7 @@ def sweep(solver, targets, X0, start="local"):
     seconds : float
         CPU seconds of the solves (``time.process_time`` of the process that ran them).
     """
-    items = solves.continuation(solver, targets, X0, solve_start=start)
+    items = paths.continuation(solver, targets, X0, solve_start=start)
     X = np.reshape([i.X for i in items], (len(targets), *np.shape(X0)))
     E = np.array([i.energy for i in items], dtype=float)
     ok = np.array([i.converged for i in items], dtype=bool)
@@ -94,8 +94,8 @@ def _compute(shape, solver, samples, sweeps, progress, n_jobs, solver_kw):
     )
     X[:, 0], E[:, 0], conv[:, 0] = single.X, single.energy, single.converged
     targets = [shape.targets(q) for q in samples]
-    paths = [([targets[k] for k in order[1:]], X[order[0], 0]) for order in sweeps]
-    runs = solves.sweeps(solver, paths, n_jobs, progress)
+    routes = [([targets[k] for k in order[1:]], X[order[0], 0]) for order in sweeps]
+    runs = paths.sweeps(solver, routes, n_jobs, progress)
     for c, (order, run) in enumerate(zip(sweeps, runs), start=1):
         first = order[0]  # each sweep starts from the multi-start's minimum there
         X[first, c], E[first, c], conv[first, c] = X[first, 0], E[first, 0], conv[first, 0]
