@@ -11,6 +11,7 @@ import re
 from .. import options as opt
 from ..operator.branched import BranchedOperator
 from ..operator.defop import DefOp
+from ..scene.planar_shapes import image_frame as image_frame_of
 from ..scene.shapes import Shape
 from .payload import JS_PATH, branched_to_payload, defop_to_payload, encode_payload, image_for, region_balls
 from .state import region_polygons
@@ -118,6 +119,18 @@ def _check_dimensions(op, shape, image, image_frame):
         raise ValueError("image and image_frame are for 2D operators (a picture on the triangles); this operator is 3D")
 
 
+def _frame(image, image_frame, shape):
+    """``image_frame``, or found from the picture and the shape ``from_image`` made of it."""
+    if image is None or image_frame is not None:
+        return image_frame
+    if shape is None:
+        raise ValueError(
+            "image= needs shape= (the Shape dop.shapes.from_image made from this picture: the page finds where the "
+            "mesh lies in the picture from its outline), or image_frame= (the rest vertices in pixels)"
+        )
+    return image_frame_of(image, shape)
+
+
 def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     """Write one self-contained page that drags ``op`` offline (inline script, no network access).
 
@@ -142,9 +155,15 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
         ``<``, ``>`` and ``&`` become ``\\u003c``, ``\\u003e``, ``\\u0026`` so no ``</script>`` or ``<!--`` can end
         or break the script). A lone surrogate becomes U+FFFD.
     image : (H,W), (H,W,3) or (H,W,4) numpy array, or path, optional
-        A picture drawn on the deformed mesh (see :func:`image_payload`); inlined as a PNG.
-    image_frame : callable or (n_vertices,2) numpy array
-        Required with ``image``: the mesh → pixel map or the rest vertices in pixels (:func:`pixel_coordinates`).
+        A picture drawn on the deformed mesh, inlined as a PNG (grey, RGB or RGBA; bool, integer or float in
+        [0,1]; at most 4096 pixels a side). For a shape made by ``dop.shapes.from_image(picture)`` this is all:
+        the page places the picture itself, by finding its silhouette again and matching it to ``shape``'s
+        outline (:func:`defop.scene.planar_shapes.image_frame`), so ``shape`` is needed.
+    image_frame : callable or (n_vertices,2) numpy array, optional
+        Where the mesh lies in the picture, instead: ``to_pixels((k,2) mesh coordinates) -> (k,2) pixels``, or the
+        rest vertices in pixels (x = column, y = row down, pixel centres at integers). Needed when ``from_image``
+        was given ``threshold=`` or ``foreground=`` (``dop.shapes.image_frame(picture, shape, threshold=...)``),
+        or when the picture is not the one the shape was made from.
 
     Returns
     -------
@@ -155,7 +174,8 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     ------
     ValueError
         ``op`` is not a DefOp, ``shape`` not a Shape (or of another dimension or mesh than ``op``), ``title``
-        not a string, ``path`` not a path, a picture for a 3D operator.
+        not a string, ``path`` not a path, a picture for a 3D operator, a picture without ``shape`` or
+        ``image_frame``, or one whose silhouette is not ``shape``'s outline (the message says what to pass).
     """
     branched = isinstance(op, BranchedOperator)
     if branched:
@@ -186,7 +206,7 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
         )
     payload.update(title=title, kinds=[op.handle_basis.kind])
     if image is not None or image_frame is not None:
-        payload.update(image_for(op.mesh, image, image_frame))
+        payload.update(image_for(op.mesh, image, _frame(image, image_frame, shape)))
     meta, data = encode_payload(payload)
     fields = dict(title=html.escape(title), meta=script_json(meta), data=base64.b64encode(data).decode("ascii"))
     if op.d == 3:

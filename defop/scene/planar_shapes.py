@@ -1,18 +1,21 @@
 """Planar shapes from a polygon with holes (:func:`from_polygon`) or from the silhouette of an image
-(:func:`from_image`, handles placed by itself when none are given)."""
+(:func:`from_image`, handles placed by itself when none are given), and the map from such a shape back to its
+picture's pixels (:func:`image_frame`)."""
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
 from .. import options as opt
 from ..geometry.planar.meshing import triangulate
-from ..geometry.planar.outlines import image_outline
+from ..geometry.planar.outlines import image_outline, load_image
 from ..geometry.planar.polygon import SCALE_RANGE, distance_to_outline, points_in_polygon, validate_polygon
 from .regions import Disc
 from .shape import Shape
 
-__all__ = ["from_polygon", "from_image", "MAX_AUTO_HANDLES", "auto_handles"]
+__all__ = ["from_polygon", "from_image", "image_frame", "MAX_AUTO_HANDLES", "auto_handles"]
 
 #: most handles ``from_image`` places by itself (farthest-point picks on a 60 x 60 grid)
 MAX_AUTO_HANDLES = 100
@@ -95,7 +98,7 @@ def from_image(
     handles=None,
     moving=None,
     regions=None,
-    threshold=0.5,
+    threshold=None,
     size=1.0,
     n_vertices=1500,
     name="image",
@@ -114,8 +117,11 @@ def from_image(
         diagonal equals ``size``, origin at its bounding-box corner). Default: the
         ``n_auto_handles`` interior points farthest apart.
     moving, regions : see :func:`from_polygon`
-    threshold : float
-        In (0,1): a pixel is inside when its foreground value exceeds it.
+    threshold : float or None
+        None (default): the automatic rule, one for every picture (Otsu's split of the alpha channel when it
+        varies, else of the colour distance from the picture's border; see
+        :func:`defop.geometry.planar.silhouette.silhouette`): a shape of any colour on any other colour keeps its
+        area. A number in (0,1): a pixel is inside when its foreground value exceeds it.
     size : float
     n_vertices : int
     name : str
@@ -128,6 +134,14 @@ def from_image(
     Returns
     -------
     shape : Shape
+        Its ``outline`` is the silhouette in the output units; :func:`image_frame` maps it back to the pixels
+        (``to_html(op, path, shape=shape, image=picture)`` does that itself).
+
+    Warns
+    -----
+    UserWarning
+        When the picture's foreground has separate regions: all but the largest are dropped (the message gives
+        the share of the foreground's area lost and names ``threshold=``).
     """
     size = opt.positive("size", size)  # a negative size mirrored the silhouette
     if not SCALE_RANGE[0] <= size <= SCALE_RANGE[1]:  # 1e300 overflowed into "too thin to place handles"
@@ -168,3 +182,64 @@ def auto_handles(outer, holes, k):
         dist = np.min(np.sqrt(diff[..., 0] ** 2 + diff[..., 1] ** 2), axis=1)
         pick.append(int(np.argmax(dist)))
     return cand[pick]
+
+
+def image_frame(image, shape, threshold=None, foreground="auto"):
+    """The map from the coordinates of a shape made by :func:`from_image` to the pixels of its picture.
+
+    The picture's silhouette is found again, by the same rule (pass the ``threshold`` and ``foreground`` that
+    ``from_image`` was given), and matched to ``shape.outline``: ``from_image`` put the silhouette's bounding box
+    at the origin, y up, scaled to a diagonal of ``size``. The match is checked point by point, so a picture or a
+    rule other than the shape's is an error, not a shifted picture.
+
+    Parameters
+    ----------
+    image : (H,W), (H,W,3) or (H,W,4) numpy array, or path
+        The picture ``from_image`` was given (see :func:`defop.geometry.planar.outlines.load_image`).
+    shape : Shape
+        The 2D shape ``from_image(image, ...)`` made (or one with its mesh and outline).
+    threshold, foreground :
+        As given to :func:`from_image`.
+
+    Returns
+    -------
+    to_pixels : callable
+        ``to_pixels((k,2) shape coordinates) -> (k,2) pixels``: x = column, y = row (down), pixel centres at
+        integers; what ``image_frame=`` of :func:`defop.editor.export.to_html` and
+        :class:`defop.editor.browser.BrowserEditor` take.
+
+    Raises
+    ------
+    ValueError
+        ``shape`` not a 2D Shape with an outline, a bad picture, or a silhouette that is not the shape's outline
+        (naming ``threshold=`` and ``foreground=``).
+    """
+    from scipy.spatial import cKDTree
+
+    if not isinstance(shape, Shape) or shape.mesh.dim != 2 or not len(shape.outline):
+        raise ValueError(f"shape must be a 2D Shape made by from_image, got {type(shape).__name__}")
+    img = load_image(image)
+    with warnings.catch_warnings():  # from_image has already said what it dropped
+        warnings.simplefilter("ignore", UserWarning)
+        outer, _ = image_outline(img, threshold, foreground_mode=foreground)
+    mine = np.asarray(shape.outline[0], dtype=float)
+    lo, mine_lo = outer.min(axis=0), mine.min(axis=0)
+    diagonal = float(np.hypot(*np.ptp(mine, axis=0)))
+    scale = diagonal / float(np.hypot(*np.ptp(outer, axis=0)))
+    mapped = (outer - lo) * scale + mine_lo
+    gap = max(cKDTree(mapped).query(mine)[0].max(), cKDTree(mine).query(mapped)[0].max())
+    if gap > 1e-9 * diagonal:
+        raise ValueError(
+            f"the picture's silhouette is not the outline of shape {shape.name!r} (they differ by {gap / scale:.3g} "
+            f"pixels), found with threshold={threshold!r}, foreground={foreground!r}: the shape was made from "
+            f"another picture, or by from_image with other threshold= or foreground=; give those to "
+            f"dop.shapes.image_frame(picture, shape, threshold=..., foreground=...) and pass what it returns as "
+            f"image_frame= (or the rest vertices in pixels, for a picture in another frame)"
+        )
+    H = img.shape[0]
+
+    def to_pixels(x):
+        up = (np.asarray(x, dtype=float) - mine_lo) / scale + lo
+        return np.column_stack([up[:, 0], (H - 1) - up[:, 1]])
+
+    return to_pixels

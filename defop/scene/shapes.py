@@ -35,7 +35,7 @@ from .handles import handle_vertices
 from .models import check_name, default_vertices, model
 from .models import dim as model_dim
 from .planar_shapes import MAX_AUTO_HANDLES as MAX_AUTO_HANDLES  # re-exported
-from .planar_shapes import from_image, from_polygon
+from .planar_shapes import from_image, from_polygon, image_frame
 from .regions import REGION_KINDS
 from .shape import Shape
 
@@ -45,6 +45,7 @@ __all__ = [
     "names",
     "from_polygon",
     "from_image",
+    "image_frame",
     "from_surface",
     "default_vertices",
     "REGION_KINDS",

@@ -9,7 +9,6 @@ Triangle mesh, is the same on every CPU.
 from __future__ import annotations
 
 import math
-import numbers
 import os
 import re
 import struct
@@ -21,8 +20,9 @@ import numpy as np
 from ... import options as opt
 from ..fields import capsule, chain, subtract, union  # noqa: F401  (dimension-generic; re-exported here)
 from .polygon import points_in_polygon, polygon_area
-
-FOREGROUNDS = ("auto", "dark", "light", "alpha")
+from .silhouette import FOREGROUNDS as FOREGROUNDS  # re-exported
+from .silhouette import foreground as foreground  # re-exported
+from .silhouette import silhouette
 
 
 # ------------------------------------------------------------------------------- level sets
@@ -64,23 +64,7 @@ def outline_from_field(Z, x, y, level=0.0, min_area_frac=1e-3):
         None when the set is empty.
     holes : list of (l,2) numpy array
     """
-    loops = _level_set_loops(Z, x, y, level)
-    if not loops:
-        return None, []
-    areas = np.array([abs(polygon_area(L)) for L in loops])
-    order = np.argsort(-areas, kind="stable")
-    outer = loops[order[0]]
-    holes, dropped = [], []
-    for k in order[1:]:
-        L = loops[k]
-        if areas[k] < min_area_frac * areas[order[0]]:
-            continue
-        # a loop inside the outer one is a hole unless it sits inside another hole (an island); islands and
-        # loops outside the outer one are separate regions
-        if points_in_polygon(L[:1], [outer])[0] and not any(points_in_polygon(L[:1], [h])[0] for h in holes):
-            holes.append(L)
-        else:
-            dropped.append(areas[k] / areas[order[0]])
+    outer, holes, dropped, _ = field_components(Z, x, y, level, min_area_frac)
     if dropped:
         warnings.warn(
             f"the shape has {len(dropped) + 1} separate regions; kept the largest, dropped {len(dropped)} "
@@ -89,6 +73,43 @@ def outline_from_field(Z, x, y, level=0.0, min_area_frac=1e-3):
             stacklevel=opt.user_stacklevel(),
         )
     return outer, holes
+
+
+def field_components(Z, x, y, level=0.0, min_area_frac=1e-3):
+    """:func:`outline_from_field` without its warning: what it keeps, and what it drops.
+
+    Returns
+    -------
+    outer : (k,2) numpy array or None
+    holes : list of (l,2) numpy array
+    dropped : list of float
+        Each separate region dropped (above ``min_area_frac``), as a fraction of the kept outer loop's area.
+    lost : float
+        The fraction of the area of {Z > level} outside the kept region (0 when nothing was dropped): the signed
+        areas of every loop (outer loops counter-clockwise, holes clockwise) minus the kept region's.
+    """
+    loops = _level_set_loops(Z, x, y, level)
+    if not loops:
+        return None, [], [], 0.0
+    signed = np.array([polygon_area(L) for L in loops])
+    areas = np.abs(signed)
+    order = np.argsort(-areas, kind="stable")
+    outer = loops[order[0]]
+    holes, dropped, kept = [], [], [int(order[0])]
+    for k in order[1:]:
+        L = loops[k]
+        if areas[k] < min_area_frac * areas[order[0]]:
+            continue
+        # a loop inside the outer one is a hole unless it sits inside another hole (an island); islands and
+        # loops outside the outer one are separate regions
+        if points_in_polygon(L[:1], [outer])[0] and not any(points_in_polygon(L[:1], [h])[0] for h in holes):
+            holes.append(L)
+            kept.append(int(k))
+        else:
+            dropped.append(areas[k] / areas[order[0]])
+    total = float(signed.sum())
+    lost = max(0.0, (total - float(signed[kept].sum())) / total) if dropped and total > 0 else 0.0
+    return outer, holes, dropped, lost
 
 
 def implicit_outline(field, bbox, resolution=400):
@@ -285,42 +306,6 @@ def _unit_image(image):
     return img
 
 
-def foreground(img, mode="auto"):
-    """How much each pixel is foreground, in [0,1], and a sentence saying what was assumed.
-
-    Parameters
-    ----------
-    img : (H,W), (H,W,3) or (H,W,4) numpy array in [0,1]
-    mode : str
-        ``"alpha"``: the alpha channel; ``"dark"``: dark shapes on a light background;
-        ``"light"``: light shapes on a dark background; ``"auto"``: the alpha channel when it varies,
-        otherwise whatever differs from the image border (a light border means a dark shape).
-        Grey, RGB and RGBA layouts of the same picture give the same foreground.
-
-    Returns
-    -------
-    fg : (H,W) numpy array
-    assumed : str
-    """
-    if mode not in FOREGROUNDS:
-        raise ValueError(f"foreground must be one of {FOREGROUNDS}, got {mode!r}")
-    has_alpha = img.ndim == 3 and img.shape[2] == 4
-    if mode == "alpha" or (mode == "auto" and has_alpha and np.ptp(img[..., 3]) > 0):
-        if not has_alpha:
-            raise ValueError(f"foreground='alpha' needs an (H,W,4) RGBA image, got shape {img.shape}")
-        return img[..., 3], "the shape is the opaque part (alpha channel)"
-    grey = img if img.ndim == 2 else img[..., :3].mean(axis=2)
-    if mode == "auto":
-        border = np.concatenate([grey[0], grey[-1], grey[:, 0], grey[:, -1]])
-        mode = "dark" if border.mean() >= 0.5 else "light"
-        how = f"judged from the border, mean grey {border.mean():.2f}; pass foreground= to override"
-    else:
-        how = f"foreground={mode!r}"
-    if mode == "dark":
-        return 1.0 - grey, f"the shape is dark on a light background ({how})"
-    return grey, f"the shape is light on a dark background ({how})"
-
-
 def _blur(Z, sigma):
     """Near-Gaussian blur by a binomial kernel (variance n/4 = sigma²), separable.
 
@@ -334,15 +319,16 @@ def _blur(Z, sigma):
     return correlate1d(correlate1d(Z, w, axis=0, mode="reflect"), w, axis=1, mode="reflect")
 
 
-def image_outline(image, threshold=0.5, smooth=1.0, foreground_mode="auto"):
+def image_outline(image, threshold=None, smooth=1.0, foreground_mode="auto"):
     """Silhouette of an image as polygons (largest connected component, with its holes).
 
     Parameters
     ----------
     image : (H,W) or (H,W,3|4) numpy array, or a path to an image file
         See :func:`load_image`.
-    threshold : float
-        Pixels whose foreground value (see :func:`foreground`) exceeds it are inside.
+    threshold : float or None
+        None (default): the automatic rule of :func:`silhouette`, the same for every picture. A number in (0,1):
+        pixels whose foreground value (see :func:`foreground`) exceeds it are inside.
     smooth : float
         Blur radius (pixels, the standard deviation of a binomial kernel) before extracting the contour,
         to remove pixel stairs.
@@ -355,27 +341,35 @@ def image_outline(image, threshold=0.5, smooth=1.0, foreground_mode="auto"):
         In pixel units, y up, origin at the bottom-left.
     holes : list of (l,2) numpy array
 
+    Warns
+    -----
+    UserWarning
+        When separate regions are dropped (one mesh is one connected region): how many, and the share of the
+        foreground's area lost, naming ``threshold=``.
+
     Raises
     ------
     ValueError
         A bad image, or one with no foreground or only foreground (the message says which
         foreground was assumed).
     """
-    real = isinstance(threshold, numbers.Real) and not isinstance(threshold, (bool, np.bool_))
-    if not (real and np.isfinite(threshold) and 0 < threshold < 1):
-        raise ValueError(f"threshold must lie strictly between 0 and 1, got {threshold!r}")
-    fg, assumed = foreground(load_image(image), foreground_mode)
-    mask = fg > threshold
-    if not mask.any():
-        raise ValueError(f"the image has no foreground (no pixel above threshold {threshold}); assumed {assumed}")
-    if mask.all():
-        raise ValueError(f"the image is all foreground; the silhouette needs a background around it; assumed {assumed}")
+    mask, assumed = silhouette(load_image(image), threshold, foreground_mode)
     Z = np.pad(mask.astype(float), 2)
     if smooth:
         Z = _blur(Z, smooth)
     Z = Z[::-1]  # y up
     h, w = Z.shape
-    outer, holes = outline_from_field(Z, np.arange(w) - 2.0, np.arange(h) - 2.0, 0.5)
+    outer, holes, dropped, lost = field_components(Z, np.arange(w) - 2.0, np.arange(h) - 2.0, 0.5)
     if outer is None:
         raise ValueError(f"the image has no foreground region large enough to mesh; assumed {assumed}")
+    if dropped:
+        warnings.warn(
+            f"the picture's foreground has {len(dropped) + 1} separate regions; kept the largest, dropped "
+            f"{len(dropped)} (the largest dropped one has {max(dropped):.1%} of its area): {lost:.1%} of the "
+            f"foreground's area is lost. If they are one shape, join them in the picture or pass threshold= (a "
+            f"number in (0,1): a pixel is inside when its foreground value exceeds it, so a lower one takes more "
+            f"pixels); assumed {assumed}",
+            UserWarning,
+            stacklevel=opt.user_stacklevel(),
+        )
     return outer, holes
