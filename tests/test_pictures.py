@@ -139,9 +139,10 @@ def test_a_binary_picture_meshes_as_before():
     yy, xx = np.mgrid[:200, :300]
     star = np.hypot(xx - 150, yy - 100) < 70 + 20 * np.cos(5 * np.arctan2(yy - 100, xx - 150))
     for picture in (star, ~star, star.astype(np.uint8) * 255):
-        assert dop.shapes.from_image(picture, n_vertices=300).mesh == dop.shapes.from_image(
-            picture, threshold=0.5, n_vertices=300
-        ).mesh
+        assert (
+            dop.shapes.from_image(picture, n_vertices=300).mesh
+            == dop.shapes.from_image(picture, threshold=0.5, n_vertices=300).mesh
+        )
 
 
 def test_a_shape_cut_by_the_border_is_still_the_shape():
