@@ -263,3 +263,23 @@ def test_pictures_warn_nothing_when_one_region():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         image_outline(image)
+
+
+@pytest.mark.browser
+def test_the_page_of_a_picture_shape_is_textured_and_drags_in_chromium(picture_op, tmp_path):
+    """to_html(op, path, shape=, image=path) only: the page draws the picture (WebGL) and the handle follows."""
+    from test_browser_editor import chromium_page, mouse_drag
+
+    image, path, shape, op = picture_op
+    page_path = export.to_html(op, tmp_path / "star.html", shape=shape, image=path)
+    with chromium_page() as page:
+        page.goto(page_path.as_uri())
+        page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
+        ready = page.evaluate("() => window.defopEditor.imageReady")
+        text = page.evaluate("() => window.defopEditor.ui.readout.textContent")
+        end = mouse_drag(page, "window.defopEditor", 30, -20)
+        Q = np.array(page.evaluate("() => Array.from(window.defopEditor.st.Q)")).reshape(-1, 2)
+        errors = page.errors
+    assert not errors, errors
+    assert ready is True and f"picture {image.shape[1]} × {image.shape[0]} px: textured (WebGL)" in text, text
+    np.testing.assert_allclose(Q[0], end, atol=1e-12)
