@@ -156,6 +156,15 @@ def test_a_shape_cut_by_the_border_is_still_the_shape():
     assert abs(mask.sum() / np.count_nonzero(c > 0.5) - 1) < 0.01
 
 
+def test_an_almost_opaque_alpha_channel_is_not_the_shape():
+    """An RGBA picture whose alpha is 1 but for a few 254/255 pixels: the shape is the drawn one, in colour."""
+    image, drawn, _ = _picture(0)
+    rgba = np.concatenate([image, np.full((*image.shape[:2], 1), 255, np.uint8)], axis=2)
+    rgba[::7, ::5, 3] = 254
+    mask, assumed = silhouette(rgba / 255.0)
+    assert "colour" in assumed and abs(mask.sum() / drawn - 1) < AREA_TOLERANCE, assumed
+
+
 # ------------------------------------------------------------------------ the dropped-regions warning
 def test_the_dropped_regions_warning_names_threshold_and_the_area_lost():
     yy, xx = np.mgrid[:200, :300]
@@ -239,8 +248,13 @@ def test_to_html_picture_errors_say_what_to_pass(picture_op, tmp_path):
         (np.zeros((40, 50)), {"foreground": "dark", "threshold": 0.5}, r"all foreground .*threshold=0.5; raise it"),
         (np.zeros((40, 50, 4)), {"foreground": "alpha"}, r"no foreground \(every pixel is the same value"),
         (np.eye(40), {"threshold": 0.0}, r"threshold must lie strictly between 0 and 1 \(or None"),
+        (
+            np.random.default_rng(0).integers(250, 256, (40, 50, 3), dtype=np.uint8),
+            {},
+            r"no foreground \(every pixel is the same colour within 0.0\d+, less than MIN_CONTRAST .*threshold=",
+        ),
     ],
-    ids=["one colour", "none above threshold", "all above threshold", "transparent", "threshold 0"],
+    ids=["one colour", "none above threshold", "all above threshold", "transparent", "threshold 0", "noise"],
 )
 def test_bad_pictures(image, kw, match):
     with pytest.raises(ValueError, match=match):

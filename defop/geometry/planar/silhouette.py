@@ -7,9 +7,12 @@ import numbers
 
 import numpy as np
 
-__all__ = ["FOREGROUNDS", "foreground", "silhouette"]
+__all__ = ["FOREGROUNDS", "MIN_CONTRAST", "foreground", "silhouette"]
 
 FOREGROUNDS = ("auto", "dark", "light", "alpha")
+#: the automatic rule needs the split value (alpha, grey or colour distance, in [0,1] or [0, √3]) to vary by this
+#: much: below it a picture is one colour with noise (an 8-bit picture's step is 1/255 = 0.004)
+MIN_CONTRAST = 0.05
 
 
 def foreground(img, mode="auto"):
@@ -57,7 +60,7 @@ def _separation(img, mode):
     """The one value per pixel the automatic rule splits, whether the split's high side is the shape (else the side
     touching the border less is), and what was assumed."""
     has_alpha = img.ndim == 3 and img.shape[2] == 4
-    if mode == "alpha" or (mode == "auto" and has_alpha and np.ptp(img[..., 3]) > 0):
+    if mode == "alpha" or (mode == "auto" and has_alpha and np.ptp(img[..., 3]) >= 0.5):
         fg, assumed = foreground(img, "alpha")
         return fg, True, assumed
     if mode != "auto":
@@ -66,7 +69,7 @@ def _separation(img, mode):
     colour = img[..., :3] if img.ndim == 3 else img[..., None]
     background = np.median(_border(colour), axis=0)
     d = colour - background
-    value = np.sqrt(np.sum(d * d, axis=-1))  # element-wise: the same on every CPU
+    value = np.sqrt(sum(d[..., k] * d[..., k] for k in range(d.shape[-1])))  # element-wise: the same on every CPU
     what = "grey" if colour.shape[-1] == 1 else "colour"
     return value, False, f"the shape is what differs in {what} from the picture's border (foreground='auto')"
 
@@ -76,11 +79,11 @@ def silhouette(img, threshold=None, mode="auto"):
 
     With ``threshold=None`` (the automatic rule, one for every picture): one value per pixel is split in two by
     Otsu's threshold (:func:`skimage.filters.threshold_otsu`, the level halfway between the two sides' means, so an
-    antialiased edge is cut where the shape covers half a pixel). The value is the alpha channel when it varies (or
-    with ``mode="alpha"``), the foreground of ``mode="dark"``/``"light"``, and otherwise the distance in colour
-    (grey, or RGB) from the median colour of the picture's border; the shape is then the side that touches the
-    picture's border less. So a shape of any colour on a background of any other colour keeps its area, dark on
-    light or light on dark.
+    antialiased edge is cut where the shape covers half a pixel). The value is the alpha channel when it spans at
+    least half its range (or with ``mode="alpha"``), the foreground of ``mode="dark"``/``"light"``, and otherwise
+    the distance in colour (grey, or RGB) from the median colour of the picture's border; the shape is then the
+    side that touches the picture's border less. So a shape of any colour on a background of any other colour
+    keeps its area, dark on light or light on dark.
 
     With a number: the pixels whose :func:`foreground` value exceeds it.
 
@@ -102,8 +105,9 @@ def silhouette(img, threshold=None, mode="auto"):
     Raises
     ------
     ValueError
-        A bad ``threshold`` or ``mode``; a picture of one colour (nothing to separate); with a number, no pixel
-        or every pixel above it (the message names ``threshold=``).
+        A bad ``threshold`` or ``mode``; a picture of one colour, or whose values span less than
+        :data:`MIN_CONTRAST` (nothing to separate); with a number, no pixel or every pixel above it (the message
+        names ``threshold=``).
     """
     if mode not in FOREGROUNDS:
         raise ValueError(f"foreground must be one of {FOREGROUNDS}, got {mode!r}")
@@ -128,10 +132,14 @@ def silhouette(img, threshold=None, mode="auto"):
     from skimage.filters import threshold_otsu
 
     value, high_is_shape, assumed = _separation(img, mode)
-    if np.ptp(value) == 0:
+    spread = float(np.ptp(value))
+    if spread < MIN_CONTRAST:
+        within = "" if spread == 0 else f" within {spread:.2g}, less than MIN_CONTRAST = {MIN_CONTRAST}"
         raise ValueError(
-            f"the image has no foreground (every pixel is the same {'colour' if mode == 'auto' else 'value'}: no "
-            f"shape stands out from a background); assumed {assumed}"
+            f"the image has no foreground (every pixel is the same {'colour' if mode == 'auto' else 'value'}"
+            f"{within}: no shape stands out from a background"
+            + ("; pass threshold= to cut a faint one" if spread else "")
+            + f"); assumed {assumed}"
         )
     level = float(threshold_otsu(value))
     mask = value > level
