@@ -16,7 +16,8 @@ MIN_CONTRAST = 0.05
 
 
 def foreground(img, mode="auto"):
-    """How much each pixel is foreground, in [0,1], and a sentence saying what was assumed.
+    """How much each pixel is foreground, in [0,1], and a sentence saying what was assumed: what an explicit
+    ``threshold=`` of :func:`silhouette` cuts.
 
     Parameters
     ----------
@@ -41,7 +42,7 @@ def foreground(img, mode="auto"):
         return img[..., 3], "the shape is the opaque part (alpha channel)"
     grey = img if img.ndim == 2 else img[..., :3].mean(axis=2)
     if mode == "auto":
-        border = np.concatenate([grey[0], grey[-1], grey[:, 0], grey[:, -1]])
+        border = _border(grey)
         mode = "dark" if border.mean() >= 0.5 else "light"
         how = f"judged from the border, mean grey {border.mean():.2f}; pass foreground= to override"
     else:
@@ -136,7 +137,7 @@ def silhouette(img, threshold=None, mode="auto"):
     if spread < MIN_CONTRAST:
         within = "" if spread == 0 else f" within {spread:.2g}, less than MIN_CONTRAST = {MIN_CONTRAST}"
         raise ValueError(
-            f"the image has no foreground (every pixel is the same {'colour' if mode == 'auto' else 'value'}"
+            f"the image has no foreground (every pixel is the same {'value' if high_is_shape else 'colour'}"
             f"{within}: no shape stands out from a background"
             + ("; pass threshold= to cut a faint one" if spread else "")
             + f"); assumed {assumed}"
