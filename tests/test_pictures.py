@@ -18,7 +18,7 @@ import defop as dop
 from defop.editor import export
 from defop.geometry.mesh import signed_areas
 from defop.geometry.planar.outlines import foreground, image_outline
-from defop.geometry.planar.silhouette import silhouette
+from defop.geometry.planar.silhouette import otsu_level, silhouette
 
 #: the meshed area of a generated picture is within this fraction of the drawn shape's area
 AREA_TOLERANCE = 0.03
@@ -154,6 +154,16 @@ def test_a_shape_cut_by_the_border_is_still_the_shape():
     clear = np.abs(c[..., 0] - 0.5) > 0.1  # Otsu's level is about, not exactly, halfway
     np.testing.assert_array_equal(mask[clear], c[..., 0][clear] > 0.5)
     assert abs(mask.sum() / np.count_nonzero(c > 0.5) - 1) < 0.01
+
+
+def test_otsu_level_is_scikit_images():
+    """The core's Otsu threshold (numpy only) is skimage.filters.threshold_otsu's, bin for bin."""
+    threshold_otsu = pytest.importorskip("skimage.filters").threshold_otsu
+    rng = np.random.default_rng(7)
+    for _ in range(30):
+        x = rng.random(int(rng.integers(2, 2000))) ** rng.uniform(0.2, 5)
+        assert otsu_level(x) == threshold_otsu(x)
+    assert otsu_level(np.array([0.0, 1.0, 1.0, 0.0])) == threshold_otsu(np.array([0.0, 1.0, 1.0, 0.0]))
 
 
 def test_an_almost_opaque_alpha_channel_is_not_the_shape():

@@ -7,7 +7,7 @@ import numbers
 
 import numpy as np
 
-__all__ = ["FOREGROUNDS", "MIN_CONTRAST", "foreground", "silhouette"]
+__all__ = ["FOREGROUNDS", "MIN_CONTRAST", "foreground", "otsu_level", "silhouette"]
 
 FOREGROUNDS = ("auto", "dark", "light", "alpha")
 #: the automatic rule needs the split value (alpha, grey or colour distance, in [0,1] or [0, √3]) to vary by this
@@ -57,6 +57,33 @@ def _border(a):
     return np.concatenate([a[0], a[-1], a[:, 0], a[:, -1]])
 
 
+def otsu_level(value, bins=256):
+    """Otsu's threshold: the level that splits the values in two with the largest between-class variance
+    w₀ w₁ (μ₀ − μ₁)² (Otsu 1979), on a histogram of ``bins`` bins over [min, max], as
+    :func:`skimage.filters.threshold_otsu` (here in numpy, so the core does not need scikit-image).
+
+    Parameters
+    ----------
+    value : numpy array
+        Not all equal.
+    bins : int
+
+    Returns
+    -------
+    level : float
+        A bin centre: the values above it are one class.
+    """
+    counts, edges = np.histogram(value, bins=bins, range=(float(value.min()), float(value.max())))
+    centres = (edges[:-1] + edges[1:]) / 2
+    counts = counts.astype(float)
+    w0, w1 = np.cumsum(counts), np.cumsum(counts[::-1])[::-1]
+    with np.errstate(invalid="ignore", divide="ignore"):  # empty classes: 0/0, never the maximum
+        m0 = np.cumsum(counts * centres) / w0
+        m1 = (np.cumsum((counts * centres)[::-1]) / w1[::-1])[::-1]
+    between = np.nan_to_num(w0[:-1] * w1[1:] * (m0[:-1] - m1[1:]) ** 2)
+    return float(centres[int(np.argmax(between))])
+
+
 def _separation(img, mode):
     """The one value per pixel the automatic rule splits, whether the split's high side is the shape (else the side
     touching the border less is), and what was assumed."""
@@ -79,7 +106,7 @@ def silhouette(img, threshold=None, mode="auto"):
     """Which pixels are the shape.
 
     With ``threshold=None`` (the automatic rule, one for every picture): one value per pixel is split in two by
-    Otsu's threshold (:func:`skimage.filters.threshold_otsu`, the level halfway between the two sides' means, so an
+    Otsu's threshold (:func:`otsu_level`, the level halfway between the two sides' means, so an
     antialiased edge is cut where the shape covers half a pixel). The value is the alpha channel when it spans at
     least half its range (or with ``mode="alpha"``), the foreground of ``mode="dark"``/``"light"``, and otherwise
     the distance in colour (grey, or RGB) from the median colour of the picture's border; the shape is then the
@@ -130,8 +157,6 @@ def silhouette(img, threshold=None, mode="auto"):
                 f"assumed {assumed}"
             )
         return mask, assumed
-    from skimage.filters import threshold_otsu
-
     value, high_is_shape, assumed = _separation(img, mode)
     spread = float(np.ptp(value))
     if spread < MIN_CONTRAST:
@@ -142,7 +167,7 @@ def silhouette(img, threshold=None, mode="auto"):
             + ("; pass threshold= to cut a faint one" if spread else "")
             + f"); assumed {assumed}"
         )
-    level = float(threshold_otsu(value))
+    level = otsu_level(value)
     mask = value > level
     if not high_is_shape and np.count_nonzero(_border(mask)) > np.count_nonzero(~_border(mask)):
         mask = ~mask  # the shape is the side that touches the border less
