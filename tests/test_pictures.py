@@ -215,7 +215,7 @@ def test_image_frame_agrees_with_the_masks_frame():
     bounding box to the mask's pixel edges, not to the outline)."""
     yy, xx = np.mgrid[:160, :220]
     mask = np.hypot(xx - 110, yy - 80) < 50 + 15 * np.cos(3 * np.arctan2(yy - 80, xx - 110))
-    shape = dop.shapes.from_image(mask, n_vertices=300)
+    shape = dop.shapes.from_image(mask, n_vertices=300, size=2.5)
     _, old = dop.view.warp.image_to_mesh_frame(mask, shape.mesh)
     assert np.abs(dop.shapes.image_frame(mask, shape)(shape.mesh.V) - old(shape.mesh.V)).max() < 0.75
 
