@@ -65,7 +65,9 @@ def test_only_beyond_the_tolerance(case):
     diag, E = bar.mesh.bbox_diagonal, 0.0103
     for rel, want in ((5e-7, 1), (2e-6, 0), (0.0, 1)):
         assert rf.pick([(up, E * (1 - rel), True), (down, E, True)], diag) == want
-    assert rf.pick([(down + 1e-6 * diag, 0.9 * E, True), (down, E, True)], diag) == 1  # lower, not distinct
+    copy = (down + 1e-6 * diag, 0.9 * E, True)  # lower, but the rest pose's own minimum
+    assert rf.pick([copy, (down, E, True)], diag) == 1
+    assert rf.pick([copy, (up, 0.95 * E, True), (down, E, True)], diag) == 1  # the lower distinct minimum
     assert rf.pick([(up, 0.5 * E, False), (down, E, True)], diag) == 1  # an unverified end point never wins
     assert rf.pick([(up, E, True), (down, np.nan, False)], diag) == 0  # an unverified rest pose gives way
 

@@ -106,21 +106,25 @@ def pick(runs, diagonal, tol=TOL, distinct=ml.DISTINCT):
     Returns
     -------
     int
-        ``len(runs) - 1`` (the rest pose) or the index of the lower distinct minimum. An unverified rest-pose run
-        gives way to the lowest verified end point.
+        The index of the lowest verified end point distinct from the rest pose's minimum where it is lower by more
+        than the tolerance, else ``len(runs) - 1`` (the rest pose). An unverified rest-pose run gives way to the
+        lowest verified end point.
     """
     X, E, ok = ([r[i] for r in runs] for i in range(3))
     rest = len(runs) - 1
-    verified = [i for i in range(len(runs)) if ok[i] and np.isfinite(E[i])]
-    if not verified:
-        return rest
-    low = min(verified, key=lambda i: (E[i], i != rest))  # ties: the rest pose
+    verified = [i for i in range(rest) if ok[i] and np.isfinite(E[i])]
     if not ok[rest]:
-        return low
-    if low == rest or not E[low] < E[rest] - tol * abs(E[rest]):
+        return min(verified, key=lambda i: E[i]) if verified else rest
+
+    def distinct_from_rest(i):
+        pair = distinct_minima([X[i], X[rest]], [E[i], E[rest]], [True, True], distinct, diagonal, metric="max")
+        return len(pair) == 2
+
+    others = [i for i in verified if distinct_from_rest(i)]
+    if not others:
         return rest
-    pair = distinct_minima([X[low], X[rest]], [E[low], E[rest]], [True, True], distinct, diagonal, metric="max")
-    return low if len(pair) == 2 else rest
+    low = min(others, key=lambda i: E[i])
+    return low if E[low] < E[rest] - tol * abs(E[rest]) else rest
 
 
 def portfolio_starts(shape, Q, energy, reference=None, coarse=True, n_jobs=None, progress=True):
