@@ -5,7 +5,8 @@ training samples whose energies differ by more than 1e-6 relative (against max(E
 the multilevel operator (``defop.operator.fit.fit``, no new solve) with those samples' X replaced by the full
 policy's, and prints the held-out (8a)/n ratio multilevel / full before and after the swap, on the held-out sets of
 seeds 12345 and 5000 (``dop.training.held_out``, rest-pose truth). Also the largest difference of the other samples'
-X between the two policies, in bounding-box diagonals.
+X between the two policies, in bounding-box diagonals. ``--truths`` adds the npz files of ``bench_training.py``'s
+``--truth-dir`` (Q, the rest-pose and the reference truth, and where they agree): the same ratios against each.
 
 Run: ``DEFOP_CACHE=$(mktemp -d) python benchmarks/bench_refit_swap.py [--shape aleph] [--m 200] [--held-out 100]``.
 """
@@ -28,6 +29,7 @@ def main():
     ap.add_argument("--shape", default="aleph")
     ap.add_argument("--m", type=int, default=200)
     ap.add_argument("--held-out", type=int, default=100)
+    ap.add_argument("--truths", nargs="*", default=[], help="npz files of bench_training.py's --truth-dir")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     shape = dop.shapes.load(args.shape)
@@ -57,6 +59,17 @@ def main():
             f"{e[2]:.4e}; ratio before {e[1] / e[0]:.4f}, after the swap {e[2] / e[0]:.4f}",
             flush=True,
         )
+    for path in args.truths:
+        t = np.load(path)
+        cases = {"rest": (t["Q"], t["X_rest"]), "reference": (t["Q"], t["X"])}
+        cases["agree"] = (t["Q"][t["agree"]], t["X"][t["agree"]])
+        for name, (Q, Xh) in cases.items():
+            e = [float(approximation_error(op, Q, Xh)) for op in (full, multi, swapped)]
+            print(
+                f"{path.split('/')[-1]} against the {name} truth ({len(Q)} Q): ratio before {e[1] / e[0]:.4f}, "
+                f"after the swap {e[2] / e[0]:.4f}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":
