@@ -8,8 +8,14 @@ alone, in CPU seconds of the process tree (``resource.getrusage``), wall time an
 child evaluates the operator on the held-out samples and computes the paper's (8a)/n over them
 (``defop.analysis.metrics.approximation_error``), and the energy of every training sample.
 
-The held-out truth (``dop.training.held_out``: 100 samples, seed 12345, rest-pose starts, main's full policy) is
-solved once by main's code in a child of its own, outside every timed span, and kept in ``--truth-dir``.
+The held-out truths (:func:`defop.training.reference.reference_truth`, this tree's code, outside every timed span):
+``--held-out`` samples (default 300) on each of two seeds (:data:`SEEDS`), drawn like ``dop.training.held_out``.
+At each Q, the **rest-pose truth** (one solve from the rest pose, ``held_out``'s) and the **reference truth** (the
+lowest verified minimum of a fixed portfolio: the rest pose, the prolongated coarse minima and the predictions of a
+frozen reference operator, the full policy at m = :data:`REF_M`, seed :data:`REF_SEED`, which no row trains; it
+replaces the rest-pose minimum only where lower by more than 1e-6 relative and distinct). Both are kept in the
+cache of ``--truth-dir`` under their digest and reused by every run; each row's operator is judged against both,
+and on the subset of Q where they agree.
 
 Rows (one function each, :data:`ROWS`; a row returns the code path, extra environment and ``train`` keywords):
 
@@ -18,10 +24,13 @@ Rows (one function each, :data:`ROWS`; a row returns the code path, extra enviro
 * ``kernel``: this tree with the fused numba kernels (:mod:`defop.variational.fused`, the default);
 * ``multilevel``: the fused kernels and ``policy="multilevel"`` (``auto`` takes it from 10,000 vertices only).
 
-Printed: per row CPU s, wall s, CPU ratio against main, held-out error and its ratio against main, verified samples,
-and every training sample whose energy moved by more than 1e-6 relative to max(E_main, 1e-3 × median E_main).
+Printed: per row CPU s, wall s, CPU ratio against main, peak memory (max RSS of the child and its workers), the
+factorisation back end, verified samples, samples moved; per seed the held-out error against each truth (and on the
+subset where they agree) with its ratio against main; every training sample whose energy moved by more than 1e-6
+relative to max(E_main, 1e-3 × median E_main), and the load average before and after each row.
 
-Run: ``python benchmarks/bench_training.py --base /tmp/base [--shape aleph] [--samples 200] [--rows main kernel]``.
+Run: ``python benchmarks/bench_training.py --base /tmp/base [--shape aleph] [--samples 200] [--rows main kernel]
+[--held-out 300] [--jobs 1]``.
 """
 
 from __future__ import annotations
@@ -37,7 +46,11 @@ import time
 import numpy as np
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-HELD_OUT, HELD_OUT_SEED = 100, 12345
+HELD_OUT = 300
+#: the held-out sets' seeds (neither is a training seed)
+SEEDS = (12345, 5000)
+#: the frozen reference operator: the full policy on REF_M samples of this seed (no row trains it)
+REF_M, REF_SEED = 200, 4242
 #: a sample "moved" when its energy differs from main's by more than this, relative to max(E_main, 1e-3 median)
 MOVED = 1e-6
 
@@ -86,45 +99,63 @@ def _child(spec, env):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def truth(args):
-    """Held-out Q and X (main's code, outside any timed span), kept as an npz in ``--truth-dir``."""
-    path = os.path.join(args.truth_dir, f"{args.shape}_{HELD_OUT}_{HELD_OUT_SEED}.npz")
-    if not os.path.exists(path):
-        os.makedirs(args.truth_dir, exist_ok=True)
-        with tempfile.TemporaryDirectory() as cache:
-            spec = {"task": "truth", "shape": args.shape, "out": path}
-            _child(spec, _env(args.base, {}, cache))
-    return path
+def truths(args):
+    """Per seed the npz of Q and both truths (this tree's code, outside any timed span, cached in ``--truth-dir``)."""
+    cache = os.path.join(args.truth_dir, "cache")
+    os.makedirs(cache, exist_ok=True)
+    paths = []
+    for seed in SEEDS:
+        out = os.path.join(args.truth_dir, f"{args.shape}_{args.held_out}_{seed}.npz")
+        spec = {"task": "truth", "shape": args.shape, "m": args.held_out, "seed": seed, "out": out, "jobs": args.jobs}
+        res = _child(spec, _env(REPO, {}, cache))
+        print(
+            f"  truth seed {seed}: {res['m']} Q, {res['replaced']} replaced by the reference "
+            f"({res['sources']}), {res['cpu']:.1f} CPU s, {res['digest']}",
+            flush=True,
+        )
+        paths.append(out)
+    return paths
 
 
-def run_row(name, args, truth_path):
-    """One row in a child with an empty cache: its timings, error and sample energies."""
+def run_row(name, args, truth_paths):
+    """One row in a child with an empty cache: its timings, errors, peak memory and sample energies."""
     row = ROWS[name](args)
     with tempfile.TemporaryDirectory() as cache:
-        spec = {"task": "train", "shape": args.shape, "m": args.samples, "truth": truth_path, "train": row["train"]}
+        spec = {"task": "train", "shape": args.shape, "m": args.samples, "truths": truth_paths, "train": row["train"]}
         load = os.getloadavg()[0]
         res = _child(spec, _env(row["path"], row["env"], cache))
     res["load"] = (load, os.getloadavg()[0])
     return res
 
 
+#: the error columns: against the rest-pose truth, the reference truth, and both on the Q where they agree
+TRUTHS = ("rest", "reference", "agree")
+
+
 def report(results):
-    """The table, ratios against main's row (else the first), and the samples that moved."""
+    """The tables, ratios against main's row (else the first), and the samples that moved."""
     base = results.get("main", results[next(iter(results))])
     E0 = np.array(base["energies"])
     scale = np.maximum(E0, 1e-3 * np.median(E0))
     print(
-        f"{'row':>10} {'CPU s':>8} {'wall s':>8} {'CPU vs main':>12} {'(8a)/n':>11} {'err ratio':>9} "
+        f"{'row':>10} {'CPU s':>8} {'wall s':>8} {'CPU vs main':>12} {'peak MB':>8} {'back end':>9} "
         f"{'verified':>9} {'moved':>6}  load before/after"
     )
     for name, r in results.items():
-        moved = np.flatnonzero(np.abs(np.array(r["energies"]) - E0) > MOVED * scale)
-        r["moved"] = moved
+        r["moved"] = np.flatnonzero(np.abs(np.array(r["energies"]) - E0) > MOVED * scale)
         print(
-            f"{name:>10} {r['cpu']:8.1f} {r['wall']:8.1f} {base['cpu'] / r['cpu']:11.2f}x {r['error']:11.4e} "
-            f"{r['error'] / base['error']:9.3f} {r['converged']:>5}/{len(r['energies'])} {len(moved):6d}  "
+            f"{name:>10} {r['cpu']:8.1f} {r['wall']:8.1f} {base['cpu'] / r['cpu']:11.2f}x {r['peak_mb']:8.0f} "
+            f"{r['backend']:>9} {r['converged']:>5}/{len(r['energies'])} {len(r['moved']):6d}  "
             f"{r['load'][0]:.1f}/{r['load'][1]:.1f}"
         )
+    print("held-out (8a)/n against each truth, (ratio against main's row):")
+    for i, seed in enumerate(SEEDS):
+        sizes = base["errors"][i]["sizes"]
+        print(f"  seed {seed}: {sizes['rest']} Q, the truths agree on {sizes['agree']}")
+        for name, r in results.items():
+            e, e0 = r["errors"][i], base["errors"][i]
+            cells = "  ".join(f"{t} {e[t]:.4e} ({e[t] / e0[t]:.3f})" for t in TRUTHS)
+            print(f"    {name:>10}: {cells}")
     if "numpy" in results and "kernel" in results:
         saved = 1 - results["kernel"]["cpu"] / results["numpy"]["cpu"]
         print(f"the fused kernels save {100 * saved:.0f}% of the training's CPU seconds against this tree's numpy path")
@@ -139,19 +170,25 @@ def main():
     ap.add_argument("--base", default="/tmp/base", help="worktree of main at d79f472")
     ap.add_argument("--shape", default="aleph")
     ap.add_argument("--samples", type=int, default=200)
+    ap.add_argument("--held-out", type=int, default=HELD_OUT, help="held-out Q per seed")
+    ap.add_argument("--jobs", type=int, default=1, help="workers of the truths' solves (the rows train on one)")
     ap.add_argument("--rows", nargs="+", default=["main", "kernel"], choices=list(ROWS))
     ap.add_argument("--truth-dir", default=os.path.join(tempfile.gettempdir(), "defop-bench-training"))
     ap.add_argument("--child")
     args = ap.parse_args()
     if args.child:
         return child(json.loads(args.child))
-    if not os.path.isdir(os.path.join(args.base, "defop")):
+    if "main" in args.rows and not os.path.isdir(os.path.join(args.base, "defop")):
         raise SystemExit(f"--base {args.base!r} is not a worktree of main: git worktree add {args.base} d79f472")
-    print(f"{args.shape}, S-ARAP, TPS, m = {args.samples}, 1 job, one BLAS thread; {time.strftime('%Y-%m-%d %H:%M')}")
-    truth_path = truth(args)
+    print(
+        f"{args.shape}, S-ARAP, TPS, m = {args.samples}, 1 job, one BLAS thread, held-out {args.held_out} x seeds "
+        f"{SEEDS}; {time.strftime('%Y-%m-%d %H:%M')}, load average {os.getloadavg()[0]:.1f}",
+        flush=True,
+    )
+    paths = truths(args)
     results = {}
     for name in args.rows:
-        results[name] = run_row(name, args, truth_path)
+        results[name] = run_row(name, args, paths)
         print(f"  {name}: {results[name]['cpu']:.1f} CPU s", flush=True)
     report(results)
 
@@ -164,30 +201,75 @@ def _cpu():
     return s.ru_utime + s.ru_stime + c.ru_utime + c.ru_stime
 
 
+def _peak_mb():
+    """Peak resident memory of this process and of its largest child (MB; Linux reports KB)."""
+    import resource
+
+    kb = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+    return kb / 1024
+
+
+def _backend(shape):
+    """The factorisation back end the solver takes on this mesh (trees without the choice: qdldl)."""
+    try:
+        from defop.variational.backend import choose_backend
+    except ImportError:
+        return "qdldl"
+    return choose_backend(None, shape.mesh.n_vertices, shape.mesh.V.shape[1])
+
+
+def child_truth(spec):
+    """Both truths at ``spec["m"]`` Q of seed ``spec["seed"]`` (:func:`defop.training.reference.reference_truth`)."""
+    import defop as dop
+    from defop.training.reference import reference_truth
+
+    c0 = _cpu()
+    shape = dop.shapes.load(spec["shape"])
+    jobs = spec["jobs"]
+    ref, _ = dop.train(shape, "sarap", "tps", m=REF_M, seed=REF_SEED, n_jobs=jobs, progress=False, policy="full")
+    Q = dop.training.sampling.sample_shape(shape, spec["m"], np.random.default_rng(spec["seed"]))
+    R = reference_truth(shape, Q, "sarap", reference=ref, n_jobs=jobs, progress=False)
+    np.savez(spec["out"], Q=R.Q, X=R.X, X_rest=R.X_rest, agree=R.agree, source=R.source, digest=R.digest)
+    sources = {name: int(np.sum(R.source == i)) for i, name in enumerate(dop.training.reference.SOURCES)}
+    out = {"m": len(Q), "replaced": int(R.replaced.sum()), "sources": sources, "digest": R.digest}
+    print(json.dumps({**out, "cpu": _cpu() - c0}))
+
+
+def errors(op, path):
+    """(8a)/n against the rest-pose truth, the reference truth, and on the Q where both agree."""
+    import defop as dop
+
+    t = np.load(path)
+    err = dop.analysis.metrics.approximation_error
+    agree = t["agree"]
+    out = {"rest": err(op, t["Q"], t["X_rest"]), "reference": err(op, t["Q"], t["X"])}
+    out["agree"] = err(op, t["Q"][agree], t["X"][agree])
+    out = {k: float(v) for k, v in out.items()}
+    out["sizes"] = {"rest": len(agree), "agree": int(agree.sum())}
+    return out
+
+
 def child(spec):
     import warnings
 
     import defop as dop
 
     warnings.simplefilter("ignore")
-    shape = dop.shapes.load(spec["shape"])
     if spec["task"] == "truth":
-        Q, X, ok = dop.training.held_out(shape, "sarap", HELD_OUT, HELD_OUT_SEED, n_jobs=1, progress=False)
-        np.savez(spec["out"], Q=Q, X=X, converged=ok)
-        print(json.dumps({"converged": int(np.sum(ok))}))
-        return
+        return child_truth(spec)
+    shape = dop.shapes.load(spec["shape"])
     small = dop.shapes.load("bar")  # warm-up: lazy imports, numba's cached kernels
     dop.variational.Solver(small.mesh, small.handles, "sarap").solve(small.targets(small.P_moving + 0.01))
     c0, w0 = _cpu(), time.perf_counter()
     op, rec = dop.train(shape, "sarap", "tps", m=spec["m"], seed=0, n_jobs=1, progress=False, **spec["train"])
-    cpu, wall = _cpu() - c0, time.perf_counter() - w0
-    held = np.load(spec["truth"])
-    error = float(dop.analysis.metrics.approximation_error(op, held["Q"], held["X"]))
+    cpu, wall, peak = _cpu() - c0, time.perf_counter() - w0, _peak_mb()
     solver = dop.variational.Solver(shape.mesh, shape.handles, "sarap")
     if hasattr(solver, "kernel"):
         solver.kernel = "numpy"  # every row's energies by the same formulas
     energies = [float(solver.energy_of(X)) for X in rec.X]
-    out = {"cpu": cpu, "wall": wall, "error": error, "converged": int(np.sum(rec.converged)), "energies": energies}
+    out = {"cpu": cpu, "wall": wall, "peak_mb": peak, "backend": _backend(shape), "energies": energies}
+    out["converged"] = int(np.sum(rec.converged))
+    out["errors"] = [errors(op, p) for p in spec["truths"]]
     print(json.dumps(out))
 
 

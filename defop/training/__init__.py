@@ -5,11 +5,24 @@ sample engine) is the one code that solves problem (6) for many samples and :mod
 policies on it; :mod:`.bootstrap` runs the pipeline (:func:`train`); :mod:`.adaptive` chooses the samples where
 the operator is least certain (:func:`train_adaptive`); :mod:`.branches` finds every branch of D^E and fits a
 multi-valued operator and certifies where each branch is present and absent;
-:mod:`.multilevel` is ``train``'s multilevel policy (decisions on a coarse mesh) and :mod:`.movable` trains handles
-that move at rest (:func:`train_movable`).
+:mod:`.multilevel` is ``train``'s multilevel policy (decisions on a coarse mesh), :mod:`.movable` trains handles
+that move at rest (:func:`train_movable`) and :mod:`.reference` gives held-out comparisons a truth independent of
+the operator under test.
 """
 
-from . import adaptive, bootstrap, branches, cache, movable, multilevel, paths, portfolios, sampling, solves
+from . import (
+    adaptive,
+    bootstrap,
+    branches,
+    cache,
+    movable,
+    multilevel,
+    paths,
+    portfolios,
+    reference,
+    sampling,
+    solves,
+)
 from .adaptive import train_adaptive
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
 from .movable import train_movable
@@ -26,6 +39,7 @@ __all__ = [
     "multilevel",
     "paths",
     "portfolios",
+    "reference",
     "sampling",
     "solve_samples",
     "solves",
