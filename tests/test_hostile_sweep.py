@@ -164,6 +164,7 @@ _ACCEPTED = [
     "EditorState set_handle i(0)",
     "from_image size(0.5)",
     "from_image threshold(0.5)",
+    "from_polygon handles(None)",  # automatic handles (defop.scene.auto_handles)
     "from_polygon n_vertices(None)",
     "make_peer alpha(0.5)",
     "shapes.load n_vertices(None)",
