@@ -23,11 +23,14 @@ from ..scene.own_input import accepted_kinds, input_kind, load_model
 from ..training import bootstrap, sampling
 from .export import to_html
 
-__all__ = ["FAST", "OwnModel", "Plan", "own_model", "picture", "plan"]
+__all__ = ["FAST", "LONG", "OwnModel", "Plan", "own_model", "picture", "plan"]
 
 #: fast mode (``DEFOP_FAST=1`` or ``fast=True``): mesh vertices by dimension, samples above the handle basis'
 #: minimum (:func:`defop.training.min_samples`) and solve rounds; a CI-sized check that the path works end to end
 FAST = {"n_vertices": {2: 300, 3: 300}, "extra_samples": 2, "rounds": 1}
+
+#: an estimate above this many seconds is announced with a warning and the options that shorten it
+LONG = 300.0
 
 
 @dataclasses.dataclass
@@ -118,6 +121,11 @@ def plan(own, energy="sarap", basis="tps", m=None, rounds=2, n_jobs=None, seed=0
         f"estimate: about {_duration(seconds)} from an empty cache (one solve took {t:.2f} s; "
         f"× {m} samples × {rounds + 1} starts / {min(jobs, m)} workers)",
     ]
+    if seconds > LONG:
+        lines.append(
+            f"warning: a long training (more than {_duration(LONG)}); --vertices, --m or --handles make it shorter, "
+            "--fast much shorter (and coarser)"
+        )
     return Plan(lines, m, rounds, seconds)
 
 
