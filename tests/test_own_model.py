@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from test_browser_editor import chromium_page, mouse_drag  # tests/ is on sys.path (rootdir conftest)
 
 import defop as dop
@@ -190,6 +192,29 @@ def test_polygon_files_holes_curves_transforms(tmp_path):
     assert np.isclose(outer[:, 0].max(), 15.0, atol=0.02)  # the quadratic's apex at x = 4 + 1
     s = dop.shapes.from_polygon(outer, holes, n_vertices=200)
     assert len(s.mesh.boundary_loops()) == 2
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    radii=st.lists(st.floats(0.2, 5.0), min_size=3, max_size=40),
+    sep=st.sampled_from([",", ";", "\t", " ", ", "]),
+    header=st.booleans(),
+    closed=st.booleans(),
+)
+def test_csv_outlines_read_back_exactly(tmp_path_factory, radii, sep, header, closed):
+    """Any star-shaped outline written as CSV (any separator, with or without a header or a closing row) reads back
+    bit for bit."""
+    from defop.geometry.planar.polygon_files import read_polygon_file
+
+    t = np.linspace(0, 2 * np.pi, len(radii), endpoint=False)
+    P = np.column_stack([np.cos(t), np.sin(t)]) * np.array(radii)[:, None]
+    rows = [*P.tolist(), *(P[:1].tolist() if closed else [])]
+    text = ("x,y\n" if header else "") + "\n".join(f"{x!r}{sep}{y!r}" for x, y in rows) + "\n"
+    path = tmp_path_factory.mktemp("csv") / "outline.csv"
+    path.write_text(text)
+    outer, holes = read_polygon_file(path)
+    np.testing.assert_array_equal(outer, P)
+    assert holes == []
 
 
 def test_dry_run_says_what_and_how_long_and_writes_nothing(inputs, tmp_path, capsys, monkeypatch):
