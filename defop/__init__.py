@@ -5,7 +5,9 @@ A reproduction of Poranne & Lipman, *Simple Approximations of Planar Deformation
 
 - ``dop.shapes.load(name)`` (and ``from_polygon``, ``from_image``): a :class:`Shape`;
 - ``dop.solve(mesh, handles, targets, energy=...)``: the variational DefOp D^E (problem 6);
-- ``dop.train(shape, energy=..., basis=..., m=...)``: the closed-form :class:`DefOp` (problem 8, Eq. 3).
+- ``dop.train(shape, energy=..., basis=..., m=...)``: the closed-form :class:`DefOp` (problem 8, Eq. 3);
+- ``dop.own_model("outline.csv")``: your own model's file (polygon, picture or surface) to a page that drags it, in
+  one call (``python -m defop page outline.csv`` on the command line).
 
 The subpackages, lowest layer first (a module imports only its own subpackage or lower layers; import-linter
 checks it): ``geometry`` < ``scene`` < {``variational``, ``operator``} < {``training``, ``rivals``} < ``analysis``
@@ -46,6 +48,7 @@ _FACE = {
     "solve": "variational",
     "DefOp": "operator",
     "train": "training",
+    "own_model": "editor",
 }
 
 __all__ = sorted(_FACE) + ["__version__"]

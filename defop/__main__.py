@@ -1,4 +1,5 @@
-"""Command line: ``python -m defop figures`` (the main job), ``doctor``, ``normalise`` and ``runtimes``."""
+"""Command line: ``python -m defop page`` (your own model to a page), ``figures`` (the main job), ``doctor``,
+``normalise`` and ``runtimes``."""
 
 from __future__ import annotations
 
@@ -7,9 +8,11 @@ import sys
 
 
 def parser():
-    """The command line's argument parser: the subcommands ``figures``, ``normalise``, ``runtimes`` and ``doctor``."""
+    """The command line's argument parser: the subcommands ``page``, ``figures``, ``normalise``, ``runtimes`` and
+    ``doctor``."""
     parser = argparse.ArgumentParser(prog="defop", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
+    page_parser(sub)
     fig = sub.add_parser("figures", help="regenerate every figure into figures/ by running the notebooks")
     fig.add_argument("--only", nargs="*", help="notebook name patterns, e.g. 00_shapes or '0[12]_*'")
     fig.add_argument("--fast", action="store_true", help="CI-sized runs (DEFOP_FAST=1); outputs are not stored")
@@ -35,10 +38,36 @@ def parser():
     return parser
 
 
+def page_parser(sub):
+    """The ``page`` subcommand: :func:`defop.editor.model_page.own_model` from the command line."""
+    page = sub.add_parser(
+        "page",
+        help="train a DefOp on your own model and write a page that drags it, and a PNG",
+        description="INPUT: a polygon (.csv rows of x,y; .svg polygon, polyline or path), a picture (.png, .jpg) "
+        "or a closed surface (.ply, .stl, .obj, .off). Handles are placed at the model's extremities unless given; "
+        "handle 0 is fixed unless --fixed says otherwise.",
+    )
+    page.add_argument("input", help="the model's file")
+    page.add_argument("--handles", nargs="+", help="how many handles (one integer), or handle points x,y (x,y,z)")
+    page.add_argument("--fixed", nargs="+", type=int, help="the fixed handles' numbers (default: 0)")
+    page.add_argument("-o", "--output", help="the page (default: INPUT's name with .html, here)")
+    page.add_argument("--png", help="the picture (default: the page's name with .png)")
+    page.add_argument("--dry-run", action="store_true", help="say what would be trained and how long it takes")
+    page.add_argument("--fast", action="store_true", help="CI-sized settings (as DEFOP_FAST=1)")
+    page.add_argument("--energy", default="sarap", help="the deformation energy (default: sarap)")
+    page.add_argument("--basis", default="tps", help="the handle basis (default: tps)")
+    page.add_argument("--m", type=int, default=None, help="training samples (default: train's, or the fast one)")
+    page.add_argument("--vertices", type=int, default=None, help="about how many mesh vertices")
+
+
 def main(argv=None):
     """Run one subcommand of ``python -m defop`` with the arguments ``argv`` (default: ``sys.argv``); the exit code."""
     args = parser().parse_args(argv)
 
+    if args.command == "page":
+        from .editor.model_page import main as page_main
+
+        return page_main(args)
     if args.command == "figures":
         from .figures import CELL_TIMEOUT, RUNTIMES, regenerate
 

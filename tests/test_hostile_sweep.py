@@ -165,6 +165,7 @@ _ACCEPTED = [
     "from_image size(0.5)",
     "from_image threshold(0.5)",
     "from_image threshold(None)",
+    "from_polygon handles(None)",  # automatic handles (defop.scene.auto_handles)
     "from_polygon n_vertices(None)",
     "make_peer alpha(0.5)",
     "shapes.load n_vertices(None)",

@@ -241,8 +241,8 @@ def test_from_surface_rejects_an_open_surface_before_meshing(nut_surface):
     V, F = nut_surface
     with pytest.raises(ValueError, match="the surface is open"):
         dop.shapes.from_surface(V, F[1:], handles=V.min(0) + NUT_HANDLES)
-    with pytest.raises(ValueError, match="from_surface needs handles"):
-        dop.shapes.from_surface(V, F)
+    with pytest.raises(ValueError, match="n_auto_handles must be an integer >= 1"):  # automatic handles: >= 1
+        dop.shapes.from_surface(V, F, n_auto_handles=0)
     with pytest.raises(ValueError, match="n_vertices must be an integer >= 100"):
         dop.shapes.from_surface(V, F, handles=V.min(0) + NUT_HANDLES, n_vertices=50)
 

@@ -1,6 +1,6 @@
 """Planar shapes from a polygon with holes (:func:`from_polygon`) or from the silhouette of an image
-(:func:`from_image`, handles placed by itself when none are given), and the map from such a shape back to its
-picture's pixels (:func:`image_frame`)."""
+(:func:`from_image`); both place handles by themselves when none are given (:mod:`defop.scene.auto_handles`).
+And the map from such a shape back to its picture's pixels (:func:`image_frame`)."""
 
 from __future__ import annotations
 
@@ -12,12 +12,13 @@ from .. import options as opt
 from ..geometry.planar.meshing import triangulate
 from ..geometry.planar.outlines import image_outline, load_image
 from ..geometry.planar.polygon import SCALE_RANGE, distance_to_outline, points_in_polygon, validate_polygon
+from .auto_handles import automatic_handles
 from .regions import Disc
 from .shape import Shape
 
 __all__ = ["from_polygon", "from_image", "image_frame", "MAX_AUTO_HANDLES", "auto_handles"]
 
-#: most handles ``from_image`` places by itself (farthest-point picks on a 60 x 60 grid)
+#: most handles ``from_polygon`` and ``from_image`` place by themselves
 MAX_AUTO_HANDLES = 100
 
 
@@ -32,6 +33,7 @@ def from_polygon(
     name="polygon",
     description="",
     region_scale=0.25,
+    n_auto_handles=2,
 ):
     """A :class:`Shape` from a polygon with holes and handle points.
 
@@ -41,8 +43,10 @@ def from_polygon(
         Outer boundary: a simple polygon (see :func:`defop.geometry.planar.polygon.validate_polygon`).
     holes : list of (l,2) numpy array
         Hole boundaries, strictly inside ``outer``, disjoint and not nested.
-    handles : (h,2) numpy array
-        Handle positions; each becomes a mesh vertex.
+    handles : (h,2) numpy array, optional
+        Handle positions; each becomes a mesh vertex. Default: the ``n_auto_handles`` extremities of the
+        mesh's boundary (:func:`defop.scene.auto_handles.extremities`: the boundary vertex farthest from the
+        centroid, then farthest-point sampling).
     moving : (h,) bool numpy array, optional
         Which handles move (default: all).
     regions : list of defop.scene.regions.Region or dict, optional
@@ -53,6 +57,8 @@ def from_polygon(
         Maximum triangle area instead of ``n_vertices``.
     name, description : str
     region_scale : float
+    n_auto_handles : int
+        How many handles to place without ``handles``, 1 to :data:`MAX_AUTO_HANDLES`.
 
     Returns
     -------
@@ -65,16 +71,21 @@ def from_polygon(
         vertex count or area.
     """
     if handles is None:
-        raise ValueError("from_polygon needs handles: an (h,2) array of handle positions")
-    H = np.atleast_2d(opt.real_array("handles", handles))
-    if H.ndim != 2 or H.shape[1] != 2 or len(H) == 0:
-        raise ValueError(f"handles must have shape (h,2), got {np.shape(handles)}")
+        n_auto_handles = opt.integer("n_auto_handles", n_auto_handles, minimum=1, maximum=MAX_AUTO_HANDLES)
+    else:
+        H = np.atleast_2d(opt.real_array("handles", handles))
+        if H.ndim != 2 or H.shape[1] != 2 or len(H) == 0:
+            raise ValueError(f"handles must have shape (h,2), got {np.shape(handles)}")
     if n_vertices is None and max_area is None:
         n_vertices = 1500
     outer, holes = validate_polygon(outer, holes)
-    mesh = triangulate(outer, holes, points=H, n_vertices=n_vertices, max_area=max_area)
-    idx = _exact_vertices(mesh, H)
-    moving = np.ones(len(H), bool) if moving is None else moving  # Shape checks the flags
+    if handles is None:
+        mesh = triangulate(outer, holes, n_vertices=n_vertices, max_area=max_area)
+        idx = automatic_handles(mesh, n_auto_handles)[1]
+    else:
+        mesh = triangulate(outer, holes, points=H, n_vertices=n_vertices, max_area=max_area)
+        idx = _exact_vertices(mesh, H)
+    moving = np.ones(len(idx), bool) if moving is None else moving  # Shape checks the flags
     if regions is None:
         r = region_scale * mesh.bbox_diagonal / 2
         regions = [Disc(r) for _ in range(int(np.count_nonzero(moving)))]
@@ -115,7 +126,7 @@ def from_image(
     handles : (h,2) numpy array, optional
         Handle positions in the output units (the silhouette is scaled so its bounding-box
         diagonal equals ``size``, origin at its bounding-box corner). Default: the
-        ``n_auto_handles`` interior points farthest apart.
+        ``n_auto_handles`` extremities of the mesh's boundary, as in :func:`from_polygon`.
     moving, regions : see :func:`from_polygon`
     threshold : float or None
         None (default): the automatic rule, one for every picture (Otsu's split of the alpha channel when it
@@ -150,7 +161,7 @@ def from_image(
             f"coordinate range meshing supports), got {size!r}"
         )
     if handles is None:
-        # 0 gave one handle; the candidates are a 60 x 60 grid
+        # 0 gave one handle; checked before the image is read
         n_auto_handles = opt.integer("n_auto_handles", n_auto_handles, minimum=1, maximum=MAX_AUTO_HANDLES)
     outer, holes = image_outline(image, threshold, foreground_mode=foreground)
     lo = outer.min(axis=0)
@@ -158,15 +169,30 @@ def from_image(
     scale = size / np.sqrt(ext[0] * ext[0] + ext[1] * ext[1])
     outer = (outer - lo) * scale
     holes = [(H - lo) * scale for H in holes]
-    if handles is None:
-        handles = auto_handles(outer, holes, n_auto_handles)
     return from_polygon(
-        outer, holes, handles, moving, regions, n_vertices=n_vertices, name=name, description="silhouette of an image"
+        outer,
+        holes,
+        handles,
+        moving,
+        regions,
+        n_vertices=n_vertices,
+        name=name,
+        description="silhouette of an image",
+        n_auto_handles=n_auto_handles,
     )
 
 
 def auto_handles(outer, holes, k):
-    """k well-spread points inside the shape: farthest-point picks on a grid of interior points."""
+    """k well-spread points inside the shape: farthest-point picks on a grid of interior points.
+
+    Deprecated: :func:`from_polygon` and :func:`from_image` place their handles by
+    :func:`defop.scene.auto_handles.extremities`, the rule of 3D shapes too.
+    """
+    warnings.warn(
+        "planar_shapes.auto_handles is deprecated: automatic handles are defop.scene.auto_handles.extremities",
+        DeprecationWarning,
+        stacklevel=2,
+    )
     lo, hi = outer.min(0), outer.max(0)
     g = np.stack(np.meshgrid(np.linspace(lo[0], hi[0], 60), np.linspace(lo[1], hi[1], 60)), -1).reshape(-1, 2)
     loops = [outer, *holes]

@@ -26,9 +26,11 @@ import functools
 
 import numpy as np
 
+from .. import options as opt
 from ..geometry.mesh import Mesh
 from ..geometry.planar.meshing import MAX_VERTICES, check_n_vertices
 from ..geometry.volumetric import surface as surfaces
+from . import auto_handles as auto
 from .handles import check_handles_span as check_handles_span  # re-exported
 from .handles import handle_indices as handle_indices  # re-exported
 from .handles import handle_vertices
@@ -143,6 +145,8 @@ def from_surface(
     region_scale=0.25,
     overlapping_parts=False,
     weld_tolerance=None,
+    n_auto_handles=3,
+    patch_size=None,
 ):
     """A 3D :class:`Shape` from a closed triangle surface or a surface file: a tetrahedral mesh of the solid it bounds.
 
@@ -160,12 +164,16 @@ def from_surface(
     F : (k,3) int numpy array
         Surface triangles: a closed, consistently oriented, manifold surface that does not cross itself
         (inward-facing orientation is flipped).
-    handles : (h,3) numpy array
-        Handle points inside the solid; each becomes its nearest mesh vertex. At least 3, not all on one
-        line (a rotation about that line would be free).
-    moving, regions, name, description, region_scale
-        As in :func:`defop.scene.planar_shapes.from_polygon`; the default regions are balls
-        (``{"kind": "ball", "radius": region_scale × bounding-box diagonal / 2}``).
+    handles : (h,3) numpy array, optional
+        Handle points inside the solid; each becomes its nearest mesh vertex (with ``patch_size``, a patch around
+        it). At least 3 vertices in all, not all on one line (a rotation about that line would be free). Default:
+        ``n_auto_handles`` patches of :data:`defop.scene.auto_handles.PATCH_SIZE` vertices at the extremities of
+        the surface (:func:`defop.scene.auto_handles.extremities`, the rule of 2D shapes too).
+    moving : (h,) bool numpy array, optional
+        Which handles (patches) move (default: all); a patch's vertices share its flag.
+    regions, name, description, region_scale
+        As in :func:`defop.scene.planar_shapes.from_polygon`, one region per moving vertex; the default regions
+        are balls (``{"kind": "ball", "radius": region_scale × bounding-box diagonal / 2}``).
     n_vertices : int
         About how many tetrahedral mesh vertices, 100 to ``MAX_VERTICES``.
     overlapping_parts : bool
@@ -173,6 +181,11 @@ def from_surface(
     weld_tolerance : float, optional
         With a path: also merge vertices closer than this fraction of the bounding-box diagonal (a surface
         whose copies of one vertex differ slightly reads as open without it).
+    n_auto_handles : int
+        How many patches to place without ``handles``.
+    patch_size : int, optional
+        Vertices per handle: the handle's vertex and its nearest ones (:func:`defop.scene.auto_handles.patches`);
+        default 1 for given handles, :data:`defop.scene.auto_handles.PATCH_SIZE` for automatic ones.
 
     Returns
     -------
@@ -199,14 +212,24 @@ def from_surface(
     elif weld_tolerance is not None:
         raise ValueError("weld_tolerance applies to a surface file's path; weld V and F with surface_files.weld")
     if handles is None:
-        raise ValueError("from_surface needs handles: an (h,3) array of handle positions inside the solid")
+        n_auto_handles = opt.integer("n_auto_handles", n_auto_handles, minimum=1, maximum=MAX_AUTO_HANDLES)
     n_vertices = check_n_vertices(n_vertices)
     if n_vertices < 100:
         raise ValueError(f"n_vertices must be an integer >= 100, got {n_vertices!r}")
     V, F = surfaces.check_surface(V, F, overlapping_parts=overlapping_parts)
     mesh = surfaces.surface_mesh(V, F, n_vertices, checked=True)
-    idx = handle_vertices(mesh, handles)
-    moving = np.ones(len(idx), bool) if moving is None else moving  # Shape checks the flags
+    if handles is None:
+        groups = auto.patches(mesh, auto.extremities(mesh, n_auto_handles), patch_size)
+    else:
+        groups = auto.patches(mesh, handle_vertices(mesh, handles), 1 if patch_size is None else patch_size)
+    idx = np.concatenate(groups)
+    if moving is None:
+        moving = np.ones(len(idx), bool)
+    else:  # Shape checks the flags
+        moving = np.asarray(moving).ravel()
+        if len(moving) != len(groups):
+            raise ValueError(f"moving has {len(moving)} entries for {len(groups)} handles")
+        moving = np.repeat(moving, [len(g) for g in groups])
     if regions is None:
         r = region_scale * mesh.bbox_diagonal / 2
         regions = [{"kind": "ball", "radius": r} for _ in range(int(np.count_nonzero(moving)))]
