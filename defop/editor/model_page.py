@@ -277,7 +277,8 @@ def _train_and_write(result, out, png, energy, basis, n_jobs, seed, progress, ec
     echo(f"trained in {_duration(time.perf_counter() - start)}{cached}")
     result.op, result.record = op, record
     image = _png_bytes(picture(shape, op, _posed(record, shape)))  # before any file is written
-    result.page = to_html(op, out, shape=shape, title=f"{shape.name}: drag the handles")
+    image_kw = {"image": result.own.path} if result.own.kind == "picture" else {}  # the picture, placed by to_html
+    result.page = to_html(op, out, shape=shape, title=f"{shape.name}: drag the handles", **image_kw)
     echo(f"wrote the page {result.page} ({result.page.stat().st_size / 1e6:.1f} MB): open it in a browser")
     opt.write_atomic(png, image, "png")
     result.png = png
