@@ -11,7 +11,9 @@ import re
 from .. import options as opt
 from ..operator.branched import BranchedOperator
 from ..operator.defop import DefOp
+from ..operator.movable import MovableOp
 from ..scene.shapes import Shape
+from .movable_page import movable_html
 from .payload import JS_PATH, branched_to_payload, defop_to_payload, encode_payload, image_for, region_balls
 from .state import region_polygons
 
@@ -128,7 +130,9 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
 
     Parameters
     ----------
-    op : defop.operator.DefOp or defop.operator.branched.BranchedOperator
+    op : defop.operator.DefOp, defop.operator.branched.BranchedOperator or defop.operator.movable.MovableOp
+        A 2D MovableOp gets the 2D page with its rest mode (:func:`.movable_page.movable_html`): a toggle or
+        Shift-drag moves a rest handle within its placement region.
         A 2D BranchedOperator gets the 2D page with every branch (:func:`.payload.branched_to_payload`): the drag
         runs ``follow`` (``makeBranched`` of ``defop_editor.js``), a toggle switches to ``global``, the current
         branch's label is shown, and Reset goes back to branch 0 (the rest pose's).
@@ -157,6 +161,10 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
         ``op`` is not a DefOp, ``shape`` not a Shape (or of another dimension or mesh than ``op``), ``title``
         not a string, ``path`` not a path, a picture for a 3D operator.
     """
+    if isinstance(op, MovableOp):  # handles that move at rest: the page of defop.editor.movable_page
+        if image is not None or image_frame is not None:
+            raise ValueError("image and image_frame are not offered on the page of a MovableOp")
+        return movable_html(op, path, shape=shape, title=title)
     branched = isinstance(op, BranchedOperator)
     if branched:
         if op.branches[0].op.d != 2:
@@ -195,6 +203,12 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
         page = _PAGE_BRANCHED if branched else _PAGE
         text = page.format(js=_inline_script(JS_PATH.read_text(encoding="utf-8")), **fields)
     return opt.write_atomic(path, text.encode("utf-8"))
+
+
+def render_2d(js, fields, edit=None):
+    """The 2D page's text: its template (``edit(template)`` when given) with the script ``js`` inlined (checked by
+    the rule of the editor's own script) and ``fields`` (``title``, ``meta``, ``data``) filled in."""
+    return (_PAGE if edit is None else edit(_PAGE)).format(js=_inline_script(js), **fields)
 
 
 def _vendored(name):

@@ -538,6 +538,7 @@ function drawFrame(ctx, st) {
   if (st.gl) { // the mesh in WebGL, regions and handles on the 2D overlay
     st.gl.draw(X, st.gt && st.gtVisible ? st.gt : null);
     drawRegions(ctx, p.regions, view, false); // outlines only: the overlay is above the mesh
+    if (st.overlay) st.overlay(ctx, st); // a mode's own marks under the handles (defop_movable.js)
     drawHandles(ctx, X, p.handles, p.moving, view, st.active, st.outside);
     return;
   }
@@ -557,6 +558,7 @@ function drawFrame(ctx, st) {
     ctx.strokeStyle = "rgba(31,119,180,0.55)";
     ctx.stroke();
   }
+  if (st.overlay) st.overlay(ctx, st);
   drawHandles(ctx, X, p.handles, p.moving, view, st.active, st.outside);
 }
 
@@ -666,7 +668,8 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
   editor.load = (payload_, Q) => {
     const p = payload_;
     st.p = p;
-    st.op = p.n_branches ? makeBranched(p) : makeOperator(p); // several branches: the follow drag
+    // several branches: the follow drag; options.makeOperator: another evaluator (defop_movable.js)
+    st.op = options.makeOperator ? options.makeOperator(p) : p.n_branches ? makeBranched(p) : makeOperator(p);
     resize(options.height || fitHeight(p.V, width, 0.25));
     st.view = makeView(p.V, width, st.height, 0.25);
     st.gl = options.webgl === false ? null : makeGL(ui.glCanvas, p, st.view, width, st.height);

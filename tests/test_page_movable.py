@@ -1,0 +1,231 @@
+"""The page of a MovableOp (:mod:`defop.editor.movable_page`, ``static/defop_movable.js``): handles that move at rest.
+
+- The page's module is run in Node against the Python frame of the same shipped (compressed, float32) operator at
+  random placements and Q (hypothesis): equal to Python's float64 evaluation of the shipped factors up to float64
+  round-off, and to the operator's own float32 frame within the float32 bound; handles and rest pose exact.
+- The standalone page in headless Chromium: Shift-drag a rest handle to another vertex of its region, then drag a
+  moving handle; bad placements (outside the region, onto another handle) are refused with a visible message.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import subprocess
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from test_browser_editor import NODE, U32, chromium_page, needs_node
+
+import defop as dop
+from defop.editor import export, movable_page, payload
+from defop.operator.movable import correct
+from defop.scene.placement import placement_regions
+from defop.training.movable import train_movable
+
+DRIVER = movable_page.MOVABLE_JS_PATH.parents[3] / "tests" / "js" / "eval_movable.mjs"
+
+
+@pytest.fixture(scope="module")
+def shape():
+    """The rectangle of tests/test_movable.py (about 250 vertices): two moving handles, one fixed."""
+    outer = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
+    H = np.array([[1.8, 0.5], [1.0, 0.8], [0.1, 0.5]])
+    return dop.shapes.from_polygon(
+        outer,
+        handles=H,
+        moving=[True, True, False],
+        n_vertices=250,
+        name="rect",
+        regions=[{"kind": "disc", "radius": 0.15}] * 2,
+    )
+
+
+@pytest.fixture(scope="module")
+def op(shape, tmp_path_factory):
+    """A small MovableOp (m = 40, fast mode, cached), handle 0 movable, compressed to float32 as pages ship."""
+    import os
+
+    os.environ.setdefault("DEFOP_CACHE", str(tmp_path_factory.mktemp("cache")))
+    placement = placement_regions(shape, [0], radius=0.15)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        op, _ = train_movable(shape, placement, m=40, seed=0, n_jobs=1, progress=False)
+    return op.compress()
+
+
+def shipped_frame(op, Q, idx):
+    """Python's float64 evaluation of the shipped factors (float32 A, B) at placement idx: what the page computes."""
+    st_ = op.at(np.asarray(idx, np.int64))
+    u = (op.delta_psi(Q[None], st_) @ op.factors[0].astype(float)) @ op.factors[1].astype(float)
+    return correct(op.mesh, op.placement, op.handles, op.moving, st_, u, Q[None]).reshape(-1, 2)
+
+
+def float32_bound(op, Q, idx):
+    """|X_page − X_python| per coordinate, with X_python the operator's own float32 frame: the other page tests'
+    bound u Σ_j |δψ_j| |W_F,jc| with W_F = A B stored in float32, counted four times (the page's storage, and the
+    Python frame's float32 rule: δψ cast, diag(s) A cast, float32 sums), carried by the correction (the residual at
+    v_ℓ spreads with the bump, weights in [0, 1]), plus 1e-12 of the diagonal."""
+    st_ = op.at(np.asarray(idx, np.int64))
+    dpsi = np.abs(op.delta_psi(Q[None], st_))[0]
+    A, B = (np.abs(f.astype(float)) for f in op.factors)
+    e = (4 * U32 * (dpsi @ A) @ B).reshape(-1, 2)
+    sup, wt = st_.bumps
+    e[sup] += np.abs(wt) @ e[st_.idx]
+    return e + 1e-12 * op.mesh.bbox_diagonal
+
+
+def python_frame(op, Q, idx):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
+        return op(Q, np.asarray(idx, np.int64))
+
+
+def node_steps(op, steps, tmp_path):
+    """Run tests/js/eval_movable.mjs on the page's payload of ``op`` and the steps (frames and setRest calls)."""
+    meta, data = payload.encode_payload(movable_page.movable_to_payload(op))
+    spec = {
+        "js": str(payload.JS_PATH),
+        "movable": str(movable_page.MOVABLE_JS_PATH),
+        "meta": meta,
+        "data": base64.b64encode(data).decode(),
+        "steps": steps,
+    }
+    path = tmp_path / "input.json"
+    path.write_text(json.dumps(spec))
+    res = subprocess.run([NODE, str(DRIVER), str(path)], capture_output=True, text=True, timeout=60, check=True)
+    return json.loads(res.stdout)
+
+
+def moving_vertices(op, idx):
+    return op.placement.handles_at(np.asarray(idx, np.int64))[op.moving]
+
+
+# ---------------------------------------------------------------------------------------------- Node
+@needs_node
+def test_javascript_matches_the_shipped_operator_at_random_placements(op, tmp_path_factory):
+    V, diag = op.mesh.V, op.mesh.bbox_diagonal
+    region = op.placement.vertices[0]
+    tmp = tmp_path_factory.mktemp("movable")
+
+    @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+    @given(st.integers(0, len(region) - 1), st.lists(st.floats(-0.08, 0.08), min_size=4, max_size=4))
+    def check(k, dq):
+        v = int(region[k])
+        hm = moving_vertices(op, [v])
+        P = V[hm]
+        Q = P + np.reshape(dq, (2, 2)) * diag
+        out = node_steps(op, [{"rest": [0, v]}, {"Q": P.ravel().tolist()}, {"Q": Q.ravel().tolist()}], tmp)
+        assert out[0]["placement"] == [v]
+        X_rest, X = (np.array(o["X"]).reshape(-1, 2) for o in out[1:])
+        np.testing.assert_array_equal(X_rest, V)  # (8b) bit for bit at the new placement
+        assert np.array_equal(X[hm], Q), "moving handles not exact (Prop. 2)"
+        fixed = op.handles[~op.moving]
+        np.testing.assert_array_equal(X[fixed], V[fixed])
+        # the same formula: Python's float64 evaluation of the shipped factors, up to float64 round-off
+        assert np.abs(X - shipped_frame(op, Q, [v])).max() <= 1e-12 * diag
+        # the operator's own (float32) frame, within the float32 bound
+        err = np.abs(X - python_frame(op, Q, [v]))
+        assert np.all(err <= float32_bound(op, Q, [v])), (err / float32_bound(op, Q, [v])).max()
+
+    check()
+
+
+@needs_node
+def test_javascript_refuses_bad_placements(op, tmp_path):
+    nominal = int(op.placement.nominal[0])
+    outside = int(np.setdiff1d(np.arange(op.n_vertices), np.concatenate([op.placement.vertices[0], op.handles]))[0])
+    steps = [{"rest": [0, outside]}, {"rest": [0, int(op.handles[1])]}, {"rest": [0, int(op.handles[2])]}]
+    steps += [{"rest": [0, 2.5]}, {"rest": [1, nominal]}]
+    out = node_steps(op, steps, tmp_path)
+    P = op.mesh.V[op.handles[op.moving]].ravel().tolist()
+    for o in out:
+        assert o["placement"] == [nominal] and o["P"] == P, o  # nothing changed
+    assert "outside rest handle 0's placement region" in out[0]["error"]
+    assert "holds handle 1" in out[1]["error"] and "holds handle 2" in out[2]["error"]
+    assert "not a vertex" in out[3]["error"] and "1 movable handles" in out[4]["error"]
+    assert all(o["error"].startswith("RangeError") for o in out)
+
+
+# ---------------------------------------------------------------------------------------------- Chromium
+def screen(page, x, y):
+    """The page position (px) of mesh point (x, y)."""
+    box = page.locator("canvas.defop-canvas").bounding_box()
+    u, v = page.evaluate("([x, y]) => window.defopEditor.st.view.toScreen(x, y)", [float(x), float(y)])
+    return box["x"] + u, box["y"] + v
+
+
+def pointer_path(page, start, end, steps=6):
+    page.mouse.move(*start)
+    page.mouse.down()
+    for t in np.linspace(0.2, 1.0, steps):
+        page.mouse.move(start[0] + t * (end[0] - start[0]), start[1] + t * (end[1] - start[1]))
+        page.wait_for_timeout(20)
+    page.mouse.up()
+
+
+STATE_JS = (
+    "() => { const e = window.defopEditor; return {Q: Array.from(e.st.Q), X: Array.from(e.st.X),"
+    " placement: e.st.op.placement(), msg: e.ui.box.querySelector('.defop-rest-msg').textContent,"
+    " shown: e.ui.box.querySelector('.defop-rest-msg').checkVisibility()} }"
+)
+
+
+@pytest.mark.browser
+def test_page_moves_a_rest_handle_then_drags(op, shape, tmp_path):
+    V, diag = op.mesh.V, op.mesh.bbox_diagonal
+    region = op.placement.vertices[0]
+    nominal = int(op.placement.nominal[0])
+    v = int(region[np.argmax(np.linalg.norm(V[region] - V[nominal], axis=1))])  # the farthest vertex of the region
+    path = export.to_html(op, tmp_path / "movable.html", shape=shape)
+    with chromium_page() as page:
+        page.goto(path.as_uri())
+        page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
+        # Shift-drag the rest handle to (near) vertex v: it snaps to v, the shape stays at rest
+        target = V[v] + 0.004 * diag
+        page.keyboard.down("Shift")
+        pointer_path(page, screen(page, *V[nominal]), screen(page, *target))
+        page.keyboard.up("Shift")
+        moved = page.evaluate(STATE_JS)
+        # then drag moving handle 0 (now at V[v]) as usual
+        start = screen(page, *V[v])
+        pointer_path(page, start, (start[0] + 30, start[1] - 25))
+        dragged = page.evaluate(STATE_JS)
+        # bad placements, with the toggle on: outside the region, onto another handle; nothing changes
+        page.locator("button.defop-rest-toggle").click()
+        here = np.array(dragged["X"]).reshape(-1, 2)[v]
+        pointer_path(page, screen(page, *here), screen(page, *(here + [0.0, -0.3 * diag])))
+        outside = page.evaluate(STATE_JS)
+        pointer_path(page, screen(page, *here), screen(page, *np.array(dragged["X"]).reshape(-1, 2)[op.handles[1]]))
+        onto = page.evaluate(STATE_JS)
+        by_code = page.evaluate(f"() => window.defopEditor.setRest(0, {int(op.handles[2])})")
+        coded = page.evaluate(STATE_JS)
+        page.locator("button.defop-rest-toggle").click()
+        page.locator("button.defop-reset").click()
+        reset = page.evaluate(STATE_JS)
+        errors = page.errors
+    assert not errors, errors
+    hm = moving_vertices(op, [v])
+    # the rest move: snapped to v, Q = the new P, X = x bit for bit
+    assert moved["placement"] == [v] and moved["msg"] == ""
+    np.testing.assert_array_equal(np.reshape(moved["Q"], (-1, 2)), V[hm])
+    np.testing.assert_array_equal(np.reshape(moved["X"], (-1, 2)), V)
+    # the drag at the new placement
+    Q, X = np.reshape(dragged["Q"], (-1, 2)), np.reshape(dragged["X"], (-1, 2))
+    assert dragged["placement"] == [v] and np.linalg.norm(Q[0] - V[v]) > 0.01 * diag
+    assert np.abs(X[hm] - Q).max() <= 1e-12 * diag  # the handles on their targets
+    assert np.abs(X - shipped_frame(op, Q, [v])).max() <= 1e-12 * diag
+    err = np.abs(X - python_frame(op, Q, [v]))
+    free = np.setdiff1d(np.arange(op.n_vertices), op.handles)
+    assert np.all(err[free] <= float32_bound(op, Q, [v])[free]), (err / float32_bound(op, Q, [v])).max()
+    # refused, visibly, with nothing changed
+    for bad, words in ((outside, "outside rest handle 0's placement region"), (onto, "onto handle 1")):
+        assert words in bad["msg"] and bad["shown"], bad["msg"]
+        assert bad["placement"] == [v] and bad["Q"] == dragged["Q"] and bad["X"] == dragged["X"]
+    assert by_code is False and "holds handle 2" in coded["msg"] and coded["X"] == dragged["X"]
+    # Reset: the rest pose of the new placement, exact
+    assert reset["placement"] == [v]
+    np.testing.assert_array_equal(np.reshape(reset["X"], (-1, 2)), V)
