@@ -229,3 +229,101 @@ def test_page_moves_a_rest_handle_then_drags(op, shape, tmp_path):
     # Reset: the rest pose of the new placement, exact
     assert reset["placement"] == [v]
     np.testing.assert_array_equal(np.reshape(reset["X"], (-1, 2)), V)
+
+
+# ---------------------------------------------------------------------------------------------- the editor's state
+def rest_state(op, shape):
+    from defop.editor.state import EditorState
+
+    return EditorState(shape, {"tps": op}, kinds=("tps",))
+
+
+def snapshot(s):
+    return {k: np.copy(getattr(s, k)) for k in ("Q", "X", "P", "rest")} | {"regions": repr(s.regions)}
+
+
+def assert_same(a, b):
+    assert a.keys() == b.keys()
+    for k in a:
+        assert np.array_equal(a[k], b[k]) if k != "regions" else a[k] == b[k], k
+
+
+def test_state_shift_drag_moves_a_rest_handle_then_drags(op, shape):
+    s = rest_state(op, shape)
+    V, diag = op.mesh.V, op.mesh.bbox_diagonal
+    nominal, region = int(op.placement.nominal[0]), op.placement.vertices[0]
+    v = int(region[np.argmax(np.linalg.norm(V[region] - V[nominal], axis=1))])
+    assert s.rest.tolist() == [nominal] and np.array_equal(s.X, V)
+    assert s.press(*V[nominal], shift=True) == 0 and s.active is None  # a rest handle, not a moving one
+    assert s.drag(*(V[v] + 0.004 * diag)) and s.rest_target == v  # the drag shows the snap
+    assert s.drag(*(V[v] + 0.4 * diag)) and s.rest_target is None  # outside: no place
+    s.release(*(V[v] + 0.004 * diag))
+    hm = moving_vertices(op, [v])
+    assert s.rest.tolist() == [v] and np.array_equal(s.P, V[hm]) and np.array_equal(s.Q, V[hm])
+    np.testing.assert_array_equal(s.X, V)  # (8b) at the new placement, bit for bit
+    assert s.shape.handles[0] == v and s.outside_regions() == []  # the sampling regions moved with the rest
+    # then an ordinary drag of moving handle 0 from its new rest position
+    assert s.press(*V[v]) == 0
+    s.drag(*(V[v] + [0.05, 0.04]))
+    s.release()
+    Q = V[hm] + [[0.05, 0.04], [0.0, 0.0]]
+    np.testing.assert_array_equal(s.Q, Q)
+    np.testing.assert_array_equal(s.X, python_frame(op, Q, [v]))
+    np.testing.assert_array_equal(s.X[hm], Q)
+    # while deformed, moving the rest keeps q − p (retarget); back at the nominal vertex by index
+    s.set_rest(0, nominal)
+    np.testing.assert_allclose(s.Q - s.P, Q - V[hm], rtol=0, atol=1e-15)
+    assert s.rest.tolist() == [nominal]
+
+
+def test_state_refuses_bad_rest_placements(op, shape):
+    s = rest_state(op, shape)
+    diag = op.mesh.bbox_diagonal
+    nominal = int(op.placement.nominal[0])
+    s.set_Q(s.P + [[0.03, -0.02], [0.01, 0.02]])
+    before = snapshot(s)
+    outside = int(np.setdiff1d(np.arange(op.n_vertices), np.concatenate([op.placement.vertices[0], op.handles]))[0])
+    bad = [
+        ((0, outside), "outside rest handle 0's placement region"),
+        ((0, int(op.handles[1])), "holds handle 1"),
+        ((0, int(op.handles[2])), "holds handle 2"),
+        ((0, s.X[op.handles[1]]), "onto handle 1"),
+        ((0, s.X[nominal] + [0.0, 0.3 * diag]), "outside rest handle 0's placement region"),
+        ((1, nominal), "out of range"),
+        ((0, [np.nan, 0.0]), "finite|NaN"),
+    ]
+    for args, words in bad:
+        with pytest.raises(ValueError, match=words):
+            s.set_rest(*args)
+        assert_same(snapshot(s), before)
+    # the pointer: the toggle on, a release outside the region is refused, the drag ends, nothing else changes
+    s.set_rest_mode(True)
+    assert s.press(*s.X[nominal]) == 0
+    with pytest.raises(ValueError, match="outside rest handle 0's placement region"):
+        s.release(*(s.X[nominal] + [0.0, 0.3 * diag]))
+    assert s.rest_active is None
+    assert_same(snapshot(s), before)
+
+
+def test_state_rest_mode_needs_a_movable_operator(op, shape):
+    from defop.editor.state import EditorState
+
+    fixed = EditorState(shape, trainer=lambda sh, kind: dop.train(sh, basis=kind, m=12, progress=False, n_jobs=1)[0])
+    with pytest.raises(ValueError, match="MovableOp"):
+        fixed.set_rest_mode(True)
+    with pytest.raises(ValueError, match="MovableOp"):
+        fixed.set_rest(0, 0)
+    assert fixed.press(*fixed.P[0], shift=True) == 0 and fixed.active == 0  # Shift is an ordinary press here
+    with pytest.raises(ValueError, match="one operator"):
+        EditorState(shape, {"tps": op})  # a basis menu would switch to fixed-P operators
+
+
+def test_state_ground_truth_at_a_moved_rest(op, shape):
+    s = rest_state(op, shape)
+    v = int(op.placement.vertices[0][0])
+    s.set_rest(0, v)
+    s.set_handle(0, s.P[0] + [0.04, 0.03])
+    s.set_ground_truth(True)
+    hm = moving_vertices(op, [v])
+    np.testing.assert_allclose(s.X_gt[hm], s.Q, atol=1e-9)  # the solve holds the handles at the moved rest
+    assert s.gt_error["max"] < 0.05

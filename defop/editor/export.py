@@ -10,10 +10,10 @@ import re
 
 from .. import options as opt
 from ..operator.branched import BranchedOperator
-from ..operator.defop import DefOp
+from ..operator.defop import DefOp, check_mesh
 from ..operator.movable import MovableOp
 from ..scene.shapes import Shape
-from .movable_page import movable_html
+from .movable_page import movable_page, movable_script, movable_to_payload
 from .payload import JS_PATH, branched_to_payload, defop_to_payload, encode_payload, image_for, region_balls
 from .state import region_polygons
 
@@ -131,7 +131,7 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     Parameters
     ----------
     op : defop.operator.DefOp, defop.operator.branched.BranchedOperator or defop.operator.movable.MovableOp
-        A 2D MovableOp gets the 2D page with its rest mode (:func:`.movable_page.movable_html`): a toggle or
+        A 2D MovableOp gets the 2D page with its rest mode (:func:`movable_html`): a toggle or
         Shift-drag moves a rest handle within its placement region.
         A 2D BranchedOperator gets the 2D page with every branch (:func:`.payload.branched_to_payload`): the drag
         runs ``follow`` (``makeBranched`` of ``defop_editor.js``), a toggle switches to ``global``, the current
@@ -205,10 +205,29 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     return opt.write_atomic(path, text.encode("utf-8"))
 
 
-def render_2d(js, fields, edit=None):
-    """The 2D page's text: its template (``edit(template)`` when given) with the script ``js`` inlined (checked by
-    the rule of the editor's own script) and ``fields`` (``title``, ``meta``, ``data``) filled in."""
-    return (_PAGE if edit is None else edit(_PAGE)).format(js=_inline_script(js), **fields)
+def movable_html(op, path, shape=None, title=None):
+    """Write the page of a 2D MovableOp (:func:`to_html` with a MovableOp; :mod:`.movable_page`): the 2D page with
+    the rest mode, ``defop_movable.js`` after the editor's script. ``shape``'s sampling regions are drawn around the
+    nominal rest positions (its mesh must be the operator's). Returns the path, written atomically."""
+    if title is not None:
+        title = opt.text("title", title)
+    regions = None
+    if shape is not None:
+        if not isinstance(shape, Shape):
+            raise ValueError(f"shape must be a Shape (dop.shapes.load(...)) or None, got {type(shape).__name__}")
+        _check_dimensions(op, shape, None, None)
+        check_mesh(op, shape.mesh)
+        regions = region_polygons(shape.P_moving, shape.regions)
+    payload = movable_to_payload(op, regions)
+    if not title:
+        title = opt.text(
+            "title", f"defop: {op.meta.get('shape', 'shape')}, {op.placement.n_movable} movable rest handle(s)"
+        )
+    payload.update(title=title, kinds=["tps"])
+    meta, data = encode_payload(payload)
+    fields = dict(title=html.escape(title), meta=script_json(meta), data=base64.b64encode(data).decode("ascii"))
+    text = movable_page(_PAGE).format(js=_inline_script(movable_script()), **fields)
+    return opt.write_atomic(path, text.encode("utf-8"))
 
 
 def _vendored(name):

@@ -11,7 +11,7 @@
   moving handles written as Q, the fixed ones as x, and a frame with Q = P returns x bit for bit (8b)
   (:func:`~defop.operator.movable.correct`).
 
-The page (:func:`movable_html`, reached through :func:`defop.editor.export.to_html`) is the 2D editor with a rest
+The page (:func:`defop.editor.export.to_html` with a MovableOp) is the 2D editor with a rest
 mode: a toggle (or Shift-drag) moves a movable handle's rest position within its placement region, drawn on the
 mesh, snapping to the region's vertices; a bad placement (outside the region, onto another handle) is refused with
 a visible message and nothing changes.
@@ -19,16 +19,12 @@ a visible message and nothing changes.
 
 from __future__ import annotations
 
-import base64
-import html
 import re
 
 import numpy as np
 
-from .. import options as opt
-from ..operator.defop import check_mesh
 from .logic import reach_polygons
-from .payload import JS_PATH, encode_payload, mesh_edges
+from .payload import JS_PATH, mesh_edges
 
 MOVABLE_JS_PATH = JS_PATH.with_name("defop_movable.js")
 
@@ -125,41 +121,3 @@ def movable_page(template):
         r'<p class="defop-instruction">[^<]*</p>', f'<p class="defop-instruction">{INSTRUCTION}</p>', template, count=1
     )
     return out.replace("mountStandalone(", "mountMovable(")
-
-
-def movable_html(op, path, shape=None, title=None):
-    """Write the page of a 2D MovableOp (:func:`defop.editor.export.to_html` with a MovableOp).
-
-    Parameters
-    ----------
-    op : defop.operator.movable.MovableOp
-    path : str or pathlib.Path
-    shape : defop.scene.shapes.Shape, optional
-        Its sampling regions are drawn (around the nominal rest positions); its mesh must be the operator's.
-    title : str, optional
-        As for :func:`defop.editor.export.to_html`.
-
-    Returns
-    -------
-    path : pathlib.Path
-    """
-    from .export import render_2d, script_json
-    from .state import region_polygons
-
-    if title is not None:
-        title = opt.text("title", title)
-    regions = None
-    if shape is not None:
-        if shape.mesh.dim != op.d:
-            raise ValueError(f"shape must be a {op.d}D shape for this {op.d}D operator, got {shape.name!r}")
-        check_mesh(op, shape.mesh)
-        regions = region_polygons(shape.P_moving, shape.regions)
-    payload = movable_to_payload(op, regions)
-    if not title:
-        title = opt.text(
-            "title", f"defop: {op.meta.get('shape', 'shape')}, {op.placement.n_movable} movable rest handle(s)"
-        )
-    payload.update(title=title, kinds=["tps"])
-    meta, data = encode_payload(payload)
-    fields = dict(title=html.escape(title), meta=script_json(meta), data=base64.b64encode(data).decode("ascii"))
-    return opt.write_atomic(path, render_2d(movable_script(), fields, movable_page).encode("utf-8"))
