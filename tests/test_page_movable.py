@@ -327,3 +327,27 @@ def test_state_ground_truth_at_a_moved_rest(op, shape):
     hm = moving_vertices(op, [v])
     np.testing.assert_allclose(s.X_gt[hm], s.Q, atol=1e-9)  # the solve holds the handles at the moved rest
     assert s.gt_error["max"] < 0.05
+
+
+def test_widget_kernel_side_of_the_rest_mode(op, shape):
+    """What the page sends (rest on a rest move) reaches the state, retargeted; a refused rest is sent back."""
+    from defop.editor import browser
+
+    editor = browser.BrowserEditor(shape, {"tps": op}, kinds=("tps",))
+    assert editor.payload_meta["scalars"]["movable"] == 1 and "defop_movable.js" in editor._esm
+    assert "MODES.movable" in editor._esm and 'from "./defop_editor.js"' not in editor._esm
+    nominal, v = int(op.placement.nominal[0]), int(op.placement.vertices[0][0])
+    assert editor.rest == [nominal]
+    Q = editor.Q + [[0.02, 0.01], [0.0, 0.0]]
+    editor.q = Q.ravel().tolist()
+    editor.rest = [v]  # as the page does on a rest move
+    assert editor.state.rest.tolist() == [v]
+    dq = op.mesh.V[v] - op.mesh.V[nominal]
+    np.testing.assert_array_equal(editor.Q[0], Q[0] + dq)  # q − p kept, by Python's retarget
+    assert editor.q == editor.state.Q.ravel().tolist()
+    with pytest.raises(ValueError, match="holds handle 1"):
+        editor.rest = [int(op.handles[1])]
+    assert editor.rest == [v] and editor.state.rest.tolist() == [v]  # the trait is sent back
+    with pytest.raises(ValueError, match="list of 1"):
+        editor.rest = [v, v]
+    assert editor.rest == [v]

@@ -816,16 +816,21 @@ export function mountStandalone(root, meta, base64) {
   return createEditor(root, decodePayload(meta, fromBase64(base64)), {}, { standalone: true });
 }
 
+/** Other operators' editor modes, registered by the files inlined after this one (defop_movable.js: `movable`). */
+export const MODES = {};
+
 /** The anywidget view (defop.editor.browser.BrowserEditor). */
 function render({ model, el: root }) {
   const payload = () => decodePayload(model.get("payload_meta"), model.get("payload_data"));
-  const editor = createEditor(root, payload(), {
+  const first = payload(), mode = first.movable ? MODES.movable : null; // a MovableOp: its rest mode
+  const editor = createEditor(root, first, {
     onRelease: (Q) => { model.set("q", Q); model.save_changes(); },
     onBasis: (kind) => { model.set("basis", kind); model.save_changes(); },
     onShape: (name) => { model.set("shape_name", name); model.save_changes(); },
     onGroundTruth: (on) => { model.set("ground_truth", on); model.save_changes(); },
     onReset: () => { model.set("q", Array.from(editor.st.Q)); model.save_changes(); },
-  });
+  }, mode ? { makeOperator: mode.makeOperator } : {});
+  if (mode) mode.attach(editor, model);
   const gt = () => {
     const data = model.get("gt_data");
     const meta = model.get("gt_meta");

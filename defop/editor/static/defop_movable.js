@@ -10,7 +10,7 @@
 //   and a frame with Q = P returns x bit for bit (8b).
 // The standalone page inlines defop_editor.js, then this file without its import line
 // (defop.editor.movable_page.movable_script); Node tests import it as a module.
-import { createEditor, decodePayload, fromBase64, makePsi, el, addStyle } from "./defop_editor.js";
+import { createEditor, decodePayload, fromBase64, makePsi, el, addStyle, MODES } from "./defop_editor.js";
 
 /** res = w @ M, M row-major (rows × cols), accumulated in float64. */
 function combine(w, M, rows, cols, res) {
@@ -198,7 +198,7 @@ function drawPlacement(ctx, st, inside) {
  * the target; the release places it). While deformed, q − p stays (defop.operator.movable.retarget). A bad place
  * (outside the region, onto another handle) is refused with a message and nothing changes.
  * editor.setRest(ℓ, target) does the same from code (target: a vertex index or an [x, y] point); it returns
- * whether the handle moved.
+ * whether the handle moved. hooks.onRest(placement, Q) is told of every move (notify = false: not).
  */
 export function attachRestMode(editor, hooks = {}) {
   const { ui, st } = editor, canvas = ui.canvas, stack = canvas.parentNode, controls = ui.reset.parentNode;
@@ -242,7 +242,7 @@ export function attachRestMode(editor, hooks = {}) {
     return v;
   }
 
-  editor.setRest = (l, target) => {
+  editor.setRest = (l, target, notify = true) => {
     try {
       const v = Array.isArray(target) ? vertexAt(l, target[0], target[1]) : target;
       const row = st.op.rows[l], old = st.op.placement()[l];
@@ -253,7 +253,7 @@ export function attachRestMode(editor, hooks = {}) {
       for (const poly of p.regions[row]) for (let i = 0; i < poly.length; i += 2) { poly[i] += dx; poly[i + 1] += dy; }
       msg.textContent = "";
       editor.evaluate();
-      if (hooks.onRest) hooks.onRest(st.op.placement(), Array.from(st.Q));
+      if (notify && hooks.onRest) hooks.onRest(st.op.placement(), Array.from(st.Q));
       return true;
     } catch (err) {
       if (!(err instanceof RangeError)) throw err;
@@ -312,3 +312,24 @@ export function mountMovable(root, meta, base64) {
     makeOperator: makeMovable });
   return attachRestMode(editor);
 }
+
+/**
+ * The rest mode in the anywidget view (defop.editor.browser.BrowserEditor, trait `rest`): a move in the page sets
+ * `rest` (Python's state places it and sends `q`, or refuses and sends both back); a `rest` set in Python is placed here
+ * and Q taken from `q` (Python retargets it).
+ */
+function attachWidget(editor, model) {
+  // only `rest`: Python retargets Q by the same arithmetic (retarget) and sends `q` back
+  attachRestMode(editor, { onRest: (placement) => { model.set("rest", placement); model.save_changes(); } });
+  const follow = () => {
+    const rest = model.get("rest") || [], now = editor.st.op.placement();
+    rest.forEach((v, l) => { if (v !== now[l]) editor.setRest(l, v, false); });
+    const q = model.get("q");
+    if (q.length === editor.st.Q.length) editor.st.Q = Float64Array.from(q);
+    editor.evaluate();
+  };
+  follow();
+  model.on("change:rest", follow);
+}
+
+MODES.movable = { makeOperator: makeMovable, attach: attachWidget };
