@@ -206,8 +206,11 @@ def test_page_moves_a_rest_handle_then_drags(op, shape, tmp_path):
         page.locator("button.defop-rest-toggle").click()
         page.locator("button.defop-reset").click()
         reset = page.evaluate(STATE_JS)
+        legend = " ".join(page.locator(".defop-legend").text_content().split())
+        said = page.locator(".defop-instruction").text_content()
         errors = page.errors
     assert not errors, errors
+    assert "placement region of a rest handle" in legend and "Shift-drag" in said
     hm = moving_vertices(op, [v])
     # the rest move: snapped to v, Q = the new P, X = x bit for bit
     assert moved["placement"] == [v] and moved["msg"] == ""
@@ -351,3 +354,63 @@ def test_widget_kernel_side_of_the_rest_mode(op, shape):
     with pytest.raises(ValueError, match="list of 1"):
         editor.rest = [v, v]
     assert editor.rest == [v]
+
+
+_FAKE_MODEL = """
+const values = JSON.parse(document.getElementById("traits").textContent), handlers = {};
+const bytes = (b64) => { const s = atob(b64), u = new Uint8Array(s.length);
+  for (let i = 0; i < s.length; i++) u[i] = s.charCodeAt(i); return new DataView(u.buffer); };
+for (const k of ["payload_data", "gt_data", "image_data"]) values[k] = bytes(values[k]);
+window.sent = [];
+const model = { get: (k) => values[k], set: (k, v) => { values[k] = v; window.sent.push([k, v]); },
+  save_changes: () => {}, on: (event, f) => { (handlers[event] = handlers[event] || []).push(f); } };
+window.fromPython = (k, v) => { values[k] = v; for (const f of handlers["change:" + k] || []) f(); };
+const root = document.getElementById("app");
+render({ model, el: root });
+window.defopEditor = root.defopEditor;
+"""
+
+
+@pytest.mark.browser
+def test_widget_view_moves_a_rest_handle(op, shape, tmp_path):
+    """The anywidget view's own module (BrowserEditor._esm) with a stand-in for the widget model, in Chromium."""
+    from defop.editor import browser
+
+    widget = browser.BrowserEditor(shape, {"tps": op}, kinds=("tps",))
+    traits = {k: getattr(widget, k) for k in ("payload_meta", "q", "rest", "gt_meta", "image_meta")}
+    for k in ("payload_data", "gt_data", "image_data"):
+        traits[k] = base64.b64encode(getattr(widget, k)).decode()
+    page_text = (
+        f'<!DOCTYPE html><html><body><div id="app"></div><script id="traits" type="application/json">'
+        f'{export.script_json(traits)}</script><script type="module">\n{widget._esm}\n{_FAKE_MODEL}</script>'
+        "</body></html>"
+    )
+    (tmp_path / "widget.html").write_text(page_text)
+    V = op.mesh.V
+    nominal, region = int(op.placement.nominal[0]), op.placement.vertices[0]
+    v, w = (int(u) for u in region[np.argsort(np.linalg.norm(V[region] - V[nominal], axis=1))[-2:]])
+    with chromium_page() as page:
+        page.goto((tmp_path / "widget.html").as_uri())
+        page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
+        page.keyboard.down("Shift")
+        pointer_path(page, screen(page, *V[nominal]), screen(page, *V[v]))
+        page.keyboard.up("Shift")
+        sent = page.evaluate("() => window.sent")
+        widget.rest = sent[-1][1]  # the kernel places it, and answers with q
+        placed, P_placed = widget.state.rest.tolist(), widget.state.P.copy()
+        page.evaluate("([q]) => window.fromPython('q', q)", [widget.q])
+        moved = page.evaluate(STATE_JS)
+        widget.state.set_rest(0, w)  # Python moves it: the page follows the traits
+        widget._resync()
+        page.evaluate(
+            "([rest, q]) => { window.fromPython('rest', rest); window.fromPython('q', q); }", [widget.rest, widget.q]
+        )
+        followed = page.evaluate(STATE_JS)
+        errors = page.errors
+    assert not errors, errors
+    assert sent == [["rest", [v]]]  # only the rest: Python retargets q
+    assert placed == [v] and moved["placement"] == [v]
+    np.testing.assert_array_equal(np.reshape(moved["Q"], (-1, 2)), P_placed)
+    np.testing.assert_array_equal(np.reshape(moved["X"], (-1, 2)), V)  # (8b) at the new placement
+    assert followed["placement"] == [w] and followed["Q"] == widget.q
+    np.testing.assert_array_equal(np.reshape(followed["X"], (-1, 2)), V)

@@ -115,8 +115,20 @@ def movable_script():
     return JS_PATH.read_text(encoding="utf-8") + "\n" + text
 
 
+#: the page's legend entry of the placement regions (added before the fixed-P page's entries)
+LEGEND = (
+    '<span><i class="defop-swatch" style="background:rgba(44,160,44,0.25);border:1px solid #2ca02c"></i>placement '
+    "region of a rest handle (its green vertices: where its rest position may go)</span>\n"
+)
+
+
 def movable_page(template):
-    """The 2D page's template with the movable instruction and ``mountMovable`` instead of ``mountStandalone``."""
+    """The 2D page's template with the movable instruction and legend entry, and ``mountMovable`` instead of
+    ``mountStandalone``."""
+    legend = '<div class="defop-legend" aria-label="legend">\n'
+    if legend not in template:
+        raise RuntimeError("the 2D page's template has no legend to add the placement regions to")
+    template = template.replace(legend, legend + LEGEND, 1)
     out = re.sub(
         r'<p class="defop-instruction">[^<]*</p>', f'<p class="defop-instruction">{INSTRUCTION}</p>', template, count=1
     )
