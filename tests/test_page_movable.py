@@ -7,6 +7,8 @@
   moving handle; bad placements (outside the region, onto another handle) are refused with a visible message.
 """
 
+# ruff: noqa: F811  (the shape fixture of tests/test_movable.py, imported)
+
 from __future__ import annotations
 
 import base64
@@ -19,6 +21,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_browser_editor import NODE, U32, chromium_page, needs_node
+from test_movable import shape  # noqa: F401  (the fixture: the rectangle, about 250 vertices, handles 0, 1 moving)
 
 import defop as dop
 from defop.editor import export, movable_page, payload
@@ -27,21 +30,6 @@ from defop.scene.placement import placement_regions
 from defop.training.movable import train_movable
 
 DRIVER = movable_page.MOVABLE_JS_PATH.parents[3] / "tests" / "js" / "eval_movable.mjs"
-
-
-@pytest.fixture(scope="module")
-def shape():
-    """The rectangle of tests/test_movable.py (about 250 vertices): two moving handles, one fixed."""
-    outer = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
-    H = np.array([[1.8, 0.5], [1.0, 0.8], [0.1, 0.5]])
-    return dop.shapes.from_polygon(
-        outer,
-        handles=H,
-        moving=[True, True, False],
-        n_vertices=250,
-        name="rect",
-        regions=[{"kind": "disc", "radius": 0.15}] * 2,
-    )
 
 
 @pytest.fixture(scope="module")

@@ -70,6 +70,18 @@ export function makePsi(p) {
   };
 }
 
+/** res = w @ M, M row-major (rows × cols), accumulated in float64 (JavaScript numbers). */
+export function rowCombination(w, M, rows, cols, res) {
+  res.fill(0);
+  for (let j = 0; j < rows; j++) {
+    const s = w[j];
+    if (s === 0) continue;
+    const o = j * cols;
+    for (let c = 0; c < cols; c++) res[c] += s * M[o + c];
+  }
+  return res;
+}
+
 /**
  * The closed-form operator: psi(Q) and evaluate(Q) with the same formulas as defop.operator.handle_bases / DefOp.
  * Q is a flat array (D·n, D = 2 or 3) of the moving handles, row-major; evaluate returns a Float64Array
@@ -83,17 +95,6 @@ export function makeOperator(p) {
   const tmp = new Float64Array(r), out = new Float64Array(nc);
   const movingVertices = Array.from(p.handles).filter((_, i) => p.moving[i]); // row l of Q is vertex movingVertices[l]
   const psi0 = Float64Array.from(fillPsi(P)).subarray(1); // Ψ(P)[1:], by the same code as every frame
-
-  function rowCombination(w, M, rows, cols, res) { // res = w @ M, M row-major (rows × cols)
-    res.fill(0);
-    for (let j = 0; j < rows; j++) {
-      const s = w[j];
-      if (s === 0) continue;
-      const o = j * cols;
-      for (let c = 0; c < cols; c++) res[c] += s * M[o + c];
-    }
-    return res;
-  }
 
   // (★) of defop.operator.defop: D(·, Q) = x + δψ(Q) W_F, then the moving handles' columns get Q − P exactly.
   // δψ(P) = 0 bit for bit (rest pose exact, 8b); W_F is zero on every handle column (Prop. 2).

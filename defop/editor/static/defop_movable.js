@@ -10,19 +10,7 @@
 //   and a frame with Q = P returns x bit for bit (8b).
 // The standalone page inlines defop_editor.js, then this file without its import line
 // (defop.editor.movable_page.movable_script); Node tests import it as a module.
-import { createEditor, decodePayload, fromBase64, makePsi, el, addStyle, MODES } from "./defop_editor.js";
-
-/** res = w @ M, M row-major (rows × cols), accumulated in float64. */
-function combine(w, M, rows, cols, res) {
-  res.fill(0);
-  for (let j = 0; j < rows; j++) {
-    const s = w[j];
-    if (s === 0) continue;
-    const o = j * cols;
-    for (let c = 0; c < cols; c++) res[c] += s * M[o + c];
-  }
-  return res;
-}
+import { createEditor, decodePayload, fromBase64, makePsi, rowCombination, el, addStyle, MODES } from "./defop_editor.js";
 
 /** Region ℓ's vertices (sorted, a view) and the offset of its first bump row (PlacementRegions.offset). */
 function regionSlices(p) {
@@ -98,8 +86,8 @@ export function makeMovable(p) {
     if (rest) { out.set(x); return out; } // (8b): D(·; P, P) = x bit for bit
     deltaZ(jointZ(Q, z), dpsi);
     for (let j = 0; j < size - 1; j++) dpsi[j] -= psi0[j];
-    if (B) combine(combine(dpsi, A, size - 1, r, tmp), B, r, nc, out); // u = δψ A B
-    else combine(dpsi, A, size - 1, nc, out);
+    if (B) rowCombination(rowCombination(dpsi, A, size - 1, r, tmp), B, r, nc, out); // u = δψ A B
+    else rowCombination(dpsi, A, size - 1, nc, out);
     for (let l = 0; l < b; l++) for (let c = 0; c < D; c++) { // r_ℓ = (q_ℓ − p_ℓ) − u(v_ℓ)
       const j = D * rows[l] + c;
       res[D * l + c] = (Q[j] - P[j]) - out[D * idx[l] + c];
