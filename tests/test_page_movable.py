@@ -123,6 +123,21 @@ def test_javascript_matches_the_shipped_operator_at_random_placements(op, tmp_pa
 
 
 @needs_node
+def test_javascript_uncompressed_operator(op, tmp_path):
+    """Without factors the page ships W_F in float32 (one factor): the same formula."""
+    from defop.operator.movable import MovableOp
+
+    full = MovableOp(op.mesh, op.handles, op.moving, op.placement, op.basis, op.W, op.scales, dict(op.meta), op.reach)
+    v = int(full.placement.vertices[0][-1])
+    Q = full.mesh.V[moving_vertices(full, [v])] + [[0.04, -0.03], [-0.02, 0.05]]
+    out = node_steps(full, [{"rest": [0, v]}, {"Q": Q.ravel().tolist()}], tmp_path)
+    st_ = full.at(np.array([v]))
+    u = full.delta_psi(Q[None], st_) @ full.WF.astype(np.float32).astype(float)
+    X = correct(full.mesh, full.placement, full.handles, full.moving, st_, u, Q[None]).reshape(-1, 2)
+    assert np.abs(np.reshape(out[1]["X"], (-1, 2)) - X).max() <= 1e-12 * full.mesh.bbox_diagonal
+
+
+@needs_node
 def test_javascript_refuses_bad_placements(op, tmp_path):
     nominal = int(op.placement.nominal[0])
     outside = int(np.setdiff1d(np.arange(op.n_vertices), np.concatenate([op.placement.vertices[0], op.handles]))[0])
