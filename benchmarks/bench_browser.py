@@ -23,6 +23,13 @@ are dragged in one run: the rAF frame rate as above, and the frame time with the
 (``evaluate()`` then a one-pixel ``readPixels``, so no vsync cap: evaluation, upload, rasterisation and texture
 sampling, which SwiftShader does on the CPU), alternating the two pages three times.
 
+``--movable``: the page of a :class:`~defop.operator.movable.MovableOp` (issue 44) on the octopus (handles 0, 3, 6
+movable within 5% of the diagonal, as ``bench_movable.py``), its handle 0's rest position moved to the farthest
+vertex of its region before the drag, beside the fixed-P page of a DefOp trained at the same m, both compressed
+(the default tolerance), alternating the two pages: rAF frame rate, the forced frame time (as ``--image``) and the
+page's evaluation time, and their ratios. ``python benchmarks/bench_browser.py --movable [m]`` (default m = 40,
+small: the movable frame's |Ψ| is about twice m plus the rest centres).
+
 ``--3d``: the 3D page (issue 27, part 5) of the largest 3D model, ``octopus_3d`` (about 10.3k vertices, 44k
 tetrahedra, 10.8k boundary triangles, 9 moving handles), written by :func:`defop.editor.export.to_html` and
 dragged as above (one pointer event per animation frame on a handle; the handle moves in the view plane, the
@@ -119,10 +126,11 @@ SYNC_FRAMES_3D = """(n) => {
 }"""
 
 
-def in_page(page_path, steps, sync_frames=0):
+def in_page(page_path, steps, sync_frames=0, rest=None):
     """The standalone page: frame timestamps of the editor's rAF frames, and its own per-frame timings.
 
-    With ``sync_frames``, also the times (ms) of that many frames with the GPU's work forced to finish."""
+    With ``sync_frames``, also the times (ms) of that many frames with the GPU's work forced to finish; with
+    ``rest`` (a MovableOp's page), movable handle 0's rest position is moved to that vertex first."""
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
@@ -131,6 +139,8 @@ def in_page(page_path, steps, sync_frames=0):
         page.goto(page_path.as_uri())
         page.wait_for_function("() => window.defopEditor && window.defopEditor.st.X")
         textured = page.evaluate("() => window.defopEditor.imageReady || false")
+        if rest is not None and not page.evaluate(MOVE_REST, rest):
+            raise RuntimeError(f"the page refused rest vertex {rest}")
         box = page.locator("canvas.defop-canvas").bounding_box()
         u, v = page.evaluate("() => window.defopEditor.handleScreen(0)")
         start = [box["x"] + u, box["y"] + v]
@@ -314,6 +324,61 @@ def main_3d(m=40, rank=0, steps=200, rounds=3, trained=False, sync_frames=60):
     print(f"target >= 55 fps median in the 3D page: {'met' if med >= 55 else 'NOT met'} ({med:.1f} fps)")
 
 
+# before the drag: moving handle 0's rest position to the vertex of its placement region farthest from the nominal one
+MOVE_REST = """(v) => window.defopEditor.setRest(0, v)"""
+
+
+def main_movable(m=40, steps=200, rounds=2, sync_frames=60):
+    """The page of a MovableOp with a rest handle moved, beside the fixed-P page (see the module docstring)."""
+    from defop.scene.placement import placement_regions
+    from defop.training.movable import train_movable
+
+    shape = dop.shapes.load("octopus")
+    pr = placement_regions(shape, [0, 3, 6], radius=0.05 * shape.mesh.bbox_diagonal)
+    t0 = time.perf_counter()
+    op0, _ = dop.train(shape, basis="tps", m=m, progress=False)
+    opj, _ = train_movable(shape, pr, m=m, seed=0, progress=False)
+    op0.compress(), opj.compress()
+    V, region = shape.mesh.V, pr.vertices[0]
+    v = int(region[np.argmax(np.linalg.norm(V[region] - V[pr.nominal[0]], axis=1))])
+    print(
+        f"octopus: {shape.mesh.n_vertices} vertices, {shape.n_moving} moving handles, {pr.n_movable} movable "
+        f"(regions of 5% of the diagonal, {[len(r) for r in pr.vertices]} vertices); fixed-P {op0} "
+        f"(|Ψ| {op0.handle_basis.size}); movable {opj} (|Ψ| {opj.basis.size}, joint dimension "
+        f"{opj.basis.dim}); {time.perf_counter() - t0:.0f} s to train or load; rest handle 0 moved to vertex {v} "
+        f"({np.linalg.norm(V[v] - V[pr.nominal[0]]) / shape.mesh.bbox_diagonal:.1%} of the diagonal)"
+    )
+    runs = {"fixed-P page": [], "movable page, rest moved": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        pages = {
+            "fixed-P page": export.to_html(op0, Path(tmp) / "octopus_fixed.html", shape=shape),
+            "movable page, rest moved": export.to_html(opj, Path(tmp) / "octopus_movable.html", shape=shape),
+        }
+        for _ in range(rounds):  # alternate the two pages: the machine's load drifts
+            for name, path in pages.items():
+                runs[name].append(in_page(path, steps, sync_frames, rest=v if "movable" in name else None))
+    print(
+        f"{steps}-step drag of handle 0, one pointer event per animation frame ({rounds} runs per page, "
+        f"alternating); frame time forced to finish ({sync_frames} frames per run); load average "
+        f"{os.getloadavg()[0]:.2f}:"
+    )
+    sync, ev = {}, {}
+    for name, rs in runs.items():
+        fps = [rates(r["stamps"])[0] for r in rs]
+        sync[name] = np.concatenate([r["syncMs"] for r in rs])
+        ev[name], dr = (np.median(np.concatenate([r[k] for r in rs])) for k in ("evalMs", "drawMs"))
+        print(
+            f"  {name:<26} rAF median {np.median(fps):5.1f} fps (runs: {', '.join(f'{f:.0f}' for f in fps)}); "
+            f"forced frame {np.median(sync[name]):5.2f} ms median; evaluation {ev[name]:.2f} ms, draw "
+            f"submission {dr:.2f} ms"
+        )
+    a, b = "movable page, rest moved", "fixed-P page"
+    print(
+        f"movable / fixed-P: forced frame time {np.median(sync[a]) / np.median(sync[b]):.2f}x, "
+        f"evaluation {ev[a] / ev[b]:.2f}x (load average {os.getloadavg()[0]:.2f})"
+    )
+
+
 if __name__ == "__main__":
     args = [a for a in sys.argv[1:] if not a.startswith("--")]
     if "--3d" in sys.argv:
@@ -322,6 +387,8 @@ if __name__ == "__main__":
             rounds=int(os.environ.get("DEFOP_BENCH_ROUNDS", 3)),
             trained="--trained" in sys.argv,
         )
+    elif "--movable" in sys.argv:
+        main_movable(*(int(a) for a in args[:1]))
     elif "--image" in sys.argv:
         main_image(*(int(a) for a in args[:2]))
     else:

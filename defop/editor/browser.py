@@ -32,8 +32,10 @@ import traitlets
 
 from .. import options as opt
 from ..scene.shapes import names as shape_names
-from .payload import JS_PATH, defop_to_payload, encode_payload, image_for
-from .state import EditorState, ground_truth_text
+from .logic import STATE, restoring
+from .movable_page import movable_script, movable_to_payload
+from .payload import defop_to_payload, encode_payload, image_for
+from .state import EditorState, ground_truth_text, region_polygons
 
 
 class BrowserEditor(anywidget.AnyWidget):
@@ -63,10 +65,11 @@ class BrowserEditor(anywidget.AnyWidget):
     state : defop.editor.state.EditorState
     """
 
-    _esm = JS_PATH.read_text()
+    _esm = movable_script()  # defop_editor.js, then defop_movable.js (a MovableOp's rest mode)
     payload_meta = traitlets.Dict().tag(sync=True)
     payload_data = traitlets.Bytes().tag(sync=True)
     q = traitlets.List().tag(sync=True)
+    rest = traitlets.List().tag(sync=True)  # a MovableOp: its movable handles' rest vertices (the page's rest mode)
     basis = traitlets.Unicode().tag(sync=True)
     shape_name = traitlets.Unicode().tag(sync=True)
     ground_truth = traitlets.Bool(False).tag(sync=True)
@@ -92,6 +95,7 @@ class BrowserEditor(anywidget.AnyWidget):
             self._sync(image_meta=meta, image_data=data)
         self._send_operator()
         self.observe(self._on_q, names="q")
+        self.observe(self._on_rest, names="rest")
         self.observe(self._on_basis, names="basis")
         self.observe(self._on_shape, names="shape_name")
         self.observe(self._on_ground_truth, names="ground_truth")
@@ -128,7 +132,10 @@ class BrowserEditor(anywidget.AnyWidget):
 
     def _send_operator(self):
         s = self.state
-        payload = defop_to_payload(s.operator, s.regions)
+        if s.rest is None:
+            payload = defop_to_payload(s.operator, s.regions)
+        else:  # the nominal placement's regions: the page moves them with the rest (the trait rest)
+            payload = movable_to_payload(s.operator, region_polygons(s.base_shape.P_moving, s.base_shape.regions))
         payload.update(
             title=f"{s.shape.name}: {s.energy} DefOp, Ψ = {s.kind}",
             kinds=list(s.kinds),
@@ -137,7 +144,8 @@ class BrowserEditor(anywidget.AnyWidget):
             pick_radius=s.pick_radius,
         )
         meta, data = encode_payload(payload)
-        self._sync(payload_meta=meta, payload_data=data, q=s.Q.ravel().tolist(), basis=s.kind, shape_name=s.shape.name)
+        self._sync(payload_meta=meta, payload_data=data, basis=s.kind, shape_name=s.shape.name)
+        self._resync()
         self._send_ground_truth()
 
     def _send_ground_truth(self):
@@ -150,7 +158,9 @@ class BrowserEditor(anywidget.AnyWidget):
     def _resync(self):
         """The synced traits back to what the state holds (after a value the state rejected)."""
         s = self.state
-        self._sync(q=s.Q.ravel().tolist(), basis=s.kind, shape_name=s.shape.name, ground_truth=bool(s.gt_enabled))
+        rest = [] if s.rest is None else s.rest.tolist()
+        name = s.shape.name if s.rest is None else s.base_shape.name
+        self._sync(q=s.Q.ravel().tolist(), rest=rest, basis=s.kind, shape_name=name, ground_truth=bool(s.gt_enabled))
 
     def _apply(self, change, action):
         """Run ``action(new value)`` for a trait the page (or the user) set; a rejected value is undone in the
@@ -171,6 +181,19 @@ class BrowserEditor(anywidget.AnyWidget):
         self.state.set_Q(q.reshape(-1, 2))
         self._send_ground_truth()
 
+    def _set_rest(self, rest):
+        s = self.state
+        if s.rest is None or not isinstance(rest, list) or len(rest) != len(s.rest):
+            raise ValueError(
+                f"rest must be a list of {0 if s.rest is None else len(s.rest)} vertex indices, got {rest!r}"
+            )
+        with restoring(s, STATE):  # each movable handle in turn; a refused one undoes the ones before
+            for ell, v in enumerate(rest):
+                if v != s.rest[ell]:
+                    s.set_rest(ell, opt.integer("rest vertex", v))
+        self._sync(q=s.Q.ravel().tolist())
+        self._send_ground_truth()
+
     def _set_basis(self, kind):
         self.state.set_basis(kind)
         self._send_operator()
@@ -185,6 +208,9 @@ class BrowserEditor(anywidget.AnyWidget):
 
     def _on_q(self, change):
         self._apply(change, self._set_q)
+
+    def _on_rest(self, change):
+        self._apply(change, self._set_rest)
 
     def _on_basis(self, change):
         self._apply(change, self._set_basis)

@@ -10,9 +10,11 @@ import re
 
 from .. import options as opt
 from ..operator.branched import BranchedOperator
-from ..operator.defop import DefOp
+from ..operator.defop import DefOp, check_mesh
+from ..operator.movable import MovableOp
 from ..scene.planar_shapes import image_frame as image_frame_of
 from ..scene.shapes import Shape
+from .movable_page import movable_page, movable_script, movable_to_payload
 from .payload import JS_PATH, branched_to_payload, defop_to_payload, encode_payload, image_for, region_balls
 from .state import region_polygons
 
@@ -141,7 +143,9 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
 
     Parameters
     ----------
-    op : defop.operator.DefOp or defop.operator.branched.BranchedOperator
+    op : defop.operator.DefOp, defop.operator.branched.BranchedOperator or defop.operator.movable.MovableOp
+        A 2D MovableOp gets the 2D page with its rest mode (:func:`movable_html`): a toggle or
+        Shift-drag moves a rest handle within its placement region.
         A 2D BranchedOperator gets the 2D page with every branch (:func:`.payload.branched_to_payload`): the drag
         runs ``follow`` (``makeBranched`` of ``defop_editor.js``), a toggle switches to ``global``, the current
         branch's label is shown, and Reset goes back to branch 0 (the rest pose's).
@@ -177,6 +181,10 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
         not a string, ``path`` not a path, a picture for a 3D operator, a picture without ``shape`` or
         ``image_frame``, or one whose silhouette is not ``shape``'s outline (the message says what to pass).
     """
+    if isinstance(op, MovableOp):  # handles that move at rest: the page of defop.editor.movable_page
+        if image is not None or image_frame is not None:
+            raise ValueError("image and image_frame are not offered on the page of a MovableOp")
+        return movable_html(op, path, shape=shape, title=title)
     branched = isinstance(op, BranchedOperator)
     if branched:
         if op.branches[0].op.d != 2:
@@ -214,6 +222,31 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     else:
         page = _PAGE_BRANCHED if branched else _PAGE
         text = page.format(js=_inline_script(JS_PATH.read_text(encoding="utf-8")), **fields)
+    return opt.write_atomic(path, text.encode("utf-8"))
+
+
+def movable_html(op, path, shape=None, title=None):
+    """Write the page of a 2D MovableOp (:func:`to_html` with a MovableOp; :mod:`.movable_page`): the 2D page with
+    the rest mode, ``defop_movable.js`` after the editor's script. ``shape``'s sampling regions are drawn around the
+    nominal rest positions (its mesh must be the operator's). Returns the path, written atomically."""
+    if title is not None:
+        title = opt.text("title", title)
+    regions = None
+    if shape is not None:
+        if not isinstance(shape, Shape):
+            raise ValueError(f"shape must be a Shape (dop.shapes.load(...)) or None, got {type(shape).__name__}")
+        _check_dimensions(op, shape, None, None)
+        check_mesh(op, shape.mesh)
+        regions = region_polygons(shape.P_moving, shape.regions)
+    payload = movable_to_payload(op, regions)
+    if not title:
+        title = opt.text(
+            "title", f"defop: {op.meta.get('shape', 'shape')}, {op.placement.n_movable} movable rest handle(s)"
+        )
+    payload.update(title=title, kinds=["tps"])
+    meta, data = encode_payload(payload)
+    fields = dict(title=html.escape(title), meta=script_json(meta), data=base64.b64encode(data).decode("ascii"))
+    text = movable_page(_PAGE).format(js=_inline_script(movable_script()), **fields)
     return opt.write_atomic(path, text.encode("utf-8"))
 
 

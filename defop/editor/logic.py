@@ -33,6 +33,13 @@ STATE = (
     "gt_error",
     "gt_time",
     "active",
+    "shape",
+    "P",
+    "regions",
+    "rest",
+    "rest_active",
+    "rest_target",
+    "_solver",
 )
 
 

@@ -25,9 +25,10 @@ import warnings
 import numpy as np
 
 from .. import options as opt
-from ..operator.defop import ExtrapolationWarning
+from ..operator.defop import ExtrapolationWarning, check_mesh
 from ..operator.handle_bases import KINDS
 from ..variational.solver import NotConvergedWarning, Solver
+from . import rest as rest_mode
 from .logic import (
     STATE,
     check_flag,
@@ -132,7 +133,7 @@ class EditorState:
         self.train_kw = dict(train_kw or {})
         self.operators = dict(operators or {})
         for op in self.operators.values():
-            op.check_mesh(self.mesh)
+            check_mesh(op, self.mesh)
         self.trainer = trainer
         self._solver = solver
         self.P = np.array(shape.P_moving, dtype=float)
@@ -143,6 +144,7 @@ class EditorState:
         self.gt_enabled = False
         self.active, self.eval_time = None, 0.0
         self.get_operator(basis)
+        rest_mode.init_rest(self)  # a MovableOp: the rest mode (defop.editor.rest)
         self.reset()
 
     # ------------------------------------------------------------------ operators
@@ -160,7 +162,7 @@ class EditorState:
                 op = self.trainer(self.shape, kind)
             else:
                 op = train_operator(self.shape, kind, self.energy, self.m, self.train_kw)
-            op.check_mesh(self.mesh)
+            check_mesh(op, self.mesh)
             self.operators[kind] = op
         return self.operators[kind]
 
@@ -210,6 +212,14 @@ class EditorState:
             self.active = None
             self.set_Q(self.P)
 
+    def set_rest_mode(self, enabled):
+        """Turn the rest mode on or off (:func:`defop.editor.rest.set_rest_mode`): a press moves a rest handle."""
+        rest_mode.set_rest_mode(self, enabled)
+
+    def set_rest(self, ell, target):
+        """Move movable handle ``ell``'s rest position to a vertex or point (:func:`defop.editor.rest.set_rest`)."""
+        rest_mode.set_rest(self, ell, target)
+
     def pick(self, x, y):
         """The moving handle nearest to (x, y) within ``pick_radius`` × diagonal, else None."""
         x, y = opt.point("(x, y)", (x, y))
@@ -218,8 +228,11 @@ class EditorState:
         return i if d[i] <= self.pick_radius * self.diag else None
 
     # ------------------------------------------------------------------ a drag (what a pointer does)
-    def press(self, x, y):
-        """Start dragging the handle nearest to (x, y); returns its index, or None when none is near."""
+    def press(self, x, y, shift=False):
+        """Start dragging the handle nearest to (x, y); returns its index, or None when none is near. In the rest
+        mode, or with ``shift``, a rest handle (:func:`defop.editor.rest.press_rest`)."""
+        if self.rest is not None and (self.rest_mode or check_flag("shift", shift)):
+            return rest_mode.press_rest(self, x, y)
         self.active = self.pick(x, y)
         return self.active
 
@@ -232,6 +245,9 @@ class EditorState:
             False when no handle is being dragged.
         """
         xy = opt.point("(x, y)", (x, y))
+        if self.rest_active is not None:
+            rest_mode.drag_rest(self, *xy)
+            return True
         if self.active is None:
             return False
         Q = self.Q.copy()
@@ -245,6 +261,8 @@ class EditorState:
         if (x is None) != (y is None):
             raise ValueError(f"x and y go together: both or neither, got x={x!r}, y={y!r}")
         xy = None if x is None else opt.point("(x, y)", (x, y))
+        if self.rest_active is not None:
+            return rest_mode.release_rest(self, xy)
         if self.active is None:
             return False
         Q = self.Q.copy()
@@ -273,7 +291,7 @@ class EditorState:
         t0 = time.perf_counter()
         with warnings.catch_warnings():  # the readout reports extrapolation through outside_regions
             warnings.simplefilter("ignore", ExtrapolationWarning)
-            X = np.asarray(self.operator(self.Q), dtype=float)
+            X = np.asarray(rest_mode.frame(self), dtype=float)
         self.eval_time = time.perf_counter() - t0
         if X.shape != self.mesh.V.shape or not np.isfinite(X).all():
             raise ValueError(f"the {self.kind} DefOp returned an invalid deformation (shape {X.shape})")
@@ -320,7 +338,7 @@ class EditorState:
         if self.X_gt is not None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", ExtrapolationWarning)
-                starts.append(self.X_gt + self.X - np.asarray(self.operator(self.Q_gt)))
+                starts.append(self.X_gt + self.X - np.asarray(rest_mode.frame(self, self.Q_gt)))
         starts.append(self.X)
         t0 = time.perf_counter()
         with warnings.catch_warnings():

@@ -70,6 +70,18 @@ export function makePsi(p) {
   };
 }
 
+/** res = w @ M, M row-major (rows × cols), accumulated in float64 (JavaScript numbers). */
+export function rowCombination(w, M, rows, cols, res) {
+  res.fill(0);
+  for (let j = 0; j < rows; j++) {
+    const s = w[j];
+    if (s === 0) continue;
+    const o = j * cols;
+    for (let c = 0; c < cols; c++) res[c] += s * M[o + c];
+  }
+  return res;
+}
+
 /**
  * The closed-form operator: psi(Q) and evaluate(Q) with the same formulas as defop.operator.handle_bases / DefOp.
  * Q is a flat array (D·n, D = 2 or 3) of the moving handles, row-major; evaluate returns a Float64Array
@@ -83,17 +95,6 @@ export function makeOperator(p) {
   const tmp = new Float64Array(r), out = new Float64Array(nc);
   const movingVertices = Array.from(p.handles).filter((_, i) => p.moving[i]); // row l of Q is vertex movingVertices[l]
   const psi0 = Float64Array.from(fillPsi(P)).subarray(1); // Ψ(P)[1:], by the same code as every frame
-
-  function rowCombination(w, M, rows, cols, res) { // res = w @ M, M row-major (rows × cols)
-    res.fill(0);
-    for (let j = 0; j < rows; j++) {
-      const s = w[j];
-      if (s === 0) continue;
-      const o = j * cols;
-      for (let c = 0; c < cols; c++) res[c] += s * M[o + c];
-    }
-    return res;
-  }
 
   // (★) of defop.operator.defop: D(·, Q) = x + δψ(Q) W_F, then the moving handles' columns get Q − P exactly.
   // δψ(P) = 0 bit for bit (rest pose exact, 8b); W_F is zero on every handle column (Prop. 2).
@@ -538,6 +539,7 @@ function drawFrame(ctx, st) {
   if (st.gl) { // the mesh in WebGL, regions and handles on the 2D overlay
     st.gl.draw(X, st.gt && st.gtVisible ? st.gt : null);
     drawRegions(ctx, p.regions, view, false); // outlines only: the overlay is above the mesh
+    if (st.overlay) st.overlay(ctx, st); // a mode's own marks under the handles (defop_movable.js)
     drawHandles(ctx, X, p.handles, p.moving, view, st.active, st.outside);
     return;
   }
@@ -557,6 +559,7 @@ function drawFrame(ctx, st) {
     ctx.strokeStyle = "rgba(31,119,180,0.55)";
     ctx.stroke();
   }
+  if (st.overlay) st.overlay(ctx, st);
   drawHandles(ctx, X, p.handles, p.moving, view, st.active, st.outside);
 }
 
@@ -666,7 +669,8 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
   editor.load = (payload_, Q) => {
     const p = payload_;
     st.p = p;
-    st.op = p.n_branches ? makeBranched(p) : makeOperator(p); // several branches: the follow drag
+    // several branches: the follow drag; options.makeOperator: another evaluator (defop_movable.js)
+    st.op = options.makeOperator ? options.makeOperator(p) : p.n_branches ? makeBranched(p) : makeOperator(p);
     resize(options.height || fitHeight(p.V, width, 0.25));
     st.view = makeView(p.V, width, st.height, 0.25);
     st.gl = options.webgl === false ? null : makeGL(ui.glCanvas, p, st.view, width, st.height);
@@ -813,16 +817,21 @@ export function mountStandalone(root, meta, base64) {
   return createEditor(root, decodePayload(meta, fromBase64(base64)), {}, { standalone: true });
 }
 
+/** Other operators' editor modes, registered by the files inlined after this one (defop_movable.js: `movable`). */
+export const MODES = {};
+
 /** The anywidget view (defop.editor.browser.BrowserEditor). */
 function render({ model, el: root }) {
   const payload = () => decodePayload(model.get("payload_meta"), model.get("payload_data"));
-  const editor = createEditor(root, payload(), {
+  const first = payload(), mode = first.movable ? MODES.movable : null; // a MovableOp: its rest mode
+  const editor = createEditor(root, first, {
     onRelease: (Q) => { model.set("q", Q); model.save_changes(); },
     onBasis: (kind) => { model.set("basis", kind); model.save_changes(); },
     onShape: (name) => { model.set("shape_name", name); model.save_changes(); },
     onGroundTruth: (on) => { model.set("ground_truth", on); model.save_changes(); },
     onReset: () => { model.set("q", Array.from(editor.st.Q)); model.save_changes(); },
-  });
+  }, mode ? { makeOperator: mode.makeOperator } : {});
+  if (mode) mode.attach(editor, model);
   const gt = () => {
     const data = model.get("gt_data");
     const meta = model.get("gt_meta");

@@ -1,0 +1,135 @@
+"""The page of a :class:`~defop.operator.movable.MovableOp`: handles that move at rest, evaluated in the page.
+
+:func:`movable_to_payload` packs what ``static/defop_movable.js`` needs to evaluate (M) of
+:mod:`defop.operator.movable` in JavaScript, with the same formula as the Python frame:
+
+* z(P, Q) = [(P_b − P_b⁰)/s_P, (Q − P)/s_Q] (:func:`~defop.operator.movable.joint_z`), Ψ the TPS basis over the
+  joint space (``joint_centers``, kernel r² log r, pseudo-handles at 0, scale 1: the evaluator of DefOp's page,
+  ``makePsi``), δψ(P, Q) = Ψ(z(P, Q))[1:] − Ψ(z(P, P))[1:];
+* u = δψ A B (the float32 factors, products accumulated in float64), X = x + u;
+* the residual correction Σ_ℓ g_{v_ℓ} r_ℓ (the placement's bumps, CSR rows ``bump_*`` in region order), then the
+  moving handles written as Q, the fixed ones as x, and a frame with Q = P returns x bit for bit (8b)
+  (:func:`~defop.operator.movable.correct`).
+
+The page (:func:`defop.editor.export.to_html` with a MovableOp) is the 2D editor with a rest
+mode: a toggle (or Shift-drag) moves a movable handle's rest position within its placement region, drawn on the
+mesh, snapping to the region's vertices; a bad placement (outside the region, onto another handle) is refused with
+a visible message and nothing changes.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from .logic import reach_polygons
+from .payload import JS_PATH, mesh_edges
+
+MOVABLE_JS_PATH = JS_PATH.with_name("defop_movable.js")
+
+#: the page's instruction line (replaces the fixed-P page's)
+INSTRUCTION = (
+    "Drag a red handle with the mouse: the shape follows, computed in this page. Shift-drag a handle (or turn on "
+    "&quot;move rest handle&quot;) to move its rest position within its placement region (green)."
+)
+
+
+def movable_to_payload(op, regions=None):
+    """Everything the page needs to evaluate and draw a MovableOp (2D) at its nominal placement.
+
+    Parameters
+    ----------
+    op : defop.operator.movable.MovableOp
+        The compressed factors (A, B) when present (as shipped, float32), otherwise W_F in float32.
+    regions : list of list of (k,2) numpy array, optional
+        Sampling-region polygons of the moving handles around their nominal rest positions; default discs of the
+        operator's reach (the farthest training offset). The page translates a handle's polygons with its rest
+        position.
+
+    Returns
+    -------
+    payload : dict
+        ``movable`` 1 and the keys of :func:`defop.editor.payload.defop_to_payload` that the editor draws (``d``,
+        ``kind``, ``size``, ``n_moving``, ``n_vertices``, ``regions``, ``P``, ``V``, ``F``, ``E``, ``handles``,
+        ``moving``, ``A``, ``B``, ``rank``), plus the joint basis (``kernel``, ``joint_centers`` (|C|, (b + n) d)),
+        the scales ``s_p``, ``s_q``, the placement (``movable`` indices into the handles, ``movable_rows`` rows of
+        Q, ``nominal`` vertices, ``region_vertices`` and ``region_sizes``) and the bumps ``bump_indptr``,
+        ``bump_indices``, ``bump_data`` (CSR, one row per region vertex, in region order).
+    """
+    if op.d != 2:
+        raise ValueError(f"op: the page of a MovableOp is 2D, got a {op.d}D operator")
+    pl, basis = op.placement, op.basis
+    P = op.mesh.V[op.handles[op.moving]]
+    if regions is None:
+        reach = None if op.reach is None else (P + op.reach[:, None] * [1.0, 0.0])[None]  # (1, n, 2) at the reach
+        regions = reach_polygons(P, reach)
+    g = pl.g.tocsr()
+    p = {
+        "movable": 1,
+        "d": 2,
+        "kind": "tps",
+        "kernel": basis.kernel,
+        "size": int(basis.size),
+        "n_moving": int(op.n_moving),
+        "n_vertices": int(op.n_vertices),
+        "regions": [[np.asarray(poly, float).ravel().tolist() for poly in polys] for polys in regions],
+        "P": np.asarray(P, np.float64),
+        "V": np.asarray(op.mesh.V, np.float64),
+        "F": np.asarray(op.mesh.F, np.int32),
+        "E": mesh_edges(op.mesh.F).astype(np.int32),
+        "handles": np.asarray(op.handles, np.int32),
+        "moving": np.asarray(op.moving, np.uint8),
+        "joint_centers": np.asarray(basis.centers, np.float64).reshape(len(basis.centers), -1),
+        "s_p": float(op.scales[0]),
+        "s_q": float(op.scales[1]),
+        "placement_movable": np.asarray(pl.movable, np.int32),
+        "movable_rows": np.asarray(pl.moving_rows(), np.int32),
+        "nominal": np.asarray(pl.nominal, np.int32),
+        "region_vertices": np.concatenate(pl.vertices).astype(np.int32),
+        "region_sizes": np.array([len(v) for v in pl.vertices], np.int32),
+        "bump_indptr": np.asarray(g.indptr, np.int32),
+        "bump_indices": np.asarray(g.indices, np.int32),
+        "bump_data": np.asarray(g.data, np.float64),
+    }
+    if op.factors is not None:
+        p["A"], p["B"] = (np.asarray(f, np.float32) for f in op.factors)
+        p["rank"] = int(p["A"].shape[1])
+    else:
+        p["A"] = np.asarray(op.WF, np.float32)
+    return p
+
+
+def movable_script():
+    """The movable page's inline module: ``defop_editor.js`` verbatim, then ``defop_movable.js`` without its import
+    line (the names it imports are in the same module scope), as :func:`defop.editor.export.solid_script` does.
+
+    Returns
+    -------
+    str
+    """
+    text = MOVABLE_JS_PATH.read_text(encoding="utf-8")
+    text, n = re.subn(r'^import \{[^}]*\}\s*from "\./defop_editor\.js";\n', "", text, count=1, flags=re.M)
+    if n != 1:
+        raise RuntimeError(f"{MOVABLE_JS_PATH.name}: no import line from ./defop_editor.js")
+    return JS_PATH.read_text(encoding="utf-8") + "\n" + text
+
+
+#: the page's legend entry of the placement regions (added before the fixed-P page's entries)
+LEGEND = (
+    '<span><i class="defop-swatch" style="background:rgba(44,160,44,0.25);border:1px solid #2ca02c"></i>placement '
+    "region of a rest handle (its green vertices: where its rest position may go)</span>\n"
+)
+
+
+def movable_page(template):
+    """The 2D page's template with the movable instruction and legend entry, and ``mountMovable`` instead of
+    ``mountStandalone``."""
+    legend = '<div class="defop-legend" aria-label="legend">\n'
+    if legend not in template:
+        raise RuntimeError("the 2D page's template has no legend to add the placement regions to")
+    template = template.replace(legend, legend + LEGEND, 1)
+    out = re.sub(
+        r'<p class="defop-instruction">[^<]*</p>', f'<p class="defop-instruction">{INSTRUCTION}</p>', template, count=1
+    )
+    return out.replace("mountStandalone(", "mountMovable(")
