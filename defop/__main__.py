@@ -1,4 +1,4 @@
-"""Command line: ``python -m defop figures`` (the main job), ``doctor``, ``normalise`` and ``runtimes``."""
+"""Command line: ``python -m defop figures`` (the main job), ``cache``, ``doctor``, ``normalise`` and ``runtimes``."""
 
 from __future__ import annotations
 
@@ -28,6 +28,12 @@ def parser():
         "normalise", help="normalise stored notebooks (metadata, widget outputs) as the main job does"
     )
     norm.add_argument("paths", nargs="*", help="notebooks (default: every notebook in notebooks/)")
+    cache = sub.add_parser("cache", help="what the cache (DEFOP_CACHE) holds; --prune removes what no version reads")
+    cache.add_argument("--prune", action="store_true", help="remove the entries no version of this code reads")
+    cache.add_argument("--dry-run", action="store_true", help="with --prune: list them with their sizes, remove none")
+    cache.add_argument(
+        "--untagged", action="store_true", help="with --prune: also entries written before stamps named their versions"
+    )
     sub.add_parser("runtimes", help="write figures/runtimes.json's times into the notebook headers and READMEs")
     doc = sub.add_parser("doctor", help="check (and, as root on Debian, install) what headless rendering needs")
     doc.add_argument("--no-install", action="store_true")
@@ -51,6 +57,8 @@ def main(argv=None):
             record=None if args.no_record else RUNTIMES,
         )
         return 0 if all(r["ok"] for r in report) else 1
+    elif args.command == "cache":
+        return _cache(args)
     elif args.command == "normalise":
         from .figures import normalise_files, notebooks
 
@@ -74,6 +82,32 @@ def main(argv=None):
         except RuntimeError as exc:
             print("defop doctor:", exc, file=sys.stderr)
             return 1
+    return 0
+
+
+def _cache(args):
+    """``python -m defop cache``: the cache's contents, or ``--prune`` (``--dry-run``: the list only)."""
+    from .config import cache_dir
+    from .training import cache_admin
+
+    try:
+        folder = cache_dir()
+    except ValueError as exc:
+        print("defop cache:", exc, file=sys.stderr)
+        return 1
+    if folder is None:
+        print("defop cache: the cache is off (DEFOP_CACHE=off)")
+        return 0
+    if not args.prune:
+        print(f"defop cache: {folder}")
+        for line in cache_admin.summary(cache_admin.scan(folder)):
+            print(line)
+        return 0
+    gone = cache_admin.prune(folder, dry_run=args.dry_run, untagged=args.untagged)
+    verb = "would remove" if args.dry_run else "removed"
+    for e in gone:
+        print(f"{verb} {e.path.name}  {e.size / 2**20:.1f} MB  ({e.status}{': ' + e.why if e.why else ''})")
+    print(f"defop cache: {verb} {len(gone)} files, {sum(e.size for e in gone) / 2**20:.1f} MB from {folder}")
     return 0
 
 

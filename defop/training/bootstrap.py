@@ -414,14 +414,51 @@ def train(
     if store is not None:
         gt_key = _gt_key(shape, energy, samples, rounds, used, lv)
         op_key = cache_mod.key("op", gt_key, basis, spatial, params["k"])
-    clock = solves.Stopwatch()
+    cached = _cached_operator(store, gt_key, op_key, shape, basis, spatial, samples, params, why)
+    if cached is not None:
+        return cached
+    with batch.hold(store, "op", op_key):  # another process training this operator: wait for it, then load it
+        cached = _cached_operator(store, gt_key, op_key, shape, basis, spatial, samples, params, why)
+        if cached is not None:
+            return cached
+        return _train_new(
+            shape,
+            energy,
+            basis,
+            spatial,
+            k,
+            seed,
+            samples,
+            n_jobs,
+            progress,
+            rounds,
+            lv,
+            why,
+            params,
+            store,
+            gt_key,
+            op_key,
+        )
+
+
+def _cached_operator(store, gt_key, op_key, shape, basis, spatial, samples, params, why):
+    """:func:`train`'s result from the cache (the operator, and its ground truth when cached), or None."""
+    clock, m, used = solves.Stopwatch(), len(samples), params["policy_used"]
     op = None if store is None else store.load_with("op", op_key, _operator_reader(shape, basis, spatial, m))
-    if op is not None:
-        times, wall = {"load": clock.cpu}, {"load": clock.wall}
-        gt = _load_gt(store, gt_key, m, shape.mesh.n_vertices, shape.mesh.dim)
-        X, conv = (None, None) if gt is None else gt[:2]
-        info = _levels_info(used, why, None if gt is None else gt[2].get("multilevel"))
-        return op, TrainingRecord(samples, X, conv, times, "operator", params, used, info, wall)
+    if op is None:
+        return None
+    times, wall = {"load": clock.cpu}, {"load": clock.wall}
+    gt = _load_gt(store, gt_key, m, shape.mesh.n_vertices, shape.mesh.dim)
+    X, conv = (None, None) if gt is None else gt[:2]
+    info = _levels_info(used, why, None if gt is None else gt[2].get("multilevel"))
+    return op, TrainingRecord(samples, X, conv, times, "operator", params, used, info, wall)
+
+
+def _train_new(
+    shape, energy, basis, spatial, k, seed, samples, n_jobs, progress, rounds, lv, why, params, store, gt_key, op_key
+):
+    """:func:`train`'s solves (or its cached ground truth) and fit, the operator stored in the cache."""
+    m, used = len(samples), params["policy_used"]
     meta = {"shape": shape.name, "energy": energy, "seed": seed, "policy": used}
     X, conv, times, wall, info, cache_state = _ground_truth(
         shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, meta
@@ -444,16 +481,27 @@ def train(
 def _ground_truth(shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, meta):
     """The training's ground truth, loaded or solved by the policy and cached: (X, converged, CPU times, wall times,
     multilevel info, cache state)."""
-    gt = _load_gt(store, gt_key, len(samples), shape.mesh.n_vertices, shape.mesh.dim)
-    if gt is not None:  # how long the cached solves took when they ran
-        return (
-            gt[0],
-            gt[1],
-            dict(gt[2].get("times", {})),
-            dict(gt[2].get("wall", {})),
-            gt[2].get("multilevel"),
-            ("ground truth"),
-        )
+    gt = _cached_ground_truth(store, gt_key, shape, len(samples))
+    if gt is not None:
+        return gt
+    with batch.hold(store, "gt", gt_key):  # another process solving these samples: wait for it, then load them
+        gt = _cached_ground_truth(store, gt_key, shape, len(samples))
+        if gt is not None:
+            return gt
+        return _solve_ground_truth(shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, meta)
+
+
+def _cached_ground_truth(store, gt_key, shape, m):
+    """:func:`_ground_truth`'s result from the cache (with how long its solves took when they ran), or None."""
+    gt = _load_gt(store, gt_key, m, shape.mesh.n_vertices, shape.mesh.dim)
+    if gt is None:
+        return None
+    meta = gt[2]
+    return gt[0], gt[1], dict(meta.get("times", {})), dict(meta.get("wall", {})), meta.get("multilevel"), "ground truth"
+
+
+def _solve_ground_truth(shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, meta):
+    """:func:`_ground_truth`'s solves by the policy, cached."""
     ck = None if store is None else batch.Checkpoints(store)  # resume an interrupted run where it stopped
     info = None
     if lv is None:
