@@ -24,6 +24,13 @@ def parser():
         "--timeout", type=float, default=None, help="per-cell timeout in seconds (default: defop.figures.CELL_TIMEOUT)"
     )
     fig.add_argument("--no-record", action="store_true", help="do not update figures/runtimes.json")
+    fig.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        help="notebooks side by side, longest first, each kernel's solves in the kernel (default: one per core, at "
+        "most 2; 1: one after another)",
+    )
     norm = sub.add_parser(
         "normalise", help="normalise stored notebooks (metadata, widget outputs) as the main job does"
     )
@@ -46,7 +53,7 @@ def main(argv=None):
     args = parser().parse_args(argv)
 
     if args.command == "figures":
-        from .figures import CELL_TIMEOUT, RUNTIMES, regenerate
+        from .figures import CELL_TIMEOUT, RUNTIMES, regenerate, schedule
 
         report = regenerate(
             only=args.only,
@@ -55,6 +62,7 @@ def main(argv=None):
             timeout=CELL_TIMEOUT if args.timeout is None else args.timeout,
             clean=args.clean,
             record=None if args.no_record else RUNTIMES,
+            jobs=schedule.default_jobs() if args.jobs is None else args.jobs,
         )
         return 0 if all(r["ok"] for r in report) else 1
     elif args.command == "cache":
