@@ -111,3 +111,12 @@ def test_prints_split_into_messages_are_stored_as_one_output():
     one.cells[0].outputs = [nbformat.from_dict(o) for o in [{**split[0], "text": "a\nb\nc\n"}, split[2], split[3]]]
     assert figures.normalise(nb).cells[0].outputs == figures.normalise(one).cells[0].outputs
     assert [o["text"] for o in figures.normalise(nb).cells[0].outputs] == ["a\nb\nc\n", "w\n", "d\n"]
+
+
+def test_a_whole_run_records_its_wall_time_as_the_total(tmp_path):
+    path = tmp_path / "runtimes.json"
+    report = [dict(name="00_a", seconds=5.0, ok=True, cache="cold", cpu=4.0, start=0.0, end=5.0)]
+    figures.write_runtimes(report, "full", path, jobs=2, wall=7.0, whole="cold")
+    figures.write_runtimes([{**report[0], "cache": "partial"}], "full", path, jobs=2, wall=3.0)  # a part: kept
+    entry = json.loads(path.read_text())["full"]
+    assert entry["totals"] == {"cold": 7.0} and entry["wall"] == 3.0 and entry["notebooks"]["00_a"]["cpu"] == 4.0

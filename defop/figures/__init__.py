@@ -445,8 +445,17 @@ def regenerate(
         report.sort(key=lambda r: r["name"])
     _summary(report, mode, jobs, time.perf_counter() - t0, log)
     if record is not None:
-        write_runtimes(report, mode, record, jobs=jobs, wall=time.perf_counter() - t0)
+        whole = _whole(only, cold, report)
+        write_runtimes(report, mode, record, jobs=jobs, wall=time.perf_counter() - t0, whole=whole)
     return report
+
+
+def _whole(only, cold, report):
+    """``"cold"`` for a run of every notebook from an empty cache, ``"warm"`` for one that only read the cache,
+    else None (:func:`write_runtimes`)."""
+    if only:
+        return None
+    return "cold" if cold else ("warm" if all(r["cache"] == "warm" for r in report) else None)
 
 
 def _empty_cache():

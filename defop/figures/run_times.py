@@ -51,7 +51,7 @@ def machine_info():
     return dict(cpu=cpu, cores=os.cpu_count(), python=platform.python_version(), os=platform.platform(), **packages)
 
 
-def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None):
+def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None, whole=None):
     """Merge a run's seconds into the timing record (other modes and notebooks are kept).
 
     Parameters
@@ -64,6 +64,10 @@ def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None):
         Notebooks that ran side by side.
     wall : float, optional
         The run's wall seconds, start to end.
+    whole : {"cold", "warm"}, optional
+        The run was of every notebook, from an empty cache (``"cold"``) or with the cache of a previous run
+        (``"warm"``): its wall seconds are also recorded as ``totals[whole]``, the time :func:`update_stated_times`
+        states for the whole job (kept while a later run is not whole).
 
     Returns
     -------
@@ -84,6 +88,8 @@ def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None):
     entry["jobs"] = jobs
     if wall is not None:
         entry["wall"] = round(wall, 1)
+        if whole in ("cold", "warm") and all(r["ok"] for r in report):
+            entry.setdefault("totals", {})[whole] = round(wall, 1)
     spans = {r["name"]: (r["start"], r["end"]) for r in report if "start" in r}
     beside = overlaps(spans) if jobs > 1 else {}
     for r in report:
@@ -257,8 +263,12 @@ def update_stated_times(path=RUNTIMES, root=ROOT):
         def total(times, cold):
             return sum(cold.values()) if cold.keys() == times.keys() else None
 
-        sentence = run_time_sentence(
-            sum(full.values()), sum(fast.values()), total(full, full_cold), total(fast, fast_cold)
+        runs = {mode: json.loads(Path(path).read_text()).get(mode, {}).get("totals", {}) for mode in ("full", "fast")}
+        sentence = run_time_sentence(  # a whole run's wall time where measured (lessons side by side), else the sums
+            runs["full"].get("warm", sum(full.values())),
+            runs["fast"].get("warm", sum(fast.values())),
+            runs["full"].get("cold", total(full, full_cold)),
+            runs["fast"].get("cold", total(fast, fast_cold)),
         )
         for doc in ("README.md", "notebooks/README.md"):
             changed += _rewrite(Path(root) / doc, lambda t, s=sentence: replace_run_time(t, s))
