@@ -166,7 +166,7 @@ def run_notebook(
     path = Path(path)
     store = (not fast) if store is None else store
     nb = nbformat.read(path, as_version=4)
-    env = {**_kernel_env(fast, progress), **(env or {})}
+    env = {**_kernel_env(fast, progress, lines=prefix is not None), **(env or {})}
     old = {k: os.environ.get(k) for k in env}
     _set_env(env)
     client = _client_class()(
@@ -197,15 +197,16 @@ def run_notebook(
     return seconds
 
 
-def _kernel_env(fast, progress):
-    """The environment the kernel runs in (None: unset): fast or full mode, where figures go, text progress bars."""
+def _kernel_env(fast, progress, lines=False):
+    """The environment the kernel runs in (None: unset): fast or full mode, where figures go, text progress bars
+    (``lines``: one line per update, as for a log file)."""
     env = {
         "DEFOP_FAST": "1" if fast else None,
         "DEFOP_FIGURES": None if fast else str(FIGURES),  # only full runs write the repository's figures/
         "DEFOP_PROGRESS": "text",
         "TQDM_MININTERVAL": None,
     }
-    if progress is not None and not progress.isatty():
+    if progress is not None and (lines or not progress.isatty()):
         env["TQDM_MININTERVAL"] = "15"  # a log file gets a line every 15 s, not every 0.1 s
     return env
 
@@ -415,6 +416,8 @@ def regenerate(
     jobs : int
         Notebooks side by side (:mod:`defop.figures.schedule`: longest first by the record, each on the first
         worker to free, each kernel's solves in the kernel); 1: one after another in this process, in name order.
+        The workers are spawned: a script that calls this with ``jobs > 1`` does so under
+        ``if __name__ == "__main__":``.
 
     Returns
     -------
