@@ -80,6 +80,9 @@ def folder(tmp_path, monkeypatch):
     old.write_bytes(b"x")
     os.utime(old, (time.time() - 2 * cm.STALE_SECONDS,) * 2)  # stale temporary
     (tmp_path / ".gt-y.npz.abc.tmp.npz").write_bytes(b"x")  # in use (a writer now)
+    (tmp_path / ".cold-abc").mkdir()  # a killed lesson's own cache
+    (tmp_path / ".cold-abc" / "gt-x.npz").write_bytes(b"x")
+    os.utime(tmp_path / ".cold-abc", (time.time() - 2 * cm.STALE_SECONDS,) * 2)
     store.lock_path("gt", "1" * 20).write_bytes(b"")  # free lock
     (tmp_path / "notes.txt").write_text("mine")  # foreign
     return tmp_path
@@ -100,6 +103,7 @@ STATUS = {
     "traj-" + "e" * 20 + ".npz": "damaged",
     "chunk-" + "f" * 20 + ".npz": "untagged",
     ".gt-x.npz.abc.tmp.npz": "stale temporary",
+    ".cold-abc": "stale temporary",
     ".gt-y.npz.abc.tmp.npz": "in use",
     ".gt-" + "1" * 20 + ".lock": "free lock",
     "notes.txt": "foreign",
@@ -133,8 +137,8 @@ def test_the_command_line(folder, monkeypatch, capsys):
     monkeypatch.setenv("DEFOP_CACHE", str(folder))
     assert main(["cache"]) == 0
     out = capsys.readouterr().out
-    assert "10 files" in out and "other version" in out and "gt " in out
+    assert "11 files" in out and "other version" in out and "gt " in out
     assert main(["cache", "--prune", "--dry-run"]) == 0
-    assert "would remove 6 files" in capsys.readouterr().out and len(list(folder.iterdir())) == 10
+    assert "would remove 7 files" in capsys.readouterr().out and len(list(folder.iterdir())) == 11
     assert main(["cache", "--prune"]) == 0
-    assert "removed 6 files" in capsys.readouterr().out and len(list(folder.iterdir())) == 4
+    assert "removed 7 files" in capsys.readouterr().out and len(list(folder.iterdir())) == 4

@@ -273,6 +273,8 @@ def _move_into(source, target):
     the names moved, sorted."""
     import shutil
 
+    if not source.is_dir():  # removed meanwhile (cache --prune of a folder left by a killed run)
+        return []
     names = sorted(f.name for f in source.iterdir() if not f.name.startswith("."))
     for name in names:
         os.replace(source / name, target / name)

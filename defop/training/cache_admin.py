@@ -15,8 +15,8 @@ of the directory gets one status:
 ``damaged``, ``misnamed``
     Its stamp cannot be read, or names another entry (a copied or renamed file): a reader would remove it. Pruned.
 ``stale temporary``, ``free lock``
-    The temporary file of a writer killed midway (older than :data:`defop.training.cache.STALE_SECONDS`), a lock
-    file no process holds. Pruned.
+    The temporary file of a writer killed midway, or the ``.cold-*`` folder of a main job's lesson killed midway
+    (older than :data:`defop.training.cache.STALE_SECONDS`); a lock file no process holds. Pruned.
 ``untagged``
     Stamped with its digest but not its versions (written before stamps named them): it may still be read.
     Pruned only when asked (``--untagged``).
@@ -30,6 +30,7 @@ import contextlib
 import dataclasses
 import os
 import re
+import shutil
 import time
 from pathlib import Path
 
@@ -65,9 +66,9 @@ def classify(path, now=None):
     name = path.name
     if name.startswith(".") and name.endswith(".lock"):
         return Entry(path, name[1:-5].rsplit("-", 1)[0], size, _lock_status(path))
-    if name.startswith(".") and name.endswith(".tmp.npz"):
+    if name.startswith(".") and (name.endswith(".tmp.npz") or (name.startswith(".cold-") and path.is_dir())):
         stale = now - path.stat().st_mtime > cache_mod.STALE_SECONDS
-        return Entry(path, "", size, "stale temporary" if stale else "in use", "a writer's temporary file")
+        return Entry(path, "", size, "stale temporary" if stale else "in use", "a writer's temporary file or folder")
     m = _ENTRY.match(name)
     if m is None or not path.is_file():
         return Entry(path, "", size, "foreign", "not a cache entry")
@@ -126,7 +127,10 @@ def prune(folder, dry_run=False, untagged=False):
         if e.status == "free lock" and fd is None:
             continue  # taken meanwhile: in use
         with contextlib.suppress(FileNotFoundError):
-            e.path.unlink()
+            if e.path.is_dir():  # the empty cache of its own a killed main job's lesson left
+                shutil.rmtree(e.path)
+            else:
+                e.path.unlink()
             removed.append(e)
         if fd is not None:
             os.close(fd)
