@@ -1,5 +1,5 @@
-"""Command line: ``python -m defop page`` (your own model to a page), ``figures`` (the main job), ``doctor``,
-``normalise`` and ``runtimes``."""
+"""Command line: ``python -m defop page`` (your own model to a page), ``figures`` (the main job), ``cache``,
+``doctor``, ``normalise`` and ``runtimes``."""
 
 from __future__ import annotations
 
@@ -27,10 +27,23 @@ def parser():
         "--timeout", type=float, default=None, help="per-cell timeout in seconds (default: defop.figures.CELL_TIMEOUT)"
     )
     fig.add_argument("--no-record", action="store_true", help="do not update figures/runtimes.json")
+    fig.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        help="notebooks side by side, longest first, each kernel's solves in the kernel (default: one per core, at "
+        "most 2; 1: one after another)",
+    )
     norm = sub.add_parser(
         "normalise", help="normalise stored notebooks (metadata, widget outputs) as the main job does"
     )
     norm.add_argument("paths", nargs="*", help="notebooks (default: every notebook in notebooks/)")
+    cache = sub.add_parser("cache", help="what the cache (DEFOP_CACHE) holds; --prune removes what no version reads")
+    cache.add_argument("--prune", action="store_true", help="remove the entries no version of this code reads")
+    cache.add_argument("--dry-run", action="store_true", help="with --prune: list them with their sizes, remove none")
+    cache.add_argument(
+        "--untagged", action="store_true", help="with --prune: also entries written before stamps named their versions"
+    )
     sub.add_parser("runtimes", help="write figures/runtimes.json's times into the notebook headers and READMEs")
     doc = sub.add_parser("doctor", help="check (and, as root on Debian, install) what headless rendering needs")
     doc.add_argument("--no-install", action="store_true")
@@ -69,7 +82,7 @@ def main(argv=None):
 
         return page_main(args)
     if args.command == "figures":
-        from .figures import CELL_TIMEOUT, RUNTIMES, regenerate
+        from .figures import CELL_TIMEOUT, RUNTIMES, regenerate, schedule
 
         report = regenerate(
             only=args.only,
@@ -78,8 +91,11 @@ def main(argv=None):
             timeout=CELL_TIMEOUT if args.timeout is None else args.timeout,
             clean=args.clean,
             record=None if args.no_record else RUNTIMES,
+            jobs=schedule.default_jobs() if args.jobs is None else args.jobs,
         )
         return 0 if all(r["ok"] for r in report) else 1
+    elif args.command == "cache":
+        return _cache(args)
     elif args.command == "normalise":
         from .figures import normalise_files, notebooks
 
@@ -103,6 +119,32 @@ def main(argv=None):
         except RuntimeError as exc:
             print("defop doctor:", exc, file=sys.stderr)
             return 1
+    return 0
+
+
+def _cache(args):
+    """``python -m defop cache``: the cache's contents, or ``--prune`` (``--dry-run``: the list only)."""
+    from .config import cache_dir
+    from .training import cache_admin
+
+    try:
+        folder = cache_dir()
+    except ValueError as exc:
+        print("defop cache:", exc, file=sys.stderr)
+        return 1
+    if folder is None:
+        print("defop cache: the cache is off (DEFOP_CACHE=off)")
+        return 0
+    if not args.prune:
+        print(f"defop cache: {folder}")
+        for line in cache_admin.summary(cache_admin.scan(folder)):
+            print(line)
+        return 0
+    gone = cache_admin.prune(folder, dry_run=args.dry_run, untagged=args.untagged)
+    verb = "would remove" if args.dry_run else "removed"
+    for e in gone:
+        print(f"{verb} {e.path.name}  {e.size / 2**20:.1f} MB  ({e.status}{': ' + e.why if e.why else ''})")
+    print(f"defop cache: {verb} {len(gone)} files, {sum(e.size for e in gone) / 2**20:.1f} MB from {folder}")
     return 0
 
 

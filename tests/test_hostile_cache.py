@@ -82,7 +82,7 @@ def test_an_entry_without_a_digest_is_stale_and_recomputed_silently(tmp_path):
 
 def _tamper(path, how):
     data = bytearray(path.read_bytes())
-    n = len(cm.STAMP) + len("gt-k")
+    n = len(cm.STAMP) + len("gt-k " + cm.VERSION_TAG)
     if how == "other digest":
         data[-1] ^= 0x01
     elif how == "truncated stamp":
@@ -119,7 +119,7 @@ def test_an_operator_entry_carries_its_digest_and_still_loads_as_an_operator_fil
     op, _ = dop.train(bar, "arap", "linear", m=4, seed=1, n_jobs=1, progress=False, cache=False)
     store = cm.Cache(tmp_path)
     path = store.store_with("op", "k", op.save)
-    assert path.read_bytes().endswith(cm.STAMP + b"op-k")
+    assert path.read_bytes().endswith(cm.STAMP + b"op-k " + cm.VERSION_TAG.encode())
     assert np.array_equal(dop.DefOp.load(path).W, op.W)  # the stamp is the archive's comment: readers ignore it
     shutil.copy(path, store.path("op", "j"))
     with pytest.warns(cm.CacheWarning, match="another problem"):

@@ -30,16 +30,18 @@ What the job guarantees:
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import time
 from pathlib import Path
 
-from . import paths, run_times, storing
+from .. import options as opt
+from . import paths, run_times, schedule, storing
 from .paths import *  # noqa: F403 (the names in paths.__all__, and so on)
 from .paths import FIGURES, NOTEBOOKS, RUNTIMES, notebooks
 from .run_times import *  # noqa: F403
-from .run_times import write_runtimes
+from .run_times import format_seconds, write_runtimes
 from .storing import *  # noqa: F403
 from .storing import normalise
 
@@ -48,6 +50,7 @@ __all__ = [
     "NotebookError",
     "run_notebook",
     "regenerate",
+    "schedule_order",
     *paths.__all__,
     *run_times.__all__,
     *storing.__all__,
@@ -69,21 +72,46 @@ def _client_class():
         """nbclient that forwards progress bars (stderr text with carriage returns) to a terminal."""
 
         progress_stream = None
+        progress_prefix = None  # lessons side by side: each line of a bar starts with its lesson's name
         current_cell = None
+        cpu_seconds = None
 
         def output(self, outs, msg, display_id, cell_index):
             content = msg.get("content", {})
             if msg["msg_type"] == "stream" and content.get("name") == "stderr" and "\r" in content.get("text", ""):
                 if self.progress_stream is not None:
                     text = content["text"]
-                    if not self.progress_stream.isatty():  # a log file: one line per update
-                        text = "".join(s.strip() + "\n" for s in text.split("\r") if s.strip())
+                    lead = "" if self.progress_prefix is None else self.progress_prefix + " "
+                    if self.progress_prefix is not None or not self.progress_stream.isatty():  # one line per update
+                        text = "".join(lead + s.strip() + "\n" for s in text.split("\r") if s.strip())
                     self.progress_stream.write(text)
                     self.progress_stream.flush()
                 return None  # a progress bar is never stored in the notebook
             return super().output(outs, msg, display_id, cell_index)
 
+        def count_cpu(self, **_):
+            """After each cell: the CPU seconds of the kernel and its workers so far (:func:`_tree_cpu`)."""
+            process = getattr(getattr(self.km, "provisioner", None), "process", None)
+            seconds = None if process is None else _tree_cpu(process.pid)
+            self.cpu_seconds = self.cpu_seconds if seconds is None else seconds
+
     return Client
+
+
+def _tree_cpu(pid):
+    """CPU seconds of process ``pid`` and its descendants, live or ended and waited for; None when unknown."""
+    try:
+        import psutil
+
+        root = psutil.Process(pid)
+        total = 0.0
+        for proc in [root, *root.children(recursive=True)]:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                t = proc.cpu_times()
+                total += t.user + t.system + t.children_user + t.children_system
+        return total
+    except Exception:  # no psutil, the kernel gone: no CPU count, the wall seconds stay
+        return None
 
 
 def _describe_cell(name, cell, index):
@@ -91,7 +119,17 @@ def _describe_cell(name, cell, index):
     return f"{name}, cell {index} ({first.strip()[:70]!r})"
 
 
-def run_notebook(path, fast=False, store=None, timeout=CELL_TIMEOUT, kernel_name="python3", progress=sys.stderr):
+def run_notebook(
+    path,
+    fast=False,
+    store=None,
+    timeout=CELL_TIMEOUT,
+    kernel_name="python3",
+    progress=sys.stderr,
+    prefix=None,
+    env=None,
+    measured=None,
+):
     """Execute one notebook with nbclient.
 
     Parameters
@@ -106,6 +144,13 @@ def run_notebook(path, fast=False, store=None, timeout=CELL_TIMEOUT, kernel_name
         Per-cell timeout in seconds.
     progress : file-like or None
         Where the kernel's progress bars go.
+    prefix : str, optional
+        Start every progress line with it (lessons side by side share the terminal).
+    env : dict, optional
+        More environment for the kernel (None: unset).
+    measured : dict, optional
+        Receives ``"cpu"``: the CPU seconds of the kernel and its workers up to its last cell (None when they cannot
+        be read), also when a cell fails.
 
     Returns
     -------
@@ -121,7 +166,7 @@ def run_notebook(path, fast=False, store=None, timeout=CELL_TIMEOUT, kernel_name
     path = Path(path)
     store = (not fast) if store is None else store
     nb = nbformat.read(path, as_version=4)
-    env = _kernel_env(fast, progress)
+    env = {**_kernel_env(fast, progress, lines=prefix is not None), **(env or {})}
     old = {k: os.environ.get(k) for k in env}
     _set_env(env)
     client = _client_class()(
@@ -131,7 +176,8 @@ def run_notebook(path, fast=False, store=None, timeout=CELL_TIMEOUT, kernel_name
         resources={"metadata": {"path": str(path.parent)}},
         record_timing=False,  # widget state stays on: nbclient's Output-widget support needs it (normalise drops it)
     )
-    client.progress_stream = progress
+    client.progress_stream, client.progress_prefix = progress, prefix
+    client.on_cell_executed = client.count_cpu
     client.on_cell_start = lambda cell, cell_index: setattr(client, "current_cell", (cell, cell_index))
     t0 = time.perf_counter()
     try:
@@ -143,21 +189,24 @@ def run_notebook(path, fast=False, store=None, timeout=CELL_TIMEOUT, kernel_name
         raise NotebookError(f"{where} {kind}: {type(exc).__name__}: {detail[-1] if detail else ''}") from exc
     finally:
         _set_env(old)
+        if measured is not None:
+            measured["cpu"] = client.cpu_seconds
     seconds = time.perf_counter() - t0
     if store:
         path.write_text(nbformat.writes(normalise(nb)) + "\n")
     return seconds
 
 
-def _kernel_env(fast, progress):
-    """The environment the kernel runs in (None: unset): fast or full mode, where figures go, text progress bars."""
+def _kernel_env(fast, progress, lines=False):
+    """The environment the kernel runs in (None: unset): fast or full mode, where figures go, text progress bars
+    (``lines``: one line per update, as for a log file)."""
     env = {
         "DEFOP_FAST": "1" if fast else None,
         "DEFOP_FIGURES": None if fast else str(FIGURES),  # only full runs write the repository's figures/
         "DEFOP_PROGRESS": "text",
         "TQDM_MININTERVAL": None,
     }
-    if progress is not None and not progress.isatty():
+    if progress is not None and (lines or not progress.isatty()):
         env["TQDM_MININTERVAL"] = "15"  # a log file gets a line every 15 s, not every 0.1 s
     return env
 
@@ -198,12 +247,53 @@ def _entries(folder):
     }
 
 
-def _run_one(path, tag, log, cold=False, **kw):
-    """Run one notebook between its two report lines; a failure is reported, not raised.
+def _lesson_env(work, cold, cache, fast, inner):
+    """The kernel's environment of one lesson and where its cache entries and figures go first: ``(env, own cache or
+    None, own figures or None)``. The journal of the entries it stores is ``work/journal``."""
+    import tempfile
 
-    ``cold``: run it with an empty cache of its own (a temporary ``DEFOP_CACHE``) whose entries are moved into the
-    real cache afterwards. The report's ``cache`` is ``"cold"`` then, else ``"warm"`` when the notebook stored no
-    new cache entry and ``"partial"`` when it stored some.
+    env = {"DEFOP_CACHE_LOG": str(work / "journal")}
+    if inner is not None and "DEFOP_N_JOBS" not in os.environ:  # side by side: the lesson's solves in its kernel
+        env.update(
+            {k: str(inner) for k in ("DEFOP_N_JOBS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+        )
+    own = None
+    if cold and cache is not None:  # an empty cache of its own, on the cache's file system (renamed into it after)
+        own = Path(tempfile.mkdtemp(prefix=".cold-", dir=cache))
+        env["DEFOP_CACHE"] = str(own)
+    figures = None
+    if not fast:  # its figures apart, renamed into figures/ after: each lesson's list is its own
+        figures = Path(tempfile.mkdtemp(prefix=".lesson-", dir=FIGURES))
+        env["DEFOP_FIGURES"] = str(figures)
+    return env, own, figures
+
+
+def _move_into(source, target):
+    """Rename every visible file of the directory ``source`` into ``target`` (same file system), remove ``source``;
+    the names moved, sorted."""
+    import shutil
+
+    if not source.is_dir():  # removed meanwhile (cache --prune of a folder left by a killed run)
+        return []
+    names = sorted(f.name for f in source.iterdir() if not f.name.startswith("."))
+    for name in names:
+        os.replace(source / name, target / name)
+    shutil.rmtree(source, ignore_errors=True)
+    return names
+
+
+def _lesson(path, cold=False, inner=None, prefix=None, **kw):
+    """Run one notebook, here or in a worker process of :func:`regenerate`; a failure is reported, not raised.
+
+    ``cold``: with an empty cache of its own whose entries then join the real cache. ``inner``: the solver workers
+    of its kernel (``DEFOP_N_JOBS``, and as many BLAS threads), None for the default. ``prefix``: of its progress lines.
+
+    Returns
+    -------
+    report : dict
+        ``name``, ``seconds`` (wall), ``cpu`` (of its kernel and workers, None when unknown), ``ok``, ``error``,
+        ``figures`` written, ``cache`` (``"cold"``; ``"warm"`` when it stored no cache entry; ``"partial"``),
+        ``computed`` (the cache entries it stored) and ``start``/``end`` (``time.time()``).
     """
     import shutil
     import tempfile
@@ -214,39 +304,95 @@ def _run_one(path, tag, log, cold=False, **kw):
         cache = cache_dir()
     except ValueError:  # a bad DEFOP_CACHE: the notebook fails with the message, and this run measures nothing
         cache = None
-    before = {f: f.stat().st_mtime for f in FIGURES.glob("*")}
-    own = Path(tempfile.mkdtemp(prefix="defop-cold-cache-")) if cold and cache is not None else None
-    cached = _entries(cache)
-    log(f"{tag} started ({'fast' if kw['fast'] else 'full'} mode{', empty cache' if cold else ''})")
-    old = os.environ.get("DEFOP_CACHE")
-    if own is not None:
-        os.environ["DEFOP_CACHE"] = str(own)
-    t0 = time.perf_counter()
+    work = Path(tempfile.mkdtemp(prefix="defop-lesson-"))
+    env, own, figures = _lesson_env(work, cold, cache, kw["fast"], inner)
+    before = _entries(cache) if inner is None else None  # alone: any new file in the cache counts, not only stores
+    measured, start, t0 = {}, time.time(), time.perf_counter()
     try:
-        seconds, error = run_notebook(path, **kw), None
+        seconds, error = run_notebook(path, prefix=prefix, env=env, measured=measured, **kw), None
     except NotebookError as exc:
         seconds, error = time.perf_counter() - t0, str(exc)
     finally:
         if own is not None:
-            _set_env({"DEFOP_CACHE": old})
-            for f in own.iterdir():  # the notebook's results serve the next runs
-                if not f.name.startswith("."):
-                    shutil.move(str(f), str(cache / f.name))
-            shutil.rmtree(own, ignore_errors=True)
-    if cold or cache is None:
-        state = "cold"  # no cache at all (DEFOP_CACHE=off) is an empty cache on every run
-    else:
-        state = "warm" if all(cached.get(k) == v for k, v in _entries(cache).items()) else "partial"
-    written = sorted(f.name for f in FIGURES.glob("*") if before.get(f) != f.stat().st_mtime)
-    status = "ok" if error is None else "FAILED"
-    log(f"{tag} {status:6s} {seconds:7.1f} s ({state} cache)" + (f"  -> {', '.join(written)}" if written else ""))
-    if error:
-        log(f"    {error}")
-    return dict(name=path.stem, seconds=seconds, ok=error is None, error=error, figures=written, cache=state)
+            _move_into(own, cache)  # the notebook's results serve the next runs
+        written = [] if figures is None else _move_into(figures, FIGURES)
+        journal = work / "journal"
+        computed = sorted(set(journal.read_text().split())) if journal.exists() else []
+        shutil.rmtree(work, ignore_errors=True)
+    new = computed or (before is not None and any(before.get(k) != v for k, v in _entries(cache).items()))
+    state = "cold" if cold or cache is None else ("partial" if new else "warm")  # no cache: an empty one every run
+    return dict(
+        name=path.stem, seconds=seconds, cpu=measured.get("cpu"), ok=error is None, error=error, figures=written,
+        cache=state, computed=computed, start=start, end=time.time(),
+    )  # fmt: skip
+
+
+def _end_line(tag, r, eta=None):
+    status = "ok" if r["ok"] else "FAILED"
+    cpu = "" if r["cpu"] is None else f", {r['cpu']:.0f} CPU s"
+    line = f"{tag} {status:6s} {r['seconds']:7.1f} s{cpu} ({r['cache']} cache)"
+    line += "" if eta is None else f"; about {format_seconds(eta)} to go"
+    line += f"  -> {', '.join(r['figures'])}" if r["figures"] else ""
+    return line + (f"\n    {r['error']}" if r["error"] else "")
+
+
+def _started(tag, fast, cold):
+    return f"{tag} started ({'fast' if fast else 'full'} mode{', empty cache' if cold else ''})"
+
+
+def _run_one(path, tag, log, cold=False, **kw):
+    """Run one notebook in this process between its two report lines (:func:`_lesson`)."""
+    log(_started(tag, kw["fast"], cold))
+    report = _lesson(path, cold=cold, **kw)
+    log(_end_line(tag, report))
+    return report
+
+
+def _side_by_side(paths, tags, jobs, expected, log, **kw):
+    """Run the notebooks ``paths`` (in this order) on ``jobs`` worker processes, each starting on the first to free;
+    their report lines as they start and end, with the time to go (:func:`schedule.eta`)."""
+    import concurrent.futures as cf
+    import multiprocessing
+
+    queue, running, report = list(paths), {}, []
+    inner = schedule.inner_jobs(jobs)
+    with cf.ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        while queue or running:
+            while queue and len(running) < jobs:
+                path = queue.pop(0)
+                log(_started(tags[path], kw["fast"], kw["cold"]))
+                job = pool.submit(_lesson, path, inner=inner, prefix=path.stem, **kw)
+                running[job] = (path, time.perf_counter())
+            done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
+            for job in done:
+                path, t0 = running.pop(job)
+                try:
+                    r = job.result()
+                except Exception as exc:  # the worker died (killed, out of memory): this lesson failed
+                    error = f"{path.stem}: the worker running it failed: {type(exc).__name__}: {exc}"
+                    now, wall = time.time(), time.perf_counter() - t0
+                    r = dict(name=path.stem, seconds=wall, cpu=None, ok=False, error=error, figures=[], cache="partial",
+                             computed=[], start=now - wall, end=now)  # fmt: skip
+                left = schedule.eta(
+                    [expected[p.stem] for p in queue],
+                    [(expected[p.stem], time.perf_counter() - t) for p, t in running.values()],
+                    jobs,
+                )
+                log(_end_line(tags[path], r, eta=left))
+                report.append(r)
+    return report
 
 
 def regenerate(
-    only=None, fast=False, store=None, timeout=CELL_TIMEOUT, clean=False, log=_print, record=RUNTIMES, directory=None
+    only=None,
+    fast=False,
+    store=None,
+    timeout=CELL_TIMEOUT,
+    clean=False,
+    log=_print,
+    record=RUNTIMES,
+    directory=None,
+    jobs=1,
 ):
     """Run the notebooks, one line per notebook as it starts and ends; a failure does not stop the others.
 
@@ -269,31 +415,84 @@ def regenerate(
         The timing record to update (``figures/runtimes.json``); None writes none.
     directory : path, optional
         Where the notebooks are (default ``notebooks/``).
+    jobs : int
+        Notebooks side by side (:mod:`defop.figures.schedule`: longest first by the record, each on the first
+        worker to free, each kernel's solves in the kernel); 1: one after another in this process, in name order.
+        The workers are spawned: a script that calls this with ``jobs > 1`` does so under
+        ``if __name__ == "__main__":``.
 
     Returns
     -------
     report : list of dict
-        ``name``, ``seconds``, ``ok``, ``error`` (None or the message), ``figures`` written and ``cache``
-        (``"cold"``, ``"warm"`` or ``"partial"``, see :func:`_run_one`).
+        In name order, as :func:`_lesson` reports.
     """
     from ..view import render
 
+    jobs = opt.integer("jobs", jobs, minimum=1)
     render.configure_headless()  # exported to the kernels through the environment
     FIGURES.mkdir(exist_ok=True)
     if clean:
         _clean(log)
     paths = notebooks(only, NOTEBOOKS if directory is None else directory)
     mode = "fast" if fast else "full"
-    report = []
-    for i, path in enumerate(paths, 1):
-        tag = f"[{i:2d}/{len(paths)}] {path.stem:<20s}"
-        report.append(_run_one(path, tag, log, cold=clean, fast=fast, store=store, timeout=timeout))
+    cold = clean or _empty_cache()  # a fresh clone: the times recorded from an empty cache
+    expected = schedule.expected_seconds([p.stem for p in paths], RUNTIMES if record is None else record, mode, cold)
+    tags = {p: f"[{i:2d}/{len(paths)}] {p.stem:<20s}" for i, p in enumerate(paths, 1)}
+    side = f"{jobs} side by side, longest first" if jobs > 1 else "one at a time"
+    total = schedule.makespan([expected[p.stem] for p in schedule_order(paths, expected, jobs)], jobs)
+    log(f"{len(paths)} notebooks ({mode} mode, {side}): about {format_seconds(total)} by the recorded times")
+    t0 = time.perf_counter()
+    kw = dict(cold=clean, fast=fast, store=store, timeout=timeout)
+    if jobs == 1:
+        report = [_run_one(path, tags[path], log, **kw) for path in paths]
+    else:
+        report = _side_by_side(schedule_order(paths, expected, jobs), tags, jobs, expected, log, **kw)
+        report.sort(key=lambda r: r["name"])
+    _summary(report, mode, jobs, time.perf_counter() - t0, log)
+    if record is not None:
+        whole = _whole(only, cold, report)
+        write_runtimes(report, mode, record, jobs=jobs, wall=time.perf_counter() - t0, whole=whole)
+    return report
+
+
+def _whole(only, cold, report):
+    """``"cold"`` for a run of every notebook from an empty cache, ``"warm"`` for one that only read the cache,
+    else None (:func:`write_runtimes`)."""
+    if only:
+        return None
+    return "cold" if cold else ("warm" if all(r["cache"] == "warm" for r in report) else None)
+
+
+def _empty_cache():
+    """True when the cache holds no trained operator (or is off, or unusable)."""
+    from ..config import cache_dir
+
+    try:
+        folder = cache_dir()
+    except ValueError:
+        return True
+    return folder is None or next(folder.glob("op-*.npz"), None) is None
+
+
+def schedule_order(paths, expected, jobs):
+    """The order the notebooks start in: name order one at a time, longest first side by side."""
+    if jobs == 1:
+        return list(paths)
+    by_name = {p.stem: p for p in paths}
+    return [by_name[n] for n in schedule.order([p.stem for p in paths], expected)]
+
+
+def _summary(report, mode, jobs, wall, log):
     failed = [r["name"] for r in report if not r["ok"]]
-    total = sum(r["seconds"] for r in report)
+    cpu = [r["cpu"] for r in report if r["cpu"] is not None]
     log(
-        f"{len(report)} notebooks in {total:.0f} s ({mode} mode); "
+        f"{len(report)} notebooks in {format_seconds(wall)} wall ({mode} mode"
+        + (
+            f", {jobs} side by side; their own times sum to {sum(r['seconds'] for r in report):.0f} s"
+            if jobs > 1
+            else ""
+        )
+        + (f"; {sum(cpu):.0f} CPU s" if cpu else "")
+        + "); "
         + (f"FAILED: {', '.join(failed)}" if failed else "all ok")
     )
-    if record is not None:
-        write_runtimes(report, mode, record)
-    return report

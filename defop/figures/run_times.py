@@ -15,6 +15,7 @@ import re
 from pathlib import Path
 
 from .paths import ROOT, RUNTIMES, notebooks
+from .schedule import overlaps
 
 __all__ = [
     "machine_info",
@@ -50,7 +51,7 @@ def machine_info():
     return dict(cpu=cpu, cores=os.cpu_count(), python=platform.python_version(), os=platform.platform(), **packages)
 
 
-def write_runtimes(report, mode, path=RUNTIMES):
+def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None, whole=None):
     """Merge a run's seconds into the timing record (other modes and notebooks are kept).
 
     Parameters
@@ -59,13 +60,23 @@ def write_runtimes(report, mode, path=RUNTIMES):
         From :func:`regenerate`.
     mode : {"full", "fast"}
     path : path
+    jobs : int
+        Notebooks that ran side by side.
+    wall : float, optional
+        The run's wall seconds, start to end.
+    whole : {"cold", "warm"}, optional
+        The run was of every notebook, from an empty cache (``"cold"``) or with the cache of a previous run
+        (``"warm"``): its wall seconds are also recorded as ``totals[whole]``, the time :func:`update_stated_times`
+        states for the whole job (kept while a later run is not whole).
 
     Returns
     -------
     record : dict
-        ``{mode: {"date", "machine", "load", "notebooks": {name: {"seconds", "ok", "cache", "cold", "warm"}}}}``:
-        ``seconds``, ``ok`` and ``cache`` are the last run's; ``cold`` and ``warm`` the last run of that kind
-        (kept when a later run is of the other kind or ``partial``).
+        ``{mode: {"date", "machine", "load", "jobs", "wall", "notebooks": {name: {"seconds", "cpu", "beside", "ok",
+        "cache", "cold", "warm"}}}}``: ``jobs`` notebooks ran side by side (1: one after another) and the run took
+        ``wall`` seconds; per notebook, ``seconds`` (wall), ``cpu`` (its kernel's and workers' CPU seconds),
+        ``beside`` (the notebooks that ran beside it), ``ok`` and ``cache`` are the last run's; ``cold`` and ``warm``
+        the last run of that kind (kept when a later run is of the other kind or ``partial``).
     """
     path = Path(path)
     record = json.loads(path.read_text()) if path.exists() else {}
@@ -74,9 +85,20 @@ def write_runtimes(report, mode, path=RUNTIMES):
     entry["machine"] = machine_info()
     if hasattr(os, "getloadavg"):  # how busy the machine was: 1, 5 and 15 minute load averages at the end of the run
         entry["load"] = [round(x, 2) for x in os.getloadavg()]
+    entry["jobs"] = jobs
+    if wall is not None:
+        entry["wall"] = round(wall, 1)
+        if whole in ("cold", "warm") and all(r["ok"] for r in report):
+            entry.setdefault("totals", {})[whole] = round(wall, 1)
+    spans = {r["name"]: (r["start"], r["end"]) for r in report if "start" in r}
+    beside = overlaps(spans) if jobs > 1 else {}
     for r in report:
         old = entry["notebooks"].get(r["name"], {})
         new = {"seconds": round(r["seconds"], 1), "ok": r["ok"]}
+        if r.get("cpu") is not None:
+            new["cpu"] = round(r["cpu"], 1)
+        if beside.get(r["name"]):
+            new["beside"] = beside[r["name"]]
         if "cache" in r:
             new["cache"] = r["cache"]
             new.update({k: old[k] for k in ("cold", "warm") if k in old})
@@ -241,8 +263,12 @@ def update_stated_times(path=RUNTIMES, root=ROOT):
         def total(times, cold):
             return sum(cold.values()) if cold.keys() == times.keys() else None
 
-        sentence = run_time_sentence(
-            sum(full.values()), sum(fast.values()), total(full, full_cold), total(fast, fast_cold)
+        runs = {mode: json.loads(Path(path).read_text()).get(mode, {}).get("totals", {}) for mode in ("full", "fast")}
+        sentence = run_time_sentence(  # a whole run's wall time where measured (lessons side by side), else the sums
+            runs["full"].get("warm", sum(full.values())),
+            runs["fast"].get("warm", sum(fast.values())),
+            runs["full"].get("cold", total(full, full_cold)),
+            runs["fast"].get("cold", total(fast, fast_cold)),
         )
         for doc in ("README.md", "notebooks/README.md"):
             changed += _rewrite(Path(root) / doc, lambda t, s=sentence: replace_run_time(t, s))

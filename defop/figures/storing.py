@@ -38,12 +38,29 @@ def _static_outputs(outputs):
     return kept
 
 
+def _merge_streams(outputs):
+    """Adjacent stream outputs of one name (stdout, stderr) as one: how a cell's prints are split into messages
+    depends on the kernel's timing (a loaded machine, lessons side by side), not on what they print. nbval merges
+    them as well before it compares."""
+    merged = []
+    for out in outputs:
+        last = merged[-1] if merged else None
+        if last is not None and out.get("output_type") == last.get("output_type") == "stream":
+            if out.get("name") == last.get("name"):
+                text = last["text"] if isinstance(last["text"], str) else "".join(last["text"])
+                last["text"] = text + (out["text"] if isinstance(out["text"], str) else "".join(out["text"]))
+                continue
+        merged.append(out)
+    return merged
+
+
 def normalise(nb):
     """Normalise a notebook for storing: the same content gives the same file on every machine.
 
     nbstripout (the Jupyter community's notebook cleaner, used by many projects as a git filter) with
     outputs and cell ids kept: it drops per-cell timing metadata, stored widget state and the interpreter
-    version, and numbers the code cells 1, 2, ... Widget outputs keep only their static picture and text line.
+    version, and numbers the code cells 1, 2, ... Widget outputs keep only their static picture and text line, and
+    adjacent prints to one stream are one output.
 
     Parameters
     ----------
@@ -59,7 +76,7 @@ def normalise(nb):
     strip_output(nb, keep_output=True, keep_count=False, keep_id=True, extra_keys=list(STRIP_KEYS))
     code = [cell for cell in nb.cells if cell.cell_type == "code"]
     for count, cell in enumerate(code, start=1):
-        cell.outputs = _static_outputs(cell.outputs)
+        cell.outputs = _merge_streams(_static_outputs(cell.outputs))
         # numbered 1, 2, ... as a run-all numbers them (the same on every machine): nbval only compares the
         # outputs of cells with a count ("Unrun reference cell has outputs" otherwise)
         cell.execution_count = count

@@ -9,6 +9,7 @@ resume (:class:`Checkpoints`).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import warnings
 
@@ -19,7 +20,7 @@ from .. import options as opt
 from ..variational import energies as en
 from .cache import CacheWarning
 
-__all__ = ["CHUNK", "Checkpoints", "load_or_compute", "map_checkpointed", "parallel_map", "progress"]
+__all__ = ["CHUNK", "Checkpoints", "hold", "load_or_compute", "map_checkpointed", "parallel_map", "progress"]
 
 #: Items per checkpoint of :func:`map_checkpointed`: fixed, so the chunks (and their cache keys) do not depend on the
 #: worker count and a training killed with one ``n_jobs`` resumes with another.
@@ -192,8 +193,17 @@ def map_checkpointed(fn, items, n_jobs, show, desc, chunk):
             bar.close()
 
 
+def hold(store, kind, key):
+    """A context holding entry ``kind``/``key``'s lock (:meth:`defop.training.cache.Cache.lock`); none without a
+    cache (``store`` None)."""
+    return contextlib.nullcontext() if store is None else store.lock(kind, key)
+
+
 def load_or_compute(store, kind, key, expect, compute):
     """The cache policy: the arrays of entry ``kind``/``key`` if a valid one is stored, else ``compute()``, stored.
+
+    A process that misses the entry while another computes it (:meth:`defop.training.cache.Cache.lock`) waits and
+    reads what the other stored, instead of computing it again.
 
     Parameters
     ----------
@@ -209,14 +219,17 @@ def load_or_compute(store, kind, key, expect, compute):
     -------
     arrays : dict
     """
-    if store is not None:
-        hit = store.load(kind, key, expect)
-        if hit is not None:
-            return hit[0]
-    arrays = compute()
-    if store is not None:
-        store.store(kind, key, arrays)
-    return arrays
+    if store is None:
+        return compute()
+    hit = store.load(kind, key, expect)
+    if hit is None:
+        with hold(store, kind, key):  # another process computing this entry: wait for it, then read it
+            hit = store.load(kind, key, expect)
+            if hit is None:
+                arrays = compute()
+                store.store(kind, key, arrays)
+                return arrays
+    return hit[0]
 
 
 def warm_starts(op, samples, mesh, energy):

@@ -31,8 +31,9 @@ from ..operator.defop import DefOp
 from ..operator.fit import check_distinct, fit
 from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning
-from . import batch, portfolios, solves
+from . import batch, solves
 from . import cache as cache_mod
+from . import ground_truths as truths
 from . import multilevel as ml
 from .sampling import sample_shape
 
@@ -134,12 +135,6 @@ def check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, roun
     if samples is not None and basis == "tps":  # before any solve, not after
         check_distinct(samples)
     return m, samples, n_jobs
-
-
-def _load_gt(store, key, m, n_vertices, d=2):
-    """(X, converged, meta) of a cached ground truth, or None."""
-    entry = None if store is None else store.load("gt", key, solves.gt_expect(m, n_vertices, d))
-    return None if entry is None else (entry[0]["X"], entry[0]["converged"], entry[1])
 
 
 def _operator_reader(shape, basis, spatial, n_samples):
@@ -289,40 +284,6 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
     return Q, X, conv
 
 
-def _multilevel_ground_truth(lv, samples, energy, n_jobs, progress, rounds, ck, key_parts):
-    """The multilevel policy (:mod:`defop.training.multilevel`): (X, converged, CPU times, wall times, info).
-
-    The coarse stage is the full policy's start portfolio on the coarse mesh, every end point kept
-    (:func:`defop.training.portfolios.portfolio`)."""
-    clock = solves.Stopwatch()
-    _, _, _, _, cands = portfolios.portfolio(lv.coarse, samples, energy, n_jobs, progress, rounds, keep="all")
-    times, wall = {"coarse": clock.cpu}, {"coarse": clock.wall}
-    clock = solves.Stopwatch()
-    key_of = None if ck is None else lambda a, b: cache_mod.key("ml-fine", *key_parts, a, b)
-    X, conv, info, remote = portfolios.refine(
-        lv, samples, energy, cands, ml.refine_one, ml.RULES, n_jobs, progress, ck, key_of
-    )
-    clock.remote += remote
-    times["fine"], wall["fine"] = clock.cpu, clock.wall
-    info["coarse_vertices"] = lv.coarse.mesh.n_vertices
-    return X, conv, times, wall, info
-
-
-def _gt_key(shape, energy, samples, rounds, used, lv):
-    """The ground truth's cache key: mesh, handles, energy, the solver's settings, the samples, ``rounds`` and the
-    policy that runs (with the multilevel constants and the coarse mesh)."""
-    mesh, settings = shape.mesh, solves.solver_key(shape, energy)
-    policy = {"policy": used, "round 2": "verified incumbent"}
-    coarse = []
-    if lv is not None:
-        policy.update(ml.constants())
-        policy["coarse portfolio"] = "full"  # the coarse stage runs the full policy's portfolio (an incumbent verified)
-        coarse = [lv.coarse.mesh.V, lv.coarse.mesh.F, lv.coarse.handles]
-    return cache_mod.key(
-        "gt-train", mesh.V, mesh.F, shape.handles, shape.moving, energy, settings, samples, rounds, policy, *coarse
-    )
-
-
 def train(
     shape,
     energy="sarap",
@@ -412,18 +373,55 @@ def train(
     )
     gt_key = op_key = None
     if store is not None:
-        gt_key = _gt_key(shape, energy, samples, rounds, used, lv)
+        gt_key = truths.train_key(shape, energy, samples, rounds, used, lv)
         op_key = cache_mod.key("op", gt_key, basis, spatial, params["k"])
-    clock = solves.Stopwatch()
+    cached = _cached_operator(store, gt_key, op_key, shape, basis, spatial, samples, params, why)
+    if cached is not None:
+        return cached
+    with batch.hold(store, "op", op_key):  # another process training this operator: wait for it, then load it
+        cached = _cached_operator(store, gt_key, op_key, shape, basis, spatial, samples, params, why)
+        if cached is not None:
+            return cached
+        return _train_new(
+            shape,
+            energy,
+            basis,
+            spatial,
+            k,
+            seed,
+            samples,
+            n_jobs,
+            progress,
+            rounds,
+            lv,
+            why,
+            params,
+            store,
+            gt_key,
+            op_key,
+        )
+
+
+def _cached_operator(store, gt_key, op_key, shape, basis, spatial, samples, params, why):
+    """:func:`train`'s result from the cache (the operator, and its ground truth when cached), or None."""
+    clock, m, used = solves.Stopwatch(), len(samples), params["policy_used"]
     op = None if store is None else store.load_with("op", op_key, _operator_reader(shape, basis, spatial, m))
-    if op is not None:
-        times, wall = {"load": clock.cpu}, {"load": clock.wall}
-        gt = _load_gt(store, gt_key, m, shape.mesh.n_vertices, shape.mesh.dim)
-        X, conv = (None, None) if gt is None else gt[:2]
-        info = _levels_info(used, why, None if gt is None else gt[2].get("multilevel"))
-        return op, TrainingRecord(samples, X, conv, times, "operator", params, used, info, wall)
+    if op is None:
+        return None
+    times, wall = {"load": clock.cpu}, {"load": clock.wall}
+    gt = truths.load(store, gt_key, m, shape.mesh.n_vertices, shape.mesh.dim)
+    X, conv = (None, None) if gt is None else gt[:2]
+    info = _levels_info(used, why, None if gt is None else gt[2].get("multilevel"))
+    return op, TrainingRecord(samples, X, conv, times, "operator", params, used, info, wall)
+
+
+def _train_new(
+    shape, energy, basis, spatial, k, seed, samples, n_jobs, progress, rounds, lv, why, params, store, gt_key, op_key
+):
+    """:func:`train`'s solves (or its cached ground truth) and fit, the operator stored in the cache."""
+    m, used = len(samples), params["policy_used"]
     meta = {"shape": shape.name, "energy": energy, "seed": seed, "policy": used}
-    X, conv, times, wall, info, cache_state = _ground_truth(
+    X, conv, times, wall, info, cache_state = truths.ground_truth(
         shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, meta
     )
     info = _levels_info(used, why, info)
@@ -439,33 +437,6 @@ def train(
     if store is not None:
         store.store_with("op", op_key, op.save)
     return op, TrainingRecord(samples, X, conv, times, cache_state, params, used, info, wall)
-
-
-def _ground_truth(shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, meta):
-    """The training's ground truth, loaded or solved by the policy and cached: (X, converged, CPU times, wall times,
-    multilevel info, cache state)."""
-    gt = _load_gt(store, gt_key, len(samples), shape.mesh.n_vertices, shape.mesh.dim)
-    if gt is not None:  # how long the cached solves took when they ran
-        return (
-            gt[0],
-            gt[1],
-            dict(gt[2].get("times", {})),
-            dict(gt[2].get("wall", {})),
-            gt[2].get("multilevel"),
-            ("ground truth"),
-        )
-    ck = None if store is None else batch.Checkpoints(store)  # resume an interrupted run where it stopped
-    info = None
-    if lv is None:
-        X, conv, times, wall, _ = portfolios.portfolio(shape, samples, energy, n_jobs, progress, rounds, ck, meta=meta)
-    else:
-        key = [gt_key]
-        X, conv, times, wall, info = _multilevel_ground_truth(lv, samples, energy, n_jobs, progress, rounds, ck, key)
-    if store is not None:
-        meta = {"times": times, "wall": wall, "multilevel": info}
-        store.store("gt", gt_key, {"X": X, "converged": conv}, meta=meta)
-        ck.discard()  # the whole ground truth is cached
-    return X, conv, times, wall, info, "none"
 
 
 def _fit_timed(shape, samples, X, basis, spatial, k, meta, times, wall):

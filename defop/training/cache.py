@@ -25,7 +25,12 @@ One layer used by :mod:`defop.training.bootstrap` and :mod:`defop.analysis.traje
   directory) is removed with a :class:`CacheWarning` naming the file and both digests, and recomputed, never
   used. An entry without a digest (written by an older defop) is stale: recomputed and overwritten, silently.
   Every kind (ground truth ``gt``, operator ``op``, checkpoint ``chunk``, ``branch-minima``, ``traj``) goes
-  through :meth:`Cache.store_with` and :meth:`Cache.load_with`, the one place this is done.
+  through :meth:`Cache.store_with` and :meth:`Cache.load_with`, the one place this is done. The stamp also names
+  the version that wrote the entry (:data:`VERSION_TAG`), so ``python -m defop cache --prune``
+  (:mod:`defop.training.cache_admin`) can tell the entries no version of this code reads.
+* **One computation per entry**: two processes sharing the cache (two lessons of the main job side by side) that miss
+  the same entry at once do not both compute it: :meth:`Cache.lock` (an ``flock`` on a hidden lock file per entry)
+  lets one compute and store while the other waits, then reads the stored entry.
 
 Bumping :data:`SOLVER_SALT` (it is :data:`defop.variational.solver.VERSION`)
     Increase ``defop.variational.solver.VERSION`` by one in the same commit as any change to
@@ -44,7 +49,6 @@ import hashlib
 import json
 import os
 import stat
-import struct
 import time
 import warnings
 import zipfile
@@ -56,6 +60,8 @@ from .. import __version__, config
 from .. import options as opt
 from ..geometry.archive import Limits, NpzReader
 from ..variational.solver import VERSION as _solve_version
+from . import cache_files as files
+from .cache_files import STAMP, CorruptEntry, read_stamp
 
 __all__ = [
     "Cache",
@@ -63,9 +69,11 @@ __all__ = [
     "CorruptEntry",
     "FORMAT",
     "SOLVER_SALT",
+    "VERSION_TAG",
     "digest",
     "key",
     "open_cache",
+    "read_stamp",
     "solver_settings",
 ]
 
@@ -76,6 +84,10 @@ SOLVER_SALT = _solve_version
 
 #: Layout of the cache entries; bump it when the arrays or metadata stored in an entry change.
 FORMAT = 1
+
+#: the versions an entry's key was hashed with (:func:`key`), written after its digest in the stamp: an entry with
+#: another tag is read by no version of this code (its key differs), and ``cache --prune`` removes it
+VERSION_TAG = f"version={__version__};format={FORMAT};solver={SOLVER_SALT}"
 
 _META = "__meta__"  # the entry's JSON metadata, stored as a 0-d string array
 #: what an entry read by :meth:`Cache.load` may declare (:class:`defop.geometry.archive.NpzReader`)
@@ -88,10 +100,6 @@ _READ_ERRORS = (Exception,)
 
 class CacheWarning(UserWarning):
     """A corrupt cache entry, or one of another problem, was removed (it will be recomputed)."""
-
-
-class CorruptEntry(ValueError):
-    """Raised by a reader given to :meth:`Cache.load_with` for an entry that fails its checks."""
 
 
 def _json_default(obj):
@@ -132,12 +140,6 @@ def key(*parts) -> str:
     return h.hexdigest()[:20]
 
 
-#: the start of the archive comment that carries an entry's digest (:func:`digest`)
-STAMP = b"defop-cache-digest "
-_EOCD = b"PK\x05\x06"  # the zip end-of-central-directory record: 22 bytes, the comment's length in the last 2
-_TAIL = 22 + 512  # bytes read from an entry's end to find its stamp (a stamp is well under 512 bytes)
-
-
 def digest(kind, key) -> str:
     """The digest an entry of ``kind`` keyed ``key`` carries: the kind and :func:`key`'s hash of its inputs.
 
@@ -154,35 +156,9 @@ def digest(kind, key) -> str:
 
 
 def _stamp(tmp, kind, key):
-    """Write the digest of entry ``kind``/``key`` into the archive comment of the zip file ``tmp``."""
+    """Write entry ``kind``/``key``'s digest and :data:`VERSION_TAG` into the archive comment of the zip ``tmp``."""
     with zipfile.ZipFile(tmp, "a") as zf:
-        zf.comment = STAMP + digest(kind, key).encode("ascii")
-
-
-def _stamp_of(fh):
-    """The digest stamped on an open entry: a str, or None when it has none (written by an older defop).
-
-    Raises
-    ------
-    CorruptEntry
-        The archive's end record is missing, or its comment is not as long as the record says (a truncated or
-        damaged stamp), or the comment is not a digest.
-    """
-    size = fh.seek(0, 2)
-    fh.seek(max(0, size - _TAIL))
-    tail = fh.read()
-    at = tail.rfind(_EOCD)
-    if at < 0 or len(tail) < at + 22:
-        raise CorruptEntry("no zip end record")
-    (n,) = struct.unpack("<H", tail[at + 20 : at + 22])
-    comment = tail[at + 22 :]
-    if len(comment) != n:
-        raise CorruptEntry(f"its end record declares a {n}-byte comment, {len(comment)} bytes follow")
-    if n == 0:
-        return None
-    if not comment.startswith(STAMP):
-        raise CorruptEntry(f"its archive comment {comment[:40]!r} is not a defop cache digest")
-    return comment[len(STAMP) :].decode("ascii", "replace")
+        zf.comment = STAMP + f"{digest(kind, key)} {VERSION_TAG}".encode("ascii")
 
 
 def solver_settings(solver) -> dict:
@@ -349,21 +325,21 @@ class Cache:
                 with open(path, "rb") as fh:
                     inode = os.fstat(fh.fileno()).st_ino
                     result = read(path)  # first: its checks say best what is wrong with a damaged entry
-                    stamped = _stamp_of(fh)
-                if inode != _inode(path):
+                    stamped = files.stamp_of(fh)
+                if inode != files.inode(path):
                     continue  # path names another (whole) entry now: the stamp read was not its stamp
             except _READ_ERRORS as exc:
                 reason = str(exc) if isinstance(exc, CorruptEntry) else f"{type(exc).__name__}: {exc}"
                 return self._discard(path, inode, f"removed corrupt cache entry {path} ({reason}); recomputing it")
             if stamped is None:
                 return None  # written by an older defop: stale, recomputed and overwritten
-            if stamped != digest(kind, key):
+            if stamped not in (f"{digest(kind, key)} {VERSION_TAG}", digest(kind, key)):  # with its tag, or before tags
                 return self._discard(
                     path,
                     inode,
                     f"removed cache entry {path}: it holds the result of another problem (digest "
-                    f"{stamped!r}, this problem's is {digest(kind, key)!r}: a copied or renamed file, or a shared "
-                    "cache directory); recomputing it",
+                    f"{stamped.partition(' ')[0]!r}, this problem's is {digest(kind, key)!r}: a copied or renamed "
+                    "file, or a shared cache directory); recomputing it",
                 )
             return result
         return None
@@ -376,6 +352,29 @@ class Cache:
             if path.stat().st_ino == inode:  # not a whole entry another process has just renamed into place
                 path.unlink()
         return None
+
+    @contextlib.contextmanager
+    def lock(self, kind, key):
+        """Hold entry ``kind``/``key``'s lock while computing it: another process asking for it waits meanwhile.
+
+        Use it after a miss, and look again inside it (the holder before may have stored the entry). The lock is an
+        ``flock`` on the hidden file ``.<kind>-<key>.lock``, released when the holder ends, even when it is killed.
+        Where no file lock can be taken (no ``fcntl``, or the lock file cannot be made) nothing is locked and both
+        processes compute the same result, stored atomically.
+        """
+        path = self.lock_path(kind, key)
+        fd = files.acquire_lock(path)
+        try:
+            yield
+        finally:
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    path.unlink()  # first: a waiter that locks this file then sees it is gone and locks a new one
+                os.close(fd)
+
+    def lock_path(self, kind, key):
+        """pathlib.Path of entry ``kind``/``key``'s lock file (:meth:`lock`)."""
+        return Path(self.folder) / f".{kind}-{key}.lock"
 
     def remove(self, kind, key):
         """Remove the entry ``<kind>-<key>.npz`` if there is one (an entry another process removed first is fine)."""
@@ -418,12 +417,5 @@ class Cache:
                 stacklevel=opt.user_stacklevel(),
             )
             return None
+        files.journal(path)
         return path
-
-
-def _inode(path):
-    """The inode ``path`` names now, or None when it is gone."""
-    try:
-        return path.stat().st_ino
-    except FileNotFoundError:
-        return None

@@ -1,0 +1,122 @@
+"""The main job's schedule (defop.figures.schedule, pure) and notebooks run side by side (two tiny notebooks)."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import nbformat
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from nbformat.v4 import new_code_cell, new_notebook
+
+from defop import figures
+from defop.figures import schedule
+
+
+def test_longest_first_ties_in_name_order():
+    seconds = {"00_a": 5.0, "01_b": 300.0, "02_c": 5.0, "03_d": 60.0}
+    assert schedule.order(list(seconds), seconds) == ["01_b", "03_d", "00_a", "02_c"]
+
+
+def test_the_makespan_of_list_scheduling():
+    assert schedule.makespan([300, 60, 50, 5], 1) == 415
+    assert schedule.makespan([300, 60, 50, 5], 2) == 300  # the long one alone, the three others beside it
+    assert schedule.makespan([5, 50, 60, 300], 2) == 350  # name order: the long one starts last
+    assert schedule.makespan([10], 2, busy=[30]) == 30
+    assert schedule.makespan([], 2) == 0
+
+
+def test_the_eta_counts_what_the_running_lessons_have_left():
+    assert schedule.eta([20.0], [(100.0, 70.0), (10.0, 15.0)], 2) == 30.0  # 30 s left; the overdue one counts 0
+
+
+@given(st.lists(st.floats(0, 1e4), max_size=12), st.integers(1, 4))
+def test_the_makespan_is_bounded_by_the_work(durations, jobs):
+    span = schedule.makespan(durations, jobs)
+    assert max(durations, default=0) <= span + 1e-6
+    assert sum(durations) / jobs <= span + 1e-6 <= sum(durations) + 1e-6
+
+
+def test_overlaps():
+    spans = {"a": (0, 10), "b": (5, 20), "c": (10, 12)}
+    assert schedule.overlaps(spans) == {"a": ["b"], "b": ["a", "c"], "c": ["b"]}
+
+
+def test_expected_seconds_read_the_record(tmp_path):
+    record = {"full": {"notebooks": {"a": {"seconds": 10.0, "cold": 100.0}, "b": {"seconds": 30.0}}}}
+    path = tmp_path / "runtimes.json"
+    path.write_text(json.dumps(record))
+    assert schedule.expected_seconds(["a", "b", "c"], path, "full") == {"a": 10.0, "b": 30.0, "c": 20.0}
+    assert schedule.expected_seconds(["a", "b"], record, "full", cold=True) == {"a": 100.0, "b": 30.0}
+    assert schedule.expected_seconds(["a"], tmp_path / "none.json", "fast") == {"a": schedule.UNKNOWN_SECONDS}
+
+
+def test_jobs_share_out_the_cores():
+    assert schedule.default_jobs(1) == 1 and schedule.default_jobs(2) == 2 and schedule.default_jobs(16) == 2
+    assert schedule.inner_jobs(1, 2) is None  # one at a time: the lesson's own default (every core)
+    assert schedule.inner_jobs(2, 2) == 1 and schedule.inner_jobs(2, 8) == 4 and schedule.inner_jobs(2, 1) == 1
+    assert schedule.cores() >= 1
+
+
+def _write(folder, name, source):
+    nb = new_notebook(cells=[new_code_cell(source)])
+    nb.metadata["kernelspec"] = {"display_name": "Python 3", "language": "python", "name": "python3"}
+    nbformat.write(nb, folder / f"{name}.ipynb")
+
+
+def test_notebooks_side_by_side(tmp_path, monkeypatch):
+    """Two notebooks at once, each kernel with one solver worker; the report in name order, both recorded with the
+    notebook beside them; the one that stored a cache entry is partial, the other warm."""
+    monkeypatch.setenv("DEFOP_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("DEFOP_N_JOBS", raising=False)
+    folder = tmp_path / "nbs"
+    folder.mkdir()
+    probe = "import os, time\nfrom defop.figures import schedule\ntime.sleep(2)\n"
+    probe += "assert os.environ['DEFOP_N_JOBS'] == os.environ['OMP_NUM_THREADS'] == str(schedule.inner_jobs(2))\n"
+    store = "from defop.training import cache as cm\nimport numpy as np\n"
+    store += "cm.open_cache().store('gt', 'a' * 20, {'X': np.zeros(2)})\n"
+    _write(folder, "00_a", probe + store)
+    _write(folder, "01_b", probe)
+    lines = []
+    record = tmp_path / "runtimes.json"
+    report = figures.regenerate(fast=True, directory=folder, log=lines.append, record=record, jobs=2)
+    assert [(r["name"], r["ok"], r["cache"]) for r in report] == [("00_a", True, "partial"), ("01_b", True, "warm")]
+    assert report[0]["computed"] == ["gt-" + "a" * 20 + ".npz"]
+    assert report[0]["start"] < report[1]["end"] and report[1]["start"] < report[0]["end"]  # side by side
+    entry = json.loads(record.read_text())["fast"]
+    assert entry["jobs"] == 2 and entry["wall"] > 0
+    assert entry["notebooks"]["00_a"]["beside"] == ["01_b"] and entry["notebooks"]["01_b"]["beside"] == ["00_a"]
+    assert any("side by side" in line for line in lines) and "about" in lines[0]
+    assert os.listdir(tmp_path / "cache") == ["gt-" + "a" * 20 + ".npz"]  # no lock or journal left
+
+
+def test_jobs_must_be_a_positive_integer(tmp_path):
+    with pytest.raises(ValueError, match="jobs"):
+        figures.regenerate(fast=True, directory=tmp_path, record=None, jobs=0)
+
+
+def test_prints_split_into_messages_are_stored_as_one_output():
+    """How a kernel splits a cell's prints into messages depends on its timing (side by side, under load)."""
+    split = [
+        {"output_type": "stream", "name": "stdout", "text": "a\n"},
+        {"output_type": "stream", "name": "stdout", "text": ["b\n", "c\n"]},
+        {"output_type": "stream", "name": "stderr", "text": "w\n"},
+        {"output_type": "stream", "name": "stdout", "text": "d\n"},
+    ]
+    nb = new_notebook(cells=[new_code_cell("print('a')")])
+    nb.cells[0].outputs = [nbformat.from_dict(o) for o in split]
+    one = new_notebook(cells=[new_code_cell("print('a')")])
+    one.cells[0].outputs = [nbformat.from_dict(o) for o in [{**split[0], "text": "a\nb\nc\n"}, split[2], split[3]]]
+    assert figures.normalise(nb).cells[0].outputs == figures.normalise(one).cells[0].outputs
+    assert [o["text"] for o in figures.normalise(nb).cells[0].outputs] == ["a\nb\nc\n", "w\n", "d\n"]
+
+
+def test_a_whole_run_records_its_wall_time_as_the_total(tmp_path):
+    path = tmp_path / "runtimes.json"
+    report = [dict(name="00_a", seconds=5.0, ok=True, cache="cold", cpu=4.0, start=0.0, end=5.0)]
+    figures.write_runtimes(report, "full", path, jobs=2, wall=7.0, whole="cold")
+    figures.write_runtimes([{**report[0], "cache": "partial"}], "full", path, jobs=2, wall=3.0)  # a part: kept
+    entry = json.loads(path.read_text())["full"]
+    assert entry["totals"] == {"cold": 7.0} and entry["wall"] == 3.0 and entry["notebooks"]["00_a"]["cpu"] == 4.0
