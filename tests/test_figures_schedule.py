@@ -20,6 +20,13 @@ def test_longest_first_ties_in_name_order():
     assert schedule.order(list(seconds), seconds) == ["01_b", "03_d", "00_a", "02_c"]
 
 
+def test_lessons_that_measure_times_run_alone_after_the_others():
+    seconds = {"00_a": 5.0, "10_timings": 300.0, "02_c": 50.0}
+    assert schedule.plan(list(seconds), seconds, 2) == (["02_c", "00_a"], ["10_timings"])
+    assert schedule.plan(list(seconds), seconds, 1) == (list(seconds), [])  # one at a time: name order
+    assert "10_timings" in schedule.ALONE
+
+
 def test_the_makespan_of_list_scheduling():
     assert schedule.makespan([300, 60, 50, 5], 1) == 415
     assert schedule.makespan([300, 60, 50, 5], 2) == 300  # the long one alone, the three others beside it

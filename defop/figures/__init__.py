@@ -50,7 +50,6 @@ __all__ = [
     "NotebookError",
     "run_notebook",
     "regenerate",
-    "schedule_order",
     *paths.__all__,
     *run_times.__all__,
     *storing.__all__,
@@ -439,14 +438,17 @@ def regenerate(
     expected = schedule.expected_seconds([p.stem for p in paths], RUNTIMES if record is None else record, mode, cold)
     tags = {p: f"[{i:2d}/{len(paths)}] {p.stem:<20s}" for i, p in enumerate(paths, 1)}
     side = f"{jobs} side by side, longest first" if jobs > 1 else "one at a time"
-    total = schedule.makespan([expected[p.stem] for p in schedule_order(paths, expected, jobs)], jobs)
+    by_name = {p.stem: p for p in paths}
+    beside, alone = ([by_name[n] for n in names] for names in schedule.plan(list(by_name), expected, jobs))
+    total = schedule.makespan([expected[p.stem] for p in beside], jobs) + sum(expected[p.stem] for p in alone)
     log(f"{len(paths)} notebooks ({mode} mode, {side}): about {format_seconds(total)} by the recorded times")
     t0 = time.perf_counter()
     kw = dict(cold=clean, fast=fast, store=store, timeout=timeout)
     if jobs == 1:
         report = [_run_one(path, tags[path], log, **kw) for path in paths]
     else:
-        report = _side_by_side(schedule_order(paths, expected, jobs), tags, jobs, expected, log, **kw)
+        report = _side_by_side(beside, tags, jobs, expected, log, **kw)
+        report += [_run_one(path, tags[path], log, **kw) for path in alone]  # their measured times: nothing beside
         report.sort(key=lambda r: r["name"])
     _summary(report, mode, jobs, time.perf_counter() - t0, log)
     if record is not None:
@@ -472,14 +474,6 @@ def _empty_cache():
     except ValueError:
         return True
     return folder is None or next(folder.glob("op-*.npz"), None) is None
-
-
-def schedule_order(paths, expected, jobs):
-    """The order the notebooks start in: name order one at a time, longest first side by side."""
-    if jobs == 1:
-        return list(paths)
-    by_name = {p.stem: p for p in paths}
-    return [by_name[n] for n in schedule.order([p.stem for p in paths], expected)]
 
 
 def _summary(report, mode, jobs, wall, log):

@@ -13,10 +13,37 @@ import json
 import os
 from pathlib import Path
 
-__all__ = ["cores", "default_jobs", "eta", "expected_seconds", "inner_jobs", "makespan", "order", "overlaps"]
+__all__ = [
+    "ALONE",
+    "cores",
+    "default_jobs",
+    "eta",
+    "expected_seconds",
+    "inner_jobs",
+    "makespan",
+    "order",
+    "overlaps",
+    "plan",
+]
 
 #: the seconds assumed for a lesson the record does not know
 UNKNOWN_SECONDS = 60.0
+
+#: lessons that print times they measure (Table 1's timing rows): they run after the others, one at a time with every
+#: core, so that no lesson beside them inflates their times
+ALONE = frozenset({"10_timings"})
+
+
+def plan(names, seconds, jobs):
+    """(the lessons in the order they start on ``jobs`` slots, the lessons run after them one at a time).
+
+    One at a time (``jobs == 1``): every lesson in the given (name) order, none after. Side by side: longest first by
+    ``seconds`` (:func:`order`), the :data:`ALONE` lessons after the others, longest first too.
+    """
+    if jobs == 1:
+        return list(names), []
+    ranked = order(list(names), seconds)
+    return [n for n in ranked if n not in ALONE], [n for n in ranked if n in ALONE]
 
 
 def cores():
