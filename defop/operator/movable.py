@@ -42,6 +42,9 @@ from .core import EXTRAPOLATION_FACTOR, ExtrapolationWarning, OperatorCore, fast
 from .fit import structure
 from .io.movable_file import FORMAT, MEMBERS, save_movable  # noqa: F401  (public names)
 
+#: rest placements a :class:`MovableOp` keeps resolved (keys: P as given and its vertices)
+PLACEMENTS_KEPT = 32
+
 
 @dataclasses.dataclass
 class RestPlacement:
@@ -50,8 +53,9 @@ class RestPlacement:
     ``idx`` (b,) the movable handles' vertices, ``hm`` (n,) the moving handles' vertices, ``P`` (n, d) their rest
     positions, ``bumps`` the placement's bumps (support, weights); for :class:`MovableOp` also the factors it was
     made for (``key``), z(P, P) (``z0``), δψ's subtrahend (``psi0``), the kernel's frame at (P, P) (``X0``), the
-    movable rows, the fixed handles and whether P is the nominal placement; for :class:`CarryOp` the barycentric
-    map ``S`` and the shift of Q to the nominal operator.
+    movable rows, the fixed handles, whether P is the nominal placement and the frame kernel's packed arguments
+    (``zp`` = z0[:b], ``ints`` = idx, rows, hm, the bumps' support and the fixed handles end to end); for
+    :class:`CarryOp` the barycentric map ``S`` and the shift of Q to the nominal operator.
     """
 
     idx: np.ndarray
@@ -67,6 +71,8 @@ class RestPlacement:
     nominal: bool = False
     S: object = None
     shift: np.ndarray | None = None
+    zp: np.ndarray | None = None
+    ints: np.ndarray | None = None
 
     def __getitem__(self, name):
         """``state["idx"]``: the mapping access of earlier versions."""
@@ -206,7 +212,7 @@ class MovableOp(OperatorCore):
         still = np.setdiff1d(np.arange(len(self.handles)), placement.movable)
         self.still = self.handles[still]  # handles that never leave their vertex
         self.set_free_part(self.still)
-        self._at = None  # (idx bytes, state) of the last rest placement
+        self._placements, self._placed_for = {}, None  # RestPlacement by core.placement_key, for these factors
 
     def __repr__(self):
         comp = f", rank {self.rank}" if self.factors is not None else ""
@@ -217,14 +223,34 @@ class MovableOp(OperatorCore):
 
     # ------------------------------------------------------------------ the rest placement
     def at(self, P=None):
-        """The state of rest placement P (:meth:`PlacementRegions.resolve`), kept until P changes: its vertices,
-        the moving handles' rest positions, z(P, P) and the kernel's frame at (P, P)."""
-        last = self._at
-        if last is not None and last.key is self.factors and same_placement(P, last):
-            return last  # the placement of the last frame (an interactive drag): nothing to resolve
-        idx = self.placement.resolve(P)
-        if self._at is not None and np.array_equal(self._at.idx, idx) and self._at.key is self.factors:
-            return self._at
+        """The state of rest placement P (:meth:`PlacementRegions.resolve`): its vertices, the moving handles' rest
+        positions, z(P, P) and the kernel's frame at (P, P).
+
+        P is checked and resolved once: the state is kept under P as given (:func:`core.placement_key`: vertex
+        indices or points, bit for bit) and under its vertices, for the last :data:`PLACEMENTS_KEPT` placements
+        and the current factors, so a frame at a placement seen before (an interactive drag) resolves nothing.
+        """
+        if self._placed_for is not self.factors:
+            self._placements, self._placed_for = {}, self.factors
+        key = core.placement_key(P)
+        st = self._placements.get(key) if key is not None else None
+        if st is None:
+            idx = self.placement.resolve(P)
+            st = self._placements.get(core.placement_key(idx)) or self._placement_state(idx)
+            self._keep(key, st)
+        return st
+
+    def _keep(self, key, st):
+        """Keep ``st`` under ``key`` (when P is keyable) and under its vertices, the oldest dropped beyond
+        :data:`PLACEMENTS_KEPT` keys."""
+        for k in (key, core.placement_key(st.idx)):
+            if k is not None:
+                self._placements[k] = st
+        while len(self._placements) > PLACEMENTS_KEPT:
+            del self._placements[next(iter(self._placements))]
+
+    def _placement_state(self, idx):
+        """The :class:`RestPlacement` of the region vertices ``idx`` (b,), resolved."""
         hm = self.placement.handles_at(idx)[self.moving]
         Pm = self.mesh.V[hm]
         z0 = joint_z(self.mesh.V, self.placement.nominal, idx, hm, Pm[None], *self.scales)[0]
@@ -241,13 +267,20 @@ class MovableOp(OperatorCore):
         )
         st.psi0 = self.basis.delta_z(z0.reshape(1, -1))  # (1, |Ψ|−1), float64
         st.X0 = self._kernel(z0, self.fast_state())
-        self._at = st
+        st.zp = np.ascontiguousarray(z0[: len(idx)])
+        sup = st.bumps[0]
+        st.ints = np.concatenate([idx, st.rows, hm, sup, st.fixed]).astype(np.int64)
         return st
 
     def make_fast_state(self):
-        """The :class:`core.FastState` of the joint basis; ``extra``: the kernel's empty handle arguments."""
+        """The :class:`core.FastState` of the joint basis; ``extra``: the kernel's empty handle arguments. The
+        kernel's reach bounds are on z's rows: none on the b rest offsets, :func:`core.far_bound` / s_Q² on the n
+        moving handles' (a frame flagged beyond them runs the full extrapolation check)."""
         f = fast_matrices(self.basis, self._WF, self.factors)
-        f.kernel = core.kernel_args(self.basis, f.mats, None)
+        far2 = core.far_bound(self.reach)
+        if far2 is not None:
+            far2 = np.concatenate([np.full(self.placement.n_movable, np.inf), far2 / self.scales[1] ** 2])
+        f.kernel = core.kernel_args(self.basis, f.mats, far2)
         f.extra.update(zero=np.zeros(self.basis.P.shape), none=np.zeros(0, np.int64), nothing=np.zeros(0))
         return f
 
@@ -258,8 +291,6 @@ class MovableOp(OperatorCore):
 
     # ------------------------------------------------------------------ evaluation
     def _check_Q(self, Q, st):
-        if not (type(Q) is np.ndarray and Q.dtype == np.float64):
-            Q = opt.real_array("Q", Q)
         n = self.n_moving
         Q = core.check_configurations(Q, n, self.d)  # the one check of Q: shape, real, finite
         if self.reach is not None:
@@ -294,7 +325,7 @@ class MovableOp(OperatorCore):
             return empty
         Q2 = Q.reshape(-1, self.n_moving, self.d)
         if self.factors is not None and Q.ndim == 2:
-            return self._frame(Q, st)
+            return self._one_frame(Q, st)
         out = self._finish(self.displacement(Q2, st), st, Q2)
         return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
 
@@ -320,28 +351,42 @@ class MovableOp(OperatorCore):
         return y.astype(float)
 
     def _frame(self, Q, st):
-        z = st.z0.copy()  # [(P_b − P_b⁰)/s_P, 0], kept per placement; the Q part is the frame's (joint_z's sums)
-        np.divide(
-            np.subtract(Q, st.P, out=z[self.placement.n_movable :]),
-            self.scales[1],
-            out=z[self.placement.n_movable :],
+        """One frame of a float64 Q (n, d) by :func:`kernels.movable_frame` (z = [(P_b − P_b⁰)/s_P, (Q − P)/s_Q]
+        with the rest offsets kept per placement): (X (n_vertices, d), or None beyond the float32 guard, and
+        whether a handle reached the kernel's reach bound)."""
+        f = self._fast if self._fast is not None and self._fast.key is self.factors else self.fast_state()
+        k = f.kernel
+        X, far = k.lib.movable_frame(
+            Q, st.P, st.zp, self.scales[1], f.R2, k.far2, *k.tps, k.A, k.B, self._x, st.X0, st.bumps[1], st.ints
         )
-        f = self.fast_state()
-        Xz = self._kernel(z, f)
-        if not Xz.size or not st.X0.size:  # beyond the float32 guard: numpy with scaling, Ψ checked finite
+        return (X.reshape(self.n_vertices, self.d) if X.size else None), far
+
+    def _one_frame(self, Q, st):
+        """One frame of a checked Q: the kernel, or beyond its guard numpy with scaling, Ψ checked finite."""
+        X, _ = self._frame(Q, st)
+        if X is None:
             u = self._product(self.delta_psi(Q[None], st))
-            return self._finish(u, st, Q[None])[0].reshape(self.n_vertices, self.d)
-        sup, wt = st.bumps
-        out = f.kernel.lib.movable_correction(Xz, st.X0, self._x, Q, st.P, st.idx, st.rows, st.hm, sup, wt, st.fixed)
-        return out.reshape(self.n_vertices, self.d)
+            X = self._finish(u, st, Q[None])[0].reshape(self.n_vertices, self.d)
+        return X
 
     def evaluate_fast(self, Q, P=None):
-        """One frame by the compiled kernel: float32 W_F (or the factors), the correction in float64."""
+        """One frame by the compiled kernel: float32 W_F (or the factors), the correction in float64.
+
+        P is checked once per placement (:meth:`at`). Q is checked in full only when it must be: a float64 array
+        of the frame's shape (:func:`core.fast_input`) goes to the kernel, whose guard sends NaN, inf and far Q to
+        the full check (a ValueError naming Q) and whose reach bound to the extrapolation check (the warning).
+        """
         st = self.at(P)
+        if core.fast_input(Q, st.P.shape):
+            X, far = self._frame(Q, st)
+            if X is not None:
+                if far:
+                    self._check_Q(Q, st)  # the full check decides (and words the warning)
+                return X
         Q = self._check_Q(Q, st)
         if Q.shape != st.P.shape:
-            raise ValueError(f"Q must have shape {st['P'].shape} (one frame), got {Q.shape}")
-        return self._frame(Q, st)
+            raise ValueError(f"Q must have shape {st.P.shape} (one frame), got {Q.shape}")
+        return self._one_frame(Q, st)
 
     def evaluate_batch(self, Qs, P=None):
         """D(·; P, Q_k) for a batch Qs (k, n, d) at one P: float32 products, the correction in float64."""
