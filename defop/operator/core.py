@@ -324,6 +324,32 @@ def placement_key(P):
     return None
 
 
+class KeptPlacements:
+    """The checked and resolved states of the last ``limit`` rest placements, for one set of factors: kept under
+    P as given (:func:`placement_key`) and under its vertices, all dropped when the factors change."""
+
+    def __init__(self, limit=32):
+        self.limit, self.factors, self.states = int(limit), None, {}
+
+    def get(self, P, factors, resolve, make):
+        """The state of placement P for ``factors``: kept, or ``make(resolve(P))`` (``resolve`` checks P and
+        returns its vertices idx, ``make`` the state of idx), then kept under P and idx, the oldest keys dropped."""
+        if self.factors is not factors:
+            self.states, self.factors = {}, factors
+        key = placement_key(P)
+        st = self.states.get(key) if key is not None else None
+        if st is None:
+            idx = resolve(P)
+            kidx = placement_key(idx)
+            st = self.states.get(kidx) or make(idx)
+            for k in (key, kidx):
+                if k is not None:
+                    self.states[k] = st
+            while len(self.states) > self.limit:
+                del self.states[next(iter(self.states))]
+        return st
+
+
 def check_configurations(Q, n, d=2):
     """The one check of handle configurations: Q (n, d) or (k, n, d), real and finite, as a float array
     (a ValueError naming Q and the condition)."""

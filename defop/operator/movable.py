@@ -212,7 +212,7 @@ class MovableOp(OperatorCore):
         still = np.setdiff1d(np.arange(len(self.handles)), placement.movable)
         self.still = self.handles[still]  # handles that never leave their vertex
         self.set_free_part(self.still)
-        self._placements, self._placed_for = {}, None  # RestPlacement by core.placement_key, for these factors
+        self._placements = core.KeptPlacements(PLACEMENTS_KEPT)
 
     def __repr__(self):
         comp = f", rank {self.rank}" if self.factors is not None else ""
@@ -226,28 +226,11 @@ class MovableOp(OperatorCore):
         """The state of rest placement P (:meth:`PlacementRegions.resolve`): its vertices, the moving handles' rest
         positions, z(P, P) and the kernel's frame at (P, P).
 
-        P is checked and resolved once: the state is kept under P as given (:func:`core.placement_key`: vertex
-        indices or points, bit for bit) and under its vertices, for the last :data:`PLACEMENTS_KEPT` placements
-        and the current factors, so a frame at a placement seen before (an interactive drag) resolves nothing.
+        P is checked and resolved once (:class:`core.KeptPlacements`: kept under P as given, bit for bit, and
+        under its vertices, for the last :data:`PLACEMENTS_KEPT` placements and the current factors), so a frame
+        at a placement seen before (an interactive drag) resolves nothing.
         """
-        if self._placed_for is not self.factors:
-            self._placements, self._placed_for = {}, self.factors
-        key = core.placement_key(P)
-        st = self._placements.get(key) if key is not None else None
-        if st is None:
-            idx = self.placement.resolve(P)
-            st = self._placements.get(core.placement_key(idx)) or self._placement_state(idx)
-            self._keep(key, st)
-        return st
-
-    def _keep(self, key, st):
-        """Keep ``st`` under ``key`` (when P is keyable) and under its vertices, the oldest dropped beyond
-        :data:`PLACEMENTS_KEPT` keys."""
-        for k in (key, core.placement_key(st.idx)):
-            if k is not None:
-                self._placements[k] = st
-        while len(self._placements) > PLACEMENTS_KEPT:
-            del self._placements[next(iter(self._placements))]
+        return self._placements.get(P, self.factors, self.placement.resolve, self._placement_state)
 
     def _placement_state(self, idx):
         """The :class:`RestPlacement` of the region vertices ``idx`` (b,), resolved."""
@@ -453,14 +436,16 @@ class CarryOp:
     def __init__(self, op0, placement):
         self.op0, self.placement, self.mesh = op0, placement, op0.mesh
         self.handles, self.moving, self.d = op0.handles, op0.moving, op0.d
-        self.n_vertices, self._at = op0.n_vertices, None
+        self.n_vertices, self._placements = op0.n_vertices, core.KeptPlacements(PLACEMENTS_KEPT)
 
     def at(self, P=None):
+        """The state of rest placement P: its vertices, the bumps, the barycentric map S of the rest-space warp
+        and the shift of Q (checked and resolved once per placement, :class:`core.KeptPlacements`)."""
+        return self._placements.get(P, None, self.placement.resolve, self._placement_state)
+
+    def _placement_state(self, idx):
         import scipy.sparse as sp
 
-        idx = self.placement.resolve(P)
-        if self._at is not None and np.array_equal(self._at.idx, idx):
-            return self._at
         hm = self.placement.handles_at(idx)[self.moving]
         y = self.mesh.V.copy()
         g, rows = self.placement.g, self.placement.bump_rows(idx)
@@ -470,7 +455,7 @@ class CarryOp:
         elem, bary = self.mesh.locate(y)
         n = self.n_vertices
         S = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(n), self.d + 1), self.mesh.F[elem].ravel())), (n, n))
-        self._at = RestPlacement(
+        return RestPlacement(
             idx=idx,
             hm=hm,
             P=self.mesh.V[hm],
@@ -478,7 +463,6 @@ class CarryOp:
             S=S,
             shift=self.op0.P - self.mesh.V[hm],
         )
-        return self._at
 
     def __call__(self, Q, P=None, fast=False):
         """D(·; P, Q) for Q (n, d) or (k, n, d) at one P; ``fast``: the nominal operator's fast path."""
