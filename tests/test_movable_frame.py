@@ -162,3 +162,24 @@ def test_a_frame_resolves_P_once_and_checks_Q_in_full_only_when_asked(setup, mon
     with pytest.raises(ValueError, match="not on a vertex"):
         op.evaluate_fast(rest, P=P + 0.05)  # a changed P is checked again
     assert calls["resolve"] == 2
+
+
+def test_fewer_centres_keep_the_guarantees(setup):
+    """fit_movable(centres=k): k TPS functions picked farthest first from the nominal rest, the other joint points
+    fitted by least squares; handles and rest pose stay exact bit for bit."""
+    shape, placement, op = setup
+    idx, Q = sample_joint(shape, placement, 24, 3)
+    V = shape.mesh.V
+    X = np.stack([V + 0.05 * np.sin(V.sum(1, keepdims=True) + q.sum()) for q in Q])
+    few = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, centres=12)
+    assert few.basis.size < op.basis.size and few.meta["n_centres"] == 12
+    assert np.array_equal(few.basis.centers[0], np.zeros_like(few.basis.centers[0]))  # the nominal rest first
+    P = placement.vertices[0][-1:]
+    rest = V[placement.handles_at(P)[shape.moving]]
+    for o in (few, fresh(few).compress(rank=3)):
+        for f in (o, o.evaluate_fast):
+            X1 = f(rest + 0.02, P=P)
+            assert np.array_equal(X1[placement.handles_at(P)[shape.moving]], rest + 0.02)
+            assert np.array_equal(f(rest, P=P), V)
+    with pytest.raises(ValueError, match="centres"):
+        fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, centres=0)

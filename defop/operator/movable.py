@@ -39,7 +39,7 @@ from . import core
 from . import handle_bases as hb
 from . import io as io_mod
 from .core import EXTRAPOLATION_FACTOR, ExtrapolationWarning, OperatorCore, fast_matrices  # noqa: F401  (exported)
-from .fit import structure
+from .fit import farthest_points, structure
 from .io.movable_file import FORMAT, MEMBERS, save_movable  # noqa: F401  (public names)
 
 #: rest placements a :class:`MovableOp` keeps resolved (keys: P as given and its vertices)
@@ -98,8 +98,8 @@ def rest_centres(zs, b):
     return np.concatenate([np.zeros((1, *zs.shape[1:])), flat.reshape(-1, *zs.shape[1:])])
 
 
-def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight=1.0):
-    """Fit (M): TPS interpolation of the displacements over the joint space.
+def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight=1.0, centres=None):
+    """Fit (M): TPS interpolation of the displacements over the joint space (or, with fewer centres, least squares).
 
     Parameters
     ----------
@@ -111,6 +111,10 @@ def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight
     Q : (m, n, d) numpy array
     X : (m, n_vertices, d) numpy array
         The verified solutions of problem (6) with the handles at those vertices.
+    centres : int, optional
+        How many of the joint points (the rest poses and the samples) carry a TPS function, picked farthest
+        first from the nominal rest (:func:`farthest_points`); the others are fitted by least squares
+        (:func:`structure`, the nominal rest still exact). Fewer centres: a cheaper frame. Default: all.
 
     Returns
     -------
@@ -128,12 +132,15 @@ def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight
     s_q = float(np.sqrt(np.mean(np.sum(off_q**2, axis=-1)))) or 1.0
     zs = np.concatenate([off_p / s_p, off_q / s_q], axis=1)
     rc = rest_centres(zs, placement.n_movable)
-    centres = np.concatenate([rc, zs])
+    points = np.concatenate([rc, zs])
+    keep = slice(None) if centres is None else np.sort(farthest_points(points, opt.integer("centres", centres, 1)))
     Y = np.concatenate([np.zeros((len(rc), mesh.n_vertices * d)), (X - mesh.V).reshape(m, -1)])
-    psi = hb.TPSBasis(np.zeros(zs.shape[1:]), centres, 1.0)
-    G, _ = structure(psi, centres)
+    psi = hb.TPSBasis(np.zeros(zs.shape[1:]), points[keep], 1.0)
+    G, _ = structure(psi, points)
     W = G @ Y  # the rest pose's data is 0: β Y[0] drops
     meta = {**(meta or {}), "basis": "tps-joint", "n_samples": m, "n_rest_centres": len(rc)}
+    if centres is not None:
+        meta["n_centres"] = len(psi.centers)
     return MovableOp(mesh, handles, moving, placement, psi, W, (s_p, s_q), meta, reach_of(off_q))
 
 
