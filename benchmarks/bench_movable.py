@@ -24,7 +24,7 @@ Run: ``python benchmarks/bench_movable.py [aleph] [octopus] [bar] [n_placements]
 the octopus, 10 placements, joint m 1500 on the aleph, 800 on the octopus, 1000 on the bar;
 ``python benchmarks/bench_movable.py frames [shapes]``: the frame table alone; ``BENCH_MOVABLE_NQ=5``: 5 Q per
 training placement; ``BENCH_MOVABLE_TOL``: the joint operator's compression tolerance, default 5e-3 as the fixed-P
-one); fewer placements is a reduced run, printed as such.
+one; ``BENCH_MOVABLE_CENTRES``: its TPS centres, default all); fewer placements is a reduced run, printed as such.
 Truth, retrained operators and the frame table's operators go through ``DEFOP_CACHE`` (their cost is not part of
 any ratio); the two timed trainings never use the cache.
 """
@@ -115,7 +115,7 @@ def frame_table(name, movable=None, ms=(200, 1000), seed=0):
     out = {}
     for m in ms:
         try:
-            opj, _ = train_movable(shape, pr, "sarap", m=m, seed=seed, progress=False)
+            opj, _ = train_movable(shape, pr, "sarap", m=m, seed=seed, progress=False, centres=CENTRES)
         except Exception as exc:  # a solver failure in one training (printed, counted as a miss): the table goes on
             print(f"  m={m}: the joint training failed: {type(exc).__name__}: {exc}")
             out[m] = float("inf")
@@ -141,7 +141,9 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
     op0, _ = dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)
     t_fixed = time.process_time() - c0
     c0 = time.process_time()
-    opj, rec = train_movable(shape, pr, "sarap", m=m_joint, seed=seed, n_q=n_q, cache=False, progress=False)
+    opj, rec = train_movable(
+        shape, pr, "sarap", m=m_joint, seed=seed, n_q=n_q, cache=False, progress=False, centres=CENTRES
+    )
     t_joint = time.process_time() - c0
     print(
         f"budget: fixed-P training m=200 {t_fixed:.1f} CPU s; joint m={m_joint} ({n_q} Q per placement) "
@@ -217,6 +219,8 @@ CASES = {"aleph": (None, 1500), "octopus": ([0, 3, 6], 800), "bar": (None, 1000)
 N_Q_TRAIN = int(os.environ.get("BENCH_MOVABLE_NQ", "1"))
 #: the joint operator's compression tolerance (the fixed-P one keeps the default, 5e-3)
 JOINT_TOL = float(os.environ.get("BENCH_MOVABLE_TOL", "5e-3"))
+#: the joint operator's TPS centres (fit_movable(centres=)), default all
+CENTRES = int(os.environ["BENCH_MOVABLE_CENTRES"]) if os.environ.get("BENCH_MOVABLE_CENTRES") else None
 
 
 def main(names=("aleph", "octopus"), n_place=FULL, m_joint=None):
