@@ -12,7 +12,9 @@ float32 rule and the one extrapolation judgement.
   back; the one overflow guard (:func:`fast_matrices`: R² below which every float32 product is finite), beyond
   which a frame takes the checked path, where a non-finite Ψ(Q) is refused (:func:`not_finite_error`);
 * the one extrapolation judgement (:func:`beyond_reach`, :data:`EXTRAPOLATION_FACTOR`);
-* the checks of handle vertex indices (:func:`vertex_indices`) and of an empty batch (:func:`empty_frames`).
+* the checks of handle vertex indices (:func:`vertex_indices`), of an empty batch (:func:`empty_frames`), of
+  handle configurations (:func:`check_configurations`, and :func:`fast_input`, the part a compiled frame needs
+  before its own guard), and the key under which a rest placement's checked state is kept (:func:`placement_key`).
 """
 
 from __future__ import annotations
@@ -299,6 +301,53 @@ class OperatorCore:
         if f is None or f.key is not self.factors:
             f = self._fast = self.make_fast_state()
         return f
+
+
+def fast_input(Q, shape):
+    """Whether Q may enter a compiled frame unchecked: a float64 numpy array of exactly ``shape``.
+
+    The rest of :func:`check_configurations` is the kernel's: its overflow guard (|Q − P|² below R2, false at NaN
+    and inf) sends any other Q to the checked path, where the full check raises its ValueError, and its reach
+    bound (:func:`far_bound`) to the full extrapolation check.
+    """
+    return type(Q) is np.ndarray and Q.dtype == np.float64 and Q.shape == shape
+
+
+def placement_key(P):
+    """A hashable key of a rest placement P as given, under which its checked and resolved state may be kept:
+    ``()`` for None, (dtype, shape, bytes) for a numpy array of integers or floats (equal keys: the same P bit
+    for bit, hence the same resolution), None for anything else (checked every time)."""
+    if P is None:
+        return ()
+    if type(P) is np.ndarray and P.dtype.kind in "iuf":
+        return (P.dtype.str, P.shape, P.tobytes())
+    return None
+
+
+class KeptPlacements:
+    """The checked and resolved states of the last ``limit`` rest placements, for one set of factors: kept under
+    P as given (:func:`placement_key`) and under its vertices, all dropped when the factors change."""
+
+    def __init__(self, limit=32):
+        self.limit, self.factors, self.states = int(limit), None, {}
+
+    def get(self, P, factors, resolve, make):
+        """The state of placement P for ``factors``: kept, or ``make(resolve(P))`` (``resolve`` checks P and
+        returns its vertices idx, ``make`` the state of idx), then kept under P and idx, the oldest keys dropped."""
+        if self.factors is not factors:
+            self.states, self.factors = {}, factors
+        key = placement_key(P)
+        st = self.states.get(key) if key is not None else None
+        if st is None:
+            idx = resolve(P)
+            kidx = placement_key(idx)
+            st = self.states.get(kidx) or make(idx)
+            for k in (key, kidx):
+                if k is not None:
+                    self.states[k] = st
+            while len(self.states) > self.limit:
+                del self.states[next(iter(self.states))]
+        return st
 
 
 def check_configurations(Q, n, d=2):

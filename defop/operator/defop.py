@@ -194,7 +194,7 @@ class DefOp(OperatorCore):
         single-frame kernel of :meth:`evaluate_fast` (the same (★), validated: every other Q takes the
         checked path).
         """
-        if self.factors is not None and type(Q) is np.ndarray and Q.dtype == np.float64 and Q.shape == self.P.shape:
+        if self.factors is not None and core.fast_input(Q, self.P.shape):
             X = self._frame(Q, warn=True)
             if X is not None:
                 return X
@@ -254,7 +254,7 @@ class DefOp(OperatorCore):
         """
         if np.shape(Q) != self.handle_basis.P.shape:  # broadcasting would move every handle to one point
             raise ValueError(f"Q must have shape {self.handle_basis.P.shape} (the moving handles), got {np.shape(Q)}")
-        X = self._frame(Q, warn=False) if type(Q) is np.ndarray and Q.dtype == np.float64 else None
+        X = self._frame(Q, warn=False) if core.fast_input(Q, self.handle_basis.P.shape) else None
         return checked_frames(self, Q, fast=True) if X is None else X  # NaN, inf, complex, far: the checked path
 
     # ------------------------------------------------------------------ compression

@@ -277,6 +277,21 @@ def structure(psi, Qs):
 SPAN_RCOND = 1e-6
 
 
+def farthest_points(X, k, first=0):
+    """Indices (k,) of ``k`` rows of X (N, ...) picked greedily, each the farthest (Euclidean, rows flattened) from
+    those picked before, row ``first`` first: a spread subset, e.g. the centres of a TPS with fewer centres than
+    samples (:func:`structure` then fits the samples by least squares)."""
+    X = np.asarray(X, float).reshape(len(X), -1)
+    k = min(int(k), len(X))
+    pick = np.empty(k, np.int64)
+    pick[0] = first
+    d2 = np.sum((X - X[first]) ** 2, axis=1)
+    for i in range(1, k):
+        pick[i] = j = int(np.argmax(d2))
+        d2 = np.minimum(d2, np.sum((X - X[j]) ** 2, axis=1))
+    return pick
+
+
 def unspanned(z, rcond=SPAN_RCOND):
     """Directions (dim, k), orthonormal, in which the points z (m, dim) never move: the complement of their affine hull.
 

@@ -2,7 +2,8 @@
 
 * :func:`tps_frame`: one frame of a TPS operator, (★) of :mod:`defop.operator.defop` in one call (its parts
   :func:`tps_raw`, :func:`tps_rest`, :func:`frame_from_raw`, :func:`axpy8`, :func:`beyond_bound`);
-* :func:`movable_correction`: the float64 finish of a movable-handle frame (:mod:`defop.operator.movable`).
+* :func:`movable_frame`: one frame of a movable-handle operator (:mod:`defop.operator.movable`) in one call,
+  :func:`tps_frame` and :func:`movable_correction`, the float64 finish.
 
 A compressed frame streams B (rank × d n_vertices, float32: 1.1 MB for the aleph TPS-500 at rank 49) from
 cache; numpy spends as long again in the dozen ufunc and BLAS calls around it (ψ: a gemv, two additions, a
@@ -178,6 +179,36 @@ def movable_correction(Xz, X0, x, Q, Pm, idx, rows, hm, sup, wt, fixed):
         for c in range(d):
             out[fixed[f] * d + c] = x[fixed[f] * d + c]
     return out
+
+
+@njit(**_JIT)
+def movable_frame(Q, Pm, zp, s_q, R2, far2, cm, czeps, inv_s2, ell0, log_kernel, A, B, x, X0, wt, ints):
+    """One movable-handle frame in one call: z = [zp, (Q − Pm)/s_q], :func:`tps_frame` at z (the rest P = 0),
+    then :func:`movable_correction` against the placement's frame X0.
+
+    Q, Pm (n, d); zp (b, d) the placement's rest offsets (scaled); ints the placement's int arrays end to end:
+    idx (b,), rows (b,), hm (n,), sup (s,) with s = len(wt), fixed (the rest). Returns (out, beyond) as
+    :func:`tps_frame`: out is empty (the caller takes the checked path) when |z|² is not below R2 or X0 is empty.
+    The same arithmetic as the two kernels called apart (z: one subtraction and one division per coordinate).
+    """
+    n, d = Pm.shape
+    b, s = zp.shape[0], wt.shape[0]
+    z = np.empty((b + n, d))
+    z[:b] = zp
+    for j in range(n):
+        for c in range(d):
+            z[b + j, c] = (Q[j, c] - Pm[j, c]) / s_q
+    none = np.empty(0, np.int64)
+    Xz, far = tps_frame(
+        z, np.zeros((b + n, d)), R2, far2, cm, czeps, inv_s2, ell0, log_kernel, A, B, x, none, np.empty(0)
+    )
+    if Xz.size == 0 or X0.size == 0:
+        return np.empty(0), far
+    h = 2 * b + n
+    out = movable_correction(
+        Xz, X0, x, Q, Pm, ints[:b], ints[b : 2 * b], ints[2 * b : h], ints[h : h + s], wt, ints[h + s :]
+    )
+    return out, far
 
 
 def __getattr__(name):

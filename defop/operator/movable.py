@@ -39,8 +39,11 @@ from . import core
 from . import handle_bases as hb
 from . import io as io_mod
 from .core import EXTRAPOLATION_FACTOR, ExtrapolationWarning, OperatorCore, fast_matrices  # noqa: F401  (exported)
-from .fit import structure
+from .fit import farthest_points, structure
 from .io.movable_file import FORMAT, MEMBERS, save_movable  # noqa: F401  (public names)
+
+#: rest placements a :class:`MovableOp` keeps resolved (keys: P as given and its vertices)
+PLACEMENTS_KEPT = 32
 
 
 @dataclasses.dataclass
@@ -50,8 +53,9 @@ class RestPlacement:
     ``idx`` (b,) the movable handles' vertices, ``hm`` (n,) the moving handles' vertices, ``P`` (n, d) their rest
     positions, ``bumps`` the placement's bumps (support, weights); for :class:`MovableOp` also the factors it was
     made for (``key``), z(P, P) (``z0``), δψ's subtrahend (``psi0``), the kernel's frame at (P, P) (``X0``), the
-    movable rows, the fixed handles and whether P is the nominal placement; for :class:`CarryOp` the barycentric
-    map ``S`` and the shift of Q to the nominal operator.
+    movable rows, the fixed handles, whether P is the nominal placement and the frame kernel's packed arguments
+    (``zp`` = z0[:b], ``ints`` = idx, rows, hm, the bumps' support and the fixed handles end to end); for
+    :class:`CarryOp` the barycentric map ``S`` and the shift of Q to the nominal operator.
     """
 
     idx: np.ndarray
@@ -67,6 +71,8 @@ class RestPlacement:
     nominal: bool = False
     S: object = None
     shift: np.ndarray | None = None
+    zp: np.ndarray | None = None
+    ints: np.ndarray | None = None
 
     def __getitem__(self, name):
         """``state["idx"]``: the mapping access of earlier versions."""
@@ -92,8 +98,8 @@ def rest_centres(zs, b):
     return np.concatenate([np.zeros((1, *zs.shape[1:])), flat.reshape(-1, *zs.shape[1:])])
 
 
-def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight=1.0):
-    """Fit (M): TPS interpolation of the displacements over the joint space.
+def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight=1.0, centres=None):
+    """Fit (M): TPS interpolation of the displacements over the joint space (or, with fewer centres, least squares).
 
     Parameters
     ----------
@@ -105,6 +111,10 @@ def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight
     Q : (m, n, d) numpy array
     X : (m, n_vertices, d) numpy array
         The verified solutions of problem (6) with the handles at those vertices.
+    centres : int, optional
+        How many of the joint points (the rest poses and the samples) carry a TPS function, picked farthest
+        first from the nominal rest (:func:`farthest_points`); the others are fitted by least squares
+        (:func:`structure`, the nominal rest still exact). Fewer centres: a cheaper frame. Default: all.
 
     Returns
     -------
@@ -122,12 +132,15 @@ def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight
     s_q = float(np.sqrt(np.mean(np.sum(off_q**2, axis=-1)))) or 1.0
     zs = np.concatenate([off_p / s_p, off_q / s_q], axis=1)
     rc = rest_centres(zs, placement.n_movable)
-    centres = np.concatenate([rc, zs])
+    points = np.concatenate([rc, zs])
+    keep = slice(None) if centres is None else np.sort(farthest_points(points, opt.integer("centres", centres, 1)))
     Y = np.concatenate([np.zeros((len(rc), mesh.n_vertices * d)), (X - mesh.V).reshape(m, -1)])
-    psi = hb.TPSBasis(np.zeros(zs.shape[1:]), centres, 1.0)
-    G, _ = structure(psi, centres)
+    psi = hb.TPSBasis(np.zeros(zs.shape[1:]), points[keep], 1.0)
+    G, _ = structure(psi, points)
     W = G @ Y  # the rest pose's data is 0: β Y[0] drops
     meta = {**(meta or {}), "basis": "tps-joint", "n_samples": m, "n_rest_centres": len(rc)}
+    if centres is not None:
+        meta["n_centres"] = len(psi.centers)
     return MovableOp(mesh, handles, moving, placement, psi, W, (s_p, s_q), meta, reach_of(off_q))
 
 
@@ -206,7 +219,7 @@ class MovableOp(OperatorCore):
         still = np.setdiff1d(np.arange(len(self.handles)), placement.movable)
         self.still = self.handles[still]  # handles that never leave their vertex
         self.set_free_part(self.still)
-        self._at = None  # (idx bytes, state) of the last rest placement
+        self._placements = core.KeptPlacements(PLACEMENTS_KEPT)
 
     def __repr__(self):
         comp = f", rank {self.rank}" if self.factors is not None else ""
@@ -217,14 +230,17 @@ class MovableOp(OperatorCore):
 
     # ------------------------------------------------------------------ the rest placement
     def at(self, P=None):
-        """The state of rest placement P (:meth:`PlacementRegions.resolve`), kept until P changes: its vertices,
-        the moving handles' rest positions, z(P, P) and the kernel's frame at (P, P)."""
-        last = self._at
-        if last is not None and last.key is self.factors and same_placement(P, last):
-            return last  # the placement of the last frame (an interactive drag): nothing to resolve
-        idx = self.placement.resolve(P)
-        if self._at is not None and np.array_equal(self._at.idx, idx) and self._at.key is self.factors:
-            return self._at
+        """The state of rest placement P (:meth:`PlacementRegions.resolve`): its vertices, the moving handles' rest
+        positions, z(P, P) and the kernel's frame at (P, P).
+
+        P is checked and resolved once (:class:`core.KeptPlacements`: kept under P as given, bit for bit, and
+        under its vertices, for the last :data:`PLACEMENTS_KEPT` placements and the current factors), so a frame
+        at a placement seen before (an interactive drag) resolves nothing.
+        """
+        return self._placements.get(P, self.factors, self.placement.resolve, self._placement_state)
+
+    def _placement_state(self, idx):
+        """The :class:`RestPlacement` of the region vertices ``idx`` (b,), resolved."""
         hm = self.placement.handles_at(idx)[self.moving]
         Pm = self.mesh.V[hm]
         z0 = joint_z(self.mesh.V, self.placement.nominal, idx, hm, Pm[None], *self.scales)[0]
@@ -241,13 +257,20 @@ class MovableOp(OperatorCore):
         )
         st.psi0 = self.basis.delta_z(z0.reshape(1, -1))  # (1, |Ψ|−1), float64
         st.X0 = self._kernel(z0, self.fast_state())
-        self._at = st
+        st.zp = np.ascontiguousarray(z0[: len(idx)])
+        sup = st.bumps[0]
+        st.ints = np.concatenate([idx, st.rows, hm, sup, st.fixed]).astype(np.int64)
         return st
 
     def make_fast_state(self):
-        """The :class:`core.FastState` of the joint basis; ``extra``: the kernel's empty handle arguments."""
+        """The :class:`core.FastState` of the joint basis; ``extra``: the kernel's empty handle arguments. The
+        kernel's reach bounds are on z's rows: none on the b rest offsets, :func:`core.far_bound` / s_Q² on the n
+        moving handles' (a frame flagged beyond them runs the full extrapolation check)."""
         f = fast_matrices(self.basis, self._WF, self.factors)
-        f.kernel = core.kernel_args(self.basis, f.mats, None)
+        far2 = core.far_bound(self.reach)
+        if far2 is not None:
+            far2 = np.concatenate([np.full(self.placement.n_movable, np.inf), far2 / self.scales[1] ** 2])
+        f.kernel = core.kernel_args(self.basis, f.mats, far2)
         f.extra.update(zero=np.zeros(self.basis.P.shape), none=np.zeros(0, np.int64), nothing=np.zeros(0))
         return f
 
@@ -258,8 +281,6 @@ class MovableOp(OperatorCore):
 
     # ------------------------------------------------------------------ evaluation
     def _check_Q(self, Q, st):
-        if not (type(Q) is np.ndarray and Q.dtype == np.float64):
-            Q = opt.real_array("Q", Q)
         n = self.n_moving
         Q = core.check_configurations(Q, n, self.d)  # the one check of Q: shape, real, finite
         if self.reach is not None:
@@ -294,7 +315,7 @@ class MovableOp(OperatorCore):
             return empty
         Q2 = Q.reshape(-1, self.n_moving, self.d)
         if self.factors is not None and Q.ndim == 2:
-            return self._frame(Q, st)
+            return self._one_frame(Q, st)
         out = self._finish(self.displacement(Q2, st), st, Q2)
         return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
 
@@ -320,28 +341,42 @@ class MovableOp(OperatorCore):
         return y.astype(float)
 
     def _frame(self, Q, st):
-        z = st.z0.copy()  # [(P_b − P_b⁰)/s_P, 0], kept per placement; the Q part is the frame's (joint_z's sums)
-        np.divide(
-            np.subtract(Q, st.P, out=z[self.placement.n_movable :]),
-            self.scales[1],
-            out=z[self.placement.n_movable :],
+        """One frame of a float64 Q (n, d) by :func:`kernels.movable_frame` (z = [(P_b − P_b⁰)/s_P, (Q − P)/s_Q]
+        with the rest offsets kept per placement): (X (n_vertices, d), or None beyond the float32 guard, and
+        whether a handle reached the kernel's reach bound)."""
+        f = self._fast if self._fast is not None and self._fast.key is self.factors else self.fast_state()
+        k = f.kernel
+        X, far = k.lib.movable_frame(
+            Q, st.P, st.zp, self.scales[1], f.R2, k.far2, *k.tps, k.A, k.B, self._x, st.X0, st.bumps[1], st.ints
         )
-        f = self.fast_state()
-        Xz = self._kernel(z, f)
-        if not Xz.size or not st.X0.size:  # beyond the float32 guard: numpy with scaling, Ψ checked finite
+        return (X.reshape(self.n_vertices, self.d) if X.size else None), far
+
+    def _one_frame(self, Q, st):
+        """One frame of a checked Q: the kernel, or beyond its guard numpy with scaling, Ψ checked finite."""
+        X, _ = self._frame(Q, st)
+        if X is None:
             u = self._product(self.delta_psi(Q[None], st))
-            return self._finish(u, st, Q[None])[0].reshape(self.n_vertices, self.d)
-        sup, wt = st.bumps
-        out = f.kernel.lib.movable_correction(Xz, st.X0, self._x, Q, st.P, st.idx, st.rows, st.hm, sup, wt, st.fixed)
-        return out.reshape(self.n_vertices, self.d)
+            X = self._finish(u, st, Q[None])[0].reshape(self.n_vertices, self.d)
+        return X
 
     def evaluate_fast(self, Q, P=None):
-        """One frame by the compiled kernel: float32 W_F (or the factors), the correction in float64."""
+        """One frame by the compiled kernel: float32 W_F (or the factors), the correction in float64.
+
+        P is checked once per placement (:meth:`at`). Q is checked in full only when it must be: a float64 array
+        of the frame's shape (:func:`core.fast_input`) goes to the kernel, whose guard sends NaN, inf and far Q to
+        the full check (a ValueError naming Q) and whose reach bound to the extrapolation check (the warning).
+        """
         st = self.at(P)
+        if core.fast_input(Q, st.P.shape):
+            X, far = self._frame(Q, st)
+            if X is not None:
+                if far:
+                    self._check_Q(Q, st)  # the full check decides (and words the warning)
+                return X
         Q = self._check_Q(Q, st)
         if Q.shape != st.P.shape:
-            raise ValueError(f"Q must have shape {st['P'].shape} (one frame), got {Q.shape}")
-        return self._frame(Q, st)
+            raise ValueError(f"Q must have shape {st.P.shape} (one frame), got {Q.shape}")
+        return self._one_frame(Q, st)
 
     def evaluate_batch(self, Qs, P=None):
         """D(·; P, Q_k) for a batch Qs (k, n, d) at one P: float32 products, the correction in float64."""
@@ -408,14 +443,16 @@ class CarryOp:
     def __init__(self, op0, placement):
         self.op0, self.placement, self.mesh = op0, placement, op0.mesh
         self.handles, self.moving, self.d = op0.handles, op0.moving, op0.d
-        self.n_vertices, self._at = op0.n_vertices, None
+        self.n_vertices, self._placements = op0.n_vertices, core.KeptPlacements(PLACEMENTS_KEPT)
 
     def at(self, P=None):
+        """The state of rest placement P: its vertices, the bumps, the barycentric map S of the rest-space warp
+        and the shift of Q (checked and resolved once per placement, :class:`core.KeptPlacements`)."""
+        return self._placements.get(P, None, self.placement.resolve, self._placement_state)
+
+    def _placement_state(self, idx):
         import scipy.sparse as sp
 
-        idx = self.placement.resolve(P)
-        if self._at is not None and np.array_equal(self._at.idx, idx):
-            return self._at
         hm = self.placement.handles_at(idx)[self.moving]
         y = self.mesh.V.copy()
         g, rows = self.placement.g, self.placement.bump_rows(idx)
@@ -425,7 +462,7 @@ class CarryOp:
         elem, bary = self.mesh.locate(y)
         n = self.n_vertices
         S = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(n), self.d + 1), self.mesh.F[elem].ravel())), (n, n))
-        self._at = RestPlacement(
+        return RestPlacement(
             idx=idx,
             hm=hm,
             P=self.mesh.V[hm],
@@ -433,7 +470,6 @@ class CarryOp:
             S=S,
             shift=self.op0.P - self.mesh.V[hm],
         )
-        return self._at
 
     def __call__(self, Q, P=None, fast=False):
         """D(·; P, Q) for Q (n, d) or (k, n, d) at one P; ``fast``: the nominal operator's fast path."""

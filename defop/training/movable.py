@@ -187,9 +187,11 @@ def check_placement(shape, placement):
         )
 
 
-def train_movable(shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs=None, cache=True, progress=True):
+def train_movable(
+    shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs=None, cache=True, progress=True, centres=None
+):
     """Sample (P_k, Q_k), solve problem (6) at each (cached), fit D(x; P, Q) (:func:`defop.operator.movable
-    .fit_movable`).
+    .fit_movable`; ``centres``: how many TPS centres, default all).
 
     Returns
     -------
@@ -212,5 +214,5 @@ def train_movable(shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs
             stacklevel=2,
         )
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
-    op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta)
+    op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta, centres=centres)
     return op, MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu)
