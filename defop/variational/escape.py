@@ -13,6 +13,9 @@ import scipy.sparse.linalg as sla
 
 from .newton import newton, step_off
 
+#: the Krylov space of the second Lanczos attempt when ARPACK's default (20 vectors) did not converge
+LARGE_NCV = 120
+
 
 def negative_curvature(solver, X):
     """The most negative eigenpair of the exact reduced Hessian of the true energy at X.
@@ -24,6 +27,11 @@ def negative_curvature(solver, X):
     lam : float
     D : (n, d) numpy array
         Unit eigenvector as a displacement field (zero at the handles).
+
+    Raises
+    ------
+    scipy.sparse.linalg.ArpackNoConvergence
+        When Lanczos converges neither with ARPACK's default Krylov space nor with :data:`LARGE_NCV` vectors.
     """
     data = solver.grad_hess(X, 0.0, project=False)[2]
     K = solver.hessian.full(data)
@@ -32,7 +40,10 @@ def negative_curvature(solver, X):
         lam, v = lam[:1], v[:, :1]
     else:
         v0 = np.ones(K.shape[0]) / np.sqrt(K.shape[0])  # deterministic start vector
-        lam, v = sla.eigsh(K, k=1, which="SA", v0=v0, tol=1e-6, maxiter=5000)
+        try:
+            lam, v = sla.eigsh(K, k=1, which="SA", v0=v0, tol=1e-6, maxiter=5000)
+        except sla.ArpackNoConvergence:  # Lanczos stalled on a cluster at the bottom: a larger Krylov space once
+            lam, v = sla.eigsh(K, k=1, which="SA", v0=v0, tol=1e-6, maxiter=5000, ncv=min(K.shape[0] - 1, LARGE_NCV))
     return float(lam[0]), solver.full(v[:, 0])
 
 
@@ -49,8 +60,8 @@ def escape(solver, log, X, T, tol, label, reason, ok, escapes):
         return X, label, reason, ok, check
     log.candidates.append((label, check.energy, False))
     if check.failed == "saddle":
-        D = negative_curvature(solver, X)[1]
-        ways = ((D, "escape +"), (-D, "escape -"))
+        D = descent_direction(solver, X)
+        ways = () if D is None else ((D, "escape +"), (-D, "escape -"))
         left = f"a saddle with {check.negative} negative eigenvalue(s)"
     else:
         ways = () if check.kink is None else ((check.kink, "off kink"),)
@@ -69,3 +80,12 @@ def escape(solver, log, X, T, tol, label, reason, ok, escapes):
         if key < best_key:
             best, best_key = out, key
     return best
+
+
+def descent_direction(solver, X):
+    """The most negative curvature direction at X, or None when Lanczos does not converge: the point then stays
+    what it is, a saddle and not a verified minimum (no crash of the solve or of the batch it is in)."""
+    try:
+        return negative_curvature(solver, X)[1]
+    except sla.ArpackNoConvergence:
+        return None
