@@ -67,6 +67,7 @@ __all__ = [
     "choose",
     "coarse_level",
     "coarse_portfolio",
+    "coarse_constants",
     "constants",
     "refine",
     "rest_start_energy",
@@ -100,14 +101,18 @@ class MultilevelWarning(UserWarning):
     """Multilevel training was asked for (or chosen by ``auto``) but runs on one level: no coarse mesh exists."""
 
 
+def coarse_constants():
+    """The constants that decide the coarse level and which coarse minima are distinct (dict): the key of what
+    depends on the coarse portfolio alone (:mod:`defop.training.reference`), not on the safeguard."""
+    return {"coarse_factor": COARSE_FACTOR, "min_coarse_vertices": MIN_COARSE_VERTICES, "distinct": DISTINCT}
+
+
 def constants():
     """The policy's constants, for the cache keys and the operator's metadata (dict)."""
     return {
+        **coarse_constants(),
         "rules": RULES,
-        "coarse_factor": COARSE_FACTOR,
-        "min_coarse_vertices": MIN_COARSE_VERTICES,
         "margin": MARGIN,
-        "distinct": DISTINCT,
         "max_fine_iterations": MAX_FINE_ITERATIONS,
         "rest_tolerance": REST_TOLERANCE,
     }
