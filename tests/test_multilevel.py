@@ -353,3 +353,15 @@ def test_multilevel_modules_are_exported():
     assert "multilevel" in training.__all__ and "coarse" in geometry.__all__
     assert training.multilevel.MultilevelWarning is ml.MultilevelWarning
     assert geometry.coarse.coarse_mesh_of is coarse_mesh_of
+
+
+def test_training_seconds_count_the_multilevel_stages(bar):
+    """Table 1's preprocess seconds and the adaptive record count the coarse and fine stages, not only fit/fold."""
+    from defop.training.solves import training_cpu
+
+    assert training_cpu({"coarse": 1.0, "fine": 2.0, "fit": 0.25, "fold": 0.75, "load": 9.0}) == 4.0
+    op, rec = dop.train(bar, m=14, seed=3, n_jobs=1, progress=False, policy="multilevel", cache=False)
+    Q = dop.training.sampling.sample_shape(bar, 3, np.random.default_rng(1))
+    row = dop.analysis.timing_row(bar, op, rec, Q, "hat", tol=1e-3)
+    t = op.meta["stage_times"]
+    assert {"coarse", "fine"} <= set(t) and row["preprocess_s"] == pytest.approx(sum(t.values()))
