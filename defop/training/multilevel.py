@@ -79,7 +79,9 @@ POLICIES = ("full", "multilevel", "auto")
 #: size. Measured (benchmarks/README.md, bench_multilevel, bench_training): multilevel took 1.8-2.2x fewer CPU s than
 #: the full policy at 596-3,910 vertices, 2.23x at 9,873 and 1.28x at 29,739; at aleph m = 200 4.18x
 #: fewer than d79f472 at held-out error ratio 1.008 / 1.054 against the reference truth (two seeds, 300 Q each), every
-#: sample verified, none higher than the full policy's minimum, 2 of 200 lower.
+#: sample verified, none higher than the full policy's minimum, 2 of 200 lower. Not a guarantee: at 794 aleph vertices
+#: (m = 300, seed 0) one sample of 300 ends 9.5% above the full policy's minimum, the fine rest-pose one, which only
+#: that solve finds (the coarse portfolio has one minimum there, the single run verifies, no rule fires); 3 end lower.
 AUTO_VERTICES = 0
 #: the coarse mesh has about n / COARSE_FACTOR vertices ...
 COARSE_FACTOR = 8
