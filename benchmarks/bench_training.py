@@ -20,9 +20,12 @@ and on the subset of Q where they agree.
 Rows (one function each, :data:`ROWS`; a row returns the code path, extra environment and ``train`` keywords):
 
 * ``main``: main at d79f472 (``--base``: ``git worktree add /tmp/base d79f472``);
-* ``numpy``: this tree with the numpy element kernels (``DEFOP_KERNEL=numpy``), the reference path;
-* ``kernel``: this tree with the fused numba kernels (:mod:`defop.variational.fused`, the default);
-* ``multilevel``: the fused kernels and ``policy="multilevel"`` (``auto`` takes it from 10,000 vertices only).
+* ``numpy``: this tree with the numpy element kernels (``DEFOP_KERNEL=numpy``), the reference path, and
+  ``policy="full"``;
+* ``kernel``: this tree with the fused numba kernels (:mod:`defop.variational.fused`, the default) and
+  ``policy="full"``;
+* ``multilevel``: the fused kernels and ``policy="multilevel"``;
+* ``auto``: this tree as a user trains (the default policy ``"auto"``: multilevel wherever a coarse mesh exists).
 
 Printed: per row CPU s, wall s, CPU ratio against main, peak memory (max RSS of the child and its workers), the
 factorisation back end, verified samples, samples moved; per seed the held-out error against each truth (and on the
@@ -61,13 +64,13 @@ def row_main(args):
 
 
 def row_numpy(args):
-    """This tree, numpy element kernels (the reference path)."""
-    return {"path": REPO, "env": {"DEFOP_KERNEL": "numpy"}, "train": {}}
+    """This tree, numpy element kernels (the reference path) and the full policy (beside ``kernel``)."""
+    return {"path": REPO, "env": {"DEFOP_KERNEL": "numpy"}, "train": {"policy": "full"}}
 
 
 def row_kernel(args):
-    """This tree, fused numba kernels (the default)."""
-    return {"path": REPO, "env": {"DEFOP_KERNEL": "numba"}, "train": {}}
+    """This tree, fused numba kernels (the default) and the full policy."""
+    return {"path": REPO, "env": {"DEFOP_KERNEL": "numba"}, "train": {"policy": "full"}}
 
 
 def row_multilevel(args):
@@ -75,7 +78,12 @@ def row_multilevel(args):
     return {"path": REPO, "env": {"DEFOP_KERNEL": "numba"}, "train": {"policy": "multilevel"}}
 
 
-ROWS = {"main": row_main, "numpy": row_numpy, "kernel": row_kernel, "multilevel": row_multilevel}
+def row_auto(args):
+    """This tree with its defaults (``policy="auto"``), as a user trains."""
+    return {"path": REPO, "env": {}, "train": {}}
+
+
+ROWS = {"main": row_main, "numpy": row_numpy, "kernel": row_kernel, "multilevel": row_multilevel, "auto": row_auto}
 
 
 def _env(path, extra, cache):

@@ -13,6 +13,7 @@ import time
 import numpy as np
 
 from .. import options as opt
+from ..training.solves import training_cpu
 
 
 def _samples(defop, samples):
@@ -380,7 +381,7 @@ def timing_row(shape, op, rec, samples, spatial="hat", k=100, tol=5e-3):
         psi=op.handle_basis.size,
         phi=op.meta["spatial_size"],
         phi_paper=mesh.n_faces if spatial == "hat" else op.meta["spatial_size"],
-        preprocess_s=sum(t.get(s, 0.0) for s in ("bootstrap", "solve", "fit", "fold")),
+        preprocess_s=training_cpu(t),
         ls_ms=1e3 * ls["best"],
         ls_ms_median=1e3 * ls["median"],
         fps_exact=exact["best"],

@@ -267,7 +267,7 @@ def train_adaptive(
         shape, energy, "linear", samples=Q, rounds=1, n_jobs=n_jobs, cache=cache, progress=progress
     )  # the initial solves exactly as train's, cached
     X, conv = rec.X, rec.converged
-    initial = sum(rec.stage_times.get(s, 0.0) for s in ("bootstrap", "solve", "fit", "fold"))
+    initial = solves.training_cpu(rec.stage_times)
     clock = solves.Stopwatch()  # the batches (the initial training's CPU seconds are its record's)
     taken = np.zeros(pool, bool)
     counts = [n_initial]

@@ -336,7 +336,8 @@ def train(
         shape, the fine mesh gets one verified run per sample from the prolongated coarse winner, and a safeguard
         falls back to the full portfolio per sample (:mod:`defop.training.multilevel`; where no coarse mesh exists,
         e.g. in 3D, it runs ``"full"`` with a :class:`~defop.training.multilevel.MultilevelWarning`). ``"auto"``
-        (default): ``"multilevel"`` from :data:`~defop.training.multilevel.AUTO_VERTICES` vertices on.
+        (default): ``"multilevel"`` wherever a coarse mesh exists (2D meshes twice the coarse size or more),
+        ``"full"`` elsewhere without a warning, the reason in ``record.multilevel["fallback"]``.
 
     Returns
     -------

@@ -21,14 +21,23 @@ The policy, beside the one-level policy of :func:`defop.training.bootstrap.train
      differently from their coarse energies;
    * ``"flip"``: the prolongated winner flips a fine element;
    * ``"unverified"``: the fine run does not end on a verified minimum;
-   * ``"iterations"``: the fine run takes more than :data:`MAX_FINE_ITERATIONS` Newton iterations.
+   * ``"iterations"``: the fine run takes more than :data:`MAX_FINE_ITERATIONS` Newton iterations;
+   * ``"rest"``: the fine run ends higher (by more than :data:`REST_TOLERANCE`, relative) than the rest pose's
+     start at the targets (:func:`rest_start_energy`: the rest pose with the handles' moves extended biharmonically,
+     the first step of the continuation that the full policy's rest-pose solve takes). Where that step is admissible
+     (a barrier energy: no element flipped) and taken whole, the rest-pose solve is a Newton descent from it and ends
+     no higher than its energy: the single run would then certainly end above a minimum the full policy finds. One
+     back-substitution and one energy evaluation per sample; a sufficient check, not a certificate (the full policy's
+     other starts, and a rest-pose solve that needs several continuation stages, are not bounded by it).
 
    The constants are fixed for every shape; none depends on running statistics.
 
-``policy="auto"`` (the default of ``train``) takes this path for meshes of at least :data:`AUTO_VERTICES`
-vertices. Where no coarse mesh exists (a 3D mesh: the coarse Kuhn grid is not built yet; a mesh without an
-outline; a coarse mesh that would lose a part or a handle), training runs on one level and says so in
-``record.multilevel["fallback"]``, and with a :class:`MultilevelWarning` when ``"multilevel"`` was asked for.
+``policy="auto"`` (the default of ``train``) takes this path wherever a coarse mesh exists (meshes of at least
+:data:`AUTO_VERTICES` vertices: 0, every size; :func:`~defop.geometry.coarse.coarse_mesh_of` refuses a mesh whose
+coarse mesh would not be twice smaller). Where no coarse mesh exists (a 3D mesh: the coarse Kuhn grid is not built
+yet; a mesh without an outline; a coarse mesh that would lose a part or a handle, or save nothing), training runs on
+one level and says so in ``record.multilevel["fallback"]``, and with a :class:`MultilevelWarning` when
+``"multilevel"`` was asked for.
 """
 
 from __future__ import annotations
@@ -50,6 +59,7 @@ __all__ = [
     "COARSE_FACTOR",
     "MARGIN",
     "MAX_FINE_ITERATIONS",
+    "REST_TOLERANCE",
     "MultilevelWarning",
     "POLICIES",
     "RULES",
@@ -57,18 +67,22 @@ __all__ = [
     "choose",
     "coarse_level",
     "coarse_portfolio",
+    "coarse_constants",
     "constants",
     "refine",
+    "rest_start_energy",
 ]
 
 #: the policies of ``train(policy=...)``
 POLICIES = ("full", "multilevel", "auto")
-#: ``policy="auto"`` trains on two levels from this many fine vertices on. Kept above every catalogue model, so the
-#: lessons' ground truth is the full policy's. Measured (benchmarks/README.md, bench_multilevel): multilevel took
-#: 1.8-2.2x fewer CPU s than the full policy at 596-3,910 vertices (m = 200, no sample higher, 2 of 200 aleph samples
-#: lower), 2.23x at 9,873 and 1.28x at 29,739 (m = 40): lowering this constant is the lever, and it needs the main
-#: job re-run.
-AUTO_VERTICES = 10_000
+#: ``policy="auto"`` trains on two levels from this many fine vertices on (wherever a coarse mesh exists): 0, every
+#: size. Measured (benchmarks/README.md, bench_multilevel, bench_training): multilevel took 1.8-2.2x fewer CPU s than
+#: the full policy at 596-3,910 vertices, 2.23x at 9,873 and 1.28x at 29,739; at aleph m = 200 4.18x
+#: fewer than d79f472 at held-out error ratio 1.008 / 1.054 against the reference truth (two seeds, 300 Q each), every
+#: sample verified, none higher than the full policy's minimum, 2 of 200 lower. Not a guarantee: at 794 aleph vertices
+#: (m = 300, seed 0) one sample of 300 ends 9.5% above the full policy's minimum, the fine rest-pose one, which only
+#: that solve finds (the coarse portfolio has one minimum there, the single run verifies, no rule fires); 3 end lower.
+AUTO_VERTICES = 0
 #: the coarse mesh has about n / COARSE_FACTOR vertices ...
 COARSE_FACTOR = 8
 #: ... and at least this many
@@ -79,23 +93,30 @@ MARGIN = 0.05
 DISTINCT = 1e-3
 #: safeguard "iterations": a fine run from a prolongated coarse minimum taking more Newton iterations than this
 MAX_FINE_ITERATIONS = 40
+#: safeguard "rest": the fine run ending higher than the rest pose's start at the targets by more than this (relative)
+REST_TOLERANCE = 1e-6
 #: the safeguard's rules, in the order they are checked ("" in a record: none fired)
-RULES = ("coarse", "margin", "rank", "flip", "unverified", "iterations")
+RULES = ("coarse", "margin", "rank", "flip", "unverified", "iterations", "rest")
 
 
 class MultilevelWarning(UserWarning):
     """Multilevel training was asked for (or chosen by ``auto``) but runs on one level: no coarse mesh exists."""
 
 
+def coarse_constants():
+    """The constants that decide the coarse level and which coarse minima are distinct (dict): the key of what
+    depends on the coarse portfolio alone (:mod:`defop.training.reference`), not on the safeguard."""
+    return {"coarse_factor": COARSE_FACTOR, "min_coarse_vertices": MIN_COARSE_VERTICES, "distinct": DISTINCT}
+
+
 def constants():
     """The policy's constants, for the cache keys and the operator's metadata (dict)."""
     return {
-        "auto_vertices": AUTO_VERTICES,
-        "coarse_factor": COARSE_FACTOR,
-        "min_coarse_vertices": MIN_COARSE_VERTICES,
+        **coarse_constants(),
+        "rules": RULES,
         "margin": MARGIN,
-        "distinct": DISTINCT,
         "max_fine_iterations": MAX_FINE_ITERATIONS,
+        "rest_tolerance": REST_TOLERANCE,
     }
 
 
@@ -148,7 +169,7 @@ def choose(shape, policy):
     n = shape.mesh.n_vertices
     if policy == "full":
         return "full", None, ""
-    if policy == "auto" and n < AUTO_VERTICES:
+    if policy == "auto" and n < AUTO_VERTICES:  # a lever kept at 0: every mesh with a coarse mesh
         return "full", None, f"auto: {n} vertices, fewer than {AUTO_VERTICES}"
     try:
         lv = coarse_level(shape)
@@ -189,6 +210,36 @@ def _safeguard(lv, solver, minima, starts):
     return ""
 
 
+def rest_start_energy(solver, T):
+    """The energy of the rest pose's start at the targets: the rest pose with the handles' moves extended
+    biharmonically (the first continuation step of a solve from the rest pose; +inf where it flips an element under
+    a barrier energy).
+
+    Parameters
+    ----------
+    solver : defop.variational.solver.Solver
+    T : (h, d) numpy array
+        Targets, one row per handle given to the solver.
+
+    Returns
+    -------
+    float
+    """
+    V = solver.mesh.V
+    Tu = solver.targets_of(T)
+    return float(solver.energy_of(V + solver.extend(Tu - V[solver.handles])))
+
+
+def _single_rule(solver, T, single):
+    """The rule of :data:`RULES` that the single fine run fires ("" for none)."""
+    if not single.converged:
+        return "unverified"
+    if single.iterations > MAX_FINE_ITERATIONS:
+        return "iterations"
+    bound = rest_start_energy(solver, T)
+    return "rest" if single.energy - bound > REST_TOLERANCE * abs(bound) else ""
+
+
 def refine_one(lv, solver, T, candidates):
     """One sample on the fine mesh: the single run from the prolongated coarse winner, or the safeguard's fallback.
 
@@ -210,8 +261,7 @@ def refine_one(lv, solver, T, candidates):
     rule, iters, single = _safeguard(lv, solver, minima, starts), 0, None
     if not rule:
         single = solver.solve_best(T, starts=[starts[0]], rest=False)
-        iters = int(single.iterations)
-        rule = "unverified" if not single.converged else "iterations" if iters > MAX_FINE_ITERATIONS else ""
+        iters, rule = int(single.iterations), _single_rule(solver, T, single)
         if not rule:
             return single.X, True, "", iters, len(minima), minima[0][1]
         single = single if single.converged else None

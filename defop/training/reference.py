@@ -187,7 +187,7 @@ def _key(shape, Q, energy, reference, coarse, tol):
     mesh = shape.mesh
     pred = None if reference is None else np.asarray(reference(Q), float)
     parts = [mesh.V, mesh.F, shape.handles, shape.moving, energy, solves.solver_key(shape, energy), Q]
-    return cache_mod.key("reference", *parts, pred, bool(coarse), ml.constants(), float(tol), ml.DISTINCT)
+    return cache_mod.key("reference", *parts, pred, bool(coarse), ml.coarse_constants(), float(tol), ml.DISTINCT)
 
 
 def _expect(m, n, d):

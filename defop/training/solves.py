@@ -46,6 +46,7 @@ __all__ = [
     "solve_chunk",
     "solver_key",
     "starts_parts",
+    "training_cpu",
 ]
 
 
@@ -125,6 +126,12 @@ class Stopwatch:
     @property
     def wall(self):
         return time.perf_counter() - self.w0
+
+
+def training_cpu(stage_times):
+    """CPU seconds that a training took: every stage of ``stage_times`` (``bootstrap``, ``solve``, ``fit``, ``fold``
+    for the full policy; ``coarse``, ``fine``, ``fit``, ``fold`` for the multilevel one) but ``load`` (a cache hit)."""
+    return float(sum(t for s, t in stage_times.items() if s != "load"))
 
 
 def check_samples(shape, samples, name="samples"):
