@@ -12,7 +12,16 @@ from .. import options as opt
 from ..operator.branched import BranchedOperator
 from ..operator.defop import DefOp
 from ..scene.shapes import Shape
-from .payload import JS_PATH, branched_to_payload, defop_to_payload, encode_payload, image_for, region_balls
+from .payload import (
+    JS_PATH,
+    branched_to_payload,
+    defop_to_payload,
+    encode_payload,
+    image_for,
+    page_factors,
+    region_balls,
+    surface_payload,
+)
 from .state import region_polygons
 
 SOLID_JS_PATH = JS_PATH.with_name("defop_solid.js")
@@ -53,8 +62,8 @@ _PAGE = (
 handle</span>
 <span><i class="defop-swatch" style="background:rgba(255,127,14,0.10);border:1px solid rgba(255,127,14,0.7)"></i>
 sampling region of a handle (a disc around it, its Voronoi cell, or both): the positions it was trained on</span>
-<span><i class="defop-swatch" style="border-radius:50%;border:2px solid #b00"></i>handle outside its region: the
-operator extrapolates</span>
+<span><i class="defop-swatch" style="border-radius:50%;border:2px solid #b00"></i>handle beyond {factor:g}&times;
+its farthest training sample: the operator extrapolates</span>
 <span><i class="defop-swatch" style="background:#e04040"></i>flipped triangle</span>
 </div>
 <p class="defop-note">D(x, Q) = &Sigma;<sub>ij</sub> C<sub>ij</sub> &phi;<sub>i</sub>(x) &psi;<sub>j</sub>(Q)
@@ -89,10 +98,9 @@ _PAGE_3D = (
 <div class="defop-legend" aria-label="legend">
 <span><i class="defop-swatch" style="border-radius:50%;background:#d62728"></i>moving handle (drag it)</span>
 <span><i class="defop-swatch" style="border-radius:50%;background:#1f77b4"></i>fixed handle</span>
-<span><i class="defop-swatch" style="border-radius:50%;background:#4a0000"></i>handle outside its sampling ball:
-the operator extrapolates</span>
-<span><i class="defop-swatch" style="background:#f2d7a6;border:1px solid #999"></i>boundary surface of the
-tetrahedral mesh</span>
+<span><i class="defop-swatch" style="border-radius:50%;background:#4a0000"></i>handle beyond {factor:g}&times; its
+farthest training sample: the operator extrapolates</span>
+<span><i class="defop-swatch" style="background:#f2d7a6;border:1px solid #999"></i>{surface_legend}</span>
 </div>
 <p class="defop-note">D(x, Q) = &Sigma;<sub>ij</sub> C<sub>ij</sub> &phi;<sub>i</sub>(x) &psi;<sub>j</sub>(Q)
 (Eq. 3 of Poranne &amp; Lipman) is evaluated in this page for every vertex of the tetrahedral mesh, with no
@@ -118,13 +126,25 @@ def _check_dimensions(op, shape, image, image_frame):
         raise ValueError("image and image_frame are for 2D operators (a picture on the triangles); this operator is 3D")
 
 
-def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
+def to_html(op, path, shape=None, title=None, image=None, image_frame=None, compress=True):
     """Write one self-contained page that drags ``op`` offline (inline script, no network access).
 
     A 2D operator gets the 2D editor (``static/defop_editor.js``). A 3D operator (tetrahedra) gets the 3D view
-    (``static/defop_solid.js`` with the vendored three.js): the boundary surface shaded, an orbit camera,
+    (``static/defop_solid.js`` with the vendored three.js): the surface shaded smoothly, an orbit camera,
     handles as spheres dragged in the view plane, a reset button; the page evaluates the operator with the
-    same evaluator (``makeOperator`` of ``defop_editor.js``) for every vertex.
+    same evaluator (``makeOperator`` of ``defop_editor.js``) for every vertex, then the shape's own surface
+    (``shape.surface``, :class:`~defop.geometry.volumetric.surface.EmbeddedSurface`, :func:`.payload.surface_payload`)
+    from its barycentric coordinates in the tetrahedra, or without one the boundary facets of the tetrahedra.
+    Without WebGL the 3D page says so in words.
+
+    By default the page carries the compressed operator (``compress=True``): the float32 factors W_F ≈ A B of
+    :meth:`DefOp.compress <defop.operator.defop.DefOp.compress>` at its default tolerance, computed for the page
+    (``op`` itself is unchanged; an ``op`` already compressed keeps its own factors). The handles stay exact
+    (Prop. 2) and the rest pose exact (8b): the factors are zero on the handle columns and multiply δψ(P) = 0;
+    the rest of the shape moves within the compression's tolerance of ``op``, and the octopus page is a third
+    of its uncompressed size. ``compress=False`` ships the full W_F (in float32). The page also carries the
+    extrapolation rule of the operators (:data:`defop.operator.core.EXTRAPOLATION_FACTOR` times each handle's
+    farthest training sample, :func:`.payload.extrapolation_payload`): it warns where Python does.
 
     Parameters
     ----------
@@ -134,8 +154,8 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
         branch's label is shown, and Reset goes back to branch 0 (the rest pose's).
     path : str or pathlib.Path
     shape : defop.scene.shapes.Shape, optional
-        Its sampling regions are drawn and used for the extrapolation warning; default: discs (balls in 3D)
-        through the farthest training sample of each handle. Its mesh must be the operator's (same
+        Its sampling regions are drawn (default: discs, balls in 3D, through the farthest training sample of
+        each handle), and in 3D its ``surface`` is the one drawn. Its mesh must be the operator's (same
         dimension too).
     title : str, optional
         Any string: it is shown as text (HTML-escaped in ``<title>``, JSON-escaped in the inline script, where
@@ -145,6 +165,9 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
         A picture drawn on the deformed mesh (see :func:`image_payload`); inlined as a PNG.
     image_frame : callable or (n_vertices,2) numpy array
         Required with ``image``: the mesh → pixel map or the rest vertices in pixels (:func:`pixel_coordinates`).
+    compress : bool
+        True (default): the compressed factors of a :class:`DefOp` (:func:`.payload.page_factors`); False: the
+        full W_F. A BranchedOperator's branches are shipped as they are (compress them yourself).
 
     Returns
     -------
@@ -155,7 +178,7 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     ------
     ValueError
         ``op`` is not a DefOp, ``shape`` not a Shape (or of another dimension or mesh than ``op``), ``title``
-        not a string, ``path`` not a path, a picture for a 3D operator.
+        not a string, ``path`` not a path, a picture for a 3D operator, ``compress`` not a bool.
     """
     branched = isinstance(op, BranchedOperator)
     if branched:
@@ -167,6 +190,8 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     if shape is not None and not isinstance(shape, Shape):
         raise ValueError(f"shape must be a Shape (dop.shapes.load(...)) or None, got {type(shape).__name__}")
     _check_dimensions(op, shape, image, image_frame)
+    if not isinstance(compress, bool):
+        raise ValueError(f"compress must be True (the compressed factors) or False (the full W_F), got {compress!r}")
     if title is not None:
         title = opt.text("title", title)
     regions = None
@@ -177,7 +202,12 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
             if op.d == 2
             else region_balls(shape.P_moving, shape.regions, op.train_samples)
         )
-    payload = branched_to_payload(bop, regions) if branched else defop_to_payload(op, regions)
+    if branched:
+        payload = branched_to_payload(bop, regions)
+    else:
+        payload = defop_to_payload(op, regions, page_factors(op, compress))
+    if op.d == 3 and shape is not None and shape.surface is not None:
+        payload.update(surface_payload(shape.surface, op.n_vertices))
     if not title:  # the shape's name comes from the operator's file: as untrusted as a title
         title = opt.text(
             "title",
@@ -188,9 +218,19 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None):
     if image is not None or image_frame is not None:
         payload.update(image_for(op.mesh, image, image_frame))
     meta, data = encode_payload(payload)
-    fields = dict(title=html.escape(title), meta=script_json(meta), data=base64.b64encode(data).decode("ascii"))
+    fields = dict(
+        title=html.escape(title),
+        meta=script_json(meta),
+        data=base64.b64encode(data).decode("ascii"),
+        factor=payload["extrapolation_factor"],
+    )
     if op.d == 3:
-        text = _PAGE_3D.format(js=solid_script(), three_version=THREE_VERSION, **fields)
+        drawn = (
+            "the shape's surface, carried by the tetrahedra"
+            if "surface_F" in payload
+            else "boundary surface of the tetrahedral mesh"
+        )
+        text = _PAGE_3D.format(js=solid_script(), three_version=THREE_VERSION, surface_legend=drawn, **fields)
     else:
         page = _PAGE_BRANCHED if branched else _PAGE
         text = page.format(js=_inline_script(JS_PATH.read_text(encoding="utf-8")), **fields)

@@ -243,6 +243,23 @@ export function outsideRegions(Q, regions, d = 2) {
   return out;
 }
 
+/**
+ * Indices of the moving handles where the operator extrapolates, by the rule of Python's ExtrapolationWarning
+ * (defop.operator.core.beyond_reach): |q_i − P_i| > extrapolation_factor · reach_i + 1e-12, the factor and the
+ * reach (farthest training sample per handle) from the payload (defop.editor.payload.extrapolation_payload);
+ * none without a reach, as in Python.
+ */
+export function extrapolating(Q, p) {
+  const D = p.d || 2, out = [];
+  if (!p.reach) return out;
+  for (let i = 0; i < p.n_moving; i++) {
+    let s = 0;
+    for (let c = 0; c < D; c++) { const t = Q[D * i + c] - p.P[D * i + c]; s += t * t; }
+    if (Math.sqrt(s) > p.extrapolation_factor * p.reach[i] + 1e-12) out.push(i);
+  }
+  return out;
+}
+
 const STYLE = `
 .defop-editor { display: flex; flex-wrap: wrap; gap: 12px; align-items: flex-start; font: 13px system-ui, sans-serif; color: #222; }
 .defop-editor .defop-stack { position: relative; border: 1px solid #ccc; background: #fff; flex: none; }
@@ -588,9 +605,10 @@ export function timingText(st) {
     `evaluation ${fmt(median(st.evalMs), 2)} ms/frame in the page, drawing ${fmt(median(st.drawMs), 1)} ms\n`;
 }
 
-/** The extrapolation warning (shared with defop_solid.js). */
+/** The extrapolation warning (shared with defop_solid.js), for the handles of {@link extrapolating}. */
 export function warnText(st) {
-  return st.outside.length ? `handle ${st.outside.join(", ")} outside its sampling region: the operator extrapolates` : "";
+  return st.outside.length ? `handle ${st.outside.join(", ")} beyond ${st.p.extrapolation_factor}× its farthest ` +
+    "training sample: the operator extrapolates" : "";
 }
 
 /** The readout: timings ({@link timingText}), sizes, the picture, Q, and the extrapolation warning. */
@@ -685,7 +703,7 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
     const t0 = performance.now();
     st.X = st.op.evaluate(st.Q);
     const t1 = performance.now();
-    st.outside = outsideRegions(st.Q, st.p.regions);
+    st.outside = extrapolating(st.Q, st.p);
     drawFrame(ctx, st);
     st.evalMs.push(t1 - t0);
     st.drawMs.push(performance.now() - t1);
