@@ -12,6 +12,7 @@ from .. import options as opt
 from ..operator.branched import BranchedOperator
 from ..operator.defop import DefOp
 from ..scene.shapes import Shape
+from .compact import compact_payload
 from .payload import (
     JS_PATH,
     branched_to_payload,
@@ -27,11 +28,9 @@ from .state import region_polygons
 SOLID_JS_PATH = JS_PATH.with_name("defop_solid.js")
 THREE_DIR = JS_PATH.with_name("three")
 THREE_VERSION = "0.170.0"
-#: the vendored three.js files (static/three/README.md): name -> sha256, checked before a page inlines them
-THREE_FILES = {
-    "three.module.min.js": "08fd7545d13d2c7fb65ab691530a802dafefd638596501854f267d0fb13c39e7",
-    "OrbitControls.js": "80efaadea4f8a636a65fb0bd08bfef62f3d93a0bb94e2e7500f23176c5c07f4e",
-}
+#: the vendored three.js bundle (static/three/README.md: the names the page uses, OrbitControls among them): name ->
+#: sha256, checked before a page inlines it
+THREE_FILES = {"three.defop.min.js": "0f878d9f5adb24b0d020c699c13aae5955cd9bd8729d86787c0ff8ae90e28142"}
 
 # the head of both pages: a strict Content-Security-Policy (inline script and style only: nothing is fetched)
 _HEAD = """<!DOCTYPE html>
@@ -103,9 +102,9 @@ farthest training sample: the operator extrapolates</span>
 <span><i class="defop-swatch" style="background:#f2d7a6;border:1px solid #999"></i>{surface_legend}</span>
 </div>
 <p class="defop-note">D(x, Q) = &Sigma;<sub>ij</sub> C<sub>ij</sub> &phi;<sub>i</sub>(x) &psi;<sub>j</sub>(Q)
-(Eq. 3 of Poranne &amp; Lipman) is evaluated in this page for every vertex of the tetrahedral mesh, with no
-network access; handles exact (Prop. 2), rest pose exact (8b). Drawn with three.js {three_version} (MIT licence,
-Copyright 2010-2024 three.js authors); written by defop.</p>
+(Eq. 3 of Poranne &amp; Lipman) is evaluated in this page for every vertex of the tetrahedral mesh the drawn
+surface uses, with no network access; handles exact (Prop. 2), rest pose exact (8b). Drawn with three.js
+{three_version} (MIT licence, Copyright 2010-2024 three.js authors); written by defop.</p>
 <script type="module">
 {js}
 window.defopEditor = mountSolid(document.getElementById("defop-app"), {meta}, "{data}", THREE, OrbitControls);
@@ -138,13 +137,15 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None, comp
     Without WebGL the 3D page says so in words.
 
     By default the page carries the compressed operator (``compress=True``): the float32 factors W_F ≈ A B of
-    :meth:`DefOp.compress <defop.operator.defop.DefOp.compress>` at its default tolerance, computed for the page
-    (``op`` itself is unchanged; an ``op`` already compressed keeps its own factors). The handles stay exact
-    (Prop. 2) and the rest pose exact (8b): the factors are zero on the handle columns and multiply δψ(P) = 0;
-    the rest of the shape moves within the compression's tolerance of ``op``, and the octopus page is a third
-    of its uncompressed size. ``compress=False`` ships the full W_F (in float32). The page also carries the
-    extrapolation rule of the operators (:data:`defop.operator.core.EXTRAPOLATION_FACTOR` times each handle's
-    farthest training sample, :func:`.payload.extrapolation_payload`): it warns where Python does.
+    :meth:`DefOp.compress <defop.operator.defop.DefOp.compress>` at its default tolerance (``op``'s own factors if
+    it has them), B rounded to 12 bits per entry (:func:`.payload.page_factors`, :mod:`.compact`), computed for the
+    page (``op`` itself is unchanged); a 3D page evaluates only the vertices its surface uses. The handles stay
+    exact (Prop. 2) and the rest pose exact (8b): B is zero on the handle columns and A multiplies δψ(P) = 0; the
+    rest of the shape moves within the compression's tolerance of ``op``. The default octopus page (3,910
+    vertices, TPS of 200 samples, rank 67) is 1.4 MB instead of 9.6 MB. ``compress=False`` ships the full W_F (in
+    float32). The page also carries the operators' extrapolation rule
+    (:data:`~defop.operator.core.EXTRAPOLATION_FACTOR` times each handle's farthest training sample,
+    :func:`.payload.extrapolation_payload`): it warns where Python does.
 
     Parameters
     ----------
@@ -217,7 +218,7 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None, comp
     payload.update(title=title, kinds=[op.handle_basis.kind])
     if image is not None or image_frame is not None:
         payload.update(image_for(op.mesh, image, image_frame))
-    meta, data = encode_payload(payload)
+    meta, data = encode_payload(compact_payload(payload))
     fields = dict(
         title=html.escape(title),
         meta=script_json(meta),
@@ -249,13 +250,12 @@ def _vendored(name):
     return raw.decode("utf-8")
 
 
-def _module_as_function(text, name, imports=""):
-    """An ES module's text as an expression: ``(() => { imports; body; return {exported names}; })()``.
+def _module_as_function(text, name):
+    """An ES module's text as an expression: ``(() => { body; return {exported names}; })()``.
 
-    Only the shapes of the two vendored files are accepted: no ``import`` except one ``import {...} from
-    'three'`` (replaced by ``imports``) and exactly one final ``export { a as B, ... };`` statement.
+    Only the shape of the vendored bundle is accepted: no ``import`` and exactly one final ``export { a as B, ... };``
+    statement.
     """
-    text = re.sub(r"^import\s*\{[^}]*\}\s*from\s*'three';", imports, text, count=1, flags=re.M)
     found = list(re.finditer(r"export\s*\{([^}]*)\}\s*;?\s*$", text))
     if len(found) != 1 or re.search(r"^\s*import[\s{]", text, flags=re.M) or "export " in text[: found[0].start()]:
         raise RuntimeError(f"{name}: not the module shape the page expects (one final export statement)")
@@ -269,26 +269,22 @@ def _module_as_function(text, name, imports=""):
 
 
 def solid_script():
-    """The 3D page's inline module: three.js and OrbitControls (vendored, sha256-checked) as the bindings
-    ``THREE`` and ``OrbitControls``, then ``defop_editor.js`` verbatim (the one evaluator) and
-    ``defop_solid.js`` without its import line (the names it imports are in the same module scope).
+    """The 3D page's inline module: the vendored three.js bundle (sha256-checked) as the binding ``THREE`` and its
+    ``OrbitControls``, then ``defop_editor.js`` verbatim (the one evaluator) and ``defop_solid.js`` without its
+    import line (the names it imports are in the same module scope).
 
     Returns
     -------
     str
     """
-    orbit = _vendored("OrbitControls.js")
-    names = re.search(r"^import\s*\{([^}]*)\}\s*from\s*'three';", orbit, flags=re.M)
-    if names is None:
-        raise RuntimeError("OrbitControls.js: no import from 'three'")
-    imports = "const {" + ", ".join(n.strip() for n in names.group(1).split(",")) + "} = THREE;"
     solid = SOLID_JS_PATH.read_text(encoding="utf-8")
     solid, n = re.subn(r'^import \{[^}]*\}\s*from "\./defop_editor\.js";\n', "", solid, count=1, flags=re.M)
     if n != 1:
         raise RuntimeError(f"{SOLID_JS_PATH.name}: no import line from ./defop_editor.js")
+    name = next(iter(THREE_FILES))
     parts = [
-        "const THREE = " + _module_as_function(_vendored("three.module.min.js"), "three.module.min.js") + ";",
-        "const { OrbitControls } = " + _module_as_function(orbit, "OrbitControls.js", imports) + ";",
+        "const THREE = " + _module_as_function(_vendored(name), name) + ";",
+        "const { OrbitControls } = THREE;",
         JS_PATH.read_text(encoding="utf-8"),
         solid,
     ]

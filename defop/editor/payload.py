@@ -17,10 +17,11 @@ from ..geometry.planar.outlines import load_image
 from ..operator.compress import factorise
 from ..operator.core import EXTRAPOLATION_FACTOR
 from ..operator.defop import training_reach
+from .compact import on_grid
 from .logic import reach_polygons
 
 JS_PATH = Path(__file__).with_name("static") / "defop_editor.js"
-_DTYPES = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u1": np.uint8}
+_DTYPES = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u2": np.uint16, "u1": np.uint8}
 # WebGL guarantees far smaller textures, but every current GPU (and Chromium's SwiftShader) takes 4096 per side;
 # the page checks MAX_TEXTURE_SIZE again and draws the untextured mesh when the picture does not fit
 MAX_IMAGE_SIDE = 4096
@@ -85,17 +86,22 @@ def region_balls(P, regions=None, samples=None):
 
 
 def page_factors(op, compress=True):
-    """The factors (A, B) of W_F ≈ A B a page carries for ``op``: its own when it has them, else with
-    ``compress`` those of :meth:`DefOp.compress <defop.operator.defop.DefOp.compress>` at its defaults (float32,
-    :data:`defop.operator.compress.TOL`; ``op`` is unchanged), else None (the full W_F).
+    """The factors (A, B) of W_F ≈ A B a page carries for ``op``.
+
+    With ``compress``: ``op``'s own factors, or else those of :meth:`DefOp.compress
+    <defop.operator.defop.DefOp.compress>` at its defaults (float32, :data:`defop.operator.compress.TOL`), with B
+    rounded to its 12-bit grid (:func:`defop.editor.compact.on_grid`: at most max_c |B_jc| / 2047 per entry of row
+    j; zero on the handle columns still), the factors the page evaluates bit for bit. ``op`` is unchanged.
+    Without: ``op.factors`` (None: the full W_F).
 
     Returns
     -------
     factors : tuple of ((|Ψ|−1, r), (r, d n_vertices)) float32 numpy arrays, or None
     """
-    if op.factors is not None or not compress:
+    if not compress:
         return op.factors
-    return factorise(op)
+    A, B = op.factors if op.factors is not None else factorise(op)
+    return np.asarray(A, np.float32), on_grid(B)
 
 
 def defop_to_payload(op, regions=None, factors=None):

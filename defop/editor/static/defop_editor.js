@@ -19,7 +19,7 @@
 // vertex in the picture, v down). WebGL draws every deformed triangle with the picture's rest triangle mapped
 // affinely onto it, the piecewise-affine warp of defop.view.warp.warp_image, at every pointer move.
 
-const DTYPES = { f8: Float64Array, f4: Float32Array, i4: Int32Array, u1: Uint8Array };
+const DTYPES = { f8: Float64Array, f4: Float32Array, i4: Int32Array, u2: Uint16Array, u1: Uint8Array };
 
 /** Typed arrays from the payload's metadata and its byte buffer (ArrayBuffer, DataView or Uint8Array). */
 export function decodePayload(meta, bytes) {
@@ -29,6 +29,37 @@ export function decodePayload(meta, bytes) {
   for (const [name, a] of Object.entries(meta.arrays)) {
     p[name] = new DTYPES[a.dtype](buffer, a.offset, a.length);
     p[name + "_shape"] = a.shape;
+  }
+  return expandCompact(p);
+}
+
+/**
+ * The standalone page's compact payload made whole (defop.editor.compact.compact_payload): B from its 12-bit
+ * codes (B_packed, 2 per 3 bytes, c + 2048) times 2^B_exponent per row, exact in float32; E from F (2D).
+ */
+function expandCompact(p) {
+  if (p.B_packed) {
+    const rows = p.B_exponent.length, cols = (p.d || 2) * p.n_vertices, bytes = p.B_packed;
+    const B = new Float32Array(rows * cols);
+    for (let j = 0; j < rows; j++) {
+      const s = 2 ** p.B_exponent[j];
+      for (let c = 0, k = j * cols; c < cols; c++, k++) {
+        const o = 3 * (k >> 1);
+        const u = k & 1 ? (bytes[o + 1] >> 4) | (bytes[o + 2] << 4) : bytes[o] | ((bytes[o + 1] & 15) << 8);
+        B[k] = (u - 2048) * s;
+      }
+    }
+    p.B = B;
+  }
+  if (!p.E && p.F && (p.d || 2) === 2) {
+    const n = p.n_vertices, seen = new Set(), E = [];
+    for (let t = 0; t < p.F.length; t += 3) {
+      for (const [a, b] of [[p.F[t], p.F[t + 1]], [p.F[t + 1], p.F[t + 2]], [p.F[t + 2], p.F[t]]]) {
+        const key = Math.min(a, b) * n + Math.max(a, b);
+        if (!seen.has(key)) { seen.add(key); E.push(Math.min(a, b), Math.max(a, b)); }
+      }
+    }
+    p.E = Int32Array.from(E);
   }
   return p;
 }

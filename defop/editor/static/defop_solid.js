@@ -121,7 +121,8 @@ function makeScene(THREE, OrbitControls, canvas, p, width, height) {
 
 /**
  * Mount the 3D view of a decoded payload `p` (d = 3) in `root`. Returns the editor object (also root.defopEditor):
- * st.Q, st.X (flat, 3·n_vertices), st.frames / st.updates / st.evalMs / st.drawMs as in the 2D editor,
+ * st.Q, st.X (flat, 3·n_vertices: the vertices the surface uses, defop.editor.compact.drawn_vertices),
+ * st.S (the drawn surface's vertices, flat, float64), st.frames / st.updates / st.evalMs / st.drawMs as in the 2D editor,
  * evaluate(), reset(), handleScreen(i) (CSS pixels in the canvas), camera, controls.
  */
 export function createSolidView(root, p, THREE, OrbitControls, options = {}) {
@@ -215,7 +216,7 @@ function solidReadout(ui, st) {
   const q = Array.from({ length: st.p.n_moving },
     (_, i) => `q${i} = (${Q[3 * i].toFixed(3)}, ${Q[3 * i + 1].toFixed(3)}, ${Q[3 * i + 2].toFixed(3)})`);
   ui.readout.textContent = timingText(st) +
-    `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices, ` +
+    `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices}${st.p.n_vertices_all ? " of " + st.p.n_vertices_all : ""} vertices, ` +
     `${st.surfaceTriangles} surface triangles)\n` + q.join("\n");
   ui.warn.textContent = warnText(st);
 }
