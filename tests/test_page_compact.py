@@ -13,17 +13,13 @@
 
 from __future__ import annotations
 
-import base64
-import json
-import subprocess
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from reference3d import box_tets
-from test_browser_editor import NODE, needs_node
+from test_browser_editor import needs_node, node_run
 
 import defop as dop
 from defop.editor import compact, export, payload
@@ -34,16 +30,7 @@ from defop.operator.handle_bases import make_basis
 RANK_2D = 67
 #: the rank assumed for octopus_3d (TPS, m = 200): the largest for which its page stays under 3 MB
 RANK_3D = 60
-DECODE = """
-import { readFileSync } from "node:fs";
-import { pathToFileURL } from "node:url";
-const input = JSON.parse(readFileSync(process.argv[2], "utf8"));
-const mod = await import(pathToFileURL(input.js).href);
-const p = mod.decodePayload(input.meta, mod.fromBase64(input.data));
-const op = mod.makeOperator(p);
-process.stdout.write(JSON.stringify({B: Array.from(p.B || []), E: Array.from(p.E || []),
-  X: input.Q.map((Q) => Array.from(op.evaluate(Q)))}));
-"""
+DECODE = payload.JS_PATH.parents[3] / "tests" / "js" / "decode_payload.mjs"
 
 
 @settings(max_examples=40, deadline=None)
@@ -70,22 +57,7 @@ def test_12_bit_rows_round_trip(B, shift):
 
 
 def _node_decode(p, Qs, tmp_path, compacted=True):
-    meta, data = payload.encode_payload(compact.compact_payload(p) if compacted else p)
-    script = tmp_path / "decode.mjs"
-    script.write_text(DECODE)
-    spec = tmp_path / "in.json"
-    spec.write_text(
-        json.dumps(
-            {
-                "js": str(payload.JS_PATH),
-                "meta": meta,
-                "data": base64.b64encode(data).decode(),
-                "Q": [np.asarray(Q, float).ravel().tolist() for Q in Qs],
-            }
-        )
-    )
-    out = subprocess.run([NODE, str(script), str(spec)], capture_output=True, text=True, timeout=60, check=True)
-    return json.loads(out.stdout)
+    return node_run(DECODE, compact.compact_payload(p) if compacted else p, Qs, tmp_path)
 
 
 @pytest.fixture(scope="module")

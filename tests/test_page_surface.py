@@ -13,14 +13,11 @@ surface the page draws the boundary facets, and without WebGL it says so in word
 
 from __future__ import annotations
 
-import base64
-import json
-import subprocess
 import warnings
 
 import numpy as np
 import pytest
-from test_browser_editor import NODE, chromium_page, needs_node
+from test_browser_editor import chromium_page, needs_node, node_run
 from test_page_3d import bar3, ops3  # noqa: F401  (fixtures)
 
 import defop as dop
@@ -93,18 +90,7 @@ def test_python_surface_puts_a_handle_on_its_target(ops3, surfaced):  # noqa: F8
 def _node_surface(op, shape, Qs, tmp_path):
     p = payload.defop_to_payload(op)
     p.update(payload.surface_payload(shape.surface, op.n_vertices))
-    meta, data = payload.encode_payload(p)
-    spec = {
-        "js": str(payload.JS_PATH),
-        "solid": str(payload.JS_PATH.with_name("defop_solid.js")),
-        "meta": meta,
-        "data": base64.b64encode(data).decode(),
-        "Q": [np.asarray(Q, float).ravel().tolist() for Q in Qs],
-    }
-    path = tmp_path / "surface.json"
-    path.write_text(json.dumps(spec))
-    res = subprocess.run([NODE, str(SURFACE_DRIVER), str(path)], capture_output=True, text=True, timeout=60, check=True)
-    return json.loads(res.stdout)
+    return node_run(SURFACE_DRIVER, p, Qs, tmp_path)
 
 
 def _float32_bary_bound(surface, X):

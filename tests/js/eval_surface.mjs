@@ -5,7 +5,7 @@ import { pathToFileURL } from "node:url";
 
 const input = JSON.parse(readFileSync(process.argv[2], "utf8"));
 const mod = await import(pathToFileURL(input.js).href);
-const solid = await import(pathToFileURL(input.solid).href);
+const solid = await import(new URL("defop_solid.js", pathToFileURL(input.js)).href); // beside defop_editor.js
 const p = mod.decodePayload(input.meta, mod.fromBase64(input.data));
 const op = mod.makeOperator(p);
 const surface = solid.makeSurface(p);
