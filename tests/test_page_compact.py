@@ -124,3 +124,14 @@ def test_default_page_sizes(name, rank, limit, tmp_path):
     op = _synthetic(shape, rank)
     size = export.to_html(op, tmp_path / "page.html", shape=shape).stat().st_size
     assert size < limit, f"{name}: {size / 1e6:.2f} MB"
+
+
+def test_full_operator_on_request(u_op, tmp_path):
+    small = export.to_html(u_op, tmp_path / "small.html").stat().st_size
+    full = export.to_html(u_op, tmp_path / "full.html", compress=False)
+    assert '"B_packed"' not in full.read_text() and full.stat().st_size > small
+    for bad in (None, 1, "yes"):
+        with pytest.raises(ValueError, match="compress must be True"):
+            export.to_html(u_op, tmp_path / "bad.html", compress=bad)
+    assert not (tmp_path / "bad.html").exists()
+    assert u_op.factors is None  # the page's compression leaves op unchanged

@@ -169,3 +169,9 @@ def test_page_without_webgl_says_so(ops3, surfaced, tmp_path):  # noqa: F811
     assert not errors, errors
     assert shown and "WebGL" in said and "another browser" in said, said
     assert state == {"webgl": False, "canvas": False}
+
+
+def test_surface_of_other_tetrahedra_is_a_clear_error(surfaced):
+    surface = surfaced[1]
+    with pytest.raises(ValueError, match="embedded in other tetrahedra"):
+        payload.surface_payload(surface, n_vertices=4)
