@@ -5,10 +5,11 @@
   the edges the page rebuilds from F are the mesh's edges.
 - In 3D the page evaluates only the vertices it draws (:func:`~defop.editor.compact.drawn_vertices`), each exactly
   as the full evaluation does.
-- The default page of the octopus is under 1.5 MB, and of ``octopus_3d`` under 3 MB: their meshes and handles, a
-  TPS Ψ of the default 200 samples, and compressed factors of the rank that ``DefOp.compress`` keeps for the
-  trained octopus (67; measured once, see :data:`RANK_2D`); the operators themselves are random (the page's size
-  depends on the shapes of its arrays, not their values).
+- The default page of the octopus is under 1.5 MB: its mesh and handles, a TPS Ψ of the default 200 samples, and
+  compressed factors of the rank that ``DefOp.compress`` keeps for the trained octopus (67, :data:`RANK_2D`); the
+  operator itself is random (the page's size depends on the shapes of its arrays, not their values). The
+  ``octopus_3d`` page is under 3 MB up to rank 63 (:data:`RANK_3D`), but its trained operator keeps rank 105
+  (:data:`RANK_3D_TRAINED`): 4.4 MB, a strict xfail until the encoding or the 3D defaults close the gap.
 """
 
 from __future__ import annotations
@@ -28,8 +29,11 @@ from defop.operator.handle_bases import make_basis
 #: the rank ``DefOp.compress()`` keeps (default tolerance) for ``dop.train(dop.shapes.load("octopus"))`` at the
 #: defaults (TPS, m = 200): measured on this branch
 RANK_2D = 67
-#: the rank assumed for octopus_3d (TPS, m = 200): the largest for which its page stays under 3 MB
+#: the encoding's budget for octopus_3d: its page stays under 3 MB up to rank 63 (60 here)
 RANK_3D = 60
+#: the rank ``DefOp.compress()`` keeps for octopus_3d trained at the defaults (TPS, m = 200; measured on its
+#: 2,502-vertex mesh, rounds=1): its 10,327-vertex page is 4.4 MB, over the 3 MB target (xfail below)
+RANK_3D_TRAINED = 105
 DECODE = payload.JS_PATH.parents[3] / "tests" / "js" / "decode_payload.mjs"
 
 
@@ -118,7 +122,17 @@ def _synthetic(shape, rank, seed=0, m=200):
     return op.set_factors((A, B))
 
 
-@pytest.mark.parametrize(("name", "rank", "limit"), [("octopus", RANK_2D, 1.5e6), ("octopus_3d", RANK_3D, 3e6)])
+OVER = pytest.mark.xfail(strict=True, reason="octopus_3d's trained rank (105) needs 4.4 MB: a known shortfall")
+
+
+@pytest.mark.parametrize(
+    ("name", "rank", "limit"),
+    [
+        ("octopus", RANK_2D, 1.5e6),
+        ("octopus_3d", RANK_3D, 3e6),
+        pytest.param("octopus_3d", RANK_3D_TRAINED, 3e6, marks=OVER),
+    ],
+)
 def test_default_page_sizes(name, rank, limit, tmp_path):
     shape = dop.shapes.load(name)
     op = _synthetic(shape, rank)
