@@ -106,7 +106,7 @@ def test_press_away_from_handles_picks_nothing(state):
 def test_readout_warns_when_a_handle_leaves_its_region(state):
     state.set_handle(0, state.P[0] + [3 * state.diag, 0.0])
     assert state.outside_regions() == [0]
-    assert "outside its sampling region" in readout_text(state)
+    assert "beyond 1.5x its farthest training sample" in readout_text(state)
 
 
 def test_switching_basis_changes_the_operator(state):

@@ -14,6 +14,7 @@ import numbers
 import numpy as np
 
 from .. import options as opt
+from ..operator.core import beyond_reach
 from ..operator.defop import training_reach
 from ..scene.shapes import Shape
 from ..scene.shapes import load as load_shape
@@ -128,6 +129,30 @@ def outside_regions(Q, regions):
     list of int
     """
     return [i for i, polys in enumerate(regions) if polys and not any(inside_polygon(Q[i], p) for p in polys)]
+
+
+def extrapolating(Q, P, samples):
+    """Indices of the moving handles of Q where the operator extrapolates: beyond
+    :data:`~defop.operator.core.EXTRAPOLATION_FACTOR` times their farthest training sample
+    (:func:`defop.operator.core.beyond_reach`), the rule of the operators' ExtrapolationWarning and of the page
+    (``extrapolating`` in ``static/defop_editor.js``).
+
+    Parameters
+    ----------
+    Q, P : (n,d) numpy array
+        The handles and their rest positions.
+    samples : (m,n,d) numpy array or None
+        The training configurations; without them no handle extrapolates (the operator does not warn either).
+
+    Returns
+    -------
+    list of int
+    """
+    reach = training_reach(P, samples)
+    if reach is None:
+        return []
+    dist = np.linalg.norm(np.asarray(Q, float) - np.asarray(P, float), axis=-1)
+    return np.flatnonzero(beyond_reach(dist, reach)).tolist()
 
 
 def region_polygons(P, regions, n=96):

@@ -14,11 +14,14 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.planar.outlines import load_image
+from ..operator.compress import factorise
+from ..operator.core import EXTRAPOLATION_FACTOR
 from ..operator.defop import training_reach
+from .compact import on_grid
 from .logic import reach_polygons
 
 JS_PATH = Path(__file__).with_name("static") / "defop_editor.js"
-_DTYPES = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u1": np.uint8}
+_DTYPES = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u2": np.uint16, "u1": np.uint8}
 # WebGL guarantees far smaller textures, but every current GPU (and Chromium's SwiftShader) takes 4096 per side;
 # the page checks MAX_TEXTURE_SIZE again and draws the untextured mesh when the picture does not fit
 MAX_IMAGE_SIDE = 4096
@@ -82,7 +85,26 @@ def region_balls(P, regions=None, samples=None):
     return out
 
 
-def defop_to_payload(op, regions=None):
+def page_factors(op, compress=True):
+    """The factors (A, B) of W_F ≈ A B a page carries for ``op``.
+
+    With ``compress``: ``op``'s own factors, or else those of :meth:`DefOp.compress
+    <defop.operator.defop.DefOp.compress>` at its defaults (float32, :data:`defop.operator.compress.TOL`), with B
+    rounded to its 12-bit grid (:func:`defop.editor.compact.on_grid`: at most max_c |B_jc| / 2047 per entry of row
+    j; zero on the handle columns still), the factors the page evaluates bit for bit. ``op`` is unchanged.
+    Without: ``op.factors`` (None: the full W_F).
+
+    Returns
+    -------
+    factors : tuple of ((|Ψ|−1, r), (r, d n_vertices)) float32 numpy arrays, or None
+    """
+    if not compress:
+        return op.factors
+    A, B = op.factors if op.factors is not None else factorise(op)
+    return np.asarray(A, np.float32), on_grid(B)
+
+
+def defop_to_payload(op, regions=None, factors=None):
     """Everything the page needs to evaluate and draw a DefOp: the one place that reads its internals.
 
     Parameters
@@ -94,13 +116,16 @@ def defop_to_payload(op, regions=None):
         Sampling-region polygons per moving handle (:func:`defop.editor.logic.region_polygons`), or in 3D
         balls ``[cx, cy, cz, r]`` (:func:`region_balls`); default: discs (balls) through the farthest
         training sample.
+    factors : tuple of two numpy arrays, optional
+        (A, B) to ship instead of ``op.factors`` (:func:`page_factors`).
 
     Returns
     -------
     payload : dict
         Scalars (``d``, ``kind``, ``kernel`` for ``"tps"``, ``size``, ``n_moving``, ``n_vertices``, ``scale``,
         ``rank``, ``regions``) and numpy arrays (``P``, ``centers`` or ``parent``/``factor``, ``A``, ``B``,
-        ``V``, ``F``, ``E``, ``handles``, ``moving``), each flattened row-major by :func:`encode_payload`. In 2D
+        ``V``, ``F``, ``E``, ``handles``, ``moving``), each flattened row-major by :func:`encode_payload`, and the
+        extrapolation rule (``extrapolation_factor``, ``reach``: :func:`extrapolation_payload`). In 2D
         ``F`` are the triangles; in 3D the outward boundary triangles of the tetrahedra
         (:attr:`defop.geometry.mesh.Mesh.boundary_facets`), the surface the page shades, and ``E`` its edges.
     """
@@ -129,16 +154,80 @@ def defop_to_payload(op, regions=None):
     else:
         p["parent"], p["factor"] = _polynomial_plan(basis.monomials)
     # (★) of defop.operator.defop: D(·, Q) = x + δψ(Q) W_F, the moving handles' columns set to Q − P exactly
-    if op.factors is not None:
-        p["A"], p["B"] = (np.asarray(f, np.float32) for f in op.factors)
+    factors = op.factors if factors is None else factors
+    if factors is not None:
+        p["A"], p["B"] = (np.asarray(f, np.float32) for f in factors)
         p["rank"] = int(p["A"].shape[1])
     else:
         p["A"] = np.asarray(op.WF, np.float32)  # W[1:] with the handle columns zeroed
+    p.update(extrapolation_payload(op.P, op.train_samples))
     return p
 
 
+def extrapolation_payload(P, samples):
+    """The page's extrapolation rule, the operators' own (:func:`defop.operator.core.beyond_reach`): a moving
+    handle extrapolates beyond ``extrapolation_factor`` (:data:`defop.operator.core.EXTRAPOLATION_FACTOR`) times its
+    ``reach``, the distance from rest to its farthest training sample (:func:`training_reach`).
+
+    Parameters
+    ----------
+    P : (n,d) numpy array
+        Rest positions of the moving handles.
+    samples : (m,n,d) numpy array or None
+        The training configurations.
+
+    Returns
+    -------
+    payload : dict
+        ``extrapolation_factor`` (float) and, with at least 2 samples, ``reach`` ((n,) float64 numpy array); without
+        it neither Python nor the page warns.
+    """
+    out = {"extrapolation_factor": float(EXTRAPOLATION_FACTOR)}
+    reach = training_reach(P, samples)
+    if reach is not None:
+        out["reach"] = np.asarray(reach, np.float64)
+    return out
+
+
+def surface_payload(surface, n_vertices):
+    """The user's surface for the 3D page: the page draws it where the tetrahedra carry it (``makeSurface`` of
+    ``static/defop_solid.js``, as :meth:`defop.geometry.volumetric.surface.EmbeddedSurface.deform`).
+
+    Parameters
+    ----------
+    surface : defop.geometry.volumetric.surface.EmbeddedSurface
+        Embedded in the operator's tetrahedra.
+    n_vertices : int
+        The operator's vertices (the surface's tetrahedra must index them).
+
+    Returns
+    -------
+    payload : dict
+        ``surface_F`` ((l,3) int32: the surface's triangles), ``surface_tets`` ((k,4) int32: the tetrahedron's
+        vertices of each surface vertex) and ``surface_bary`` ((k,3) float32: its barycentric coordinates b_1, b_2,
+        b_3; the page takes b_0 = 1 − b_1 − b_2 − b_3 in float64, so the weights sum to 1 and a one-hot b stays
+        exact).
+
+    Raises
+    ------
+    ValueError
+        The surface is embedded in other tetrahedra (an index beyond ``n_vertices``) or is not finite.
+    """
+    tets = np.asarray(surface.tets)[np.asarray(surface.elements)]
+    bary = np.asarray(surface.bary, float)
+    if tets.ndim != 2 or tets.shape[1] != 4 or tets.min(initial=0) < 0 or tets.max(initial=0) >= n_vertices:
+        raise ValueError(f"shape.surface is embedded in other tetrahedra than the operator's {n_vertices} vertices")
+    if bary.shape != tets.shape or not np.isfinite(bary).all():
+        raise ValueError(f"shape.surface: bary must be a finite {tets.shape} array, got {bary.shape}")
+    return {
+        "surface_F": np.asarray(surface.F, np.int32),
+        "surface_tets": tets.astype(np.int32),
+        "surface_bary": bary[:, 1:].astype(np.float32),
+    }
+
+
 #: the keys of :func:`defop_to_payload` every branch of a multi-valued operator shares (the mesh and its handles)
-_SHARED = ("d", "n_vertices", "regions", "P", "V", "F", "E", "handles", "moving")
+_SHARED = ("d", "n_vertices", "regions", "P", "V", "F", "E", "handles", "moving", "reach", "extrapolation_factor")
 
 
 def branched_to_payload(bop, regions=None):
@@ -161,9 +250,12 @@ def branched_to_payload(bop, regions=None):
     payload : dict
         That of branch 0 plus ``n_branches``, ``branch_labels`` and the prefixed keys.
     """
-    if regions is None:  # the training samples of every branch (each branch alone covers only its domain)
-        regions = reach_polygons(bop.P, np.concatenate([b.op.train_samples for b in bop.branches]))
+    own = [b.op.train_samples for b in bop.branches if b.op.train_samples is not None]
+    samples = np.concatenate(own) if own else None  # every branch's: each branch covers only its domain
+    if regions is None:
+        regions = reach_polygons(bop.P, samples)
     p = defop_to_payload(bop.branches[0].op, regions)
+    p.update(extrapolation_payload(bop.P, samples))
     p.update(n_branches=len(bop), branch_labels=[int(b.label) for b in bop.branches])
     for b in bop.branches:
         own = defop_to_payload(b.op, p["regions"])

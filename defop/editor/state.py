@@ -25,6 +25,7 @@ import warnings
 import numpy as np
 
 from .. import options as opt
+from ..operator.core import EXTRAPOLATION_FACTOR
 from ..operator.defop import ExtrapolationWarning, check_mesh
 from ..operator.handle_bases import KINDS
 from ..variational.solver import NotConvergedWarning, Solver
@@ -35,9 +36,9 @@ from .logic import (
     check_index,
     check_Q,
     check_shape,
+    extrapolating,
     ground_truth_error,
     inside_polygon,
-    outside_regions,
     reach_polygons,
     region_polygons,
     restoring,
@@ -274,7 +275,9 @@ class EditorState:
         return True
 
     def outside_regions(self, Q=None):
-        """Indices of the moving handles outside their sampling region (the operator extrapolates there).
+        """Indices of the moving handles where the operator extrapolates: beyond
+        :data:`~defop.operator.core.EXTRAPOLATION_FACTOR` times their farthest training sample, the rule of its
+        ExtrapolationWarning and of the page (:func:`.logic.extrapolating`).
 
         Parameters
         ----------
@@ -285,7 +288,8 @@ class EditorState:
         -------
         list of int
         """
-        return outside_regions(self.Q if Q is None else opt.points("Q", Q, n=len(self.P)), self.regions)
+        Q = self.Q if Q is None else opt.points("Q", Q, n=len(self.P))
+        return extrapolating(Q, self.P, self.operator.train_samples)
 
     def _evaluate(self):
         t0 = time.perf_counter()
@@ -381,5 +385,8 @@ def readout_text(state):
     ]
     outside = state.outside_regions()
     if outside:
-        parts.append(f"handle {', '.join(map(str, outside))} outside its sampling region (extrapolation)")
+        parts.append(
+            f"handle {', '.join(map(str, outside))} beyond {EXTRAPOLATION_FACTOR:g}x its farthest training sample "
+            "(extrapolation)"
+        )
     return " · ".join([*parts, ground_truth_text(state)] if state.gt_enabled else parts)

@@ -10,6 +10,6 @@ const op = mod.makeOperator(p);
 const out = input.Q.map((Q) => ({
   X: Array.from(op.evaluate(Q)),
   psi: Array.from(op.psi(Q)),
-  outside: mod.outsideRegions(Q, p.regions, p.d),
+  outside: mod.extrapolating(Q, p),
 }));
 process.stdout.write(JSON.stringify(out));

@@ -19,7 +19,7 @@
 // vertex in the picture, v down). WebGL draws every deformed triangle with the picture's rest triangle mapped
 // affinely onto it, the piecewise-affine warp of defop.view.warp.warp_image, at every pointer move.
 
-const DTYPES = { f8: Float64Array, f4: Float32Array, i4: Int32Array, u1: Uint8Array };
+const DTYPES = { f8: Float64Array, f4: Float32Array, i4: Int32Array, u2: Uint16Array, u1: Uint8Array };
 
 /** Typed arrays from the payload's metadata and its byte buffer (ArrayBuffer, DataView or Uint8Array). */
 export function decodePayload(meta, bytes) {
@@ -29,6 +29,37 @@ export function decodePayload(meta, bytes) {
   for (const [name, a] of Object.entries(meta.arrays)) {
     p[name] = new DTYPES[a.dtype](buffer, a.offset, a.length);
     p[name + "_shape"] = a.shape;
+  }
+  return expandCompact(p);
+}
+
+/**
+ * The standalone page's compact payload made whole (defop.editor.compact.compact_payload): B from its 12-bit
+ * codes (B_packed, 2 per 3 bytes, c + 2048) times 2^B_exponent per row, exact in float32; E from F (2D).
+ */
+function expandCompact(p) {
+  if (p.B_packed) {
+    const rows = p.B_exponent.length, cols = (p.d || 2) * p.n_vertices, bytes = p.B_packed;
+    const B = new Float32Array(rows * cols);
+    for (let j = 0; j < rows; j++) {
+      const s = 2 ** p.B_exponent[j];
+      for (let c = 0, k = j * cols; c < cols; c++, k++) {
+        const o = 3 * (k >> 1);
+        const u = k & 1 ? (bytes[o + 1] >> 4) | (bytes[o + 2] << 4) : bytes[o] | ((bytes[o + 1] & 15) << 8);
+        B[k] = (u - 2048) * s;
+      }
+    }
+    p.B = B;
+  }
+  if (!p.E && p.F && (p.d || 2) === 2) {
+    const n = p.n_vertices, seen = new Set(), E = [];
+    for (let t = 0; t < p.F.length; t += 3) {
+      for (const [a, b] of [[p.F[t], p.F[t + 1]], [p.F[t + 1], p.F[t + 2]], [p.F[t + 2], p.F[t]]]) {
+        const key = Math.min(a, b) * n + Math.max(a, b);
+        if (!seen.has(key)) { seen.add(key); E.push(Math.min(a, b), Math.max(a, b)); }
+      }
+    }
+    p.E = Int32Array.from(E);
   }
   return p;
 }
@@ -241,6 +272,23 @@ export function outsideRegions(Q, regions, d = 2) {
       : (poly) => insidePolygon(Q[2 * i], Q[2 * i + 1], poly);
     if (polys.length && !polys.some(inside)) out.push(i);
   });
+  return out;
+}
+
+/**
+ * Indices of the moving handles where the operator extrapolates, by the rule of Python's ExtrapolationWarning
+ * (defop.operator.core.beyond_reach): |q_i − P_i| > extrapolation_factor · reach_i + 1e-12, the factor and the
+ * reach (farthest training sample per handle) from the payload (defop.editor.payload.extrapolation_payload);
+ * none without a reach, as in Python.
+ */
+export function extrapolating(Q, p) {
+  const D = p.d || 2, out = [];
+  if (!p.reach) return out;
+  for (let i = 0; i < p.n_moving; i++) {
+    let s = 0;
+    for (let c = 0; c < D; c++) { const t = Q[D * i + c] - p.P[D * i + c]; s += t * t; }
+    if (Math.sqrt(s) > p.extrapolation_factor * p.reach[i] + 1e-12) out.push(i);
+  }
   return out;
 }
 
@@ -591,9 +639,10 @@ export function timingText(st) {
     `evaluation ${fmt(median(st.evalMs), 2)} ms/frame in the page, drawing ${fmt(median(st.drawMs), 1)} ms\n`;
 }
 
-/** The extrapolation warning (shared with defop_solid.js). */
+/** The extrapolation warning (shared with defop_solid.js), for the handles of {@link extrapolating}. */
 export function warnText(st) {
-  return st.outside.length ? `handle ${st.outside.join(", ")} outside its sampling region: the operator extrapolates` : "";
+  return st.outside.length ? `handle ${st.outside.join(", ")} beyond ${st.p.extrapolation_factor}× its farthest ` +
+    "training sample: the operator extrapolates" : "";
 }
 
 /** The readout: timings ({@link timingText}), sizes, the picture, Q, and the extrapolation warning. */
@@ -689,7 +738,7 @@ export function createEditor(root, payload, hooks = {}, options = {}) {
     const t0 = performance.now();
     st.X = st.op.evaluate(st.Q);
     const t1 = performance.now();
-    st.outside = outsideRegions(st.Q, st.p.regions);
+    st.outside = extrapolating(st.Q, st.p);
     drawFrame(ctx, st);
     st.evalMs.push(t1 - t0);
     st.drawMs.push(performance.now() - t1);

@@ -1,6 +1,9 @@
-// defop in-page view of a 3D operator (tetrahedra): the boundary surface shaded, an orbit camera, handles as
-// spheres dragged in the view plane, and a reset button. three.js draws; the operator is evaluated by the one
-// evaluator of defop_editor.js (makeOperator, d = 3), so the page computes exactly what the 2D editor computes.
+// defop in-page view of a 3D operator (tetrahedra): the surface shaded, an orbit camera, handles as spheres
+// dragged in the view plane, and a reset button. The surface is the user's own, embedded in the tetrahedra
+// (EmbeddedSurface of defop.geometry.volumetric.surface: fixed barycentric coordinates in one tetrahedron per
+// vertex), evaluated after the tetrahedra's vertices every frame; without one, the boundary facets of the
+// tetrahedra. Without WebGL the page says so in words (.defop-nowebgl). three.js draws; the operator is evaluated
+// by the one evaluator of defop_editor.js (makeOperator, d = 3), so the page computes what the 2D editor computes.
 //
 // Used by the standalone page (defop.editor.export.to_html for a 3D operator): the page inlines three.js and its
 // OrbitControls (vendored in static/three/, see its README), then defop_editor.js and this file (its import line
@@ -12,7 +15,7 @@
 // that plane at the new handle position q, the operator is evaluated at Q, and the mesh and spheres follow.
 // The orbit camera is disabled while a handle is held. Reset returns Q to P (the rest pose, exact: (8b)).
 
-import { addStyle, decodePayload, dragLoop, el, fromBase64, makeOperator, outsideRegions, timingText, warnText }
+import { addStyle, decodePayload, dragLoop, el, extrapolating, fromBase64, makeOperator, timingText, warnText }
   from "./defop_editor.js";
 
 const PICK_PX = 14; // a handle is picked within this many CSS pixels of its centre
@@ -23,6 +26,7 @@ const SOLID_STYLE = `
 .defop-solid .defop-readout { font-family: ui-monospace, monospace; font-size: 12px; white-space: pre-wrap; }
 .defop-solid .defop-warn { color: #b00; font-weight: 600; min-height: 1.2em; }
 .defop-solid details summary { cursor: pointer; color: #555; }
+.defop-solid .defop-nowebgl { width: 720px; padding: 24px; border: 1px solid #b00; color: #b00; font-weight: 600; }
 `;
 
 function solidLayout(root) {
@@ -50,6 +54,28 @@ function bounds(V) {
   return { center: lo.map((l, c) => (l + hi[c]) / 2), diag: Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) };
 }
 
+/**
+ * The surface the page shades: `F` (flat triangles), `count` vertices and `evaluate(X)` -> their positions (flat
+ * xyz, float64) from the tetrahedra's vertices X. The user's surface when the payload carries one (keys
+ * surface_F, surface_tets, surface_bary of defop.editor.payload.surface_payload): vertex s is
+ * Σ_k b_k X[t_k] over the 4 vertices t_k of its tetrahedron, b_0 = 1 − b_1 − b_2 − b_3 (EmbeddedSurface.deform);
+ * a one-hot b gives X[t_k] exactly, so a handle on the surface lands exactly where the handle vertex does.
+ * Otherwise the boundary facets of the tetrahedra (payload F) on X itself.
+ */
+export function makeSurface(p) {
+  if (!p.surface_F) return { F: p.F, count: p.n_vertices, embedded: false, evaluate: (X) => X };
+  const T = p.surface_tets, B = p.surface_bary, k = T.length / 4, S = new Float64Array(3 * k);
+  const evaluate = (X) => {
+    for (let s = 0; s < k; s++) {
+      const b1 = B[3 * s], b2 = B[3 * s + 1], b3 = B[3 * s + 2], b0 = 1 - b1 - b2 - b3;
+      const t0 = 3 * T[4 * s], t1 = 3 * T[4 * s + 1], t2 = 3 * T[4 * s + 2], t3 = 3 * T[4 * s + 3];
+      for (let c = 0; c < 3; c++) S[3 * s + c] = b0 * X[t0 + c] + b1 * X[t1 + c] + b2 * X[t2 + c] + b3 * X[t3 + c];
+    }
+    return S;
+  };
+  return { F: p.surface_F, count: k, embedded: true, evaluate };
+}
+
 /** The three.js scene: shaded surface, handle spheres, a head light; camera and orbit controls. */
 function makeScene(THREE, OrbitControls, canvas, p, width, height) {
   const renderer = new THREE.WebGLRenderer({ canvas, antialias: false });
@@ -65,11 +91,12 @@ function makeScene(THREE, OrbitControls, canvas, p, width, height) {
   const light = new THREE.DirectionalLight(0xffffff, 2.0); // a head light: the shading follows the orbit
   light.position.set(0.5, 1, 1);
   camera.add(light);
-  const positions = new Float32Array(p.V); // all vertices; the index is the boundary surface
+  const surface = makeSurface(p);
+  const positions = new Float32Array(surface.evaluate(p.V)); // the surface's vertices, indexed by its triangles
   const geometry = new THREE.BufferGeometry();
   geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3).setUsage(THREE.DynamicDrawUsage));
-  geometry.setIndex(new THREE.BufferAttribute(Uint32Array.from(p.F), 1));
-  geometry.computeVertexNormals();
+  geometry.setIndex(new THREE.BufferAttribute(Uint32Array.from(surface.F), 1));
+  geometry.computeVertexNormals(); // shared vertices: smooth shading (normals averaged over the triangles)
   const material = new THREE.MeshLambertMaterial({ color: 0xf2d7a6 });
   const mesh = new THREE.Mesh(geometry, material);
   mesh.frustumCulled = false; // the bounding sphere is the rest pose's; the deformed mesh may leave it
@@ -89,28 +116,35 @@ function makeScene(THREE, OrbitControls, canvas, p, width, height) {
   const controls = new OrbitControls(camera, canvas);
   controls.target.set(...center);
   controls.update();
-  return { THREE, renderer, scene, camera, controls, geometry, positions, spheres, colours, diag };
+  return { THREE, renderer, scene, camera, controls, geometry, positions, surface, spheres, colours, diag };
 }
 
 /**
  * Mount the 3D view of a decoded payload `p` (d = 3) in `root`. Returns the editor object (also root.defopEditor):
- * st.Q, st.X (flat, 3·n_vertices), st.frames / st.updates / st.evalMs / st.drawMs as in the 2D editor,
+ * st.Q, st.X (flat, 3·n_vertices: the vertices the surface uses, defop.editor.compact.drawn_vertices),
+ * st.S (the drawn surface's vertices, flat, float64), st.frames / st.updates / st.evalMs / st.drawMs as in the 2D editor,
  * evaluate(), reset(), handleScreen(i) (CSS pixels in the canvas), camera, controls.
  */
 export function createSolidView(root, p, THREE, OrbitControls, options = {}) {
   if (p.d !== 3) throw new Error(`the 3D view needs a payload with d = 3, got d = ${p.d}`);
   const ui = solidLayout(root);
   const width = options.width || 720, height = options.height || 540;
-  const sc = makeScene(THREE, OrbitControls, ui.canvas, p, width, height);
+  let sc;
+  try {
+    sc = makeScene(THREE, OrbitControls, ui.canvas, p, width, height);
+  } catch (err) {
+    return withoutWebGL(root, ui, p, err);
+  }
   const op = makeOperator(p);
   const movingVertices = Array.from(p.handles).filter((_, i) => p.moving[i]);
-  const st = { p, op, Q: Float64Array.from(p.P), X: null, active: null, outside: [], frames: [], updates: [],
-    evalMs: [], drawMs: [] };
-  const editor = { ui, st, scene: sc, camera: sc.camera, controls: sc.controls };
+  const st = { p, op, Q: Float64Array.from(p.P), X: null, S: null, active: null, outside: [], frames: [], updates: [],
+    evalMs: [], drawMs: [], surfaceTriangles: sc.surface.F.length / 3 };
+  const editor = { ui, st, scene: sc, camera: sc.camera, controls: sc.controls, webgl: true };
 
   const draw = () => {
-    const X = st.X, pos = sc.positions;
-    for (let i = 0; i < pos.length; i++) pos[i] = X[i];
+    const X = st.X, pos = sc.positions, S = sc.surface.evaluate(X);
+    st.S = S;
+    for (let i = 0; i < pos.length; i++) pos[i] = S[i];
     sc.geometry.attributes.position.needsUpdate = true;
     sc.geometry.computeVertexNormals();
     const out = new Set(st.outside);
@@ -127,7 +161,7 @@ export function createSolidView(root, p, THREE, OrbitControls, options = {}) {
     const t0 = performance.now();
     st.X = op.evaluate(st.Q);
     const t1 = performance.now();
-    st.outside = outsideRegions(st.Q, p.regions, 3);
+    st.outside = extrapolating(st.Q, p);
     draw();
     st.evalMs.push(t1 - t0);
     st.drawMs.push(performance.now() - t1);
@@ -157,13 +191,33 @@ export function createSolidView(root, p, THREE, OrbitControls, options = {}) {
   return editor;
 }
 
+/**
+ * The page without WebGL: the canvas gives way to a message in words, and the operator is still evaluated at
+ * the rest pose (st.X), with nothing to drag.
+ */
+function withoutWebGL(root, ui, p, err) {
+  const reason = err && err.message ? ` (${err.message})` : "";
+  const note = el("div", { class: "defop-nowebgl", role: "alert" },
+    "This page draws the 3D shape with WebGL, which this browser does not provide" + reason + ". Turn on " +
+    "WebGL (hardware acceleration) in the browser's settings, or open the page in another browser.");
+  ui.canvas.replaceWith(note);
+  ui.reset.disabled = true;
+  const op = makeOperator(p);
+  const st = { p, op, Q: Float64Array.from(p.P), X: op.evaluate(p.P), S: null, active: null, outside: [], frames: [],
+    updates: [], evalMs: [], drawMs: [], surfaceTriangles: makeSurface(p).F.length / 3 };
+  st.S = makeSurface(p).evaluate(st.X);
+  const editor = { ui, st, webgl: false, message: note };
+  root.defopEditor = editor;
+  return editor;
+}
+
 function solidReadout(ui, st) {
   const Q = st.Q;
   const q = Array.from({ length: st.p.n_moving },
     (_, i) => `q${i} = (${Q[3 * i].toFixed(3)}, ${Q[3 * i + 1].toFixed(3)}, ${Q[3 * i + 2].toFixed(3)})`);
   ui.readout.textContent = timingText(st) +
-    `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices} vertices, ` +
-    `${st.p.F.length / 3} surface triangles)\n` + q.join("\n");
+    `(|Ψ| = ${st.p.size}${st.p.B ? ", rank " + st.p.rank : ""}, ${st.p.n_vertices}${st.p.n_vertices_all ? " of " + st.p.n_vertices_all : ""} vertices, ` +
+    `${st.surfaceTriangles} surface triangles)\n` + q.join("\n");
   ui.warn.textContent = warnText(st);
 }
 

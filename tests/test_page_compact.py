@@ -1,0 +1,151 @@
+"""The standalone page's compact encoding (:mod:`defop.editor.compact`) and its size.
+
+- B on a 12-bit grid per row: within half a step of B, exact in float32, idempotent, packed two codes per three
+  bytes and unpacked by the page (``decodePayload`` of ``defop_editor.js`` in Node) to the same float32 bits;
+  the edges the page rebuilds from F are the mesh's edges.
+- In 3D the page evaluates only the vertices it draws (:func:`~defop.editor.compact.drawn_vertices`), each exactly
+  as the full evaluation does.
+- The default page of the octopus is under 1.5 MB: its mesh and handles, a TPS Ψ of the default 200 samples, and
+  compressed factors of the rank that ``DefOp.compress`` keeps for the trained octopus (67, :data:`RANK_2D`); the
+  operator itself is random (the page's size depends on the shapes of its arrays, not their values). The
+  ``octopus_3d`` page is under 3 MB up to rank 63 (:data:`RANK_3D`), but its trained operator keeps rank 105
+  (:data:`RANK_3D_TRAINED`): 4.4 MB, a strict xfail until the encoding or the 3D defaults close the gap.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+from reference3d import box_tets
+from test_browser_editor import needs_node, node_run
+
+import defop as dop
+from defop.editor import compact, export, payload
+from defop.operator.handle_bases import make_basis
+
+#: the rank ``DefOp.compress()`` keeps (default tolerance) for ``dop.train(dop.shapes.load("octopus"))`` at the
+#: defaults (TPS, m = 200): measured on this branch
+RANK_2D = 67
+#: the encoding's budget for octopus_3d: its page stays under 3 MB up to rank 63 (60 here)
+RANK_3D = 60
+#: the rank ``DefOp.compress()`` keeps for octopus_3d trained at the defaults (TPS, m = 200; measured on its
+#: 2,502-vertex mesh, rounds=1): its 10,327-vertex page is 4.4 MB, over the 3 MB target (xfail below)
+RANK_3D_TRAINED = 105
+DECODE = payload.JS_PATH.parents[3] / "tests" / "js" / "decode_payload.mjs"
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    hnp.arrays(
+        np.float64,
+        hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=9),
+        elements=st.one_of(st.just(0.0), st.floats(1e-20, 1e6), st.floats(-1e6, -1e-20)),  # float32's range
+    ),
+    st.integers(-30, 30),
+)
+def test_12_bit_rows_round_trip(B, shift):
+    B = B * 2.0**shift
+    codes, exponent = compact.quantize_rows(B)
+    assert np.abs(codes).max(initial=0) <= compact.CODE_MAX
+    grid = compact.dequantize_rows(codes, exponent)
+    step = np.exp2(exponent.astype(float))[:, None]
+    assert np.all(np.abs(grid - B) <= 0.5 * step * (1 + 1e-6) + np.abs(B) * 2.0**-24)  # half a step (+ float32)
+    top = np.abs(B).max(axis=1)
+    assert np.all(step[top > 0, 0] <= top[top > 0] / compact.CODE_MAX * 2)  # the smallest power of two
+    np.testing.assert_array_equal(compact.on_grid(grid), grid)  # idempotent: the page's B is known bit for bit
+    np.testing.assert_array_equal(compact.unpack12(compact.pack12(codes), codes.size), codes.ravel())
+    assert compact.pack12(codes).size == 3 * ((codes.size + 1) // 2)
+
+
+def _node_decode(p, Qs, tmp_path, compacted=True):
+    return node_run(DECODE, compact.compact_payload(p) if compacted else p, Qs, tmp_path)
+
+
+@pytest.fixture(scope="module")
+def u_op():
+    shape = dop.shapes.load("u_shape")
+    op, _ = dop.train(shape, basis="tps", m=20, progress=False, n_jobs=1, rounds=1)
+    return op
+
+
+@needs_node
+def test_page_decodes_the_compact_payload(u_op, tmp_path):
+    p = payload.defop_to_payload(u_op, factors=payload.page_factors(u_op))
+    assert "B_packed" in compact.compact_payload(p) and "E" not in compact.compact_payload(p)
+    Q = u_op.P + 0.05
+    out = _node_decode(p, [u_op.P, Q], tmp_path)
+    np.testing.assert_array_equal(np.array(out["B"], np.float32), p["B"].ravel())  # bit for bit
+    edges = {tuple(e) for e in np.array(out["E"]).reshape(-1, 2)}
+    assert edges == {tuple(e) for e in payload.mesh_edges(u_op.mesh.F)}
+    np.testing.assert_array_equal(np.array(out["X"][0]).reshape(-1, 2), u_op.mesh.V)  # rest pose exact (8b)
+    X = np.array(out["X"][1]).reshape(-1, 2)
+    np.testing.assert_array_equal(X[u_op.handles[u_op.moving]], Q)  # handles exact (Prop. 2)
+    assert payload.page_factors(u_op, compress=False) is None  # the full W_F on request
+
+
+@needs_node
+def test_3d_page_evaluates_the_drawn_vertices_as_the_full_one(tmp_path):
+    V, T = box_tets((4, 2, 2), (1.0, 0.5, 0.5))  # 45 vertices, 3 inside
+    mesh = dop.Mesh(V, T)
+    right = np.flatnonzero(V[:, 0] == 1.0)[:2]
+    handles = np.concatenate([right, np.flatnonzero(V[:, 0] == 0.0)])
+    regions = [{"kind": "ball", "radius": 0.1}] * 2
+    shape = dop.Shape(name="box", mesh=mesh, handles=handles, moving=np.arange(len(handles)) < 2, regions=regions)
+    m = dop.training.min_samples("linear", 2, d=3) + 2
+    op, _ = dop.train(shape, energy="sarap", basis="linear", m=m, seed=0, cache=False, n_jobs=1, progress=False)
+    p = payload.defop_to_payload(op, factors=payload.page_factors(op))
+    drawn = compact.drawn_vertices(p)
+    keep = np.unique(mesh.boundary_facets)
+    assert drawn["n_vertices"] == len(keep) < mesh.n_vertices and drawn["n_vertices_all"] == mesh.n_vertices
+    Qs = [op.P, op.P + [[0.1, 0.05, -0.05], [0.0, 0.1, 0.1]]]
+    page = _node_decode(p, Qs, tmp_path)["X"]  # compacted: the drawn vertices only
+    full = _node_decode(p, Qs, tmp_path, compacted=False)["X"]
+    for X, Y in zip(page, full, strict=True):
+        np.testing.assert_array_equal(np.reshape(X, (-1, 3)), np.reshape(Y, (-1, 3))[keep])  # bit for bit
+    np.testing.assert_array_equal(np.reshape(page[0], (-1, 3)), V[keep])  # rest pose exact
+
+
+def _synthetic(shape, rank, seed=0, m=200):
+    """A DefOp of ``shape``'s mesh and handles, TPS of m random samples, compressed factors of ``rank``: random."""
+    rng = np.random.default_rng(seed)
+    P = shape.P_moving
+    samples = P + 0.05 * shape.mesh.bbox_diagonal * rng.standard_normal((m, *P.shape))
+    basis = make_basis("tps", P, samples)
+    W = np.zeros((basis.size, shape.mesh.V.size))
+    op = dop.DefOp(shape.mesh, shape.handles, shape.moving, basis, W, train_samples=samples)
+    A = rng.standard_normal((basis.size - 1, rank)).astype(np.float32)
+    B = rng.standard_normal((rank, shape.mesh.V.size)).astype(np.float32)
+    B[:, op.columns(shape.handles)] = 0
+    return op.set_factors((A, B))
+
+
+OVER = pytest.mark.xfail(strict=True, reason="octopus_3d's trained rank (105) needs 4.4 MB: a known shortfall")
+
+
+@pytest.mark.parametrize(
+    ("name", "rank", "limit"),
+    [
+        ("octopus", RANK_2D, 1.5e6),
+        ("octopus_3d", RANK_3D, 3e6),
+        pytest.param("octopus_3d", RANK_3D_TRAINED, 3e6, marks=OVER),
+    ],
+)
+def test_default_page_sizes(name, rank, limit, tmp_path):
+    shape = dop.shapes.load(name)
+    op = _synthetic(shape, rank)
+    size = export.to_html(op, tmp_path / "page.html", shape=shape).stat().st_size
+    assert size < limit, f"{name}: {size / 1e6:.2f} MB"
+
+
+def test_full_operator_on_request(u_op, tmp_path):
+    small = export.to_html(u_op, tmp_path / "small.html").stat().st_size
+    full = export.to_html(u_op, tmp_path / "full.html", compress=False)
+    assert '"B_packed"' not in full.read_text() and full.stat().st_size > small
+    for bad in (None, 1, "yes"):
+        with pytest.raises(ValueError, match="compress must be True"):
+            export.to_html(u_op, tmp_path / "bad.html", compress=bad)
+    assert not (tmp_path / "bad.html").exists()
+    assert u_op.factors is None  # the page's compression leaves op unchanged
