@@ -10,6 +10,7 @@ import re
 
 from .. import options as opt
 from ..operator.branched import BranchedOperator
+from ..operator.core import EXTRAPOLATION_FACTOR
 from ..operator.defop import DefOp, check_mesh
 from ..operator.movable import MovableOp
 from ..scene.planar_shapes import image_frame as image_frame_of
@@ -287,7 +288,12 @@ def movable_html(op, path, shape=None, title=None):
         )
     payload.update(title=title, kinds=["tps"])
     meta, data = encode_payload(payload)
-    fields = dict(title=html.escape(title), meta=script_json(meta), data=base64.b64encode(data).decode("ascii"))
+    fields = dict(
+        title=html.escape(title),
+        meta=script_json(meta),
+        data=base64.b64encode(data).decode("ascii"),
+        factor=EXTRAPOLATION_FACTOR,
+    )
     text = movable_page(_PAGE).format(js=_inline_script(movable_script()), **fields)
     return opt.write_atomic(path, text.encode("utf-8"))
 

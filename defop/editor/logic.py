@@ -131,7 +131,7 @@ def outside_regions(Q, regions):
     return [i for i, polys in enumerate(regions) if polys and not any(inside_polygon(Q[i], p) for p in polys)]
 
 
-def extrapolating(Q, P, samples):
+def extrapolating(Q, P, samples, reach=None):
     """Indices of the moving handles of Q where the operator extrapolates: beyond
     :data:`~defop.operator.core.EXTRAPOLATION_FACTOR` times their farthest training sample
     (:func:`defop.operator.core.beyond_reach`), the rule of the operators' ExtrapolationWarning and of the page
@@ -143,12 +143,15 @@ def extrapolating(Q, P, samples):
         The handles and their rest positions.
     samples : (m,n,d) numpy array or None
         The training configurations; without them no handle extrapolates (the operator does not warn either).
+    reach : (n,) numpy array, optional
+        The farthest training offset of each handle instead of ``samples`` (a MovableOp's ``reach``, with P its
+        current placement).
 
     Returns
     -------
     list of int
     """
-    reach = training_reach(P, samples)
+    reach = training_reach(P, samples) if reach is None else np.asarray(reach, float)
     if reach is None:
         return []
     dist = np.linalg.norm(np.asarray(Q, float) - np.asarray(P, float), axis=-1)

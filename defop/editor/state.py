@@ -289,7 +289,10 @@ class EditorState:
         list of int
         """
         Q = self.Q if Q is None else opt.points("Q", Q, n=len(self.P))
-        return extrapolating(Q, self.P, self.operator.train_samples)
+        op = self.operator
+        if hasattr(op, "train_samples"):
+            return extrapolating(Q, self.P, op.train_samples)
+        return extrapolating(Q, self.P, None, reach=getattr(op, "reach", None))  # a MovableOp: its reach of Q - P
 
     def _evaluate(self):
         t0 = time.perf_counter()
