@@ -209,7 +209,7 @@ def sample_ground_truth(shape, samples, energy="sarap", X0=None, n_jobs=None, pr
     return gt["X"], gt["converged"]
 
 
-def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cache=True, sampling="auto"):
+def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cache=True, sampling="auto", samples=None):
     """Held-out test samples and their ground truth, solved like the training samples.
 
     Each test configuration is solved globally (:meth:`defop.variational.solver.Solver.solve_best`): from the rest
@@ -228,6 +228,9 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
         An operator whose predictions warm-start the second solve.
     sampling : str
         How the test configurations are drawn, as in :func:`train` (``"auto"``: handle patches moved rigidly).
+    samples : (m,n,d) numpy array, optional
+        The test configurations themselves (e.g. exact rigid patch motions,
+        :func:`defop.training.sampling.rigid_patch_samples` with ``jitter=0``); ``m`` must be their number.
 
     Returns
     -------
@@ -239,7 +242,8 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
     ------
     ValueError
         Before any solve, naming the option: an unknown energy or sampling, ``m``, ``seed`` or ``n_jobs`` not an
-        integer in range, ``like`` not callable, a ``DEFOP_CACHE`` that cannot be used.
+        integer in range, ``like`` not callable, ``samples`` of the wrong shape or number, a ``DEFOP_CACHE`` that
+        cannot be used.
     """
     en.check_energy(energy)
     m = opt.integer("m", m, minimum=1)
@@ -249,7 +253,10 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
     if like is not None and not callable(like):
         raise ValueError(f"like must be a trained operator (a DefOp) or None, got {type(like).__name__}")
     cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
-    Q = sample_shape(shape, m, np.random.default_rng(seed), sampling)
+    if samples is None:
+        Q = sample_shape(shape, m, np.random.default_rng(seed), sampling)
+    elif len(Q := solves.check_samples(shape, samples)) != m:
+        raise ValueError(f"samples holds {len(Q)} configurations, m is {m}")
     X, conv = sample_ground_truth(shape, Q, energy, None, n_jobs, progress, cache)
     if like is not None:
         # the rest-pose solutions (cached) and like's predictions as the starts of one multi-start solve
@@ -368,7 +375,7 @@ def train(
     Raises
     ------
     ValueError
-        Before any solve, naming the option: an unknown energy, handle basis, spatial basis or policy; ``m``,
+        Before any solve, naming the option: an unknown energy, handle basis, spatial basis, policy or sampling; ``m``,
         ``seed``, ``k``, ``rounds`` or ``n_jobs`` that is not an integer in range; fewer samples than
         the handle basis needs (:func:`min_samples`, the message names the basis); ``samples`` of the
         wrong shape or not finite; a ``DEFOP_CACHE`` or ``DEFOP_N_JOBS`` that cannot be used.
