@@ -19,7 +19,8 @@ operator's prediction, the lowest verified minimum kept. The held-out solves are
 
 Targets: every journey at most 5 minutes wall on 2 idle cores; the 3D journeys at most 2% RMS of the diagonal.
 The load average is printed beside the times: on a shared machine wall seconds grow with it, CPU seconds much less.
-Run: ``python benchmarks/bench_own_model.py [star] [glyph] [torus] [--bar]`` (default: the three journeys).
+Run: ``python benchmarks/bench_own_model.py [star] [glyph] [torus] [bar_3d]`` (default: the three journeys;
+``--bar`` adds bar_3d).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 import defop as dop
+from defop.geometry.volumetric.examples import torus_surface
 from defop.scene.handles import patches
 from defop.training.sampling import rigid_patch_samples
 
@@ -64,17 +66,6 @@ def glyph_picture(char="&", pixels=400):
     return rgba[..., :3].mean(axis=-1)
 
 
-def torus(nu=48, nv=24, R=1.0, r=0.35):
-    """A closed torus surface (V, F) around the z axis, tube radius r."""
-    u, v = np.meshgrid(np.arange(nu) * 2 * np.pi / nu, np.arange(nv) * 2 * np.pi / nv, indexing="ij")
-    V = np.stack([(R + r * np.cos(v)) * np.cos(u), (R + r * np.cos(v)) * np.sin(u), r * np.sin(v)], -1)
-    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
-    a, b = i * nv + j, (i + 1) % nu * nv + j
-    c, d = (i + 1) % nu * nv + (j + 1) % nv, i * nv + (j + 1) % nv
-    F = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
-    return V.reshape(-1, 3), F
-
-
 def write_stl(path, V, F):
     """A binary STL (float32 corners, as CAD tools write it)."""
     rec = b"".join(struct.pack("<3f", 0, 0, 0) + V[t].astype("<f4").tobytes() + b"\0\0" for t in F)
@@ -99,7 +90,7 @@ def journeys(folder):
         ),
         "glyph": lambda: dop.shapes.from_image(picture, name="glyph"),
         "torus": lambda: dop.shapes.from_surface(
-            write_stl(folder / "torus.stl", *torus()), handles=H, moving=moving, name="torus"
+            write_stl(folder / "torus.stl", *torus_surface()), handles=H, moving=moving, name="torus"
         ),
         "bar_3d": lambda: dop.shapes.load("bar_3d"),
     }

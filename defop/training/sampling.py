@@ -249,8 +249,9 @@ def twist_bend_samples(P, angle, shift, m, rng, axis=0, jitter=0.02):
     and shifts uniform in the disc of radius ``shift`` across the beam (perpendicular to ``axis``);
     :func:`patch_motions` of those, then each handle moved on its own, uniformly in a ball of radius ``jitter``.
 
-    The samples a user's own 3D model needs when its moving handles are a patch that turns and shifts as one
-    piece: pass them as ``train(shape, ..., samples=Q)``.
+    A beam's end that turns about the beam's axis and shifts across it: pass them as ``train(shape, ...,
+    samples=Q)``. ``train``'s default already moves every handle patch rigidly, about any axis
+    (:func:`rigid_patch_samples`).
 
     Rigid motions alone span a 3-parameter family: their Q_k lie in a 4-dimensional affine subspace of R^{3h}
     (cos and sin of the twist, two shifts), which no linear or TPS Ψ on R^{3h} can be fitted to; the jitter makes
