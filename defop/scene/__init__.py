@@ -2,7 +2,8 @@
 
 :mod:`.regions` are the sampling regions of §3.3, :mod:`.models` the paper's catalogue (Table 1) and
 :mod:`.shapes` the :class:`Shape` and its constructors (``load``, ``from_polygon``, ``from_image``,
-``from_surface``), from :mod:`.shape`, :mod:`.handles` and :mod:`.planar_shapes`.
+``from_surface``), from :mod:`.shape`, :mod:`.handles` (handle indices, and in 3D the handle patches that move as one
+piece: :func:`.handles.patches`) and :mod:`.planar_shapes`.
 """
 
 from . import handles, models, placement, planar_shapes, regions, shape, shapes
