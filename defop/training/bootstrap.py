@@ -40,8 +40,8 @@ DEFAULT_M = 200
 
 #: :func:`train`'s defaults in 3D (tetrahedral meshes): samples Q_k and solve rounds, chosen once for every 3D shape
 #: with the default rigid patch samples. Measured on a torus read from STL (2,039 vertices) and ``bar_3d`` (1,519):
-#: a sample costs about 1.3 CPU s a round; the held-out RMS error (20 exact rigid patch motions of the default region
-#: size) at m = 60, 100, 150 was 2.5%, 1.8%, - (torus) and 1.8%, 1.4%, 1.0% (bar_3d) of the diagonal.
+#: a sample costs about 1.3-1.7 CPU s a round; the held-out RMS error (20 exact rigid patch motions of the default
+#: region size) at m = 60, 100, 150 was 2.5%, 1.8%, 1.8% (torus) and 1.8%, 1.4%, 1.0% (bar_3d) of the diagonal.
 DEFAULT_M_3D = 150
 DEFAULT_ROUNDS_3D = 1
 
@@ -319,7 +319,7 @@ def train(
     """Train a DefOp for a shape: sample, bootstrap, solve, fit (§3.3).
 
     The defaults differ by dimension (:func:`defaults`): in 2D m = 200 samples and 2 solve rounds; in 3D m = 150
-    and 1 round, the samples moving each handle patch rigidly (``sampling``): about 200 CPU s for a surface meshed at
+    and 1 round, the samples moving each handle patch rigidly (``sampling``): about 250 CPU s for a surface meshed at
     the default 2,000 tetrahedral vertices, within 2% RMS of the diagonal on held-out rigid patch motions
     (``benchmarks/bench_own_model.py``).
 
