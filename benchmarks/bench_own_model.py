@@ -10,7 +10,8 @@ The journeys call the library as a user does (a ``from_*`` constructor, then ``d
 
 Each is timed from an empty cache (a fresh ``DEFOP_CACHE`` per journey) and fresh solver processes: wall and CPU
 seconds of the constructor and the training (CPU summed over the solver processes, the training's own stage times),
-and the peak resident memory (``VmHWM``) of this process and of the largest solver process. Then the held-out
+and the peak resident memory (``VmHWM``) of this process (over the journeys run so far: run one journey per
+invocation for its own) and of the largest solver process (fresh per journey). Then the held-out
 error: the RMS vertex distance to the verified ground truth over all held-out poses and vertices, relative to the
 bounding-box diagonal (and the worst pose's), over ``N_TEST`` held-out poses (2D:
 ``dop.training.held_out`` from the shape's regions; 3D: the fixed distribution of exact rigid patch motions at the
