@@ -22,6 +22,7 @@ from hypothesis import strategies as st
 
 from defop.geometry import surface_files as sf
 from defop.geometry.volumetric import surface as surf
+from defop.geometry.volumetric.examples import torus_surface
 
 FIXTURES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "files", "surfaces")
 CUBE = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], dtype=float)
@@ -310,13 +311,8 @@ def test_an_open_surface_names_the_gap_and_the_weld_tolerance_that_closes_it(tmp
 
 # ------------------------------------------------------------------------------------------------ stable meshing
 def torus(nu=48, nv=24, R=1.0, r=0.35):
-    u, v = np.meshgrid(np.arange(nu) * 2 * np.pi / nu, np.arange(nv) * 2 * np.pi / nv, indexing="ij")
-    V = np.stack([(R + r * np.cos(v)) * np.cos(u), (R + r * np.cos(v)) * np.sin(u), r * np.sin(v)], -1)
-    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
-    a, b = i * nv + j, (i + 1) % nu * nv + j
-    c, d = (i + 1) % nu * nv + (j + 1) % nv, i * nv + (j + 1) % nv
-    F = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
-    return V.reshape(-1, 3) + [0.3, -0.2, 0.1], F
+    V, F = torus_surface(nu, nv, R, r)
+    return V + [0.3, -0.2, 0.1], F
 
 
 def _stl(path, V, F):

@@ -152,8 +152,10 @@ def from_surface(
 
     The solid is meshed by Kuhn cubes (:func:`defop.geometry.volumetric.surface.surface_mesh`: the cubes
     whose centre has winding number ≥ 1/2, boundary snapped toward the surface while every tetrahedron
-    keeps a tenth of its volume), the same on every CPU, and the same for every copy of the surface that rounds to
-    the same float32 coordinates (an STL and its OBJ). The surface is embedded in the tetrahedra
+    keeps a tenth of its volume), the same on every CPU, and the same for every copy of the surface with the same
+    canonical coordinates (:func:`defop.geometry.volumetric.surface.canonical_surface`: rounded to float32, then to a
+    grid of about 1e-6 of the diagonal; an STL and its OBJ, or a copy of a surface on that grid perturbed by less
+    than 1.9e-7 of the diagonal), so such copies share their cache entries. The surface is embedded in the tetrahedra
     (``shape.surface``) so that it can be drawn deformed.
 
     Parameters
@@ -174,6 +176,9 @@ def from_surface(
     regions, name, description, region_scale
         As in :func:`defop.scene.planar_shapes.from_polygon`, one region per moving vertex; the default regions
         are balls (``{"kind": "ball", "radius": region_scale × bounding-box diagonal / 2}``).
+        Moving handles whose balls overlap (a patch's vertices) form one handle patch
+        (:func:`defop.scene.handles.patches`), which training moves rigidly by default (:func:`defop.training.train`'s
+        ``sampling``).
     n_vertices : int
         About how many tetrahedral mesh vertices, 100 to ``MAX_VERTICES``.
     overlapping_parts : bool

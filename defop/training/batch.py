@@ -20,7 +20,7 @@ from .. import options as opt
 from ..variational import energies as en
 from .cache import CacheWarning
 
-__all__ = ["CHUNK", "Checkpoints", "hold", "load_or_compute", "map_checkpointed", "parallel_map", "progress"]
+__all__ = ["CHUNK", "Checkpoints", "Stages", "hold", "load_or_compute", "map_checkpointed", "parallel_map", "progress"]
 
 #: Items per checkpoint of :func:`map_checkpointed`: fixed, so the chunks (and their cache keys) do not depend on the
 #: worker count and a training killed with one ``n_jobs`` resumes with another.
@@ -56,6 +56,58 @@ def progress(total, desc, enabled):
     else:
         from tqdm.auto import tqdm
     return tqdm(total=total, desc=desc, leave=False, unit="solve", smoothing=0.1)
+
+
+class Stages:
+    """One progress display over the stages of a computation: a single bar (:func:`progress`) whose total is the
+    solves of every stage and whose ETA is over all of them, its description naming the stage that runs.
+
+    Pass it where a stage takes ``progress`` (:func:`defop.training.solves.solve`'s, :func:`parallel_map`'s
+    ``show``): called as ``stages(total=k, desc=...)`` it names the stage and returns a view of the one bar that
+    counts the stage's k solves and whose ``close()`` leaves the bar open. :meth:`close` closes it.
+
+    Parameters
+    ----------
+    total : int
+        Solves of every stage together.
+    enabled : bool or callable
+        As :func:`progress` (a callable makes the one bar, once).
+    desc : str
+        The computation's name, before each stage's.
+    """
+
+    def __init__(self, total, enabled, desc="training"):
+        self.desc = desc
+        self.bar = progress(int(total), desc, enabled)
+
+    def __bool__(self):
+        return self.bar is not None
+
+    def __call__(self, total=0, desc=""):
+        if self.bar is not None and hasattr(self.bar, "set_description"):
+            self.bar.set_description(f"{self.desc}: {desc}" if desc else self.desc)
+        return _StageView(self.bar)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+class _StageView:
+    """A stage's view of :class:`Stages`'s bar: counts solves on it; closing the stage leaves the bar open."""
+
+    def __init__(self, bar):
+        self.bar = bar
+
+    def __bool__(self):
+        return self.bar is not None
+
+    def update(self, n=1):
+        if self.bar is not None:
+            self.bar.update(n)
+
+    def close(self):
+        pass
 
 
 def parallel_map(fn, items, n_jobs=None, show=False, desc="solving"):

@@ -20,7 +20,6 @@ included), so notebooks and figures never retrain.
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 
 import numpy as np
@@ -35,58 +34,25 @@ from . import batch, solves
 from . import cache as cache_mod
 from . import ground_truths as truths
 from . import multilevel as ml
-from .sampling import sample_shape
+from .record import TrainingRecord as TrainingRecord  # re-exported
+from .sampling import SAMPLINGS, sample_shape
 
 DEFAULT_M = 200
 
+#: :func:`train`'s defaults in 3D (tetrahedral meshes): samples Q_k and solve rounds, chosen once for every 3D shape
+#: with the default rigid patch samples. Measured on a torus read from STL (2,039 vertices) and ``bar_3d`` (1,519):
+#: a sample costs about 1.3-1.7 CPU s a round; the held-out RMS error (20 exact rigid patch motions of the default
+#: region size) at m = 60, 100, 150 was 2.5%, 1.8%, 1.8% (torus) and 1.8%, 1.4%, 1.0% (bar_3d) of the diagonal.
+DEFAULT_M_3D = 150
+DEFAULT_ROUNDS_3D = 1
 
-@dataclasses.dataclass
-class TrainingRecord:
-    """What training did.
+#: :func:`train`'s default solve rounds in 2D
+DEFAULT_ROUNDS = 2
 
-    Attributes
-    ----------
-    samples : (m,n,d) numpy array
-        The training configurations Q_k (rest pose excluded).
-    X : (m,n_vertices,d) numpy array or None
-        Their ground-truth deformations.
-    converged : (m,) bool numpy array or None
-    stage_times : dict of str -> float
-        CPU seconds per stage (``bootstrap``, ``solve``, ``fit``, ``fold``; ``coarse``, ``fine`` for the multilevel
-        policy; ``load``), summed over every process that worked on it (:class:`defop.training.solves.Stopwatch`).
-    cache : str
-        ``"operator"`` (loaded trained operator), ``"ground truth"`` (loaded samples, refitted) or ``"none"``.
-    params : dict
-    policy : str
-        The policy that ran: ``"full"`` or ``"multilevel"`` (``params["policy"]`` is the one asked for).
-    multilevel : dict
-        ``"fallback"``: why one level ran where two were asked for ("" otherwise). After a multilevel training
-        also, per sample: ``"rule"`` (the safeguard rule that fired, "" for none:
-        :data:`defop.training.multilevel.RULES`), ``"iterations"`` (of the single fine run), ``"minima"`` (distinct
-        verified coarse minima), ``"coarse_energy"`` (the coarse winner's); and ``"coarse_vertices"``.
-    wall_times : dict of str -> float
-        Wall seconds per stage, beside ``stage_times``.
-    """
 
-    samples: np.ndarray
-    X: np.ndarray | None
-    converged: np.ndarray | None
-    stage_times: dict
-    cache: str
-    params: dict
-    policy: str = "full"
-    multilevel: dict = dataclasses.field(default_factory=dict)
-    wall_times: dict = dataclasses.field(default_factory=dict)
-
-    @property
-    def safeguard(self) -> dict:
-        """How often each safeguard rule fired (rule -> count; empty unless the multilevel policy ran)."""
-        rules = self.multilevel.get("rule") or []
-        return {r: rules.count(r) for r in ml.RULES if r in rules}
-
-    @property
-    def total_time(self) -> float:
-        return float(sum(self.stage_times.values()))
+def defaults(d):
+    """(m, rounds): :func:`train`'s default sample count and solve rounds in dimension d (2 or 3)."""
+    return (DEFAULT_M_3D, DEFAULT_ROUNDS_3D) if d == 3 else (DEFAULT_M, DEFAULT_ROUNDS)
 
 
 def min_samples(basis, n, d=2):
@@ -112,7 +78,8 @@ def min_samples(basis, n, d=2):
 
 def check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds):
     """Validate :func:`train`'s options before any work (the shared checks of every training); returns
-    (m, samples or None, n_jobs capped at the machine's cores)."""
+    (m, samples or None, n_jobs capped at the machine's cores); m None is the default of the shape's dimension
+    (:func:`defaults`)."""
     opt.choice("handle basis", basis, hb.KINDS)
     opt.choice("spatial basis", spatial, ("hat", "reduced"))
     if spatial == "reduced":  # reduced_basis solves for k + 3 eigenpairs: k + 3 < n_vertices
@@ -124,7 +91,7 @@ def check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, roun
         samples = solves.check_samples(shape, samples)
         m, given = len(samples), "given samples"
     else:
-        m = opt.integer("m", DEFAULT_M if m is None else m, minimum=1)
+        m = opt.integer("m", defaults(shape.mesh.dim)[0] if m is None else m, minimum=1)
         given = f"m = {m}"
     need = min_samples(basis, shape.n_moving, shape.mesh.V.shape[1])
     if m < need:
@@ -238,7 +205,7 @@ def sample_ground_truth(shape, samples, energy="sarap", X0=None, n_jobs=None, pr
     return gt["X"], gt["converged"]
 
 
-def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cache=True):
+def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cache=True, sampling="auto", samples=None):
     """Held-out test samples and their ground truth, solved like the training samples.
 
     Each test configuration is solved globally (:meth:`defop.variational.solver.Solver.solve_best`): from the rest
@@ -255,6 +222,11 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
         Seeds their sampling (use one the training did not).
     like : defop.operator.DefOp, optional
         An operator whose predictions warm-start the second solve.
+    sampling : str
+        How the test configurations are drawn, as in :func:`train` (``"auto"``: handle patches moved rigidly).
+    samples : (m,n,d) numpy array, optional
+        The test configurations themselves (e.g. exact rigid patch motions,
+        :func:`defop.training.sampling.rigid_patch_samples` with ``jitter=0``); ``m`` must be their number.
 
     Returns
     -------
@@ -265,17 +237,22 @@ def held_out(shape, energy, m, seed, like=None, n_jobs=None, progress=True, cach
     Raises
     ------
     ValueError
-        Before any solve, naming the option: an unknown energy, ``m``, ``seed`` or ``n_jobs`` not an
-        integer in range, ``like`` not callable, a ``DEFOP_CACHE`` that cannot be used.
+        Before any solve, naming the option: an unknown energy or sampling, ``m``, ``seed`` or ``n_jobs`` not an
+        integer in range, ``like`` not callable, ``samples`` of the wrong shape or number, a ``DEFOP_CACHE`` that
+        cannot be used.
     """
     en.check_energy(energy)
     m = opt.integer("m", m, minimum=1)
+    opt.choice("sampling", sampling, SAMPLINGS)
     opt.seed(seed)
     opt.n_jobs(n_jobs)
     if like is not None and not callable(like):
         raise ValueError(f"like must be a trained operator (a DefOp) or None, got {type(like).__name__}")
     cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
-    Q = sample_shape(shape, m, np.random.default_rng(seed))
+    if samples is None:
+        Q = sample_shape(shape, m, np.random.default_rng(seed), sampling)
+    elif len(Q := solves.check_samples(shape, samples)) != m:
+        raise ValueError(f"samples holds {len(Q)} configurations, m is {m}")
     X, conv = sample_ground_truth(shape, Q, energy, None, n_jobs, progress, cache)
     if like is not None:
         # the rest-pose solutions (cached) and like's predictions as the starts of one multi-start solve
@@ -296,10 +273,16 @@ def train(
     n_jobs=None,
     cache=True,
     progress=True,
-    rounds=2,
+    rounds=None,
     policy="auto",
+    sampling="auto",
 ):
     """Train a DefOp for a shape: sample, bootstrap, solve, fit (§3.3).
+
+    The defaults differ by dimension (:func:`defaults`): in 2D m = 200 samples and 2 solve rounds; in 3D m = 150
+    and 1 round, the samples moving each handle patch rigidly (``sampling``): about 250 CPU s for a surface meshed at
+    the default 2,000 tetrahedral vertices, within 2% RMS of the diagonal on held-out rigid patch motions
+    (``benchmarks/bench_own_model.py``).
 
     Parameters
     ----------
@@ -310,7 +293,7 @@ def train(
     basis : str
         Handle basis Ψ: ``"linear"``, ``"quadratic"``, ``"cubic"`` or ``"tps"``.
     m : int, optional
-        Number of samples Q_k (default 200; ignored when ``samples`` is given).
+        Number of samples Q_k (default 200 in 2D, 150 in 3D; ignored when ``samples`` is given).
     spatial : str
         Φ: ``"hat"`` or ``"reduced"``.
     k : int
@@ -323,12 +306,14 @@ def train(
         Parallel solves (default: every core).
     cache : bool
         Read and write the on-disk cache.
-    progress : bool
-        tqdm progress bars.
-    rounds : int
-        How many times the solve stage runs. Rounds after the first solve every sample warm-started from a
-        smooth (quadratic, or linear) fit of the current samples and keep whichever of that and the current
-        solution (verified again, not re-solved) has the lower energy: this moves samples that landed in a
+    progress : bool or callable
+        One progress display over every stage's solves (the bootstrap solves, the sample solves, each re-solve
+        round, named as it starts) with one ETA (:class:`defop.training.batch.Stages`; a callable makes the bar,
+        as :func:`defop.training.batch.progress`).
+    rounds : int, optional
+        How many times the solve stage runs (default 2 in 2D, 1 in 3D). Rounds after the first solve every sample
+        warm-started from a smooth (quadratic, or linear) fit of the current samples and keep whichever of that and
+        the current solution (verified again, not re-solved) has the lower energy: this moves samples that landed in a
         higher local minimum (measured on the bar: 1 of 17 samples at 1.5x the energy of the branch its
         neighbours are on) back onto the branch.
     policy : str
@@ -338,6 +323,12 @@ def train(
         e.g. in 3D, it runs ``"full"`` with a :class:`~defop.training.multilevel.MultilevelWarning`). ``"auto"``
         (default): ``"multilevel"`` wherever a coarse mesh exists (2D meshes twice the coarse size or more),
         ``"full"`` elsewhere without a warning, the reason in ``record.multilevel["fallback"]``.
+    sampling : str
+        How the Q_k are drawn when ``samples`` is not given (:func:`defop.training.sampling.sample_shape`):
+        ``"auto"`` (default) moves each handle patch of several handles rigidly (a 3D shape's patch, e.g.
+        ``bar_3d``'s end face: :func:`defop.scene.handles.patches`, :func:`defop.training.sampling.rigid_patch_samples`)
+        and otherwise draws each moving handle from its region (every 2D shape); ``"per_handle"`` always draws each
+        handle from its own region (a patch's handles then move apart); ``"rigid"`` always moves patches rigidly.
 
     Returns
     -------
@@ -348,17 +339,19 @@ def train(
     Raises
     ------
     ValueError
-        Before any solve, naming the option: an unknown energy, handle basis, spatial basis or policy; ``m``,
+        Before any solve, naming the option: an unknown energy, handle basis, spatial basis, policy or sampling; ``m``,
         ``seed``, ``k``, ``rounds`` or ``n_jobs`` that is not an integer in range; fewer samples than
         the handle basis needs (:func:`min_samples`, the message names the basis); ``samples`` of the
         wrong shape or not finite; a ``DEFOP_CACHE`` or ``DEFOP_N_JOBS`` that cannot be used.
     """
     en.check_energy(energy)
     opt.choice("policy", policy, ml.POLICIES)
+    opt.choice("sampling", sampling, SAMPLINGS)
+    rounds = defaults(shape.mesh.dim)[1] if rounds is None else rounds
     m, samples, n_jobs = check_train_options(shape, basis, m, spatial, k, seed, samples, n_jobs, rounds)
     store = cache_mod.open_cache(cache)  # a bad DEFOP_CACHE fails here, before any work
     if samples is None:
-        samples = sample_shape(shape, m, np.random.default_rng(seed))
+        samples = sample_shape(shape, m, np.random.default_rng(seed), sampling)
     used, lv, why = ml.choose(shape, policy)
     params = dict(
         shape=shape.name,
@@ -371,6 +364,7 @@ def train(
         rounds=rounds,
         policy=policy,
         policy_used=used,
+        sampling=sampling,
     )
     gt_key = op_key = None
     if store is not None:

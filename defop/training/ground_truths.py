@@ -80,11 +80,18 @@ def solve(shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, m
     """:func:`ground_truth`'s solves by the policy, cached."""
     ck = None if store is None else batch.Checkpoints(store)  # resume an interrupted run where it stopped
     info = None
-    if lv is None:
-        X, conv, times, wall, _ = portfolios.portfolio(shape, samples, energy, n_jobs, progress, rounds, ck, meta=meta)
-    else:
-        key = [gt_key]
-        X, conv, times, wall, info = _multilevel(lv, samples, energy, n_jobs, progress, rounds, ck, key)
+    total = len(samples) * (rounds + (lv is not None))  # every round solves each sample; multilevel: one fine run
+    stages = batch.Stages(total, progress) if progress else False  # one display, one ETA, over every stage
+    try:
+        if lv is None:
+            X, conv, times, wall, _ = portfolios.portfolio(
+                shape, samples, energy, n_jobs, stages, rounds, ck, meta=meta
+            )
+        else:
+            X, conv, times, wall, info = _multilevel(lv, samples, energy, n_jobs, stages, rounds, ck, [gt_key])
+    finally:
+        if stages:
+            stages.close()
     if store is not None:
         meta = {"times": times, "wall": wall, "multilevel": info}
         store.store("gt", gt_key, {"X": X, "converged": conv}, meta=meta)

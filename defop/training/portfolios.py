@@ -76,10 +76,11 @@ def portfolio(shape, samples, energy, n_jobs=None, progress=True, rounds=2, chec
         more = clock.add(run(samples[nb:], starts=starts, desc="sample solves", checkpoint=ck))
         X, conv = np.concatenate([X, more.X]), np.concatenate([conv, more.converged])
         runs = None if runs is None else runs + more.runs
-    for _ in range(rounds - 1):
+    for r in range(2, rounds + 1):
         inter = fit(mesh, shape.handles, shape.moving, samples, X, _smooth(m, n, d), "hat", meta=meta)
         starts = batch.warm_starts(inter, samples, mesh, energy)
-        again = clock.add(run(samples, starts=starts, incumbents=X, rest=False, desc="re-solves", checkpoint=ck))
+        desc = f"re-solves, round {r} of {rounds}"
+        again = clock.add(run(samples, starts=starts, incumbents=X, rest=False, desc=desc, checkpoint=ck))
         X, conv = again.X, again.converged
         runs = None if runs is None else [a + b for a, b in zip(runs, again.runs)]
     times["solve"], wall["solve"] = clock.cpu, clock.wall

@@ -3,10 +3,16 @@
 Each Q_k is drawn independently per moving handle l, around its rest position p_l, from the handle's
 region (:mod:`defop.scene.regions`; 2D or 3D, d read from P): uniform in a disc or ball, on a circle,
 Gaussian, uniform in the Voronoi cell of p_l with respect to the other moving handles (clipped to a ball),
-or a mixture of these (Fig. 1 mixes discs and Voronoi cells). A 3D handle patch that moves as one rigid piece
-(a beam's end) is sampled by :func:`twist_bend_samples` (rigid motions from :func:`patch_motions`, plus a jitter).
-Fixed handles are not variables: they stay at rest and are not part of Q. All randomness goes through
-the ``rng`` argument (a ``numpy.random.Generator``).
+or a mixture of these (Fig. 1 mixes discs and Voronoi cells).
+
+In 3D a handle is a patch of vertices (:func:`defop.scene.handles.patches`), and a shape's default sampling
+(:func:`sample_shape`, ``sampling="auto"``) moves each patch of several handles rigidly
+(:func:`rigid_patch_samples`: a rotation about its centre and a translation, each in a ball of the region's size,
+plus a small jitter per handle); ``sampling="per_handle"`` draws every handle from its own region instead, which
+tears a patch apart (its handles move independently by up to the region's radius, farther than the patch is wide).
+A beam's end that twists and bends is sampled by :func:`twist_bend_samples` (rigid motions from
+:func:`patch_motions` about the beam's axis). Fixed handles are not variables: they stay at rest and are not part
+of Q. All randomness goes through the ``rng`` argument (a ``numpy.random.Generator``).
 """
 
 from __future__ import annotations
@@ -14,7 +20,18 @@ from __future__ import annotations
 import numpy as np
 
 from .. import options as opt
+from ..scene.handles import patches
 from ..scene.regions import as_region
+
+#: the ways :func:`sample_shape` draws a shape's samples: ``"auto"`` (rigid patches where a patch has several
+#: handles, else per handle), ``"rigid"`` (:func:`rigid_patch_samples`) and ``"per_handle"`` (:func:`sample_handles`)
+SAMPLINGS = ("auto", "rigid", "per_handle")
+
+#: the largest rotation of a rigid patch sample, radians (:func:`rigid_patch_samples`)
+MAX_TURN = np.pi / 2
+
+#: the jitter of each handle of a rigid patch sample, as a fraction of its patch's radius
+PATCH_JITTER = 0.04
 
 
 def sample_region(rng, region, center, m, P=None, index=None):
@@ -72,14 +89,106 @@ def sample_handles(P, regions, m, rng):
     return Q
 
 
-def sample_shape(shape, m, rng):
+def sample_shape(shape, m, rng, sampling="auto"):
     """m configurations of a :class:`defop.scene.shapes.Shape`'s moving handles, from its regions.
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    m : int
+    rng : numpy.random.Generator or int
+    sampling : str
+        ``"per_handle"``: each moving handle independently from its own region (:func:`sample_handles`).
+        ``"rigid"``: each handle patch (:func:`defop.scene.handles.patches`) moved rigidly
+        (:func:`rigid_patch_samples`). ``"auto"`` (default): ``"rigid"`` when some patch has several handles (a
+        3D shape with a handle patch, such as ``bar_3d``), else ``"per_handle"`` (every 2D shape: the same samples
+        as before patches existed).
 
     Returns
     -------
     Q : (m,n,d) numpy array
     """
-    return sample_handles(shape.P_moving, shape.regions, m, rng)
+    opt.choice("sampling", sampling, SAMPLINGS)
+    if sampling == "per_handle":
+        return sample_handles(shape.P_moving, shape.regions, m, rng)
+    groups = patches(shape)
+    if sampling == "auto" and not groups.rigid:
+        return sample_handles(shape.P_moving, shape.regions, m, rng)
+    return rigid_patch_samples(groups, m, rng, regions=shape.regions)
+
+
+def rigid_patch_samples(groups, m, rng, jitter=PATCH_JITTER, max_turn=MAX_TURN, regions=None):
+    """m configurations of handle patches, each moved rigidly: q = c + t + R (p - c) for its members p.
+
+    Per sample and patch: a translation t uniform in the ball of the patch's radius r (its regions' radius) and
+    a rotation R about the centre c by the rotation vector uniform in the ball of radius
+    ``min(max_turn, 2 asin(r / 2ρ))`` (ρ the patch's largest rest offset: no member is turned farther than r);
+    then each member moves on its own, uniformly in a ball of ``jitter`` × r (rigid motions alone lie on a
+    6-dimensional set, on which no Ψ on R^{3k} is determined). A patch of one handle is drawn from its own region.
+
+    Parameters
+    ----------
+    groups : defop.scene.handles.Patches
+    m : int
+    rng : numpy.random.Generator or int
+    jitter : float
+        Each member's own ball, a fraction of r (0: rigid motions only, the held-out distribution).
+    max_turn : float
+        The largest rotation angle, radians, in [0, pi].
+    regions : list of defop.scene.regions.Region, optional
+        The moving handles' regions (needed for patches of one handle whose region is not a ball).
+
+    Returns
+    -------
+    Q : (m,n,d) numpy array
+
+    Raises
+    ------
+    ValueError
+        m not a positive integer, jitter negative, max_turn outside [0, pi], a patch of several handles not in 3D,
+        or a patch of one non-ball handle without ``regions``.
+    """
+    m = opt.integer("m", m, minimum=1)
+    if not jitter >= 0 or not 0 <= max_turn <= np.pi:
+        raise ValueError(f"need jitter >= 0 and 0 <= max_turn <= pi, got jitter={jitter!r}, max_turn={max_turn!r}")
+    rng = opt.rng(rng)
+    n, d = groups.offsets.shape
+    Q = np.empty((m, n, d))
+    P = groups.centres[groups.of()] + groups.offsets
+    for i, k in enumerate(groups.members):
+        c, r = groups.centres[i], float(groups.radii[i])
+        if len(k) == 1:
+            region = {"kind": "ball", "radius": r} if regions is None else regions[k[0]]
+            if not np.isfinite(r) and regions is None:
+                raise ValueError(f"patch {i} (moving handle {int(k[0])}) has no ball region: pass regions")
+            Q[:, k[0]] = as_region(region).sample(rng, c, m, P, int(k[0]))
+            continue
+        if d != 3:
+            raise ValueError(f"a rigid patch of several handles is a 3D concept, got d = {d}")
+        off = groups.offsets[k]
+        rho = float(np.sqrt((off * off).sum(axis=1)).max())
+        turn = min(max_turn, 2 * np.arcsin(min(1.0, r / (2 * rho)))) if rho > 0 else 0.0
+        t = as_region({"kind": "ball", "radius": r}).sample(rng, np.zeros(3), m)
+        w = as_region({"kind": "ball", "radius": max(turn, 1e-300)}).sample(rng, np.zeros(3), m) * (turn > 0)
+        q = c + t[:, None, :] + np.einsum("mab,kb->mka", rotations(w), off)
+        if jitter > 0:
+            q = q + as_region({"kind": "ball", "radius": jitter * r}).sample(rng, np.zeros(3), m * len(k)).reshape(
+                m, len(k), 3
+            )
+        Q[:, k] = q
+    return Q
+
+
+def rotations(w):
+    """(m,3,3) rotation matrices of rotation vectors w (m,3) (Rodrigues' formula; the axis w/|w|, the angle |w|)."""
+    w = np.asarray(w, float).reshape(-1, 3)
+    a = np.sqrt((w * w).sum(axis=1))
+    u = w / np.where(a > 0, a, 1.0)[:, None]
+    K = np.zeros((len(w), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = u[:, 2], -u[:, 1], u[:, 0]
+    s, c = np.sin(a)[:, None, None], np.cos(a)[:, None, None]
+    return np.eye(3) + s * K + (1 - c) * np.einsum("mab,mbc->mac", K, K)
 
 
 def _across(axis):
@@ -140,8 +249,9 @@ def twist_bend_samples(P, angle, shift, m, rng, axis=0, jitter=0.02):
     and shifts uniform in the disc of radius ``shift`` across the beam (perpendicular to ``axis``);
     :func:`patch_motions` of those, then each handle moved on its own, uniformly in a ball of radius ``jitter``.
 
-    The samples a user's own 3D model needs when its moving handles are a patch that turns and shifts as one
-    piece: pass them as ``train(shape, ..., samples=Q)``.
+    A beam's end that turns about the beam's axis and shifts across it: pass them as ``train(shape, ...,
+    samples=Q)``. ``train``'s default already moves every handle patch rigidly, about any axis
+    (:func:`rigid_patch_samples`).
 
     Rigid motions alone span a 3-parameter family: their Q_k lie in a 4-dimensional affine subspace of R^{3h}
     (cos and sin of the twist, two shifts), which no linear or TPS Ψ on R^{3h} can be fitted to; the jitter makes

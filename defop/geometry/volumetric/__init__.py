@@ -4,7 +4,7 @@
 solid with a manifold boundary; :mod:`.mesher` keeps the cubes inside a solid (an implicit field or a
 closed triangle surface) and snaps the boundary onto its surface; :mod:`.surface` checks closed
 triangle surfaces, tests inside by libigl's generalised winding number and embeds a fine surface in
-the tetrahedra (barycentric coordinates).
+the tetrahedra (barycentric coordinates); :mod:`.examples` generates example surfaces (a torus).
 """
 
 from . import grid, mesher

@@ -10,9 +10,9 @@ decided by libigl's generalised winding number (``igl.winding_number``, core lib
 approximation), the boundary of the tetrahedral mesh is snapped to the closest surface point
 (``igl.point_mesh_squared_distance``); :meth:`defop.geometry.mesh.Mesh.locate` gives each surface vertex
 its tetrahedron and barycentric coordinates, so the fine surface can be drawn deformed. The surface is meshed
-rounded to float32 (:func:`float32_canonical`), so copies of it that differ by float rounding (an STL and its OBJ)
-give one mesh. An open surface's error names the gap between its boundary vertices and the ``weld_tolerance`` that
-would close it (:func:`weld_hint`).
+from canonical coordinates (:func:`canonical_surface`: rounded to float32, then to a grid of about 1e-6 of the
+diagonal), so copies of it that differ by float rounding (an STL and its OBJ) give one mesh. An open surface's
+error names the gap between its boundary vertices and the ``weld_tolerance`` that would close it (:func:`weld_hint`).
 
 libigl is compiled code without run-time CPU dispatch; its winding number uses libm's ``atan2``, whose
 last bit could differ between libm builds. Only a cube centre within about 1e-15 of winding number 1/2
@@ -23,6 +23,7 @@ purpose.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections import defaultdict
 
 import igl
@@ -50,6 +51,8 @@ __all__ = [
     "weld_hint",
     "float32_canonical",
     "FLOAT32_RANGE",
+    "canonical_surface",
+    "SNAP_TOLERANCE",
 ]
 
 
@@ -359,6 +362,47 @@ def float32_canonical(V):
     return V
 
 
+#: the canonical grid of a surface before meshing (:func:`canonical_surface`), as a fraction of its bounding-box
+#: diagonal: the grid spacing is the largest power of two not above this fraction
+SNAP_TOLERANCE = 1e-6
+
+
+def canonical_surface(V):
+    """The coordinates a surface is meshed from: rounded to float32 (:func:`float32_canonical`), then to the nearest
+    multiple of g, the largest power of two at most :data:`SNAP_TOLERANCE` × the bounding-box diagonal.
+
+    The mesher is not continuous in the surface (a tetrahedron near its thickness floor halves a vertex's move, a
+    cube centre near the surface changes side), so two copies of one surface that differ in the last digits could
+    mesh differently. Stable here means: **copies with the same canonical coordinates mesh identically, bit for
+    bit** (the same tetrahedra, the same cache entries). That holds for
+
+    - copies that round to the same float32 values (an STL, which stores float32, and an OBJ or PLY of it written
+      with 9 significant digits), and
+    - any copy of a surface on the grid (canonical coordinates are) perturbed by less than g/2 minus the float32
+      rounding of its coordinates: by less than 1.9e-7 × the diagonal when no coordinate exceeds the diagonal in
+      magnitude (g/2 ≥ 2.5e-7 × the diagonal; float32 rounds by at most 6e-8 × a coordinate).
+
+    It is not a promise for every perturbation of every surface: a coordinate within ε of a midpoint between two
+    grid values (probability about 2ε/g per coordinate, for a random perturbation of size ε) rounds the other way,
+    and the mesh may then differ; so may g, when the diagonal crosses a power of two. The moves are at most g/2,
+    five orders of magnitude below the mesh size at the default 2,000 vertices.
+
+    Parameters
+    ----------
+    V : (n, 3) numpy array
+
+    Returns
+    -------
+    V : (n, 3) float64 numpy array
+    """
+    V = float32_canonical(np.asarray(V, float))
+    diag = bbox_diagonal(V) if len(V) else 0.0
+    if not (math.isfinite(diag) and diag > 0):
+        return V
+    g = math.ldexp(1.0, math.frexp(SNAP_TOLERANCE * diag)[1] - 1)  # the power of two in (tol·diag/2, tol·diag]
+    return np.round(V / g) * g
+
+
 def surface_mesh(V, F, n_vertices=2000, min_volume=0.1, checked=False, overlapping_parts=False):
     """A tetrahedral mesh of the solid bounded by a closed triangle surface.
 
@@ -378,12 +422,13 @@ def surface_mesh(V, F, n_vertices=2000, min_volume=0.1, checked=False, overlappi
     Returns
     -------
     mesh : defop.geometry.mesh.Mesh
-        Meshed from the surface rounded to float32 (:func:`float32_canonical`): an STL and an OBJ of one
-        surface give the same mesh.
+        Meshed from the surface's canonical coordinates (:func:`canonical_surface`: rounded to float32, then to
+        a grid of about 1e-6 of the diagonal): copies with the same canonical coordinates (an STL and its OBJ, a
+        copy perturbed by less than 2.4e-7 × the diagonal of a surface on that grid) give the same mesh.
     """
     if not checked:
         V, F = check_surface(V, F, overlapping_parts=overlapping_parts)
-    V = float32_canonical(V)
+    V = canonical_surface(V)
     bbox = np.array([V.min(axis=0), V.max(axis=0)])
     inside = inside_surface(V, F)
     h = grid_spacing(inside, bbox, n_vertices)

@@ -1,0 +1,60 @@
+"""What a training did: the :class:`TrainingRecord` that :func:`defop.training.train` returns beside the operator."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from . import multilevel as ml
+
+__all__ = ["TrainingRecord"]
+
+
+@dataclasses.dataclass
+class TrainingRecord:
+    """What training did.
+
+    Attributes
+    ----------
+    samples : (m,n,d) numpy array
+        The training configurations Q_k (rest pose excluded).
+    X : (m,n_vertices,d) numpy array or None
+        Their ground-truth deformations.
+    converged : (m,) bool numpy array or None
+    stage_times : dict of str -> float
+        CPU seconds per stage (``bootstrap``, ``solve``, ``fit``, ``fold``; ``coarse``, ``fine`` for the multilevel
+        policy; ``load``), summed over every process that worked on it (:class:`defop.training.solves.Stopwatch`).
+    cache : str
+        ``"operator"`` (loaded trained operator), ``"ground truth"`` (loaded samples, refitted) or ``"none"``.
+    params : dict
+    policy : str
+        The policy that ran: ``"full"`` or ``"multilevel"`` (``params["policy"]`` is the one asked for).
+    multilevel : dict
+        ``"fallback"``: why one level ran where two were asked for ("" otherwise). After a multilevel training
+        also, per sample: ``"rule"`` (the safeguard rule that fired, "" for none:
+        :data:`defop.training.multilevel.RULES`), ``"iterations"`` (of the single fine run), ``"minima"`` (distinct
+        verified coarse minima), ``"coarse_energy"`` (the coarse winner's); and ``"coarse_vertices"``.
+    wall_times : dict of str -> float
+        Wall seconds per stage, beside ``stage_times``.
+    """
+
+    samples: np.ndarray
+    X: np.ndarray | None
+    converged: np.ndarray | None
+    stage_times: dict
+    cache: str
+    params: dict
+    policy: str = "full"
+    multilevel: dict = dataclasses.field(default_factory=dict)
+    wall_times: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def safeguard(self) -> dict:
+        """How often each safeguard rule fired (rule -> count; empty unless the multilevel policy ran)."""
+        rules = self.multilevel.get("rule") or []
+        return {r: rules.count(r) for r in ml.RULES if r in rules}
+
+    @property
+    def total_time(self) -> float:
+        return float(sum(self.stage_times.values()))
