@@ -18,7 +18,7 @@ from ..operator.core import beyond_reach
 from ..operator.defop import training_reach
 from ..scene.shapes import Shape
 from ..scene.shapes import load as load_shape
-from ..training.bootstrap import DEFAULT_M, min_samples, train
+from ..training.bootstrap import defaults, min_samples, train
 
 #: what a rejected :class:`~defop.editor.state.EditorState` call restores (:func:`restoring`)
 STATE = (
@@ -109,7 +109,7 @@ def check_flag(name, value):
 def train_operator(shape, kind, energy, m=None, train_kw=None):
     """The DefOp of basis ``kind`` the editor trains on first use: :func:`defop.training.bootstrap.train` with at
     least the samples the basis needs (:func:`~defop.training.bootstrap.min_samples`; ``m`` default
-    :data:`~defop.training.bootstrap.DEFAULT_M`), unless ``train_kw`` gives the samples.
+    :func:`~defop.training.bootstrap.defaults` of its dimension), unless ``train_kw`` gives the samples.
 
     Returns
     -------
@@ -117,7 +117,7 @@ def train_operator(shape, kind, energy, m=None, train_kw=None):
     """
     kw = {"energy": energy, "basis": kind, "progress": False, **(train_kw or {})}
     if "samples" not in kw:
-        kw["m"] = max(DEFAULT_M if m is None else int(m), min_samples(kind, shape.n_moving))
+        kw["m"] = max(defaults(shape.mesh.dim)[0] if m is None else int(m), min_samples(kind, shape.n_moving))
     return train(shape, **kw)[0]
 
 

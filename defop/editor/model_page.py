@@ -81,7 +81,7 @@ def _one_solve_seconds(shape, energy, seed):
     return min(times)
 
 
-def plan(own, energy="sarap", basis="tps", m=None, rounds=2, n_jobs=None, seed=0):
+def plan(own, energy="sarap", basis="tps", m=None, rounds=None, n_jobs=None, seed=0):
     """What will be trained on ``own`` and how long it takes, from one measured solve.
 
     The estimate: one solve at a sample of the shape's regions, from the rest pose on one core, is timed (t, the
@@ -103,8 +103,9 @@ def plan(own, energy="sarap", basis="tps", m=None, rounds=2, n_jobs=None, seed=0
     """
     shape = own.shape
     d = shape.mesh.dim
-    m = bootstrap.DEFAULT_M if m is None else opt.integer("m", m, minimum=1)
-    rounds = opt.integer("rounds", rounds, minimum=1)
+    default_m, default_rounds = bootstrap.defaults(own.shape.mesh.dim)  # train's defaults in this dimension
+    m = default_m if m is None else opt.integer("m", m, minimum=1)
+    rounds = opt.integer("rounds", default_rounds if rounds is None else rounds, minimum=1)
     jobs = opt.n_jobs(n_jobs)
     jobs = config.n_jobs() if jobs is None else jobs
     jobs = max(1, opt.cpu_count() + 1 + jobs if jobs < 0 else jobs)  # joblib's -1: every core
@@ -251,7 +252,7 @@ def own_model(
     if fast and n_vertices is None:
         n_vertices = FAST["n_vertices"][d]
     own = load_model(path, handles, fixed, n_vertices)
-    rounds = FAST["rounds"] if fast else 2
+    rounds = FAST["rounds"] if fast else bootstrap.defaults(d)[1]
     if fast and m is None:
         m = bootstrap.min_samples(basis, own.shape.n_moving, d) + FAST["extra_samples"]
     bootstrap.check_train_options(own.shape, basis, m, "hat", 100, seed, None, n_jobs, rounds)
