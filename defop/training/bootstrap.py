@@ -374,7 +374,8 @@ def train(
         ``"full"``: every start on the mesh itself. ``"multilevel"``: the starts run on a coarse mesh of the same
         shape, the fine mesh gets one verified run per sample from the prolongated coarse winner, and a safeguard
         falls back to the full portfolio per sample (:mod:`defop.training.multilevel`; where no coarse mesh exists,
-        e.g. in 3D, it runs ``"full"`` with a :class:`~defop.training.multilevel.MultilevelWarning`). ``"auto"``
+        e.g. a mesh too small or a limb thinner than the coarse spacing, it runs ``"full"`` with a
+        :class:`~defop.training.multilevel.MultilevelWarning`). ``"auto"``
         (default): ``"multilevel"`` from :data:`~defop.training.multilevel.AUTO_VERTICES` vertices on.
 
     Returns
