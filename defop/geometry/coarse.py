@@ -13,8 +13,9 @@ it once on the fine one. This module holds the geometry it needs, on raw arrays:
   handle rows copied: the rest pose goes to the rest pose bit for bit (a zero displacement) and handles to handles
   bit for bit, whatever the round-off of the barycentric coordinates.
 
-3D meshes use the same prolongation; their coarse mesh would be a Kuhn grid at an integer multiple of the spacing,
-which is not built yet (the training falls back to one level and says so).
+* :func:`coarse_mesh_of`: the coarse mesh of a fine one in either dimension; a tetrahedral mesh gets Kuhn cubes at
+  twice the spacing, its inside test the fine mesh, the handles inserted as vertices
+  (:func:`defop.geometry.volumetric.coarsening.coarse_solid_mesh`). The prolongation is the same in 2D and 3D.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .planar.meshing import triangulate
+from .volumetric.coarsening import coarse_solid_mesh, spacing_factor
 
 __all__ = [
     "CoarseningError",
@@ -171,15 +173,29 @@ def prolongate(P, V_fine, V_coarse, X_coarse, fine_handles, coarse_handles):
     return X
 
 
+def _coarse_solid(mesh, points, factor, minimum):
+    """The coarse tetrahedral mesh and its handle vertices, or :class:`CoarseningError`."""
+    try:
+        coarse, idx = coarse_solid_mesh(mesh, points, spacing_factor(factor))
+    except ValueError as exc:
+        raise CoarseningError(f"no coarse Kuhn mesh of the solid: {exc}") from exc
+    if coarse.n_vertices < minimum or 2 * coarse.n_vertices > mesh.n_vertices:
+        raise CoarseningError(
+            f"the mesh has {mesh.n_vertices} vertices: a coarse mesh of {coarse.n_vertices} (at least {minimum}, at "
+            "most half) saves nothing"
+        )
+    return coarse, idx
+
+
 def coarse_mesh_of(mesh, loops, points, factor, minimum):
-    """The coarse planar mesh for a fine one: about ``n / factor`` vertices (at least ``minimum``), same parts.
+    """The coarse mesh for a fine one: about ``n / factor`` vertices (at least ``minimum``), same parts.
 
     Parameters
     ----------
     mesh : defop.geometry.mesh.Mesh
         The fine mesh.
     loops : list of (k, 2) numpy array
-        Its outline (outer first), empty for a mesh with none.
+        Its outline (outer first), empty for a mesh with none (a tetrahedral mesh needs none).
     points : (h, d) numpy array
         Handle points.
     factor : float
@@ -196,17 +212,23 @@ def coarse_mesh_of(mesh, loops, points, factor, minimum):
     Raises
     ------
     CoarseningError
-        3D (no coarse Kuhn grid yet), no outline, a coarse mesh not at least twice smaller, a lost or merged part,
-        or a handle that is not a coarse vertex.
+        No outline (2D), a coarse mesh not at least twice smaller or with fewer than ``minimum`` vertices (3D), a lost
+        or merged part, a fine vertex far outside the coarse mesh, or a handle that cannot be a coarse vertex.
+
+    Notes
+    -----
+    A tetrahedral mesh gets :func:`~defop.geometry.volumetric.coarsening.coarse_solid_mesh` at the integer spacing
+    ``round(factor ** (1/3))`` (at least 2), which divides the vertex count by about ``factor``.
     """
-    if mesh.dim != 2:
-        raise CoarseningError("no coarse mesh for tetrahedral meshes yet (a Kuhn grid at a multiple of the spacing)")
-    target = max(int(minimum), int(mesh.n_vertices / factor))
-    if 2 * target > mesh.n_vertices:
-        raise CoarseningError(
-            f"the mesh has {mesh.n_vertices} vertices: a coarse mesh of {target} (at least {minimum}) saves nothing"
-        )
-    coarse, idx = coarse_planar_mesh(loops, points, target)
+    if mesh.dim == 3:
+        coarse, idx = _coarse_solid(mesh, points, factor, minimum)
+    else:
+        target = max(int(minimum), int(mesh.n_vertices / factor))
+        if 2 * target > mesh.n_vertices:
+            raise CoarseningError(
+                f"the mesh has {mesh.n_vertices} vertices: a coarse mesh of {target} (at least {minimum}) saves nothing"
+            )
+        coarse, idx = coarse_planar_mesh(loops, points, target)
     parts, coarse_parts = n_parts(mesh.F, mesh.n_vertices), n_parts(coarse.F, coarse.n_vertices)
     if parts != coarse_parts:
         raise CoarseningError(f"the coarse mesh has {coarse_parts} parts where the shape has {parts}")

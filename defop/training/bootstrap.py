@@ -320,9 +320,10 @@ def train(
         ``"full"``: every start on the mesh itself. ``"multilevel"``: the starts run on a coarse mesh of the same
         shape, the fine mesh gets one verified run per sample from the prolongated coarse winner, and a safeguard
         falls back to the full portfolio per sample (:mod:`defop.training.multilevel`; where no coarse mesh exists,
-        e.g. in 3D, it runs ``"full"`` with a :class:`~defop.training.multilevel.MultilevelWarning`). ``"auto"``
-        (default): ``"multilevel"`` wherever a coarse mesh exists (2D meshes twice the coarse size or more),
-        ``"full"`` elsewhere without a warning, the reason in ``record.multilevel["fallback"]``.
+        e.g. a mesh too small or a limb thinner than the coarse spacing, it runs ``"full"`` with a
+        :class:`~defop.training.multilevel.MultilevelWarning`). ``"auto"`` (default): ``"multilevel"`` wherever a
+        coarse mesh exists (:func:`~defop.training.multilevel.has_coarse_level`, 2D and 3D), ``"full"`` elsewhere
+        without a warning, the reason in ``record.multilevel["fallback"]``.
     sampling : str
         How the Q_k are drawn when ``samples`` is not given (:func:`defop.training.sampling.sample_shape`):
         ``"auto"`` (default) moves each handle patch of several handles rigidly (a 3D shape's patch, e.g.

@@ -4,7 +4,8 @@ The policy, beside the one-level policy of :func:`defop.training.bootstrap.train
 
 1. **Coarse portfolio.** On a coarse mesh of the same shape with the same handles
    (:func:`defop.geometry.coarse.coarse_mesh_of`: Triangle from the same outline at about 1/:data:`COARSE_FACTOR`
-   of the vertices), every sample runs the full policy's start portfolio (the same code,
+   of the vertices; a tetrahedral mesh gets Kuhn cubes at twice its spacing, the handles inserted as vertices),
+   every sample runs the full policy's start portfolio (the same code,
    :func:`defop.training.portfolios.portfolio`): the rest pose and the prediction of a linear fit to
    the first dn + 1 samples, then ``rounds - 1`` rounds from the prediction of a smooth fit. Every local solve's
    end point is kept (not only the lowest).
@@ -32,12 +33,11 @@ The policy, beside the one-level policy of :func:`defop.training.bootstrap.train
 
    The constants are fixed for every shape; none depends on running statistics.
 
-``policy="auto"`` (the default of ``train``) takes this path wherever a coarse mesh exists (meshes of at least
-:data:`AUTO_VERTICES` vertices: 0, every size; :func:`~defop.geometry.coarse.coarse_mesh_of` refuses a mesh whose
-coarse mesh would not be twice smaller). Where no coarse mesh exists (a 3D mesh: the coarse Kuhn grid is not built
-yet; a mesh without an outline; a coarse mesh that would lose a part or a handle, or save nothing), training runs on
-one level and says so in ``record.multilevel["fallback"]``, and with a :class:`MultilevelWarning` when
-``"multilevel"`` was asked for.
+``policy="auto"`` (the default of ``train``) takes this path wherever a coarse mesh exists (:func:`has_coarse_level`,
+in 2D and 3D, at every size: :data:`AUTO_VERTICES` is 0). Where none exists (a planar mesh without an outline; a mesh
+too small to save anything; a coarse mesh that would lose a part, such as a limb thinner than the coarse spacing, or a
+handle), training runs on one level and says so in ``record.multilevel["fallback"]``, and with a
+:class:`MultilevelWarning` when ``"multilevel"`` was asked for.
 """
 
 from __future__ import annotations
@@ -68,6 +68,7 @@ __all__ = [
     "coarse_level",
     "coarse_portfolio",
     "coarse_constants",
+    "has_coarse_level",
     "constants",
     "refine",
     "rest_start_energy",
@@ -146,6 +147,15 @@ def coarse_level(shape):
     mesh, idx, P = coarse_mesh_of(shape.mesh, shape.outline, shape.P, COARSE_FACTOR, MIN_COARSE_VERTICES)
     coarse = Shape(f"{shape.name} (coarse)", mesh, idx, shape.moving.copy(), list(shape.regions), shape.description)
     return CoarseLevel(shape, coarse, P)
+
+
+def has_coarse_level(shape):
+    """Whether the shape has a coarse level (:func:`coarse_level` succeeds), in 2D or 3D (bool)."""
+    try:
+        coarse_level(shape)
+    except CoarseningError:
+        return False
+    return True
 
 
 def choose(shape, policy):
