@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 import defop as dop
 from defop.geometry.coarse import CoarseningError, coarse_mesh_of, prolongate, prolongation
 from defop.geometry.mesh import Mesh
-from defop.training import bootstrap
+from defop.training import ground_truths
 from defop.training import multilevel as ml
 from defop.variational.solver import Solver
 
@@ -293,7 +293,7 @@ def test_policy_in_the_cache_keys(bar):
     assert rd.params["policy"] == "auto" and np.array_equal(d.W, c.W)
     lv = ml.coarse_level(bar)
     keys = {
-        bootstrap._gt_key(bar, "sarap", ra.samples, 2, p, lv if p == "multilevel" else None)
+        ground_truths.train_key(bar, "sarap", ra.samples, 2, p, lv if p == "multilevel" else None)
         for p in ("full", "multilevel")
     }
     assert len(keys) == 2
