@@ -1,16 +1,14 @@
 """The standalone page's compact encoding (:mod:`defop.editor.compact`) and its size.
 
-- B on a 12-bit grid per row: within half a step of B, exact in float32, idempotent, packed two codes per three
-  bytes and unpacked by the page (``decodePayload`` of ``defop_editor.js`` in Node) to the same float32 bits;
-  the edges the page rebuilds from F are the mesh's edges.
+- B on a power-of-two grid per row (steps sharing the error on the training displacements equally): within half
+  a step of B, exact in float32, idempotent, Rice-coded and decoded by the page (``decodePayload`` of
+  ``defop_editor.js`` in Node) to the same float32 bits; the edges the page rebuilds from F are the mesh's edges.
 - In 3D the page evaluates only the vertices it draws (:func:`~defop.editor.compact.drawn_vertices`), each exactly
   as the full evaluation does.
-- The default page of the octopus is under 1.5 MB: its mesh and handles, a TPS Ψ of the default 200 samples, and
-  compressed factors of the rank that ``DefOp.compress`` keeps for the trained octopus (67, :data:`RANK_2D`); the
-  operator itself is random (the page's size depends on the shapes of its arrays, not their values). The
-  ``octopus_3d`` page is under 3 MB up to rank 63 (:data:`RANK_3D`), but its trained operator keeps rank 105
-  (:data:`RANK_3D_TRAINED`): 4.4 MB, a strict xfail until the encoding or the 3D defaults close the gap.
-"""
+- The default page of the octopus is under 1.5 MB and that of ``octopus_3d`` under 3 MB: their meshes and
+  handles, a TPS Ψ of the default 200 samples, and compressed factors of the rank that ``DefOp.compress`` keeps
+  for the trained operators (67, :data:`RANK_2D`; 105, :data:`RANK_3D_TRAINED`). The factors are random, with the
+  rows' weights of the trained octopus_3d (:data:`SPECTRUM`): the grid, and so the page's size, follows them."""
 
 from __future__ import annotations
 
@@ -29,10 +27,8 @@ from defop.operator.handle_bases import make_basis
 #: the rank ``DefOp.compress()`` keeps (default tolerance) for ``dop.train(dop.shapes.load("octopus"))`` at the
 #: defaults (TPS, m = 200): measured on this branch
 RANK_2D = 67
-#: the encoding's budget for octopus_3d: its page stays under 3 MB up to rank 63 (60 here)
-RANK_3D = 60
 #: the rank ``DefOp.compress()`` keeps for octopus_3d trained at the defaults (TPS, m = 200; measured on its
-#: 2,502-vertex mesh, rounds=1): its 10,327-vertex page is 4.4 MB, over the 3 MB target (xfail below)
+#: 2,502-vertex mesh, rounds=1); the page at 10,327 vertices (5,424 drawn) is 2.8 MB
 RANK_3D_TRAINED = 105
 DECODE = payload.JS_PATH.parents[3] / "tests" / "js" / "decode_payload.mjs"
 

@@ -24,7 +24,7 @@ import numpy as np
 
 #: the grid's expected error on the training displacements Y = S A B M^{1/2}, relative to ‖Y‖_F
 #: (:func:`grid_exponents`). On octopus_3d (2,502 vertices, rank 105) the grid then changes a frame by at most
-#: 1.2e-4 of the diagonal over random poses within the training reach, as 12 bits per row did, in 6.5 bits per
+#: 1.2e-4 of the diagonal over random poses within the training reach, as 12 bits per row did, in 6.6 bits per
 #: entry instead of 12.
 GRID_TOL = 2e-3
 #: the largest code of a row: 16 bits with the sign, so every grid value is exact in float32
