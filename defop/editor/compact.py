@@ -1,96 +1,167 @@
-"""The page's compact encoding of a payload: the factor B in 12 bits per entry, the mesh's indices in 16 bits.
+"""The page's compact encoding of a payload: the factor B on a power-of-two grid per row, Rice-coded, and the mesh's
+indices in 16 bits.
 
 A standalone page carries its numbers as base64 of typed arrays (:func:`defop.editor.payload.encode_payload`).
-Most of them are the factor B of W_F ≈ A B ((r, d n_vertices), :mod:`defop.operator.compress`). The page ships
-B on a 12-bit grid per row: every entry of row j is an integer code c ∈ [−2047, 2047] times 2^e_j, the smallest
-power of two that holds the row's largest entry, so each entry is off by at most half a step, max_c |B_jc| / 2047
-(:func:`quantize_rows`). A 12-bit B is exact in float32 and the quantization is idempotent, so the factors the
-page evaluates are known in Python bit for bit (:func:`defop.editor.payload.page_factors`). B is zero on the
-handle columns (code 0) and multiplies δψ(P) = 0: the handles (Prop. 2) and the rest pose (8b) stay exact.
+Most of them are the factor B of W_F ≈ A B ((r, d n_vertices), :mod:`defop.operator.compress`). The page ships B
+on a grid per row: every entry of row j is an integer code times 2^e_j (:func:`on_grid`). The steps share the
+error equally between the rows (:func:`grid_exponents`): row j enters the training displacements
+Y = S A B M^{1/2} through the column S A_j, so its step is inversely proportional to ‖S A_j‖, and all steps are
+scaled so that the grid's expected error on Y is :data:`GRID_TOL` of ‖Y‖_F (below the compression's own
+:data:`defop.operator.compress.TOL`). The codes are at most 16 bits, so B is exact in float32, and the rounding is
+idempotent: the factors the page evaluates are known in Python bit for bit
+(:func:`defop.editor.payload.page_factors`). B is zero on the handle columns (code 0) and multiplies δψ(P) = 0:
+the handles (Prop. 2) and the rest pose (8b) do not depend on the grid.
 
-``decodePayload`` of ``static/defop_editor.js`` undoes :func:`compact_payload`: it unpacks ``B_packed`` with
-``B_exponent`` into B and, for the 2D canvas fallback, rebuilds the edges E from F.
+The codes are Rice-coded (:func:`rice_pack`: zigzag, then per row a unary quotient and k_j remainder bits): a
+row's codes are mostly small, so this costs about the entropy of the codes instead of the bits of the largest.
+``decodePayload`` of ``static/defop_editor.js`` undoes :func:`compact_payload`: it decodes ``B_rice`` with
+``B_k`` and ``B_exponent`` into B and, for the 2D canvas fallback, rebuilds the edges E from F.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-#: the codes of a 12-bit row: c ∈ [−CODE_MAX, CODE_MAX], stored as c + 2048 in 12 bits
-CODE_MAX = 2047
+#: the grid's expected error on the training displacements Y = S A B M^{1/2}, relative to ‖Y‖_F
+#: (:func:`grid_exponents`). On octopus_3d (2,502 vertices, rank 105) the grid then changes a frame by at most
+#: 1.2e-4 of the diagonal over random poses within the training reach, as 12 bits per row did, in 6.6 bits per
+#: entry instead of 12.
+GRID_TOL = 2e-3
+#: the largest code of a row: 16 bits with the sign, so every grid value is exact in float32
+CODE_MAX = 2**15 - 1
+#: the largest Rice parameter of a row (codes of at most 16 bits)
+K_MAX = 16
 
 
-def quantize_rows(B):
-    """The 12-bit codes and the power-of-two scale of every row of B.
+def grid_exponents(B, SA, mass, tol=GRID_TOL):
+    """The power-of-two step 2^e_j of every row of B that shares the grid's error equally between the rows.
+
+    Row j's rounding (uniform, step s_j) enters Y = S A B M^{1/2} as the column S A_j times it, with expected
+    squared norm ‖S A_j‖² s_j² Σ mass / 12. With s_j = c / ‖S A_j‖ the rows add r c² Σ mass / 12, set to
+    (tol ‖Y‖_F)²; each step is rounded down to a power of two, and clipped to codes of at most
+    :data:`CODE_MAX` (and to at least the row's largest entry).
 
     Parameters
     ----------
     B : (r, c) numpy array
         Finite.
+    SA : (m, r) numpy array
+        The training samples' δψ times A (the identity times A without samples).
+    mass : (c,) numpy array
+        The lumped mass of each column's vertex.
+    tol : float
 
     Returns
     -------
-    codes : (r, c) int16 numpy array
-        In [−2047, 2047]; ``codes * 2.0**exponent[:, None]`` is B within half a step per entry.
     exponent : (r,) int32 numpy array
-        The smallest e with max |B_j| ≤ 2047 · 2^e (0 for a zero row).
     """
     B = np.asarray(B, np.float64)
     if B.ndim != 2 or not np.isfinite(B).all():
         raise ValueError(f"B must be a finite 2D array, got shape {B.shape}")
+    weight = np.linalg.norm(SA, axis=0)
+    Y = np.linalg.norm(SA @ (B * np.sqrt(mass)))
+    c = tol * Y * np.sqrt(12.0 / (len(B) * max(float(np.sum(mass)), 1e-300)))
     top = np.abs(B).max(axis=1, initial=0.0)
-    exponent = np.zeros(len(B), np.int32)
-    nonzero = top > 0
-    exponent[nonzero] = np.ceil(np.log2(top[nonzero] / CODE_MAX)).astype(np.int32)
-    exponent[nonzero & (top > CODE_MAX * np.exp2(exponent.astype(float)))] += 1  # log2's rounding
-    codes = np.rint(B / np.exp2(exponent.astype(float))[:, None])
-    return np.clip(codes, -CODE_MAX, CODE_MAX).astype(np.int16), exponent
+    with np.errstate(divide="ignore"):
+        finest = np.ceil(np.log2(top / CODE_MAX))  # codes of at most CODE_MAX
+        coarsest = np.ceil(np.log2(top))  # codes 0 and ±1
+        target = np.floor(np.log2(c / weight))
+    exponent = np.clip(np.nan_to_num(target, nan=0.0, posinf=coarsest, neginf=finest), finest, coarsest)
+    return np.where(top > 0, exponent, 0).astype(np.int32)
+
+
+def quantize_rows(B, exponent):
+    """The integer codes of B on the grid 2^exponent per row: ``rint(B / 2^e_j)`` (int32 numpy array)."""
+    return np.rint(np.asarray(B, np.float64) / np.exp2(np.asarray(exponent, np.float64))[:, None]).astype(np.int32)
 
 
 def dequantize_rows(codes, exponent):
-    """B on the 12-bit grid: ``codes · 2^exponent`` per row, float32 (exact)."""
+    """B on its grid: ``codes · 2^exponent`` per row, float32 (exact for codes of at most 24 bits)."""
     return (np.asarray(codes, np.float64) * np.exp2(np.asarray(exponent, np.float64))[:, None]).astype(np.float32)
 
 
-def on_grid(B):
-    """B rounded to its 12-bit grid (:func:`quantize_rows`): the factor a page evaluates, float32."""
-    return dequantize_rows(*quantize_rows(B))
+def on_grid(B, exponent):
+    """B rounded to the grid 2^exponent per row (:func:`grid_exponents`): the factor a page evaluates, float32."""
+    return dequantize_rows(quantize_rows(B, exponent), exponent)
 
 
-def pack12(codes):
-    """Codes in [−2047, 2047] as bytes, two per three bytes (little end first); an odd count is padded with 0.
+def exact_grid(B):
+    """The coarsest power-of-two grid per row that holds B exactly, and its codes (None when a code needs more than
+    16 bits: B is then shipped as float32).
 
     Returns
     -------
-    packed : (3 ⌈k/2⌉,) uint8 numpy array
+    codes : (r, c) int32 numpy array, or None
+    exponent : (r,) int32 numpy array, or None
     """
-    u = np.asarray(codes, np.int32).ravel() + 2048
-    if u.size % 2:
-        u = np.append(u, 2048)
-    lo, hi = u[0::2], u[1::2]
-    out = np.empty((len(lo), 3), np.uint8)
-    out[:, 0] = lo & 0xFF
-    out[:, 1] = (lo >> 8) | ((hi & 0xF) << 4)
-    out[:, 2] = hi >> 4
-    return out.ravel()
+    B = np.asarray(B, np.float64)
+    mantissa, power = np.frexp(B)
+    bits = (mantissa * 2.0**53).astype(np.int64)  # exact: B is a float64 value
+    low = np.log2((bits & -bits).astype(np.float64), where=bits != 0, out=np.zeros(B.shape))
+    lowest = np.where(B != 0, power - 53 + low, np.inf).min(axis=1, initial=np.inf)
+    exponent = np.where(np.isfinite(lowest), lowest, 0).astype(np.int32)
+    codes = quantize_rows(B, exponent)
+    if np.abs(codes).max(initial=0) > CODE_MAX:
+        return None, None
+    return codes, exponent
 
 
-def unpack12(packed, count):
-    """The first ``count`` codes of :func:`pack12`'s bytes (int16 numpy array): the page's unpacking in numpy."""
-    b = np.asarray(packed, np.int32).reshape(-1, 3)
-    lo = b[:, 0] | ((b[:, 1] & 0xF) << 8)
-    hi = (b[:, 1] >> 4) | (b[:, 2] << 4)
-    return (np.column_stack([lo, hi]).ravel()[:count] - 2048).astype(np.int16)
+def rice_pack(codes):
+    """Rice codes of every row (LSB first): zigzag z = 2c (c ≥ 0) or −2c − 1, then ⌊z / 2^k_j⌋ ones, a zero and
+    the k_j low bits of z, with k_j the row's shortest.
+
+    Parameters
+    ----------
+    codes : (r, c) integer numpy array
+        |codes| ≤ :data:`CODE_MAX`.
+
+    Returns
+    -------
+    packed : (bytes,) uint8 numpy array
+    k : (r,) uint8 numpy array
+    """
+    c = np.asarray(codes, np.int64)
+    z = np.where(c >= 0, 2 * c, -2 * c - 1)
+    cost = [(z >> k).sum(axis=1) + (k + 1) * z.shape[1] for k in range(K_MAX + 1)]
+    k = np.argmin(np.stack(cost), axis=0).astype(np.uint8)
+    kk = np.repeat(k.astype(np.int64), z.shape[1])
+    z = z.ravel()
+    q = z >> kk
+    start = np.concatenate([[0], np.cumsum(q + 1 + kk)])
+    bits = np.zeros(int(start[-1]), np.uint8)
+    ones = np.repeat(start[:-1], q) + np.arange(int(q.sum())) - np.repeat(np.cumsum(q) - q, q)
+    bits[ones] = 1
+    for b in range(int(k.max(initial=0))):
+        has = kk > b
+        bits[(start[:-1] + q + 1 + b)[has]] = (z[has] >> b) & 1
+    return np.packbits(bits, bitorder="little"), k
+
+
+def rice_unpack(packed, k, cols):
+    """The codes of :func:`rice_pack` ((len(k), cols) int32 numpy array): the page's decoding, in Python."""
+    bits = np.unpackbits(np.asarray(packed, np.uint8), bitorder="little")
+    out, pos = np.zeros((len(k), cols), np.int32), 0
+    for j, kj in enumerate(np.asarray(k, int)):
+        for i in range(cols):
+            q = 0
+            while bits[pos]:
+                q, pos = q + 1, pos + 1
+            r = int(bits[pos + 1 : pos + 1 + kj] @ (1 << np.arange(kj)))
+            pos += 1 + kj
+            z = (q << kj) + r
+            out[j, i] = -(z + 1) // 2 if z & 1 else z // 2
+    return out
 
 
 def compact_payload(p):
     """The payload as the standalone page ships it (a new dict; ``p`` is unchanged).
 
-    In 3D only the vertices the page draws (:func:`drawn_vertices`). ``B``, when it lies on its 12-bit grid (as
-    :func:`defop.editor.payload.page_factors` makes it), becomes ``B_packed`` (:func:`pack12`) and ``B_exponent``
-    (its rows' powers of two); the edges ``E`` are left out (the page rebuilds them from F); the region outlines
-    keep 7 significant digits; triangle indices (``F``, ``surface_F``, ``surface_tets``) become uint16 when there
-    are fewer than 65,536 vertices. Everything else is as in ``p``.
+    In 3D only the vertices the page draws (:func:`drawn_vertices`). ``B``, when its rows lie on power-of-two
+    grids with codes of at most 16 bits (as :func:`defop.editor.payload.page_factors` makes it), becomes ``B_rice``
+    and ``B_k`` (:func:`rice_pack`) and ``B_exponent`` (:func:`exact_grid`: its rows' powers of two); the edges
+    ``E`` are left out (the page rebuilds them from F); the region outlines keep 7 significant digits; triangle
+    indices (``F``, ``surface_F``, ``surface_tets``) become uint16 when there are fewer than 65,536 vertices.
+    Everything else is as in ``p``.
 
     Returns
     -------
@@ -99,10 +170,11 @@ def compact_payload(p):
     out = drawn_vertices(p) if p.get("d") == 3 else dict(p)
     B = out.get("B")
     if B is not None:
-        codes, exponent = quantize_rows(B)
-        if np.array_equal(dequantize_rows(codes, exponent), B):
+        codes, exponent = exact_grid(B)
+        if codes is not None:
             del out["B"]
-            out.update(B_packed=pack12(codes), B_exponent=exponent)
+            packed, k = rice_pack(codes)
+            out.update(B_rice=packed, B_k=k, B_exponent=exponent)
     out.pop("E", None)
     if "regions" in out:  # drawn only (the extrapolation rule reads ``reach``): 7 significant digits
         out["regions"] = [[[float(f"{v:.7g}") for v in poly] for poly in polys] for polys in out["regions"]]

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.planar.outlines import load_image
-from ..operator.compress import factorise
+from ..operator.compress import factorise, training_deltas
 from ..operator.core import EXTRAPOLATION_FACTOR
 from ..operator.defop import training_reach
-from .compact import on_grid
+from .compact import grid_exponents, on_grid
 from .logic import reach_polygons
 
 JS_PATH = Path(__file__).with_name("static") / "defop_editor.js"
@@ -90,8 +90,9 @@ def page_factors(op, compress=True):
 
     With ``compress``: ``op``'s own factors, or else those of :meth:`DefOp.compress
     <defop.operator.defop.DefOp.compress>` at its defaults (float32, :data:`defop.operator.compress.TOL`), with B
-    rounded to its 12-bit grid (:func:`defop.editor.compact.on_grid`: at most max_c |B_jc| / 2047 per entry of row
-    j; zero on the handle columns still), the factors the page evaluates bit for bit. ``op`` is unchanged.
+    rounded to its grid (:func:`defop.editor.compact.on_grid`, steps by :func:`defop.editor.compact.grid_exponents`:
+    the grid's expected error on the training displacements is :data:`defop.editor.compact.GRID_TOL` of theirs;
+    zero on the handle columns still), the factors the page evaluates bit for bit. ``op`` is unchanged.
     Without: ``op.factors`` (None: the full W_F).
 
     Returns
@@ -101,7 +102,11 @@ def page_factors(op, compress=True):
     if not compress:
         return op.factors
     A, B = op.factors if op.factors is not None else factorise(op)
-    return np.asarray(A, np.float32), on_grid(B)
+    A = np.asarray(A, np.float32)
+    S = training_deltas(op)
+    SA = A.astype(np.float64) if S is None else S @ A
+    mass = np.repeat(op.mesh.mass_matrix.diagonal(), op.d)
+    return A, on_grid(B, grid_exponents(B, SA, mass))
 
 
 def defop_to_payload(op, regions=None, factors=None):

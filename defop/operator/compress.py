@@ -60,10 +60,15 @@ def factorise(op, rank=None, tol=TOL, dtype=np.float32):
         A rank that is not a positive integer, a tol outside [0, 1), or another dtype.
     """
     dtype = check_options(rank, tol, dtype)
-    S = None
-    if op.train_samples is not None and len(op.train_samples) > 1:
-        S = op.handle_basis.delta_z(op.handle_basis.z(op.train_samples))
-    return free_factors(op, op.handles, S, rank, tol, dtype)
+    return free_factors(op, op.handles, training_deltas(op), rank, tol, dtype)
+
+
+def training_deltas(op):
+    """S: δψ of ``op``'s training samples ((m, |Ψ|−1) numpy array), the rows of Y = S W_F M^{1/2}; None with
+    fewer than 2 samples (Y = W_F M^{1/2})."""
+    if op.train_samples is None or len(op.train_samples) < 2:
+        return None
+    return op.handle_basis.delta_z(op.handle_basis.z(op.train_samples))
 
 
 def free_factors(op, fixed, S, rank, tol, dtype):

@@ -34,19 +34,24 @@ export function decodePayload(meta, bytes) {
 }
 
 /**
- * The standalone page's compact payload made whole (defop.editor.compact.compact_payload): B from its 12-bit
- * codes (B_packed, 2 per 3 bytes, c + 2048) times 2^B_exponent per row, exact in float32; E from F (2D).
+ * The standalone page's compact payload made whole (defop.editor.compact.compact_payload): B from its Rice codes
+ * (B_rice, LSB first: per row j a unary quotient, a zero and B_k[j] low bits of the zigzag code) times
+ * 2^B_exponent per row, exact in float32; E from F (2D).
  */
 function expandCompact(p) {
-  if (p.B_packed) {
-    const rows = p.B_exponent.length, cols = (p.d || 2) * p.n_vertices, bytes = p.B_packed;
+  if (p.B_rice) {
+    const rows = p.B_exponent.length, cols = (p.d || 2) * p.n_vertices, bytes = p.B_rice, end = 8 * bytes.length;
     const B = new Float32Array(rows * cols);
-    for (let j = 0; j < rows; j++) {
-      const s = 2 ** p.B_exponent[j];
-      for (let c = 0, k = j * cols; c < cols; c++, k++) {
-        const o = 3 * (k >> 1);
-        const u = k & 1 ? (bytes[o + 1] >> 4) | (bytes[o + 2] << 4) : bytes[o] | ((bytes[o + 1] & 15) << 8);
-        B[k] = (u - 2048) * s;
+    let pos = 0;
+    for (let j = 0, i = 0; j < rows; j++) {
+      const s = 2 ** p.B_exponent[j], k = p.B_k[j];
+      for (let c = 0; c < cols; c++, i++) {
+        let q = 0, r = 0;
+        while (pos < end && (bytes[pos >> 3] >> (pos & 7)) & 1) { q++; pos++; }
+        pos++;
+        for (let b = 0; b < k; b++, pos++) r |= ((bytes[pos >> 3] >> (pos & 7)) & 1) << b;
+        const z = q * (1 << k) + r;
+        B[i] = (z & 1 ? -(z + 1) / 2 : z / 2) * s;
       }
     }
     p.B = B;
