@@ -25,6 +25,7 @@ from .payload import (
     image_for,
     page_factors,
     region_balls,
+    script_after_editor,
     surface_payload,
 )
 from .state import region_polygons
@@ -338,10 +339,7 @@ def solid_script():
     -------
     str
     """
-    solid = SOLID_JS_PATH.read_text(encoding="utf-8")
-    solid, n = re.subn(r'^import \{[^}]*\}\s*from "\./defop_editor\.js";\n', "", solid, count=1, flags=re.M)
-    if n != 1:
-        raise RuntimeError(f"{SOLID_JS_PATH.name}: no import line from ./defop_editor.js")
+    solid = script_after_editor(SOLID_JS_PATH)
     name = next(iter(THREE_FILES))
     parts = [
         "const THREE = " + _module_as_function(_vendored(name), name) + ";",

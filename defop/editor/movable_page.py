@@ -24,7 +24,7 @@ import re
 import numpy as np
 
 from .logic import reach_polygons
-from .payload import JS_PATH, mesh_edges
+from .payload import JS_PATH, mesh_edges, script_after_editor
 
 MOVABLE_JS_PATH = JS_PATH.with_name("defop_movable.js")
 
@@ -108,11 +108,7 @@ def movable_script():
     -------
     str
     """
-    text = MOVABLE_JS_PATH.read_text(encoding="utf-8")
-    text, n = re.subn(r'^import \{[^}]*\}\s*from "\./defop_editor\.js";\n', "", text, count=1, flags=re.M)
-    if n != 1:
-        raise RuntimeError(f"{MOVABLE_JS_PATH.name}: no import line from ./defop_editor.js")
-    return JS_PATH.read_text(encoding="utf-8") + "\n" + text
+    return JS_PATH.read_text(encoding="utf-8") + "\n" + script_after_editor(MOVABLE_JS_PATH)
 
 
 #: the page's legend entry of the placement regions (added before the fixed-P page's entries)

@@ -9,6 +9,7 @@ and the standalone pages (:mod:`.export`).
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,33 @@ from .compact import grid_exponents, on_grid
 from .logic import reach_polygons
 
 JS_PATH = Path(__file__).with_name("static") / "defop_editor.js"
+
+
+def script_after_editor(path):
+    """The text of a page script that imports from ``defop_editor.js``, without that import line: it runs after the
+    editor's script in the same module scope (the 3D page's ``defop_solid.js``, the movable page's
+    ``defop_movable.js``).
+
+    Parameters
+    ----------
+    path : pathlib.Path
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    RuntimeError
+        The file has no import line from ``./defop_editor.js``.
+    """
+    text = Path(path).read_text(encoding="utf-8")
+    text, n = re.subn(r'^import \{[^}]*\}\s*from "\./defop_editor\.js";\n', "", text, count=1, flags=re.M)
+    if n != 1:
+        raise RuntimeError(f"{Path(path).name}: no import line from ./defop_editor.js")
+    return text
+
+
 _DTYPES = {"f8": np.float64, "f4": np.float32, "i4": np.int32, "u2": np.uint16, "u1": np.uint8}
 # WebGL guarantees far smaller textures, but every current GPU (and Chromium's SwiftShader) takes 4096 per side;
 # the page checks MAX_TEXTURE_SIZE again and draws the untextured mesh when the picture does not fit
