@@ -31,9 +31,11 @@ from ..geometry.mesh import Mesh
 from ..geometry.planar.meshing import MAX_VERTICES, check_n_vertices
 from ..geometry.volumetric import surface as surfaces
 from . import auto_handles as auto
+from .handles import Patches as Patches  # re-exported
 from .handles import check_handles_span as check_handles_span  # re-exported
 from .handles import handle_indices as handle_indices  # re-exported
 from .handles import handle_vertices
+from .handles import patches as patches  # re-exported
 from .models import check_name, default_vertices, model
 from .models import dim as model_dim
 from .planar_shapes import MAX_AUTO_HANDLES as MAX_AUTO_HANDLES  # re-exported
