@@ -476,3 +476,17 @@ def test_a_writer_killed_midway_leaves_no_entry(bar, tmp_path, monkeypatch):
         warnings.simplefilter("error", cm.CacheWarning)
         op, rec = dop.train(bar, **TRAIN)
     assert rec.cache == "none" and len(_entries(cache, "op")) == 1
+
+
+def test_the_main_jobs_journal_lists_the_entries_stored_and_read(tmp_path, monkeypatch):
+    from defop.training import cache_files
+
+    log = tmp_path / "journal"
+    monkeypatch.setenv("DEFOP_CACHE_LOG", str(log))
+    (tmp_path / "c").mkdir()
+    cache = cm.Cache(tmp_path / "c")
+    cache.store("gt", "a" * 20, {"X": np.zeros(2)})
+    assert cache.load("gt", "b" * 20, {"X": ((2,), "f")}) is None  # a miss is not a read
+    assert cache.load("gt", "a" * 20, {"X": ((2,), "f")}) is not None
+    name = "gt-" + "a" * 20 + ".npz"
+    assert cache_files.journal_entries(log.read_text()) == ([name], [name])

@@ -127,3 +127,56 @@ def test_a_whole_run_records_its_wall_time_as_the_total(tmp_path):
     figures.write_runtimes([{**report[0], "cache": "partial"}], "full", path, jobs=2, wall=3.0)  # a part: kept
     entry = json.loads(path.read_text())["full"]
     assert entry["totals"] == {"cold": 7.0} and entry["wall"] == 3.0 and entry["notebooks"]["00_a"]["cpu"] == 4.0
+
+
+def test_a_lesson_waits_on_the_lessons_that_computed_what_it_read():
+    report = [
+        dict(name="09_g", computed=["op-1.npz", "gt-2.npz"], read=["op-1.npz"]),
+        dict(name="12_p", computed=["gt-3.npz"], read=["op-1.npz", "gt-3.npz", "gt-9.npz"]),
+        dict(name="07_o", computed=[], read=["gt-2.npz", "gt-3.npz"]),
+    ]
+    after = schedule.producers(report)
+    assert after == {"12_p": ["09_g"], "07_o": ["09_g", "12_p"]}  # its own entries and unknown ones do not count
+    queue = ["12_p", "07_o", "00_a"]
+    assert schedule.next_ready(queue, {*queue, "09_g"}, after, running=["09_g"]) == 2
+    assert schedule.next_ready(["12_p", "07_o"], {"12_p", "07_o", "09_g"}, after, running=["09_g"]) is None
+    assert schedule.next_ready(["12_p", "07_o"], {"12_p", "07_o"}, after, running=[]) == 0
+    cycle = {"a": ["b"], "b": ["a"]}
+    assert schedule.next_ready(["a", "b"], {"a", "b"}, cycle, running=[]) == 0  # a cycle: the first starts
+
+
+@given(st.lists(st.lists(st.integers(0, 7), max_size=3), min_size=1, max_size=8), st.integers(1, 3))
+def test_no_lesson_starts_before_what_it_waits_on_has_ended(deps, jobs):
+    """A simulated run: whatever the record says (cycles included) every lesson starts once, and one that waits on
+    an earlier-ending lesson of an acyclic record never starts before it has ended."""
+    names = [f"{i:02d}" for i in range(len(deps))]
+    after = {n: sorted({names[j] for j in d if j < len(names)} - {n}) for n, d in zip(names, deps, strict=True)}
+    queue, running, ended, started, t = list(names), {}, {}, {}, 0
+    while queue or running:
+        while queue and len(running) < jobs:
+            i = schedule.next_ready(queue, {*queue, *running}, after, running)
+            if i is None:
+                break
+            name = queue.pop(i)
+            started[name], running[name] = t, t + 1 + int(name) % 3
+        name = min(running, key=running.get)  # the first to end
+        t = running.pop(name)
+        ended[name] = t
+    assert sorted(started) == names
+    acyclic = all(a < n for n, deps_ in after.items() for a in deps_)
+    if acyclic:
+        assert all(started[n] >= ended[a] for n, deps_ in after.items() for a in deps_)
+
+
+def test_a_run_from_an_empty_cache_records_who_waits_on_whom(tmp_path):
+    path = tmp_path / "runtimes.json"
+    report = [
+        dict(name="00_a", seconds=5.0, ok=True, cache="cold", computed=["gt-1.npz"], read=[], start=0.0, end=5.0),
+        dict(name="01_b", seconds=5.0, ok=True, cache="cold", computed=[], read=["gt-1.npz"], start=0.0, end=5.0),
+    ]
+    figures.write_runtimes(report, "full", path, jobs=2, wall=7.0, whole="cold")
+    assert schedule.recorded_after(["00_a", "01_b"], path, "full") == {"01_b": ["00_a"]}
+    assert schedule.recorded_after(["01_b"], path, "full") == {}  # 00_a does not run
+    warm = [{**r, "cache": "warm", "computed": [], "read": ["gt-1.npz"]} for r in report]
+    figures.write_runtimes(warm, "full", path, jobs=2, wall=2.0, whole="warm")  # a warm run keeps the lists
+    assert json.loads(path.read_text())["full"]["notebooks"]["01_b"]["after"] == ["00_a"]

@@ -298,6 +298,7 @@ def _lesson(path, cold=False, inner=None, prefix=None, **kw):
     import tempfile
 
     from ..config import cache_dir
+    from ..training import cache_files
 
     try:
         cache = cache_dir()
@@ -316,13 +317,13 @@ def _lesson(path, cold=False, inner=None, prefix=None, **kw):
             _move_into(own, cache)  # the notebook's results serve the next runs
         written = [] if figures is None else _move_into(figures, FIGURES)
         journal = work / "journal"
-        computed = sorted(set(journal.read_text().split())) if journal.exists() else []
+        computed, read = cache_files.journal_entries(journal.read_text() if journal.exists() else "")
         shutil.rmtree(work, ignore_errors=True)
     new = computed or (before is not None and any(before.get(k) != v for k, v in _entries(cache).items()))
     state = "cold" if cold or cache is None else ("partial" if new else "warm")  # no cache: an empty one every run
     return dict(
         name=path.stem, seconds=seconds, cpu=measured.get("cpu"), ok=error is None, error=error, figures=written,
-        cache=state, computed=computed, start=start, end=time.time(),
+        cache=state, computed=computed, read=read, start=start, end=time.time(),
     )  # fmt: skip
 
 
@@ -347,9 +348,11 @@ def _run_one(path, tag, log, cold=False, **kw):
     return report
 
 
-def _side_by_side(paths, tags, jobs, expected, log, **kw):
-    """Run the notebooks ``paths`` (in this order) on ``jobs`` worker processes, each starting on the first to free;
-    their report lines as they start and end, with the time to go (:func:`schedule.eta`)."""
+def _side_by_side(paths, tags, jobs, expected, log, after=None, **kw):
+    """Run the notebooks ``paths`` (in this order) on ``jobs`` worker processes, each starting on the first to free
+    once the lessons it waits on (``after``, :func:`schedule.next_ready`) have ended; their report lines as they start
+    and end, with the time to go (:func:`schedule.eta`)."""
+    after = {} if after is None else after
     import concurrent.futures as cf
     import multiprocessing
 
@@ -358,7 +361,11 @@ def _side_by_side(paths, tags, jobs, expected, log, **kw):
     with cf.ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         while queue or running:
             while queue and len(running) < jobs:
-                path = queue.pop(0)
+                names = [p.stem for p in queue]
+                i = schedule.next_ready(names, {*names, *(p.stem for p, _ in running.values())}, after, running)
+                if i is None:  # every queued lesson waits on one that runs
+                    break
+                path = queue.pop(i)
                 log(_started(tags[path], kw["fast"], kw["cold"]))
                 job = pool.submit(_lesson, path, inner=inner, prefix=path.stem, **kw)
                 running[job] = (path, time.perf_counter())
@@ -371,7 +378,7 @@ def _side_by_side(paths, tags, jobs, expected, log, **kw):
                     error = f"{path.stem}: the worker running it failed: {type(exc).__name__}: {exc}"
                     now, wall = time.time(), time.perf_counter() - t0
                     r = dict(name=path.stem, seconds=wall, cpu=None, ok=False, error=error, figures=[], cache="partial",
-                             computed=[], start=now - wall, end=now)  # fmt: skip
+                             computed=[], read=[], start=now - wall, end=now)  # fmt: skip
                 left = schedule.eta(
                     [expected[p.stem] for p in queue],
                     [(expected[p.stem], time.perf_counter() - t) for p, t in running.values()],
@@ -447,7 +454,8 @@ def regenerate(
     if jobs == 1:
         report = [_run_one(path, tags[path], log, **kw) for path in paths]
     else:
-        report = _side_by_side(beside, tags, jobs, expected, log, **kw)
+        after = schedule.recorded_after([p.stem for p in beside], RUNTIMES if record is None else record, mode)
+        report = _side_by_side(beside, tags, jobs, expected, log, after=after if cold else None, **kw)
         report += [_run_one(path, tags[path], log, **kw) for path in alone]  # their measured times: nothing beside
         report.sort(key=lambda r: r["name"])
     _summary(report, mode, jobs, time.perf_counter() - t0, log)

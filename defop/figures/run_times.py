@@ -15,7 +15,7 @@ import re
 from pathlib import Path
 
 from .paths import ROOT, RUNTIMES, notebooks
-from .schedule import overlaps
+from .schedule import overlaps, producers
 
 __all__ = [
     "machine_info",
@@ -72,11 +72,13 @@ def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None, whole=None):
     Returns
     -------
     record : dict
-        ``{mode: {"date", "machine", "load", "jobs", "wall", "notebooks": {name: {"seconds", "cpu", "beside", "ok",
-        "cache", "cold", "warm"}}}}``: ``jobs`` notebooks ran side by side (1: one after another) and the run took
-        ``wall`` seconds; per notebook, ``seconds`` (wall), ``cpu`` (its kernel's and workers' CPU seconds),
-        ``beside`` (the notebooks that ran beside it), ``ok`` and ``cache`` are the last run's; ``cold`` and ``warm``
-        the last run of that kind (kept when a later run is of the other kind or ``partial``).
+        ``{mode: {"date", "machine", "load", "jobs", "wall", "notebooks": {name: {"seconds", "cpu", "beside", "after",
+        "ok", "cache", "cold", "warm"}}}}``: ``jobs`` notebooks ran side by side (1: one after another) and the run
+        took ``wall`` seconds; per notebook, ``seconds`` (wall), ``cpu`` (its kernel's and workers' CPU seconds),
+        ``beside`` (the notebooks that ran beside it), ``ok`` and ``cache`` are the last run's; ``after`` the last
+        whole run's from an empty cache (the notebooks that computed a cache entry it read,
+        :func:`schedule.producers`); ``cold`` and ``warm`` the last run of that kind (kept when a later run is of the
+        other kind or ``partial``).
     """
     path = Path(path)
     record = json.loads(path.read_text()) if path.exists() else {}
@@ -92,6 +94,9 @@ def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None, whole=None):
             entry.setdefault("totals", {})[whole] = round(wall, 1)
     spans = {r["name"]: (r["start"], r["end"]) for r in report if "start" in r}
     beside = overlaps(spans) if jobs > 1 else {}
+    # who computed what each lesson read (a run in which no lesson read another's entries, such as a clean run where
+    # each lesson has an empty cache of its own, keeps the old lists)
+    made_by = (producers(report) or None) if whole == "cold" else None
     for r in report:
         old = entry["notebooks"].get(r["name"], {})
         new = {"seconds": round(r["seconds"], 1), "ok": r["ok"]}
@@ -99,6 +104,9 @@ def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None, whole=None):
             new["cpu"] = round(r["cpu"], 1)
         if beside.get(r["name"]):
             new["beside"] = beside[r["name"]]
+        after = old.get("after") if made_by is None else made_by.get(r["name"])
+        if after:
+            new["after"] = after
         if "cache" in r:
             new["cache"] = r["cache"]
             new.update({k: old[k] for k in ("cold", "warm") if k in old})

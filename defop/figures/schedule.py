@@ -5,6 +5,10 @@ The lessons run on ``jobs`` slots (:func:`default_jobs`: one per core). They sta
 do not end up last beside an idle core (list scheduling, longest processing time first). With two slots on two cores
 each lesson's own solves run in its kernel (``DEFOP_N_JOBS=1``, :func:`inner_jobs`), so the two kernels keep the two
 cores busy without oversubscribing them.
+
+A lesson that read a cache entry another lesson computed in the last run from an empty cache waits for that lesson
+to end (:func:`producers`, recorded as ``after``; :func:`next_ready`): beside it, it would only wait on the entry's
+lock with its core idle, while another lesson could use that core.
 """
 
 from __future__ import annotations
@@ -21,9 +25,12 @@ __all__ = [
     "expected_seconds",
     "inner_jobs",
     "makespan",
+    "next_ready",
     "order",
     "overlaps",
     "plan",
+    "producers",
+    "recorded_after",
 ]
 
 #: the seconds assumed for a lesson the record does not know
@@ -87,9 +94,7 @@ def expected_seconds(names, record, mode, cold=False):
     dict of str -> float
         :data:`UNKNOWN_SECONDS`, or the mean of the known ones, for a lesson never recorded.
     """
-    if not isinstance(record, dict):
-        record = json.loads(Path(record).read_text()) if record is not None and Path(record).exists() else {}
-    known = record.get(mode, {}).get("notebooks", {})
+    known = _notebooks(record, mode)
     found = {}
     for name in names:
         entry = known.get(name, {})
@@ -99,6 +104,21 @@ def expected_seconds(names, record, mode, cold=False):
             found[name] = float(value)
     fallback = sum(found.values()) / len(found) if found else UNKNOWN_SECONDS
     return {name: found.get(name, fallback) for name in names}
+
+
+def _notebooks(record, mode):
+    """The record's {name: entry} of ``mode`` (``record``: a path, a missing file or None: nothing known, or a dict)."""
+    if not isinstance(record, dict):
+        record = json.loads(Path(record).read_text()) if record is not None and Path(record).exists() else {}
+    return record.get(mode, {}).get("notebooks", {})
+
+
+def recorded_after(names, record, mode):
+    """{name: the lessons among ``names`` it waits on}: the ``after`` lists the timing record keeps from the last run
+    from an empty cache (:func:`producers`)."""
+    known = _notebooks(record, mode)
+    after = {n: [a for a in known.get(n, {}).get("after", ()) if a in names and a != n] for n in names}
+    return {n: a for n, a in after.items() if a}
 
 
 def order(names, seconds):
@@ -137,3 +157,28 @@ def overlaps(spans):
     return {
         a: sorted(b for b, (s2, e2) in spans.items() if b != a and s2 < e1 and s1 < e2) for a, (s1, e1) in spans.items()
     }
+
+
+def producers(report):
+    """Each lesson's producers in a run from an empty cache: {name: sorted names of the other lessons that computed
+    a cache entry it read}, from ``report``'s ``computed`` and ``read`` entry names (lessons with none left out)."""
+    made = {}
+    for r in report:
+        for entry in r.get("computed", ()):
+            made.setdefault(entry, r["name"])
+    after = {}
+    for r in report:
+        found = {made[e] for e in r.get("read", ()) if e in made} - {r["name"]}
+        if found:
+            after[r["name"]] = sorted(found)
+    return after
+
+
+def next_ready(queue, unfinished, after, running):
+    """The index in ``queue`` (names, in start order) of the first lesson none of whose ``after`` (dict of name ->
+    names) is ``unfinished`` (a set: queued or running); None when every queued lesson waits on one. With nothing
+    ``running`` the first queued lesson starts whatever it waits on (a cycle in the record)."""
+    for i, name in enumerate(queue):
+        if not set(after.get(name, ())) & (set(unfinished) - {name}):
+            return i
+    return 0 if queue and not running else None

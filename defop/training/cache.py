@@ -341,6 +341,7 @@ class Cache:
                     f"{stamped.partition(' ')[0]!r}, this problem's is {digest(kind, key)!r}: a copied or renamed "
                     "file, or a shared cache directory); recomputing it",
                 )
+            files.journal(path, read=True)
             return result
         return None
 

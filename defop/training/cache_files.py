@@ -89,13 +89,26 @@ def acquire_lock(path, wait=True):
         os.close(fd)
 
 
-def journal(path):
+def journal(path, read=False):
     """Append the entry's file name to the file ``DEFOP_CACHE_LOG`` names, when set: the main job's record of the
-    entries a lesson computed (none: the lesson ran from the cache)."""
+    entries a lesson computed (none: the lesson ran from the cache) and, as ``read <name>`` lines (``read=True``),
+    of the entries it read (:func:`journal_entries`)."""
     log = os.environ.get("DEFOP_CACHE_LOG", "").strip()
     if log:
         with contextlib.suppress(OSError), open(log, "a") as fh:
-            fh.write(path.name + "\n")
+            fh.write(("read " if read else "") + path.name + "\n")
+
+
+def journal_entries(text):
+    """(computed, read): the sorted entry names a journal's ``text`` (:func:`journal`) lists as stored and as read."""
+    computed, read = set(), set()
+    for line in text.splitlines():
+        words = line.split()
+        if len(words) == 1:
+            computed.add(words[0])
+        elif len(words) == 2 and words[0] == "read":
+            read.add(words[1])
+    return sorted(computed), sorted(read)
 
 
 def inode(path):
