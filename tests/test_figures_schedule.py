@@ -174,9 +174,13 @@ def test_a_run_from_an_empty_cache_records_who_waits_on_whom(tmp_path):
         dict(name="00_a", seconds=5.0, ok=True, cache="cold", computed=["gt-1.npz"], read=[], start=0.0, end=5.0),
         dict(name="01_b", seconds=5.0, ok=True, cache="cold", computed=[], read=["gt-1.npz"], start=0.0, end=5.0),
     ]
+    report[0]["cpu"] = 4.0
     figures.write_runtimes(report, "full", path, jobs=2, wall=7.0, whole="cold")
     assert schedule.recorded_after(["00_a", "01_b"], path, "full") == {"01_b": ["00_a"]}
+    # the next run from an empty cache starts longest first by the work each lesson did there (wall: 5.0 each)
+    assert schedule.expected_seconds(["00_a", "01_b"], path, "full", cold=True) == {"00_a": 4.0, "01_b": 5.0}
     assert schedule.recorded_after(["01_b"], path, "full") == {}  # 00_a does not run
     warm = [{**r, "cache": "warm", "computed": [], "read": ["gt-1.npz"]} for r in report]
     figures.write_runtimes(warm, "full", path, jobs=2, wall=2.0, whole="warm")  # a warm run keeps the lists
     assert json.loads(path.read_text())["full"]["notebooks"]["01_b"]["after"] == ["00_a"]
+    assert schedule.expected_seconds(["00_a"], path, "full", cold=True) == {"00_a": 4.0}

@@ -77,7 +77,8 @@ def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None, whole=None):
         took ``wall`` seconds; per notebook, ``seconds`` (wall), ``cpu`` (its kernel's and workers' CPU seconds),
         ``beside`` (the notebooks that ran beside it), ``ok`` and ``cache`` are the last run's; ``after`` the last
         whole run's from an empty cache (the notebooks that computed a cache entry it read,
-        :func:`schedule.producers`); ``cold`` and ``warm`` the last run of that kind (kept when a later run is of the
+        :func:`schedule.producers`) and ``cold_job`` (its CPU seconds there, the order of the next such run); ``cold``
+        and ``warm`` the last run of that kind (kept when a later run is of the
         other kind or ``partial``).
     """
     path = Path(path)
@@ -107,6 +108,10 @@ def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None, whole=None):
         after = old.get("after") if made_by is None else made_by.get(r["name"])
         if after:
             new["after"] = after
+        work = r.get("cpu") if r.get("cpu") is not None else r["seconds"]
+        job = round(work, 1) if whole == "cold" and r["ok"] else old.get("cold_job")
+        if job is not None:
+            new["cold_job"] = job
         if "cache" in r:
             new["cache"] = r["cache"]
             new.update({k: old[k] for k in ("cold", "warm") if k in old})

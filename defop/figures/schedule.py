@@ -87,7 +87,9 @@ def expected_seconds(names, record, mode, cold=False):
         ``figures/runtimes.json`` (a missing file: nothing known) or its contents.
     mode : {"full", "fast"}
     cold : bool
-        The times from an empty cache (a clean run) where recorded, else the last run's.
+        The CPU seconds of the lesson in the last whole main job from an empty cache (``cold_job``: the work it
+        did there, not the time it waited), else its time from an empty cache of its own (a clean run), where
+        recorded; else the last run's.
 
     Returns
     -------
@@ -98,7 +100,7 @@ def expected_seconds(names, record, mode, cold=False):
     found = {}
     for name in names:
         entry = known.get(name, {})
-        value = entry.get("cold") if cold else None
+        value = entry.get("cold_job", entry.get("cold")) if cold else None
         value = entry.get("seconds") if value is None else value
         if value is not None:
             found[name] = float(value)
