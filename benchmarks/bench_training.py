@@ -171,6 +171,35 @@ def report(results):
         for k in r["moved"]:
             E = r["energies"][k]
             print(f"  {name}: sample {k} E {E:.9g} vs main {E0[k]:.9g} ({(E - E0[k]) / scale[k]:+.2e} of the scale)")
+    targets(results)
+
+
+#: the targets of a row against main's: at least this many times fewer CPU s, a held-out error ratio at most this
+#: against the reference truth on every seed, and no training sample higher than main's by more than MOVED relative
+CPU_TARGET, ERROR_TARGET = 3.0, 1.1
+
+
+def targets(results):
+    """Each target with its ratio, met or missed, for every row but main's (nothing without a main row)."""
+    if "main" not in results:
+        return
+    base = results["main"]
+    E0 = np.array(base["energies"])
+    scale = np.maximum(E0, 1e-3 * np.median(E0))
+    print(f"targets (load average now {os.getloadavg()[0]:.1f}):")
+    for name, r in results.items():
+        if name == "main":
+            continue
+        cpu = base["cpu"] / r["cpu"]
+        errs = [e["reference"] / e0["reference"] for e, e0 in zip(r["errors"], base["errors"], strict=True)]
+        higher = int(np.sum((np.array(r["energies"]) - E0) > MOVED * scale))
+        met = {True: "met", False: "missed"}
+        print(
+            f"  {name:>10}: CPU {cpu:.2f}x fewer (target >= {CPU_TARGET:g}x: {met[cpu >= CPU_TARGET]})"
+            f"; held-out error vs the reference truth {', '.join(f'{e:.3f}' for e in errs)} (target <= "
+            f"{ERROR_TARGET:g} on every seed: {met[max(errs) <= ERROR_TARGET]}); samples higher "
+            f"than main's {higher} (target 0: {met[higher == 0]})"
+        )
 
 
 def main():
