@@ -100,7 +100,9 @@ def flips(defop, samples):
 def fit_timing(shape, samples, X, basis, spatial="hat", k=100, repeats=5):
     """Seconds of the least-squares fit (problem 8) alone, over ``repeats`` refits, BLAS on one thread.
 
-    Table 1's LS column. Φ is built once, outside the timed region, as :func:`defop.operator.fit.fit` does.
+    Table 1's LS column: the timed part of :func:`defop.operator.fit.fit` (its ``fit_time``, the structured solve
+    :func:`~defop.operator.fit.structure`), once in a whole fit and then ``repeats - 1`` times alone. Φ is built once,
+    outside the timed region, as the fit does.
 
     Parameters
     ----------
@@ -127,10 +129,12 @@ def fit_timing(shape, samples, X, basis, spatial="hat", k=100, repeats=5):
         raise ValueError("fit_time needs the ground truths X (train with a ground-truth cache, or solve them)")
     phi = spatial_mod.make_spatial(shape.mesh, spatial, k)
     with threadpool_limits(limits=1):
-        times = [
-            fit_mod.fit(shape.mesh, shape.handles, shape.moving, samples, X, basis, phi).fit_time
-            for _ in range(max(1, int(repeats)))
-        ]
+        op = fit_mod.fit(shape.mesh, shape.handles, shape.moving, samples, X, basis, phi)
+        times = [op.fit_time]
+        for _ in range(max(1, int(repeats)) - 1):  # the timed part of a fit again (the fold is not timed)
+            t0 = time.perf_counter()
+            fit_mod.structure(op.handle_basis, op.train_samples)
+            times.append(time.perf_counter() - t0)
     return {"median": float(np.median(times)), "best": float(np.min(times)), "repeats": len(times)}
 
 
