@@ -1,6 +1,7 @@
 """MovableOp's default frame: one TPS centre per training sample (fit.centre_count) and the joint compression
-tolerance (movable.COMPRESS_TOL); the guarantees on that path at random placements, and the per-placement state
-never stale whatever sequence of P (as vertices, points, None, an array changed in place) and factors."""
+tolerance (movable.COMPRESS_TOL), and the per-placement state never stale whatever sequence of P (as vertices,
+points, None, an array changed in place) and factors. The guarantees on the default path at random placements:
+tests/test_movable.py::test_guarantees_every_path."""
 
 from __future__ import annotations
 
@@ -70,43 +71,6 @@ def fit_tol():
     from defop.operator.compress import TOL
 
     return TOL
-
-
-def paths(op, Q, P):
-    """Every evaluation path of one frame at P."""
-    yield "call", op(Q, P=P)
-    yield "fast", op.evaluate_fast(Q, P=P)
-    yield "batch", op.evaluate_batch(Q[None], P=P)[0]
-    yield "batch-call", op(np.stack([Q, Q]), P=P)[1]
-
-
-@hsettings(max_examples=20, deadline=None)
-@given(
-    i=st.integers(0, 10**6),
-    j=st.integers(0, 10**6),
-    as_point=st.booleans(),
-    compressed=st.booleans(),
-    scale=st.one_of(st.just(0.0), st.floats(0.0, 0.3)),
-    seed=st.integers(0, 99),
-)
-def test_guarantees_at_random_placements_on_the_default_path(setup, i, j, as_point, compressed, scale, seed):
-    shape, placement, op, _ = setup
-    op = fresh(op).compress() if compressed else fresh(op).decompress()
-    vs = placement.vertices
-    P = np.array([vs[0][i % len(vs[0])], vs[1][j % len(vs[1])]])
-    hm = placement.handles_at(P)[shape.moving]
-    rest = shape.mesh.V[hm]
-    Q = rest + scale * np.random.default_rng(seed).normal(size=rest.shape)
-    fixed = shape.handles[~shape.moving]
-    Pin = shape.mesh.V[P] if as_point else P
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
-        for name, X in paths(op, Q, Pin):
-            assert np.array_equal(X[hm], Q), name  # Prop. 2, bit for bit
-            assert np.array_equal(X[fixed], shape.mesh.V[fixed]), name
-            assert np.isfinite(X).all(), name
-        for name, X in paths(op, rest, Pin):
-            assert np.array_equal(X, shape.mesh.V), name  # (8b), bit for bit
 
 
 step = st.tuples(
