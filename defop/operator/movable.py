@@ -105,7 +105,8 @@ def rest_centres(zs, b):
 
 
 def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight=1.0, centres="auto"):
-    """Fit (M): TPS interpolation of the displacements over the joint space (or, with fewer centres, least squares).
+    """Fit (M): a TPS of the displacements over the joint space, by least squares on m + 1 centres by default
+    (interpolation with every joint point a centre).
 
     Parameters
     ----------
