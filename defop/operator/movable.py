@@ -48,8 +48,8 @@ from .io.movable_file import FORMAT, MEMBERS, save_movable  # noqa: F401  (publi
 #: rest placements a :class:`MovableOp` keeps resolved (keys: P as given and its vertices)
 PLACEMENTS_KEPT = 32
 
-#: :meth:`MovableOp.compress`'s tolerance: δψ spans every placement, so at the fixed-P 5e-3 the rank was 2-3x the
-#: fixed-P one (aleph m = 1,000: 75 against 29; 28 at 2e-2, held-out error 1.07x -> 1.08x the retrained)
+#: :meth:`MovableOp.compress`'s tolerance: δψ spans every placement, so at the fixed-P 5e-3 the rank is 2-3x the
+#: fixed-P one (aleph m = 500: ranks 69, 41, 27 at 5e-3, 1e-2, 2e-2 against 29; frame 5.3x, 3.0x, 1.7x; error same)
 COMPRESS_TOL = 2e-2
 
 
