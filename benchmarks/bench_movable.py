@@ -14,19 +14,20 @@ with its ratio and target:
   precompute is printed);
 * the largest handle residual before the correction (share of the diagonal), flipped triangles per frame (joint,
   carry, retrained);
-* frame: the compressed joint frame (``evaluate_fast``, P as vertex indices and as points) over the compressed
-  fixed-P frame, target <= 3x, beside the multiply-add floor (:func:`frame_cost`: the ratio of the two frames'
-  multiply-adds, the logarithms of Ψ counted apart), at the shape's joint m and at m = 200 and 1,000
-  (:func:`frame_table`).
+* side by side at joint m = 200 and the shape's joint m (the budget's), one row each (:func:`compare_row`): the
+  error over the retrained (uncompressed and compressed), the compressed joint frame (``evaluate_fast``, P as vertex
+  indices and as points) over the compressed fixed-P frame, target <= 3x, beside the multiply-add floor
+  (:func:`frame_cost`: the ratio of the two frames' multiply-adds, the logarithms of Ψ counted apart) and the load.
 
 Everything runs in this process (``DEFOP_N_JOBS=1``) so CPU seconds are this process's ``time.process_time()``.
 Run: ``python benchmarks/bench_movable.py [aleph] [octopus] [bar] [n_placements] [m_joint]`` (default the aleph and
 the octopus, 10 placements, joint m 1500 on the aleph, 800 on the octopus, 1000 on the bar;
-``python benchmarks/bench_movable.py frames [shapes]``: the frame table alone; ``BENCH_MOVABLE_NQ=5``: 5 Q per
-training placement; ``BENCH_MOVABLE_TOL``: the joint operator's compression tolerance, default 5e-3 as the fixed-P
-one; ``BENCH_MOVABLE_CENTRES``: its TPS centres, default all); fewer placements is a reduced run, printed as such.
-Truth, retrained operators and the frame table's operators go through ``DEFOP_CACHE`` (their cost is not part of
-any ratio); the two timed trainings never use the cache.
+``python benchmarks/bench_movable.py frames [shapes]``: the frames alone at m = 200 and 1,000 (:func:`frame_table`);
+``BENCH_MOVABLE_NQ=5``: 5 Q per training placement; ``BENCH_MOVABLE_TOL``: the joint operator's compression
+tolerance, default MovableOp.compress's (2e-2; the fixed-P one keeps 5e-3); ``BENCH_MOVABLE_CENTRES``: its TPS
+centres, default train_movable's (one per sample), ``all`` or a count); fewer placements is a reduced run, printed
+as such. Truth, retrained operators and the m = 200 joint operator go through ``DEFOP_CACHE`` (their cost is not
+part of any ratio); the two timed trainings never use the cache.
 """
 
 from __future__ import annotations
@@ -81,10 +82,10 @@ def frame_cost(op):
     return cm.size + k.A.size + k.B.size, cm.shape[1]
 
 
-def frame_row(label, op0, opj, Qn, Q, P, V):
+def frame_row(label, op0, opj, Qn, Q, P, V, errors=""):
     """Time the compressed fixed-P frame (at Qn) and the joint frame (at Q, P as vertices and as points V[P]),
     one after the other (the same load), and print the ratios (wall and this thread's CPU time, the steadier on a
-    busy machine) beside the multiply-add floor. Returns the wall ratio."""
+    busy machine) beside the multiply-add floor (and ``errors``, the row's error ratios). Returns the CPU ratio."""
     tf, cf = frame_seconds(op0.evaluate_fast, Qn)
     tj, cj = frame_seconds(lambda q: opj.evaluate_fast(q, P=P), Q)
     points = V[P]  # the same array each frame, as an editor's drag passes it
@@ -96,9 +97,9 @@ def frame_row(label, op0, opj, Qn, Q, P, V):
         f"points {cp / cf:.2f}x CPU "
         f"(target <= 3x); floor {mj / mf:.2f}x multiply-adds ({mj} / {mf}), logs {lj} / {lf}, "
         f"{(mj + LOG_MACS * lj) / (mf + LOG_MACS * lf):.2f}x with a log as {LOG_MACS} multiply-adds; "
-        f"load average {os.getloadavg()[0]:.1f}"
+        f"{errors}load average {os.getloadavg()[0]:.1f}"
     )
-    return tj / tf
+    return cj / cf
 
 
 def frame_table(name, movable=None, ms=(200, 1000), seed=0):
@@ -111,16 +112,16 @@ def frame_table(name, movable=None, ms=(200, 1000), seed=0):
     op0.compress()
     idx, Q = sample_joint(shape, pr, 1, np.random.default_rng(10_000 + seed), N_Q)
     Qn = Q + (op0.P - mesh.V[pr.handles_at(idx[0])[shape.moving]])
-    print(f"\n== frames, {name} ({mesh.n_vertices} vertices), joint compressed with tol {JOINT_TOL:g}:")
+    print(f"\n== frames, {name} ({mesh.n_vertices} vertices), joint compressed with tol {tol_label()}:")
     out = {}
     for m in ms:
         try:
-            opj, _ = train_movable(shape, pr, "sarap", m=m, seed=seed, progress=False, centres=CENTRES)
+            opj, _ = train_movable(shape, pr, "sarap", m=m, seed=seed, progress=False, **CENTRES)
         except Exception as exc:  # a solver failure in one training (printed, counted as a miss): the table goes on
             print(f"  m={m}: the joint training failed: {type(exc).__name__}: {exc}")
             out[m] = float("inf")
             continue
-        opj.compress(tol=JOINT_TOL)
+        compress_joint(opj)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
             out[m] = frame_row(f"m={m}", op0, opj, Qn, Q, idx[0], mesh.V)
@@ -141,9 +142,7 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
     op0, _ = dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)
     t_fixed = time.process_time() - c0
     c0 = time.process_time()
-    opj, rec = train_movable(
-        shape, pr, "sarap", m=m_joint, seed=seed, n_q=n_q, cache=False, progress=False, centres=CENTRES
-    )
+    opj, rec = train_movable(shape, pr, "sarap", m=m_joint, seed=seed, n_q=n_q, cache=False, progress=False, **CENTRES)
     t_joint = time.process_time() - c0
     print(
         f"budget: fixed-P training m=200 {t_fixed:.1f} CPU s; joint m={m_joint} ({n_q} Q per placement) "
@@ -189,38 +188,64 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
     print(f"residual before the correction: max {max(res):.2e}, median {np.median(res):.2e} of the diagonal")
     print("flipped triangles per frame: " + ", ".join(f"{k} {np.mean(v):.2f}" for k, v in fl.items()))
     op0.compress()
-    opj.compress(tol=JOINT_TOL)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
-        Qn = Q[:N_Q] + (op0.P - mesh.V[pr.handles_at(idx[0])[shape.moving]])
-        print("compressed frame:")
-        frame = frame_row(f"m={m_joint}", op0, opj, Qn, Q[:N_Q], idx[0], mesh.V)
-        err_c = np.mean(
+    held = (idx, Q, X, n_place)
+    print(f"compressed frame (fixed-P m=200 compressed with tol 5e-3, joint with tol {tol_label()}):")
+    frame = {}
+    for m in (200, m_joint):
+        opm = opj if m == m_joint else train_movable(shape, pr, "sarap", m=m, seed=seed, progress=False, **CENTRES)[0]
+        frame[m] = compare_row(f"m={m}", op0, opm, held, err["retrained"], mesh, pr)
+    return {
+        "budget": t_joint / t_fixed,
+        "err": err["joint"] / err["retrained"],
+        "frame": frame[m_joint],
+        "peers": all(err["joint"] < err[k] for k in PEERS),
+    }
+
+
+def joint_error(opj, held, mesh):
+    """Mean (8a)/n per held-out frame of ``opj`` (every placement's batch at its P)."""
+    idx, Q, X, n_place = held
+    return float(
+        np.mean(
             [
                 err8a(mesh, opj(Q[p * N_Q : (p + 1) * N_Q], P=idx[p * N_Q]), X[p * N_Q : (p + 1) * N_Q])
                 for p in range(n_place)
             ]
         )
-    print(
-        f"joint compressed (tol {JOINT_TOL:g}) error {err_c:.3e}, {err_c / err['retrained']:.2f}x the retrained "
-        "(uncompressed)"
     )
-    frame_table(name, movable, seed=seed)
-    return {
-        "budget": t_joint / t_fixed,
-        "err": err["joint"] / err["retrained"],
-        "frame": frame,
-        "peers": all(err["joint"] < err[k] for k in PEERS),
-    }
+
+
+def compare_row(label, op0, opj, held, e_ret, mesh, pr):
+    """One row of the side-by-side table: the joint operator's error over the retrained (uncompressed and
+    compressed), then its compressed frame over the fixed-P one (:func:`frame_row`). Returns the frame's CPU ratio."""
+    idx, Q, X, _ = held
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
+        e_u = joint_error(opj, held, mesh)
+        compress_joint(opj)
+        e_c = joint_error(opj, held, mesh)
+        Qn = Q[:N_Q] + (op0.P - mesh.V[pr.handles_at(idx[0])[op0.moving]])
+        errors = f"error {e_u / e_ret:.2f}x retrained, compressed {e_c / e_ret:.2f}x (target <= 2x); "
+        return frame_row(label, op0, opj, Qn, Q[:N_Q], idx[0], mesh.V, errors)
 
 
 #: movable handles, default joint m; Q per placement (fewer rest centres: a cheaper frame)
 CASES = {"aleph": (None, 1500), "octopus": ([0, 3, 6], 800), "bar": (None, 1000)}
 N_Q_TRAIN = int(os.environ.get("BENCH_MOVABLE_NQ", "1"))
-#: the joint operator's compression tolerance (the fixed-P one keeps the default, 5e-3)
-JOINT_TOL = float(os.environ.get("BENCH_MOVABLE_TOL", "5e-3"))
-#: the joint operator's TPS centres (fit_movable(centres=)), default all
-CENTRES = int(os.environ["BENCH_MOVABLE_CENTRES"]) if os.environ.get("BENCH_MOVABLE_CENTRES") else None
+#: the joint operator's compression tolerance (default: MovableOp.compress's; the fixed-P one keeps 5e-3)
+JOINT_TOL = float(os.environ["BENCH_MOVABLE_TOL"]) if os.environ.get("BENCH_MOVABLE_TOL") else None
+#: the joint operator's TPS centres (train_movable(centres=)): default its own (one per sample), "all" or a count
+_C = os.environ.get("BENCH_MOVABLE_CENTRES", "")
+CENTRES = {} if not _C else {"centres": None if _C == "all" else int(_C)}
+
+
+def compress_joint(opj):
+    """Compress the joint operator with ``BENCH_MOVABLE_TOL`` (default MovableOp.compress's own tolerance)."""
+    return opj.compress() if JOINT_TOL is None else opj.compress(tol=JOINT_TOL)
+
+
+def tol_label():
+    return f"{JOINT_TOL:g}" if JOINT_TOL is not None else "the default"
 
 
 def main(names=("aleph", "octopus"), n_place=FULL, m_joint=None):

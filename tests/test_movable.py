@@ -99,7 +99,7 @@ def _paths(op, Q, P):
 @hsettings(max_examples=12, deadline=None)
 @given(i=st.integers(0, 10**6), j=st.integers(0, 10**6), scale=st.floats(0.0, 0.3), seed=st.integers(0, 99))
 def test_guarantees_every_path(shape, placement, i, j, scale, seed):
-    op = _synthetic(shape, placement)
+    op = _synthetic(shape, placement)  # the default fit: one centre per sample
     P = np.array(
         [placement.vertices[0][i % len(placement.vertices[0])], placement.vertices[1][j % len(placement.vertices[1])]]
     )
@@ -109,9 +109,9 @@ def test_guarantees_every_path(shape, placement, i, j, scale, seed):
     fixed = shape.handles[~shape.moving]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
-        for compressed in (False, True):
-            if compressed:
-                op.compress(rank=3)
+        for compress in (None, {"rank": 3}, {}):  # float64 W_F, rank 3, the default (COMPRESS_TOL)
+            if compress is not None:
+                op.compress(**compress)
             for name, X in _paths(op, Q, P):
                 assert np.array_equal(X[hm], Q), name  # Prop. 2, bit for bit
                 assert np.array_equal(X[fixed], shape.mesh.V[fixed]), name
@@ -119,14 +119,17 @@ def test_guarantees_every_path(shape, placement, i, j, scale, seed):
             for name, X in _paths(op, rest, P):
                 assert np.array_equal(X, shape.mesh.V), name  # (8b), bit for bit
             assert np.array_equal(op(rest, P=shape.mesh.V[P]), shape.mesh.V)  # P as points
+            assert np.array_equal(op.evaluate_fast(Q, P=shape.mesh.V[P])[hm], Q)
 
 
 def test_training_reproduced_and_truth(shape, placement, trained):
     op, rec = trained
     assert rec.converged.all()
     diag = shape.mesh.bbox_diagonal
-    for k in range(0, 40, 7):  # Prop. 1: the TPS interpolates every training pair
-        assert np.abs(op(rec.Q[k], P=rec.idx[k]) - rec.X[k]).max() < 1e-8 * diag
+    full = fit_movable(shape.mesh, shape.handles, shape.moving, placement, rec.idx, rec.Q, rec.X, centres=None)
+    assert op.basis.size < full.basis.size  # the default: one centre per sample, fewer than the joint points
+    for k in range(0, 40, 7):  # Prop. 1: with every joint point a centre the TPS interpolates every training pair
+        assert np.abs(full(rec.Q[k], P=rec.idx[k]) - rec.X[k]).max() < 1e-8 * diag
     idx, Q = sample_joint(shape, placement, 4, 123)
     X, conv = solve_joint(shape, placement, idx, Q, n_jobs=1, progress=False)
     with warnings.catch_warnings():

@@ -30,6 +30,7 @@ import time
 import numpy as np
 import scipy.linalg as sla
 
+from .. import options as opt
 from . import handle_bases as hb
 from . import spatial as spatial_mod
 
@@ -290,6 +291,17 @@ def farthest_points(X, k, first=0):
         pick[i] = j = int(np.argmax(d2))
         d2 = np.minimum(d2, np.sum((X - X[j]) ** 2, axis=1))
     return pick
+
+
+def centre_count(centres, m, n_points):
+    """How many of ``n_points`` points (m samples and their rest poses) a least-squares TPS keeps as centres
+    (:func:`defop.operator.movable.fit_movable`, picked by :func:`farthest_points`): ``"auto"`` m + 1, as many as a
+    fixed-P TPS of m samples has, whatever the shape; None all (interpolation); an int that many (at most all)."""
+    if centres is None:
+        return n_points
+    if isinstance(centres, str) and centres == "auto":
+        return min(m + 1, n_points)
+    return min(opt.integer("centres", centres, 1), n_points)
 
 
 def unspanned(z, rcond=SPAN_RCOND):

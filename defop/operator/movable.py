@@ -6,9 +6,12 @@ The rest positions of the *movable* handles (:mod:`defop.scene.placement`) are i
 
 * Ψ is the thin-plate spline basis (:class:`defop.operator.handle_bases.TPSBasis`, kernel r² log r in 2D) on the
   joint space z = [(P_b − P_b⁰)/s_P, (Q − P)/s_Q] ∈ R^{d(b + n)}: the b movable handles' rest offsets from
-  their nominal vertices and the n moving handles' displacements. Its centres are the training pairs
-  (P_k, Q_k) *and* their rest poses (P_k, P_k) (and the nominal rest), with data the displacements X_k − x and 0,
-  so the interpolant f = Ψ W is 0 at every sampled rest pose and reproduces every training pair (Prop. 1).
+  their nominal vertices and the n moving handles' displacements. Its data are the training pairs (P_k, Q_k)
+  *and* their rest poses (P_k, P_k) (and the nominal rest), with values the displacements X_k − x and 0. By
+  default (:func:`centre_count`) m + 1 of these points, farthest first, carry a TPS function, as many as a fixed-P
+  operator of m samples has, and f = Ψ W fits the others by least squares (the nominal rest exactly): the frame
+  pays one logarithm per centre. With every point a centre (``centres=None``) f interpolates: 0 at every sampled
+  rest pose, every training pair reproduced (Prop. 1).
 * δψ subtracts Ψ at (P, P) from the same code on the same bits: at Q = P the two are equal and δψ = 0, so
   D(·; P, P) = x bit for bit (8b), whatever precision W_F is stored in; the rows of a batch at rest are also set
   to x explicitly (a gemm does not promise equal rows equal bits).
@@ -39,17 +42,20 @@ from . import core
 from . import handle_bases as hb
 from . import io as io_mod
 from .core import EXTRAPOLATION_FACTOR, ExtrapolationWarning, OperatorCore, fast_matrices  # noqa: F401  (exported)
-from .fit import farthest_points, structure
+from .fit import centre_count, farthest_points, structure
 from .io.movable_file import FORMAT, MEMBERS, save_movable  # noqa: F401  (public names)
 
 #: rest placements a :class:`MovableOp` keeps resolved (keys: P as given and its vertices)
 PLACEMENTS_KEPT = 32
 
+#: :meth:`MovableOp.compress`'s tolerance: δψ spans every placement, so at the fixed-P 5e-3 the rank is 2-3x the
+#: fixed-P one (aleph m = 500: ranks 69, 41, 27 at 5e-3, 1e-2, 2e-2 against 29; frame 5.3x, 3.0x, 1.7x; error same)
+COMPRESS_TOL = 2e-2
+
 
 @dataclasses.dataclass
 class RestPlacement:
-    """The state of one rest placement P of the movable handles (:meth:`MovableOp.at`, :meth:`CarryOp.at`).
-
+    """The state of one rest placement P of the movable handles (:meth:`MovableOp.at`, :meth:`CarryOp.at`):
     ``idx`` (b,) the movable handles' vertices, ``hm`` (n,) the moving handles' vertices, ``P`` (n, d) their rest
     positions, ``bumps`` the placement's bumps (support, weights); for :class:`MovableOp` also the factors it was
     made for (``key``), z(P, P) (``z0``), δψ's subtrahend (``psi0``), the kernel's frame at (P, P) (``X0``), the
@@ -98,8 +104,9 @@ def rest_centres(zs, b):
     return np.concatenate([np.zeros((1, *zs.shape[1:])), flat.reshape(-1, *zs.shape[1:])])
 
 
-def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight=1.0, centres=None):
-    """Fit (M): TPS interpolation of the displacements over the joint space (or, with fewer centres, least squares).
+def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight=1.0, centres="auto"):
+    """Fit (M): a TPS of the displacements over the joint space, by least squares on m + 1 centres by default
+    (interpolation with every joint point a centre).
 
     Parameters
     ----------
@@ -111,10 +118,12 @@ def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight
     Q : (m, n, d) numpy array
     X : (m, n_vertices, d) numpy array
         The verified solutions of problem (6) with the handles at those vertices.
-    centres : int, optional
+    centres : "auto", int or None, optional
         How many of the joint points (the rest poses and the samples) carry a TPS function, picked farthest
         first from the nominal rest (:func:`farthest_points`); the others are fitted by least squares
-        (:func:`structure`, the nominal rest still exact). Fewer centres: a cheaper frame. Default: all.
+        (:func:`structure`, the nominal rest still exact). Fewer centres: a cheaper frame (each centre costs the
+        frame a logarithm and a row of δψ A). ``"auto"`` (default): one per sample (:func:`centre_count`);
+        None: all (interpolation: every training pair reproduced, Prop. 1).
 
     Returns
     -------
@@ -133,13 +142,14 @@ def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight
     zs = np.concatenate([off_p / s_p, off_q / s_q], axis=1)
     rc = rest_centres(zs, placement.n_movable)
     points = np.concatenate([rc, zs])
-    keep = slice(None) if centres is None else np.sort(farthest_points(points, opt.integer("centres", centres, 1)))
+    k = centre_count(centres, m, len(points))
+    keep = slice(None) if k >= len(points) else np.sort(farthest_points(points, k))
     Y = np.concatenate([np.zeros((len(rc), mesh.n_vertices * d)), (X - mesh.V).reshape(m, -1)])
     psi = hb.TPSBasis(np.zeros(zs.shape[1:]), points[keep], 1.0)
     G, _ = structure(psi, points)
     W = G @ Y  # the rest pose's data is 0: β Y[0] drops
     meta = {**(meta or {}), "basis": "tps-joint", "n_samples": m, "n_rest_centres": len(rc)}
-    if centres is not None:
+    if k < len(points):
         meta["n_centres"] = len(psi.centers)
     return MovableOp(mesh, handles, moving, placement, psi, W, (s_p, s_q), meta, reach_of(off_q))
 
@@ -393,9 +403,10 @@ class MovableOp(OperatorCore):
         return correct(self.mesh, self.placement, self.handles, self.moving, st, u, Qs)
 
     # ------------------------------------------------------------------ compression and files
-    def compress(self, rank=None, tol=compress_mod.TOL, dtype=np.float32, samples=None):
+    def compress(self, rank=None, tol=COMPRESS_TOL, dtype=np.float32, samples=None):
         """W_F ≈ A B (:func:`defop.operator.compress.principal_factors`), the directions of δψ at ``samples``
-        (joint z rows, (m, |Ψ|−1) δψ; default the basis' centres); the guarantees stay exact. Returns self."""
+        (joint z rows, (m, |Ψ|−1) δψ; default the basis' centres), to ``tol`` (default :data:`COMPRESS_TOL`);
+        the guarantees stay exact. Returns self."""
         dtype = compress_mod.check_options(rank, tol, dtype)
         C = self.basis.centers.reshape(len(self.basis.centers), -1)
         S = self.basis.delta_z(C) if samples is None else samples

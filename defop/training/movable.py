@@ -188,10 +188,11 @@ def check_placement(shape, placement):
 
 
 def train_movable(
-    shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs=None, cache=True, progress=True, centres=None
+    shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs=None, cache=True, progress=True, centres="auto"
 ):
     """Sample (P_k, Q_k), solve problem (6) at each (cached), fit D(x; P, Q) (:func:`defop.operator.movable
-    .fit_movable`; ``centres``: how many TPS centres, default all).
+    .fit_movable`; ``centres``: how many TPS centres, default one per sample, :func:`defop.operator.fit
+    .centre_count`).
 
     Returns
     -------
