@@ -5,8 +5,9 @@ bounding-box diagonal; held-out placements drawn uniformly over the region verti
 each (the Q regions travel with P), truth from the verified solver (problem 6, from the rest pose). Printed, each
 with its ratio and target:
 
-* budget: the joint m is 5x the solves of one fixed-P training at m = 200 (``dop.train``, no cache;
-  :func:`defop.training.movable.budget_samples`, one rule for every shape, a count rather than a time); the CPU s
+* budget: the joint m is 5x the samples of one fixed-P training at m = 200 (``dop.train``, no cache;
+  :func:`defop.training.movable.budget_samples`, one rule for every shape, a count rather than a time: a joint
+  sample's one fine solve costs about what a fixed-P sample's solves cost); the CPU s
   of the joint training (sampling, solves, fit; no cache) over that fixed-P training's are printed beside it;
 * error: mean (8a)/n per held-out frame of the joint operator (design A, TPS over (P, Q − P) with the correction),
   of the carried nominal operator (design B, :class:`defop.operator.movable.CarryOp`), of fixed-P operators
@@ -217,7 +218,7 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
     )
     frame_table(name, movable, seed=seed)
     return {
-        "budget": m_joint / training_solves(rec0),
+        "budget": m_joint / len(rec0.samples),
         "err": err["joint"] / err["retrained"],
         "frame": frame,
         "peers": all(err["joint"] < err[k] for k in PEERS),
