@@ -219,8 +219,8 @@ class MovableOp(OperatorCore):
         self.placement, self.basis = placement, basis
         self.scales = (float(scales[0]), float(scales[1]))
         self.reach = None if reach is None else np.asarray(reach, float)
-        still = np.setdiff1d(np.arange(len(self.handles)), placement.movable)
-        self.still = self.handles[still]  # handles that never leave their vertex
+        still = np.setdiff1d(np.arange(len(self.handles)), placement.moved)
+        self.still = self.handles[still]  # handles that never leave their vertex (a movable patch's members do)
         self.set_free_part(self.still)
         self._placements = core.KeptPlacements(PLACEMENTS_KEPT)
 
