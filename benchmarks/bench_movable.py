@@ -20,8 +20,11 @@ with its ratio and target:
   (:func:`frame_table`).
 
 Everything runs in this process (``DEFOP_N_JOBS=1``) so CPU seconds are this process's ``time.process_time()``.
-Run: ``python benchmarks/bench_movable.py [aleph] [octopus] [bar] [n_placements] [m_joint]`` (default the aleph and
-the octopus, 10 placements, joint m 1500 on the aleph, 800 on the octopus, 1000 on the bar;
+Run: ``python benchmarks/bench_movable.py [--dim 3] [aleph] [octopus] [bar] [bar_3d] [octopus_3d] [n_placements]
+[m_joint]`` (default the aleph and the octopus; ``--dim 3``: bar_3d, its end-face patch movable, and the tet octopus,
+two arm tips movable, regions of 8% of the diagonal, ``BENCH_MOVABLE_VERTICES=n``: both meshed at about n vertices,
+a reduced run printed as such; ``BENCH_MOVABLE_NO_TABLE=1``: no frame table); 10 placements, joint m 1500 on the
+aleph, 800 on the octopus, 1000 on the bar, 900 on bar_3d, 800 on the tet octopus;
 ``python benchmarks/bench_movable.py frames [shapes]``: the frame table alone; ``BENCH_MOVABLE_NQ=5``: 5 Q per
 training placement; ``BENCH_MOVABLE_TOL``: the joint operator's compression tolerance, default 5e-3 as the fixed-P
 one; ``BENCH_MOVABLE_CENTRES``: its TPS centres, default all); fewer placements is a reduced run, printed as such.
@@ -101,12 +104,21 @@ def frame_row(label, op0, opj, Qn, Q, P, V):
     return tj / tf
 
 
+def case(name, movable):
+    """The shape (at :data:`SIZES` vertices in 3D) and its placement regions (radius :data:`RADIUS` of the diagonal
+    in 2D, :data:`RADIUS_3D` in 3D: a 3D handle is a patch, its region keeps only the vertices where the whole patch
+    lands on vertices, fewer than a ball's)."""
+    shape = dop.shapes.load(name, SIZES.get(name))
+    mesh = shape.mesh
+    frac = RADIUS_3D if mesh.dim == 3 else RADIUS
+    return shape, placement_regions(shape, movable, radius=frac * mesh.bbox_diagonal)
+
+
 def frame_table(name, movable=None, ms=(200, 1000), seed=0):
     """The compressed frame ratio at each joint m of ``ms`` against the fixed-P operator at m = 200 (trainings
     through the cache: only frames are timed). Returns {m: ratio}."""
-    shape = dop.shapes.load(name)
+    shape, pr = case(name, movable)
     mesh = shape.mesh
-    pr = placement_regions(shape, movable, radius=0.05 * mesh.bbox_diagonal)
     op0, _ = dop.train(shape, "sarap", "tps", m=200, seed=seed, progress=False)
     op0.compress()
     idx, Q = sample_joint(shape, pr, 1, np.random.default_rng(10_000 + seed), N_Q)
@@ -128,15 +140,16 @@ def frame_table(name, movable=None, ms=(200, 1000), seed=0):
 
 
 def run(name, movable, n_place, m_joint, seed=0, n_q=1):
-    shape = dop.shapes.load(name)
+    shape, pr = case(name, movable)
     mesh = shape.mesh
-    pr = placement_regions(shape, movable, radius=0.05 * mesh.bbox_diagonal)
     sizes = [len(v) for v in pr.vertices]
+    frac = RADIUS_3D if mesh.dim == 3 else RADIUS
     print(
-        f"\n== {name}: {mesh.n_vertices} vertices, {pr.n_movable} movable of {shape.n_moving} moving handles, "
-        f"regions of radius 5% of the diagonal with {sizes} vertices; load average {os.getloadavg()[0]:.1f}"
+        f"\n== {name}: {mesh.n_vertices} vertices{' (REDUCED mesh)' if name in SIZES else ''}, {pr.n_movable} "
+        f"movable of {shape.n_moving} moving handles (patches of {[len(k) for k in pr.members]}), regions of radius "
+        f"{frac:.0%} of the diagonal with {sizes} vertices; load average {os.getloadavg()[0]:.1f}"
     )
-    assert min(sizes) >= 20, sizes
+    assert min(sizes) >= 20 or name in SIZES, sizes  # a reduced mesh has fewer region vertices
     c0 = time.process_time()
     op0, _ = dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)
     t_fixed = time.process_time() - c0
@@ -205,7 +218,8 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
         f"joint compressed (tol {JOINT_TOL:g}) error {err_c:.3e}, {err_c / err['retrained']:.2f}x the retrained "
         "(uncompressed)"
     )
-    frame_table(name, movable, seed=seed)
+    if not SKIP_TABLE:
+        frame_table(name, movable, seed=seed)
     return {
         "budget": t_joint / t_fixed,
         "err": err["joint"] / err["retrained"],
@@ -216,6 +230,18 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
 
 #: movable handles, default joint m; Q per placement (fewer rest centres: a cheaper frame)
 CASES = {"aleph": (None, 1500), "octopus": ([0, 3, 6], 800), "bar": (None, 1000)}
+#: ``--dim 3``: bar_3d's moving end face (one patch of 4 handles, moved by handle 4), two arm tips of the tet octopus
+CASES.update({"bar_3d": (None, 900), "octopus_3d": ([0, 3], 800)})
+#: region radius, share of the bounding-box diagonal (2D; 3D: bar_3d's lattice of 1/30 needs 8% for >= 20 vertices)
+RADIUS, RADIUS_3D = 0.05, 0.08
+#: mesh sizes of the 3D shapes (``BENCH_MOVABLE_VERTICES`` reduces both; the default is the catalogue's)
+SIZES = (
+    {k: int(os.environ["BENCH_MOVABLE_VERTICES"]) for k in ("bar_3d", "octopus_3d")}
+    if os.environ.get("BENCH_MOVABLE_VERTICES")
+    else {}
+)
+#: ``BENCH_MOVABLE_NO_TABLE=1``: skip the frame table at m = 200 and 1,000 (its two joint trainings)
+SKIP_TABLE = os.environ.get("BENCH_MOVABLE_NO_TABLE") == "1"
 N_Q_TRAIN = int(os.environ.get("BENCH_MOVABLE_NQ", "1"))
 #: the joint operator's compression tolerance (the fixed-P one keeps the default, 5e-3)
 JOINT_TOL = float(os.environ.get("BENCH_MOVABLE_TOL", "5e-3"))
@@ -236,7 +262,12 @@ def main(names=("aleph", "octopus"), n_place=FULL, m_joint=None):
 
 if __name__ == "__main__":
     args = sys.argv[1:]
-    names = [a for a in args if a in CASES] or ["aleph", "octopus"]
+    dim = 2
+    if "--dim" in args:
+        i = args.index("--dim")
+        dim = int(args[i + 1])
+        del args[i : i + 2]
+    names = [a for a in args if a in CASES] or (["bar_3d", "octopus_3d"] if dim == 3 else ["aleph", "octopus"])
     if "frames" in args:
         warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
         ratios = [frame_table(name, CASES[name][0]) for name in names]

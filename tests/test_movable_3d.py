@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 import defop as dop
 from defop.operator.movable import MovableOp, fit_movable, retarget
-from defop.scene.placement import placement_regions
+from defop.scene.placement import patch_layout, placement_regions
 from defop.training.movable import sample_joint, train_movable
 
 
@@ -73,7 +73,9 @@ def _paths(op, Q, P, V):
 
 
 @hsettings(max_examples=10, deadline=None)
-@given(anchor=st.sampled_from([4, 5, 6, 7]), i=st.integers(0, 10**6), scale=st.floats(0.0, 0.2), seed=st.integers(0, 99))
+@given(
+    anchor=st.sampled_from([4, 5, 6, 7]), i=st.integers(0, 10**6), scale=st.floats(0.0, 0.2), seed=st.integers(0, 99)
+)
 def test_guarantees_at_random_placements_every_path(bar, regions, ops, tmp_path_factory, anchor, i, scale, seed):
     """Prop. 2 (every handle of the moved patch on its target, the fixed ones at rest) and (8b), bit for bit, at a
     random placement of a random patch member, float64, compressed, saved and loaded, P as index or point."""
@@ -142,12 +144,12 @@ def test_bad_placement_refused_nothing_changed(bar, regions, ops, name, make, ma
 def test_regions_that_cannot_carry_the_patch_are_refused(bar, regions):
     pr = regions[4]
     V = bar.mesh.V
-    # a vertex where the patch would leave the mesh: the nearest to a point past the bar's end in y
-    out = int(np.argmin(np.linalg.norm(V - (V[bar.handles[4]] + [0.0, -0.03, 0.0]), axis=1)))
-    bad = np.union1d(pr.vertices[0], [out]) if out not in pr.vertices[0] else None
-    if bad is not None and not np.isin(out, pr.layout[0]):
-        with pytest.raises(ValueError, match="would not sit on mesh vertices"):
-            placement_regions(bar, [4], vertices=[bad])
+    near = np.flatnonzero(np.linalg.norm(V - V[bar.handles[4]], axis=1) < 0.15)
+    lay, exact = patch_layout(bar.mesh, bar.handles, pr.members[0], near)
+    assert exact.any() and not exact.all()  # past the end face the patch would leave the bar
+    assert np.isin(near[exact], pr.vertices[0]).any() and not np.isin(near[~exact], pr.vertices[0]).any()
+    with pytest.raises(ValueError, match=rf"region 0: at vertex {near[~exact][0]} the patch .* not sit on mesh"):
+        placement_regions(bar, [4], vertices=[np.union1d(pr.vertices[0], near[~exact][:1])])
     with pytest.raises(ValueError, match="in one patch"):
         placement_regions(bar, [4, 6], radius=0.05)
 
