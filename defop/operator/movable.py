@@ -19,6 +19,10 @@ The rest positions of the *movable* handles (:mod:`defop.scene.placement`) are i
 * Affine precision: a displacement field affine in (Q − P) with coefficients independent of P is reproduced
   (the affine part of Ψ); the P-affine part cancels in δψ. Elsewhere between samples D interpolates.
 
+In 3D a movable handle is a patch (:attr:`defop.scene.placement.PlacementRegions.members`): P names the movable
+handle's vertex, every member moves with it by the same rest offset, z keeps one row per patch, and every member
+is a handle ℓ of the correction and of Prop. 2 (W_F is not 0 on its columns: its vertex changes with P).
+
 Batch semantics: one P per call; Q (n, d) or a batch (k, n, d) at that P. P is given for the movable handles
 only: (b,) vertex indices or (b, d) points (snapped within :data:`defop.scene.placement.SNAP_TOL` of the bbox
 diagonal). Extrapolation is judged on Q − P against the training offsets Q_k − P_k. When a rest handle moves while
@@ -152,7 +156,8 @@ def reach_of(off_q):
 
 
 def retarget(Q, placement, old, new):
-    """Q after movable rest handles move from vertices ``old`` to ``new`` (b,) while deformed: q − p stays.
+    """Q after movable rest handles move from vertices ``old`` to ``new`` (b,) while deformed: q − p stays, for
+    every member of their patches (3D).
 
     Returns
     -------
