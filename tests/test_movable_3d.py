@@ -187,3 +187,36 @@ def test_train_movable_on_bar_3d(bar, regions):
     X = op(rec.Q[0], P=rec.idx[0])
     assert np.abs(X - rec.X[0]).max() < 1e-6 * bar.mesh.bbox_diagonal  # Prop. 1 at a training pair
     assert np.array_equal(op(bar.mesh.V[hm], P=rec.idx[0]), bar.mesh.V)
+
+
+def _edited(src, dst, drop=(), **arrays):
+    """A copy of the operator file ``src`` with arrays replaced or dropped."""
+    with np.load(src) as z:
+        data = {k: z[k] for k in z.files if k not in drop}
+    data.update(arrays)
+    with open(dst, "wb") as fh:
+        np.savez(fh, **data)
+    return dst
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (dict(drop=("placement_member_sizes",)), r"placement_members and placement_member_sizes come together"),
+        (dict(placement_members=np.array([4, 5, 6, 1])), r"members\[0\] must be moving handles"),
+        (dict(placement_members=np.array([4.0, 5.0, 6.0, 7.0])), r"'placement_members' must be 1-D of kind 'iu'"),
+        (dict(placement_member_sizes=np.array([3])), r"placement_member_sizes must be positive and sum"),
+        (dict(drop=("placement_members", "placement_member_sizes")), r"handle 5 .* lies inside placement region 0"),
+    ],
+)
+def test_damaged_patch_files_are_refused(ops, tmp_path, edit, match):
+    """A 3D movable file whose patches are damaged or missing is refused naming the file and the array."""
+    from defop.operator.io import OperatorFileError
+
+    path = tmp_path / "m.npz"
+    ops[4][1].save(path)
+    with np.load(path) as z:
+        assert z["placement_members"].tolist() == [4, 5, 6, 7] and z["placement_member_sizes"].tolist() == [4]
+    bad = _edited(path, tmp_path / "bad.npz", **edit)
+    with pytest.raises(OperatorFileError, match=r"bad\.npz.*" + match):
+        MovableOp.load(bad)

@@ -293,13 +293,12 @@ def split_sizes(arrays, flat, sizes):
     return np.split(a, np.cumsum(n)[:-1])
 
 
-def region_vertices(ell, v):
-    """Region ``ell``'s vertices ``v`` as a sorted (k,) int64 array; integral floats pass, fractions do not."""
+def region_vertices(ell, v, what="placement region {} must hold integer vertex indices"):
+    """Region ``ell``'s vertices ``v`` as a sorted (k,) int64 array; integral floats pass, fractions do not
+    (``what``: the error's words, ``{}`` for ``ell``)."""
     a = np.asarray(v).ravel()
     if a.dtype.kind not in "iuf" or (a.dtype.kind == "f" and not (np.isfinite(a).all() and np.all(a == np.round(a)))):
-        raise ValueError(
-            f"placement region {ell} must hold integer vertex indices, got {a.dtype} {np.array2string(a, threshold=10)}"
-        )
+        raise ValueError(f"{what.format(ell)}, got {a.dtype} {np.array2string(a, threshold=10)}")
     return np.unique(a.astype(np.int64))
 
 
@@ -335,8 +334,9 @@ def check_members(pr, members):
         raise ValueError(f"members must hold one patch per movable handle ({len(mv)}), got {len(members)}")
     out = []
     for ell, k in enumerate(members):
-        k = region_vertices(ell, k)
-        if k.min() < 0 or k.max() >= len(pr.handles) or not pr.moving[k].all() or not np.isin(mv[ell], k):
+        k = region_vertices(ell, k, "members[{}] must hold integer handle indices")
+        bad = len(k) == 0 or k.min() < 0 or k.max() >= len(pr.handles)
+        if bad or not pr.moving[k].all() or not np.isin(mv[ell], k):
             raise ValueError(
                 f"members[{ell}] must be moving handles (indices into the {len(pr.handles)} handles) that include "
                 f"movable handle {int(mv[ell])}, got {k.tolist()}"
