@@ -232,7 +232,7 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
 CASES = {"aleph": (None, 1500), "octopus": ([0, 3, 6], 800), "bar": (None, 1000)}
 #: ``--dim 3``: bar_3d's moving end face (one patch of 4 handles, moved by handle 4), two arm tips of the tet octopus;
 #: bar_3d's m by the budget rule (at 936 vertices a joint sample cost 1.8x a fixed-P one: m = 900 was 7.9x one
-#: fixed-P training at m = 200, so 540 is the largest m near 5x)
+#: fixed-P training at m = 200, so 540 is the largest m near 5x; the tet octopus at 988 vertices: m = 540 was 3.0x)
 CASES.update({"bar_3d": (None, 540), "octopus_3d": ([0, 3], 800)})
 #: region radius, share of the bounding-box diagonal (2D; 3D: bar_3d's lattice of 1/30 needs 8% for >= 20 vertices)
 RADIUS, RADIUS_3D = 0.05, 0.08
