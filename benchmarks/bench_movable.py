@@ -22,8 +22,10 @@ with its ratio and target:
   (:func:`frame_cost`: the ratio of the two frames' multiply-adds, the logarithms of Ψ counted apart) and the load.
 
 Everything runs in this process (``DEFOP_N_JOBS=1``) so CPU seconds are this process's ``time.process_time()``.
-Run: ``python benchmarks/bench_movable.py [aleph] [octopus] [bar] [n_placements] [m_joint]`` (default the aleph and
-the octopus, 10 placements, joint m by the budget rule; an explicit ``m_joint`` overrides it;
+Run: ``python benchmarks/bench_movable.py [--dim 3] [aleph] [octopus] [bar] [bar_3d] [octopus_3d] [n_placements]
+[m_joint]`` (default the aleph and the octopus; ``--dim 3``: bar_3d, its end-face patch movable, and the tet octopus,
+two arm tips movable, regions of 8% of the diagonal, ``BENCH_MOVABLE_VERTICES=n``: both meshed at about n vertices,
+a reduced run printed as such); 10 placements, joint m by the budget rule (an explicit ``m_joint`` overrides it);
 ``python benchmarks/bench_movable.py frames [shapes]``: the frames alone at m = 200 and 1,000 (:func:`frame_table`);
 ``BENCH_MOVABLE_NQ=5``: 5 Q per training placement; ``BENCH_MOVABLE_TOL``: the joint operator's compression
 tolerance, default MovableOp.compress's (2e-2; the fixed-P one keeps 5e-3); ``BENCH_MOVABLE_CENTRES``: its TPS
@@ -111,12 +113,21 @@ def frame_row(label, op0, opj, Qn, Q, P, V, errors=""):
     return cj / cf
 
 
+def case(name, movable):
+    """The shape (at :data:`SIZES` vertices in 3D) and its placement regions (radius :data:`RADIUS` of the diagonal
+    in 2D, :data:`RADIUS_3D` in 3D: a 3D handle is a patch, its region keeps only the vertices where the whole patch
+    lands on vertices, fewer than a ball's)."""
+    shape = dop.shapes.load(name, SIZES.get(name))
+    mesh = shape.mesh
+    frac = RADIUS_3D if mesh.dim == 3 else RADIUS
+    return shape, placement_regions(shape, movable, radius=frac * mesh.bbox_diagonal)
+
+
 def frame_table(name, movable=None, ms=(200, 1000), seed=0):
     """The compressed frame ratio at each joint m of ``ms`` against the fixed-P operator at m = 200 (trainings
     through the cache: only frames are timed). Returns {m: ratio}."""
-    shape = dop.shapes.load(name)
+    shape, pr = case(name, movable)
     mesh = shape.mesh
-    pr = placement_regions(shape, movable, radius=0.05 * mesh.bbox_diagonal)
     op0, _ = dop.train(shape, "sarap", "tps", m=200, seed=seed, progress=False)
     op0.compress()
     idx, Q = sample_joint(shape, pr, 1, np.random.default_rng(10_000 + seed), N_Q)
@@ -138,15 +149,16 @@ def frame_table(name, movable=None, ms=(200, 1000), seed=0):
 
 
 def run(name, movable, n_place, m_joint, seed=0, n_q=1):
-    shape = dop.shapes.load(name)
+    shape, pr = case(name, movable)
     mesh = shape.mesh
-    pr = placement_regions(shape, movable, radius=0.05 * mesh.bbox_diagonal)
     sizes = [len(v) for v in pr.vertices]
+    frac = RADIUS_3D if mesh.dim == 3 else RADIUS
     print(
-        f"\n== {name}: {mesh.n_vertices} vertices, {pr.n_movable} movable of {shape.n_moving} moving handles, "
-        f"regions of radius 5% of the diagonal with {sizes} vertices; load average {os.getloadavg()[0]:.1f}"
+        f"\n== {name}: {mesh.n_vertices} vertices{' (REDUCED mesh)' if name in SIZES else ''}, {pr.n_movable} "
+        f"movable of {shape.n_moving} moving handles (patches of {[len(k) for k in pr.members]}), regions of radius "
+        f"{frac:.0%} of the diagonal with {sizes} vertices; load average {os.getloadavg()[0]:.1f}"
     )
-    assert min(sizes) >= 20, sizes
+    assert min(sizes) >= 20 or name in SIZES, sizes  # a reduced mesh has fewer region vertices
     c0 = time.process_time()
     op0, rec0 = dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)
     t_fixed = time.process_time() - c0
@@ -240,8 +252,18 @@ def compare_row(label, op0, opj, held, e_ret, mesh, pr):
         return frame_row(label, op0, opj, Qn, Q[:N_Q], idx[0], mesh.V, errors)
 
 
-#: movable handles, joint m (None: budget_samples of the fixed-P training at m = 200)
+#: movable handles, joint m (None: budget_samples of the fixed-P training at m = 200, one rule for every shape)
 CASES = {"aleph": (None, None), "octopus": ([0, 3, 6], None), "bar": (None, None)}
+#: ``--dim 3``: bar_3d's moving end face (one patch of 4 handles, moved by handle 4), two arm tips of the tet octopus
+CASES.update({"bar_3d": (None, None), "octopus_3d": ([0, 3], None)})
+#: region radius, share of the bounding-box diagonal (2D; 3D: bar_3d's lattice of 1/30 needs 8% for >= 20 vertices)
+RADIUS, RADIUS_3D = 0.05, 0.08
+#: mesh sizes of the 3D shapes (``BENCH_MOVABLE_VERTICES`` reduces both; the default is the catalogue's)
+SIZES = (
+    {k: int(os.environ["BENCH_MOVABLE_VERTICES"]) for k in ("bar_3d", "octopus_3d")}
+    if os.environ.get("BENCH_MOVABLE_VERTICES")
+    else {}
+)
 N_Q_TRAIN = int(os.environ.get("BENCH_MOVABLE_NQ", "1"))
 #: the joint operator's compression tolerance (default: MovableOp.compress's; the fixed-P one keeps 5e-3)
 JOINT_TOL = float(os.environ["BENCH_MOVABLE_TOL"]) if os.environ.get("BENCH_MOVABLE_TOL") else None
@@ -272,7 +294,12 @@ def main(names=("aleph", "octopus"), n_place=FULL, m_joint=None):
 
 if __name__ == "__main__":
     args = sys.argv[1:]
-    names = [a for a in args if a in CASES] or ["aleph", "octopus"]
+    dim = 2
+    if "--dim" in args:
+        i = args.index("--dim")
+        dim = int(args[i + 1])
+        del args[i : i + 2]
+    names = [a for a in args if a in CASES] or (["bar_3d", "octopus_3d"] if dim == 3 else ["aleph", "octopus"])
     if "frames" in args:
         warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
         ratios = [frame_table(name, CASES[name][0]) for name in names]

@@ -83,10 +83,13 @@ def test_bad_regions(shape):
         placement_regions(shape, [0])
 
 
-def test_3d_refuses_naming_the_limitation():
-    s = dop.shapes.load("bar_3d")
-    with pytest.raises(ValueError, match="triangle meshes only.*patch"):
-        placement_regions(s, [4], radius=0.05 * s.mesh.bbox_diagonal)
+def test_3d_region_moves_the_handle_patch():
+    """A 3D movable handle brings its patch (tests/test_movable_3d.py has the operator's guarantees)."""
+    s = dop.shapes.load("bar_3d", n_vertices=300)
+    pr = placement_regions(s, [4], radius=0.08 * s.mesh.bbox_diagonal)
+    assert list(pr.members[0]) == [4, 5, 6, 7] and len(pr.vertices[0]) > 1
+    with pytest.raises(ValueError, match="in one patch"):
+        placement_regions(s, [4, 5], radius=0.08 * s.mesh.bbox_diagonal)
 
 
 def _paths(op, Q, P):

@@ -186,21 +186,22 @@ def movable_frame(Q, Pm, zp, s_q, R2, far2, cm, czeps, inv_s2, ell0, log_kernel,
     """One movable-handle frame in one call: z = [zp, (Q − Pm)/s_q], :func:`tps_frame` at z (the rest P = 0),
     then :func:`movable_correction` against the placement's frame X0.
 
-    Q, Pm (n, d); zp (b, d) the placement's rest offsets (scaled); ints the placement's int arrays end to end:
-    idx (b,), rows (b,), hm (n,), sup (s,) with s = len(wt), fixed (the rest). Returns (out, beyond) as
+    Q, Pm (n, d); zp (b, d) the placement's rest offsets (scaled); wt (s, B) the bumps of the B patch members;
+    ints the placement's int arrays end to end: the members' vertices (B,), their rows of Q (B,), hm (n,),
+    sup (s,), fixed (the rest). Returns (out, beyond) as
     :func:`tps_frame`: out is empty (the caller takes the checked path) when |z|² is not below R2 or X0 is empty.
     The same arithmetic as the two kernels called apart (z: one subtraction and one division per coordinate).
     """
     n, d = Pm.shape
-    b, s = zp.shape[0], wt.shape[0]
-    z = np.empty((b + n, d))
-    z[:b] = zp
+    bz, b, s = zp.shape[0], wt.shape[1], wt.shape[0]
+    z = np.empty((bz + n, d))
+    z[:bz] = zp
     for j in range(n):
         for c in range(d):
-            z[b + j, c] = (Q[j, c] - Pm[j, c]) / s_q
+            z[bz + j, c] = (Q[j, c] - Pm[j, c]) / s_q
     none = np.empty(0, np.int64)
     Xz, far = tps_frame(
-        z, np.zeros((b + n, d)), R2, far2, cm, czeps, inv_s2, ell0, log_kernel, A, B, x, none, np.empty(0)
+        z, np.zeros((bz + n, d)), R2, far2, cm, czeps, inv_s2, ell0, log_kernel, A, B, x, none, np.empty(0)
     )
     if Xz.size == 0 or X0.size == 0:
         return np.empty(0), far

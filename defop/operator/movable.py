@@ -22,6 +22,10 @@ The rest positions of the *movable* handles (:mod:`defop.scene.placement`) are i
 * Affine precision: a displacement field affine in (Q − P) with coefficients independent of P is reproduced
   (the affine part of Ψ); the P-affine part cancels in δψ. Elsewhere between samples D interpolates.
 
+In 3D a movable handle is a patch (:attr:`defop.scene.placement.PlacementRegions.members`): P names the movable
+handle's vertex, every member moves with it by the same rest offset, z keeps one row per patch, and every member
+is a handle ℓ of the correction and of Prop. 2 (W_F is not 0 on its columns: its vertex changes with P).
+
 Batch semantics: one P per call; Q (n, d) or a batch (k, n, d) at that P. P is given for the movable handles
 only: (b,) vertex indices or (b, d) points (snapped within :data:`defop.scene.placement.SNAP_TOL` of the bbox
 diagonal). Extrapolation is judged on Q − P against the training offsets Q_k − P_k. When a rest handle moves while
@@ -57,11 +61,12 @@ COMPRESS_TOL = 2e-2
 class RestPlacement:
     """The state of one rest placement P of the movable handles (:meth:`MovableOp.at`, :meth:`CarryOp.at`):
     ``idx`` (b,) the movable handles' vertices, ``hm`` (n,) the moving handles' vertices, ``P`` (n, d) their rest
-    positions, ``bumps`` the placement's bumps (support, weights); for :class:`MovableOp` also the factors it was
-    made for (``key``), z(P, P) (``z0``), δψ's subtrahend (``psi0``), the kernel's frame at (P, P) (``X0``), the
-    movable rows, the fixed handles, whether P is the nominal placement and the frame kernel's packed arguments
-    (``zp`` = z0[:b], ``ints`` = idx, rows, hm, the bumps' support and the fixed handles end to end); for
-    :class:`CarryOp` the barycentric map ``S`` and the shift of Q to the nominal operator.
+    positions, ``bumps`` the placement's bumps (support, weights (s, B)), ``moved`` (B,) the vertices of every
+    member of the movable patches (:attr:`PlacementRegions.moved`) and ``rows`` (B,) their rows of Q; for
+    :class:`MovableOp` also the factors it was made for (``key``), z(P, P) (``z0``), δψ's subtrahend (``psi0``),
+    the kernel's frame at (P, P) (``X0``), the fixed handles, whether P is the nominal placement and the frame
+    kernel's packed arguments (``zp`` = z0[:b], ``ints`` = moved, rows, hm, the bumps' support and the fixed
+    handles end to end); for :class:`CarryOp` the barycentric map ``S`` and the shift of Q to the nominal operator.
     """
 
     idx: np.ndarray
@@ -79,6 +84,7 @@ class RestPlacement:
     shift: np.ndarray | None = None
     zp: np.ndarray | None = None
     ints: np.ndarray | None = None
+    moved: np.ndarray | None = None
 
     def __getitem__(self, name):
         """``state["idx"]``: the mapping access of earlier versions."""
@@ -160,14 +166,16 @@ def reach_of(off_q):
 
 
 def retarget(Q, placement, old, new):
-    """Q after movable rest handles move from vertices ``old`` to ``new`` (b,) while deformed: q − p stays.
+    """Q after movable rest handles move from vertices ``old`` to ``new`` (b,) while deformed: q − p stays, for
+    every member of their patches (3D).
 
     Returns
     -------
     Q : (n, d) numpy array
     """
     Q = np.array(Q, float)
-    Q[placement.moving_rows()] += placement.mesh.V[new] - placement.mesh.V[old]
+    V = placement.mesh.V
+    Q[placement.moved_rows()] += V[placement.members_at(new)] - V[placement.members_at(old)]
     return Q
 
 
@@ -180,9 +188,9 @@ def correct(mesh, placement, handles, moving, st, u, Qs):
     k, d, n_vertices = len(Qs), mesh.dim, mesh.n_vertices
     X = (mesh.V.ravel() + u).reshape(k, n_vertices, d)
     disp = Qs - st.P  # (k, n, d)
-    r = disp[:, placement.moving_rows()] - u.reshape(k, n_vertices, d)[:, st.idx]  # (k, b, d)
+    r = disp[:, st.rows] - u.reshape(k, n_vertices, d)[:, st.moved]  # (k, B, d)
     sup, wt = st.bumps
-    X[:, sup] += np.matmul(wt, r)  # (s, b) @ (k, b, d): Σ_ℓ g_{v_ℓ} r_ℓ on the bumps' support
+    X[:, sup] += np.matmul(wt, r)  # (s, B) @ (k, B, d): Σ_ℓ g_{v_ℓ} r_ℓ on the bumps' support
     X[:, st.hm] = Qs  # Prop. 2: every moving handle on its target, bit for bit
     fixed = handles[~moving]
     X[:, fixed] = mesh.V[fixed]
@@ -197,7 +205,7 @@ def residual(op, Q, P=None):
     st = op.at(P)
     Q = np.asarray(Q, float)[None]
     u = op.displacement(Q, st)
-    r = (Q - st.P)[:, op.placement.moving_rows()] - u.reshape(1, op.n_vertices, op.d)[:, st.idx]
+    r = (Q - st.P)[:, st.rows] - u.reshape(1, op.n_vertices, op.d)[:, st.moved]
     return float(np.abs(r).max() / op.mesh.bbox_diagonal)
 
 
@@ -226,8 +234,8 @@ class MovableOp(OperatorCore):
         self.placement, self.basis = placement, basis
         self.scales = (float(scales[0]), float(scales[1]))
         self.reach = None if reach is None else np.asarray(reach, float)
-        still = np.setdiff1d(np.arange(len(self.handles)), placement.movable)
-        self.still = self.handles[still]  # handles that never leave their vertex
+        still = np.setdiff1d(np.arange(len(self.handles)), placement.moved)
+        self.still = self.handles[still]  # handles that never leave their vertex (a movable patch's members do)
         self.set_free_part(self.still)
         self._placements = core.KeptPlacements(PLACEMENTS_KEPT)
 
@@ -261,15 +269,16 @@ class MovableOp(OperatorCore):
             bumps=self.placement.bumps_at(idx),
             key=self.factors,
             z0=z0,
-            rows=self.placement.moving_rows(),
+            rows=self.placement.moved_rows(),
             fixed=self.handles[~self.moving],
             nominal=bool(np.array_equal(idx, self.placement.nominal)),
+            moved=self.placement.members_at(idx),
         )
         st.psi0 = self.basis.delta_z(z0.reshape(1, -1))  # (1, |Ψ|−1), float64
         st.X0 = self._kernel(z0, self.fast_state())
         st.zp = np.ascontiguousarray(z0[: len(idx)])
         sup = st.bumps[0]
-        st.ints = np.concatenate([idx, st.rows, hm, sup, st.fixed]).astype(np.int64)
+        st.ints = np.concatenate([st.moved, st.rows, hm, sup, st.fixed]).astype(np.int64)
         return st
 
     def make_fast_state(self):
@@ -465,11 +474,12 @@ class CarryOp:
         import scipy.sparse as sp
 
         hm = self.placement.handles_at(idx)[self.moving]
-        y = self.mesh.V.copy()
-        g, rows = self.placement.g, self.placement.bump_rows(idx)
+        y, pl = self.mesh.V.copy(), self.placement
+        g, rows, moved = pl.g, pl.bump_rows(idx), pl.members_at(idx)
+        back = self.mesh.V[pl.members_at(pl.nominal)] - self.mesh.V[moved]  # (B, d): each member to its nominal
         for ell, row in enumerate(rows):
             a, b = g.indptr[row], g.indptr[row + 1]
-            y[g.indices[a:b]] += g.data[a:b, None] * (self.mesh.V[self.placement.nominal[ell]] - self.mesh.V[idx[ell]])
+            y[g.indices[a:b]] += g.data[a:b, None] * back[ell]
         elem, bary = self.mesh.locate(y)
         n = self.n_vertices
         S = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(n), self.d + 1), self.mesh.F[elem].ravel())), (n, n))
@@ -478,6 +488,8 @@ class CarryOp:
             hm=hm,
             P=self.mesh.V[hm],
             bumps=self.placement.bumps_at(idx),
+            rows=self.placement.moved_rows(),
+            moved=moved,
             S=S,
             shift=self.op0.P - self.mesh.V[hm],
         )

@@ -22,7 +22,7 @@ from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning
 from . import batch, solves
 from . import cache as cache_mod
-from .sampling import sample_handles
+from .sampling import sample_shape
 
 
 def sample_placements(placement, m, rng):
@@ -32,7 +32,8 @@ def sample_placements(placement, m, rng):
 
 
 def sample_joint(shape, placement, m, rng, n_q=1):
-    """Joint samples: ``m`` placements, ``n_q`` configurations Q around each (the regions centred at P).
+    """Joint samples: ``m`` placements, ``n_q`` configurations Q around each (the regions centred at P), drawn as
+    a fixed-P training draws them (:func:`defop.training.sampling.sample_shape`: in 3D each patch moved rigidly).
 
     Returns
     -------
@@ -43,9 +44,7 @@ def sample_joint(shape, placement, m, rng, n_q=1):
     n_q = opt.integer("n_q", n_q, minimum=1)
     rng = opt.rng(rng)
     idx = sample_placements(placement, m, rng)
-    Q = np.stack(
-        [sample_handles(shape.mesh.V[placement.handles_at(i)[shape.moving]], shape.regions, n_q, rng) for i in idx]
-    )
+    Q = np.stack([sample_shape(shape_at(shape, placement, i), n_q, rng) for i in idx])
     return np.repeat(idx, n_q, axis=0), Q.reshape(m * n_q, shape.n_moving, shape.mesh.dim)
 
 
@@ -129,11 +128,7 @@ def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache):
     mesh, store = shape.mesh, cache_mod.open_cache(cache)
     key = None if store is None else _joint_key(shape, placement, idx, Q, energy)
     ck = None if store is None else batch.Checkpoints(store)
-    handles = []
-    for i in idx:
-        h = shape.handles.copy()
-        h[placement.movable] = i
-        handles.append(h)
+    handles = [placement.handles_at(i) for i in idx]  # a movable handle's patch moves with it
     spent = []
 
     def compute():  # the solves' CPU seconds are kept with the truth (MovableRecord.solve_cpu_seconds)

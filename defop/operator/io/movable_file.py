@@ -22,6 +22,8 @@ MEMBERS = files.MESH_MEMBERS + (
     "placement_vertices",
     "placement_sizes",
     "placement_reach",
+    "placement_members",
+    "placement_member_sizes",
     "factor_A",
     "factor_B",
 )
@@ -84,6 +86,9 @@ def load_movable(path, cls):
         d, nv = mesh.dim, mesh.n_vertices
         regions = {k: array(data, k, 1, "iu") for k in ("placement_movable", "placement_vertices", "placement_sizes")}
         regions["placement_reach"] = array(data, "placement_reach", 1, "f")
+        for k in ("placement_members", "placement_member_sizes"):
+            if k in data:
+                regions[k] = array(data, k, 1, "iu")
         pr = PlacementRegions.from_arrays(mesh, handles, moving, regions)
         C = array(data, "joint_centers", 3, "f", (None, pr.n_movable + int(moving.sum()), d))
         basis = hb.TPSBasis(np.zeros(C.shape[1:]), C, 1.0)
