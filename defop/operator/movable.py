@@ -437,13 +437,6 @@ def load_movable(path, cls=None):
     return io_mod.load_movable(path, cls or MovableOp)
 
 
-def same_placement(P, last):
-    """Whether P names the placement ``last`` was made for (None: the nominal; int vertex indices: equal)."""
-    if P is None:
-        return last.nominal
-    return type(P) is np.ndarray and P.dtype.kind in "iu" and P.shape == last.idx.shape and bool((P == last.idx).all())
-
-
 class CarryOp:
     """The second design: the nominal fixed-P operator, carried with the rest handles.
 
