@@ -28,42 +28,11 @@ import warnings
 
 import numpy as np
 
+from defop.variational.backend import pcg
+
 #: the relative diagonal shift of a Newton step (ReducedProblem.newton_direction's default); the verification's
 #: larger shift (INERTIA_SHIFT) always factorises afresh, so its inertia is exact
 NEWTON_SHIFT = 1e-10
-
-
-def pcg(K, b, precondition, rtol, maxiter):
-    """Preconditioned CG on the symmetric K given by its upper triangle (CSC): (x, iterations), or None on a stall.
-
-    A stall is no convergence to ``rtol`` · ‖b‖ within ``maxiter`` iterations, or a direction of non-positive
-    curvature (an indefinite K or preconditioner)."""
-    d = K.diagonal()
-
-    def A(x):
-        return K @ x + K.T @ x - d * x
-
-    x = np.zeros_like(b)
-    r = b.copy()
-    z = precondition(r)
-    p = z.copy()
-    rz = float(r @ z)
-    nb = float(np.linalg.norm(b))
-    for k in range(maxiter):
-        Ap = A(p)
-        pAp = float(p @ Ap)
-        if not (pAp > 0 and rz > 0):
-            return None
-        a = rz / pAp
-        x += a * p
-        r -= a * Ap
-        if np.linalg.norm(r) <= rtol * nb:
-            return x, k + 1
-        z = precondition(r)
-        rz_new = float(r @ z)
-        p = z + (rz_new / rz) * p
-        rz = rz_new
-    return None
 
 
 class Counted:
@@ -78,10 +47,11 @@ class Counted:
         self.ready = False
         solver.hessian.solve = self.solve
 
-    def solve(self, data, b, rel_shift):
+    def solve(self, data, b, rel_shift, reuse=0.0):
+        """``ReducedHessian.solve`` under this policy (the library's own re-use, ``reuse``, stays off here)."""
         if self.maxiter and self.ready and rel_shift == NEWTON_SHIFT:
             K = self.hessian.matrix(data, rel_shift)
-            found = pcg(K, b, self.hessian._factor.solve, self.rtol, self.maxiter)
+            found = pcg(K, b, self.hessian._factor.solve, self.rtol, self.maxiter)  # the library's PCG
             if found is not None:
                 self.pcg_solves += 1
                 self.cg_iterations += found[1]

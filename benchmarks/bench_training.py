@@ -25,7 +25,14 @@ Rows (one function each, :data:`ROWS`; a row returns the code path, extra enviro
 * ``kernel``: this tree with the fused numba kernels (:mod:`defop.variational.fused`, the default) and
   ``policy="full"``;
 * ``multilevel``: the fused kernels and ``policy="multilevel"``;
-* ``auto``: this tree as a user trains (the default policy ``"auto"``: multilevel wherever a coarse mesh exists).
+* ``auto``: this tree as a user trains (the default policy ``"auto"``: multilevel wherever a coarse mesh exists);
+* ``reuse``: ``auto`` with the exact Newton steps solved by CG on the last exact step's factorisation
+  (``DEFOP_REUSE=on``, :func:`defop.variational.backend.pcg`), beside ``auto``, which factorises every step.
+
+``--n-vertices N`` trains the shape remeshed to about N vertices (``dop.shapes.load(shape, n_vertices=N)``);
+``--held-out 0`` skips the held-out truths and errors (the large meshes, where only the CPU seconds are asked).
+Per row also the solver's work in ``train()``: Newton iterations, factorisations, and the CG solves on a re-used
+factorisation (with their iterations, and the stalls that fell back to a factorisation).
 
 Printed: per row CPU s, wall s, CPU ratio against main, peak memory (max RSS of the child and its workers), the
 factorisation back end, verified samples, samples moved; per seed the held-out error against each truth (and on the
@@ -83,7 +90,19 @@ def row_auto(args):
     return {"path": REPO, "env": {}, "train": {}}
 
 
-ROWS = {"main": row_main, "numpy": row_numpy, "kernel": row_kernel, "multilevel": row_multilevel, "auto": row_auto}
+def row_reuse(args):
+    """This tree with its defaults but a factorisation re-used as a CG preconditioner (``DEFOP_REUSE=on``)."""
+    return {"path": REPO, "env": {"DEFOP_REUSE": "on"}, "train": {}}
+
+
+ROWS = {
+    "main": row_main,
+    "numpy": row_numpy,
+    "kernel": row_kernel,
+    "multilevel": row_multilevel,
+    "auto": row_auto,
+    "reuse": row_reuse,
+}
 
 
 def _env(path, extra, cache):
@@ -112,7 +131,7 @@ def truths(args):
     cache = os.path.join(args.truth_dir, "cache")
     os.makedirs(cache, exist_ok=True)
     paths = []
-    for seed in SEEDS:
+    for seed in SEEDS if args.held_out else ():
         out = os.path.join(args.truth_dir, f"{args.shape}_{args.held_out}_{seed}.npz")
         spec = {"task": "truth", "shape": args.shape, "m": args.held_out, "seed": seed, "out": out, "jobs": args.jobs}
         res = _child(spec, _env(REPO, {}, cache))
@@ -130,6 +149,7 @@ def run_row(name, args, truth_paths):
     row = ROWS[name](args)
     with tempfile.TemporaryDirectory() as cache:
         spec = {"task": "train", "shape": args.shape, "m": args.samples, "truths": truth_paths, "train": row["train"]}
+        spec["n_vertices"] = args.n_vertices
         load = os.getloadavg()[0]
         res = _child(spec, _env(row["path"], row["env"], cache))
     res["load"] = (load, os.getloadavg()[0])
@@ -146,16 +166,30 @@ def report(results):
     E0 = np.array(base["energies"])
     scale = np.maximum(E0, 1e-3 * np.median(E0))
     print(
-        f"{'row':>10} {'CPU s':>8} {'wall s':>8} {'CPU vs main':>12} {'peak MB':>8} {'back end':>9} "
+        f"{'row':>10} {'CPU s':>8} {'wall s':>8} {'CPU vs main':>12} {'peak MB':>8} {'back end':>13} "
         f"{'verified':>9} {'moved':>6}  load before/after"
     )
     for name, r in results.items():
         r["moved"] = np.flatnonzero(np.abs(np.array(r["energies"]) - E0) > MOVED * scale)
         print(
             f"{name:>10} {r['cpu']:8.1f} {r['wall']:8.1f} {base['cpu'] / r['cpu']:11.2f}x {r['peak_mb']:8.0f} "
-            f"{r['backend']:>9} {r['converged']:>5}/{len(r['energies'])} {len(r['moved']):6d}  "
+            f"{r['backend']:>13} {r['converged']:>5}/{len(r['energies'])} {len(r['moved']):6d}  "
             f"{r['load'][0]:.1f}/{r['load'][1]:.1f}"
         )
+    print("the solver's work in train() (back end; CG: solves on a re-used factorisation, iterations, stalls):")
+    for name, r in results.items():
+        w, m = r.get("work", {}), len(r["energies"])
+        if w:
+            print(
+                f"  {name:>10} ({r['backend']}): {w['newton']} Newton iterations ({w['newton'] / m:.1f} a sample), "
+                f"{w['factorisations']} factorisations ({w['factorisations'] / m:.1f} a sample), {w['pcg']} CG solves "
+                f"({w['cg']} iterations), {w['stalls']} stalls; {r['cpu'] / m:.2f} CPU s a sample"
+            )
+    rel = {n: (np.array(r["energies"]) - E0) / np.maximum(np.abs(E0), 1e-300) for n, r in results.items()}
+    for name, d in rel.items():
+        print(f"  {name:>10}: energies relative to {next(iter(results))}'s: largest |ΔE|/E {np.abs(d).max():.2e}")
+    if not base["errors"]:
+        return
     print("held-out (8a)/n against each truth, (ratio against main's row):")
     for i, seed in enumerate(SEEDS):
         sizes = base["errors"][i]["sizes"]
@@ -207,6 +241,7 @@ def main():
     ap.add_argument("--base", default="/tmp/base", help="worktree of main at d79f472")
     ap.add_argument("--shape", default="aleph")
     ap.add_argument("--samples", type=int, default=200)
+    ap.add_argument("--n-vertices", type=int, help="remesh the shape to about this many vertices")
     ap.add_argument("--held-out", type=int, default=HELD_OUT, help="held-out Q per seed")
     ap.add_argument("--jobs", type=int, default=1, help="workers of the truths' solves (the rows train on one)")
     ap.add_argument("--rows", nargs="+", default=["main", "kernel"], choices=list(ROWS))
@@ -217,9 +252,10 @@ def main():
         return child(json.loads(args.child))
     if "main" in args.rows and not os.path.isdir(os.path.join(args.base, "defop")):
         raise SystemExit(f"--base {args.base!r} is not a worktree of main: git worktree add {args.base} d79f472")
+    size = f" ({args.n_vertices} vertices asked)" if args.n_vertices else ""
     print(
-        f"{args.shape}, S-ARAP, TPS, m = {args.samples}, 1 job, one BLAS thread, held-out {args.held_out} x seeds "
-        f"{SEEDS}; {time.strftime('%Y-%m-%d %H:%M')}, load average {os.getloadavg()[0]:.1f}",
+        f"{args.shape}{size}, S-ARAP, TPS, m = {args.samples}, 1 job, one BLAS thread, held-out {args.held_out} x "
+        f"seeds {SEEDS}; {time.strftime('%Y-%m-%d %H:%M')}, load average {os.getloadavg()[0]:.1f}",
         flush=True,
     )
     paths = truths(args)
@@ -253,6 +289,39 @@ def _backend(shape):
     except ImportError:
         return "qdldl"
     return choose_backend(None, shape.mesh.n_vertices, shape.mesh.V.shape[1])
+
+
+def count_work():
+    """Count the solver's Newton iterations, factorisations and re-used CG solves in this process (a dict that
+    fills as solves run); trees without the re-use count every ``ReducedHessian.solve`` as a factorisation."""
+    from defop.variational import problem, solver
+
+    work = dict(newton=0, factorisations=0, pcg=0, cg=0, stalls=0)
+    H = problem.ReducedHessian
+    name = "factorise" if hasattr(H, "factorise") else "solve"
+    factor, finish = getattr(H, name), solver.Solver.finish
+
+    def counted_factor(self, *a, **k):
+        work["factorisations"] += 1
+        return factor(self, *a, **k)
+
+    def counted_finish(self, log, *a, **k):
+        work["newton"] += log.iters
+        return finish(self, log, *a, **k)
+
+    setattr(H, name, counted_factor)
+    solver.Solver.finish = counted_finish
+    if hasattr(problem.bk, "pcg"):
+        pcg = problem.bk.pcg
+
+        def counted_pcg(*a, **k):
+            found = pcg(*a, **k)
+            work["pcg" if found else "stalls"] += 1
+            work["cg"] += found[1] if found else 0
+            return found
+
+        problem.bk.pcg = counted_pcg
+    return work
 
 
 def child_truth(spec):
@@ -294,9 +363,11 @@ def child(spec):
     warnings.simplefilter("ignore")
     if spec["task"] == "truth":
         return child_truth(spec)
-    shape = dop.shapes.load(spec["shape"])
+    n = spec.get("n_vertices")
+    shape = dop.shapes.load(spec["shape"], n_vertices=n) if n else dop.shapes.load(spec["shape"])
     small = dop.shapes.load("bar")  # warm-up: lazy imports, numba's cached kernels
     dop.variational.Solver(small.mesh, small.handles, "sarap").solve(small.targets(small.P_moving + 0.01))
+    work = count_work()
     c0, w0 = _cpu(), time.perf_counter()
     op, rec = dop.train(shape, "sarap", "tps", m=spec["m"], seed=0, n_jobs=1, progress=False, **spec["train"])
     cpu, wall, peak = _cpu() - c0, time.perf_counter() - w0, _peak_mb()
@@ -304,7 +375,9 @@ def child(spec):
     if hasattr(solver, "kernel"):
         solver.kernel = "numpy"  # every row's energies by the same formulas
     energies = [float(solver.energy_of(X)) for X in rec.X]
-    out = {"cpu": cpu, "wall": wall, "peak_mb": peak, "backend": _backend(shape), "energies": energies}
+    reuse = "+reuse" if getattr(solver.hessian, "reuse", False) else ""
+    out = {"cpu": cpu, "wall": wall, "peak_mb": peak, "backend": _backend(shape) + reuse, "energies": energies}
+    out["work"], out["m"], out["n_vertices"] = work, len(rec.X), shape.mesh.n_vertices
     out["converged"] = int(np.sum(rec.converged))
     out["errors"] = [errors(op, p) for p in spec["truths"]]
     print(json.dumps(out))

@@ -232,3 +232,100 @@ class PardisoLDL:
     def inertia(self):
         """Negative eigenvalues of the last factorised K (MKL's iparm[22]); None when it failed."""
         return int(self._ps.iparm[22]) if self._ok else None
+
+
+#: ``DEFOP_REUSE=auto`` re-uses a factorisation (:func:`pcg`) on Newton systems of at least this many unknowns (free
+#: dofs); None: at no size. Measured on the 29,739-vertex aleph (59,468 unknowns, one thread), a qdldl factorisation
+#: costs 105 ms, its triangular solves 5.2 ms and a product with the Hessian 1.2 ms, so one CG step costs 1/10 to
+#: 1/15 of a factorisation (under load the solves slow down more). Only the exact steps near the optimum (about 3 of
+#: a solve's 10-30 Newton steps) precondition well (3-9 CG steps); elsewhere CG needs 10-40 and stalls. Training
+#: 12 samples there (benchmarks/bench_training.py, rows ``reuse`` and ``auto``) re-used 29 of 450 factorisations
+#: and cost 3% more CPU; on the 2,810-vertex aleph a re-use cost 20% more (bench_newton_policy.py). So ``auto``
+#: factorises every step at every size measured; ``DEFOP_REUSE=on`` re-uses at any size
+REUSE_MIN_UNKNOWNS = None
+#: the re-used factorisation's CG stops at a relative residual ‖K p + g‖ ≤ rtol ‖g‖ (:func:`forcing`) of at least
+#: REUSE_RTOL ...
+REUSE_RTOL = 1e-6
+#: ... and at most REUSE_LOOSE (far from the optimum, where λ²/2 > REUSE_LOOSE · E) ...
+REUSE_LOOSE = 1e-6
+#: ... within this many iterations, else the Hessian is factorised afresh
+REUSE_MAX_ITER = 10
+#: after this many stalls in a row (the Hessian changing too fast from step to step), a solve factorises every step
+REUSE_STALLS = 2
+#: ``DEFOP_REUSE``: "auto" (re-use from :data:`REUSE_MIN_UNKNOWNS` unknowns: never), "on" (always), "off" (never)
+REUSE = ("auto", "on", "off")
+
+
+def choose_reuse(n_unknowns, backend):
+    """Whether a Newton system of ``n_unknowns`` re-uses a factorisation as a preconditioner (``DEFOP_REUSE``).
+
+    Raises
+    ------
+    ValueError
+        ``DEFOP_REUSE`` is not one of :data:`REUSE`.
+    """
+    mode = os.environ.get("DEFOP_REUSE", "").strip().lower() or "auto"
+    if mode not in REUSE:
+        raise ValueError(f"DEFOP_REUSE must be one of {', '.join(REUSE)}, got {mode!r:.80}")
+    if backend == "splu":  # pragma: no cover - exercised only without qdldl (SuperLU's factor is not kept)
+        return False
+    big = REUSE_MIN_UNKNOWNS is not None and n_unknowns >= REUSE_MIN_UNKNOWNS
+    return mode == "on" or (mode == "auto" and big)
+
+
+def forcing(rel_dec):
+    """The relative residual a re-used factorisation's CG solves to, from the last relative Newton decrement
+    λ²/2 / E: between :data:`REUSE_RTOL` and :data:`REUSE_LOOSE` (inexact Newton: a loose direction far from
+    the optimum, an accurate one near it)."""
+    return min(REUSE_LOOSE, max(REUSE_RTOL, float(rel_dec)))
+
+
+def pcg(K, b, precondition, rtol=None, maxiter=None):
+    """Preconditioned conjugate gradients on the symmetric K given by its upper triangle (CSC).
+
+    Parameters
+    ----------
+    K : (N, N) scipy CSC matrix
+        The upper triangle.
+    b : (N,) numpy array
+    precondition : callable
+        ``precondition(r) -> M⁻¹ r``: the substitutions of an earlier factorisation.
+    rtol, maxiter : float, int, optional
+        Stop once ‖b − K x‖ ≤ ``rtol`` ‖b‖ (default :data:`REUSE_RTOL`); give up after ``maxiter`` iterations
+        (default :data:`REUSE_MAX_ITER`).
+
+    Returns
+    -------
+    found : tuple or None
+        ``(x, iterations)``, or None on a stall: no convergence within ``maxiter`` iterations, a direction of
+        non-positive curvature (K or the preconditioner indefinite) or a non-finite value.
+    """
+    rtol = REUSE_RTOL if rtol is None else rtol
+    maxiter = REUSE_MAX_ITER if maxiter is None else maxiter
+    d = K.diagonal()
+    Kt = K.T  # CSR view of the lower triangle, no copy
+
+    def A(x):
+        return K @ x + Kt @ x - d * x
+
+    x = np.zeros_like(b)
+    r = b.copy()
+    z = precondition(r)
+    p = z.copy()
+    rz = float(r @ z)
+    bound = rtol * float(np.linalg.norm(b))
+    for k in range(maxiter):
+        Ap = A(p)
+        pAp = float(p @ Ap)
+        if not (pAp > 0 and rz > 0 and np.isfinite(pAp)):
+            return None
+        a = rz / pAp
+        x += a * p
+        r -= a * Ap
+        if np.linalg.norm(r) <= bound:
+            return x, k + 1
+        z = precondition(r)
+        rz_new = float(r @ z)
+        p = z + (rz_new / rz) * p
+        rz = rz_new
+    return None

@@ -25,6 +25,7 @@ import numpy as np
 
 from . import energies as en
 from . import kink
+from .backend import forcing
 from .inertia import inertia_shift
 
 #: at most this many triangles are released from the kink in one Newton solve (:func:`kink_active_set`)
@@ -220,7 +221,8 @@ def newton_stage(solver, log, X, tol, mu, hold=None):
         # element eigenvalues) converges only linearly; use it while it descends
         E, g, data, local = solver.grad_hess(X, mu, project=not exact, kink=0.0 if mu else hold)
         gf = g[solver.free]
-        p = solver.newton_direction(gf, data)
+        # exact steps (near the optimum, the Hessian changing little) may re-use the last exact step's factorisation
+        p = solver.newton_direction(gf, data, reuse=forcing(rel_dec) if exact else 0.0)
         dec = -float(gf @ p)  # Newton decrement λ²
         if exact and not (np.isfinite(dec) and dec > 0):
             exact = False  # indefinite: fall back to the projected Hessian, same eigensystem

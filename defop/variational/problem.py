@@ -70,6 +70,11 @@ class ReducedHessian:
     ----------
     backend : str
         The factorisation in use: "qdldl", "pardiso" or "splu".
+    reuse : bool
+        Whether :meth:`solve` with ``reuse`` > 0 (a Newton step) may precondition conjugate gradients with the last
+        Newton step's factorisation instead of factorising (:func:`defop.variational.backend.choose_reuse`:
+        ``DEFOP_REUSE``, by default from :data:`~defop.variational.backend.REUSE_MIN_UNKNOWNS` unknowns, i.e. off);
+        settable.
     """
 
     def __init__(self, mesh, free, backend=None):
@@ -95,11 +100,15 @@ class ReducedHessian:
         #: the slots of the diagonal entries in ``data``
         self.diag = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
         self._K = self._factor = self._slot = None
+        self.reuse = bk.choose_reuse(nf, self.backend)
+        #: whether the kept factorisation is a Newton step's, which a later Newton step may re-use, and whether
+        #: CG on it stalled since :meth:`forget`
+        self._stale, self._stalled = False, 0
         #: "numba": :meth:`assemble` runs :func:`defop.variational.fused.scatter`; "numpy": the reference
         self.kernel = "numba"
 
     def __getstate__(self):
-        return {**self.__dict__, "_K": None, "_factor": None, "_slot": None}
+        return {**self.__dict__, "_K": None, "_factor": None, "_slot": None, "_stale": False, "_stalled": 0}
 
     @property
     def slot(self):
@@ -139,9 +148,31 @@ class ReducedHessian:
         K = self.matrix(data).copy()
         return (K + sp.triu(K, 1).T).tocsc()
 
-    def solve(self, data, b, rel_shift):
-        """K⁻¹ b with K = ``matrix(data, rel_shift)``; factorises."""
+    def solve(self, data, b, rel_shift, reuse=0.0):
+        """K⁻¹ b with K = ``matrix(data, rel_shift)``: factorises, unless ``reuse`` (a Newton step's relative
+        residual, :func:`defop.variational.backend.forcing`) and :attr:`reuse`.
+
+        Then the last Newton step's factorisation preconditions conjugate gradients
+        (:func:`defop.variational.backend.pcg`, to a relative residual of ``reuse``), and K is factorised only
+        when they stall. A solve with ``reuse=False`` (the inertia of the verification and the kink's pull) always
+        factorises, so :meth:`inertia` is K's own; call :meth:`forget` where a new solve begins."""
         K = self.matrix(data, rel_shift)
+        if reuse and self.reuse and self._stale and self._stalled < bk.REUSE_STALLS:
+            found = bk.pcg(K, b, self._factor.solve, reuse)
+            self._stalled = 0 if found is not None else self._stalled + 1
+            if found is not None:
+                return found[0]
+        x = self.factorise(K, b)
+        self._stale = bool(reuse and self.reuse)
+        return x
+
+    def forget(self):
+        """No Newton step re-uses the kept factorisation, and a stall is forgotten: a solve's directions depend on
+        its own steps only."""
+        self._stale, self._stalled = False, 0
+
+    def factorise(self, K, b):
+        """Factorise K (upper CSC) with the back end, keeping the factorisation; K⁻¹ b."""
         if self.backend == "splu":  # pragma: no cover - exercised only without qdldl
             lu = sla.splu((K + sp.triu(K, 1).T).tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
             return lu.solve(b)
@@ -278,10 +309,12 @@ class ReducedProblem:
         """E, ∇E (d·n,), the Hessian values in the fixed CSC pattern and ``local``: :meth:`ElementKernels.grad_hess`."""
         return self.elements.grad_hess(X, mu, project, kink)
 
-    def newton_direction(self, g_free, data, rel_shift=1e-10):
+    def newton_direction(self, g_free, data, rel_shift=1e-10, reuse=0.0):
         """−K⁻¹ g on the free dofs. A tiny relative diagonal shift keeps the projected (PSD) Hessian definite;
-        the exact Hessian may be indefinite: the caller checks that the direction descends."""
-        return -self.hessian.solve(data, g_free, rel_shift)
+        the exact Hessian may be indefinite: the caller checks that the direction descends. ``reuse`` > 0: a Newton
+        step, which may re-use an earlier step's factorisation to this relative residual
+        (:meth:`ReducedHessian.solve`)."""
+        return -self.hessian.solve(data, g_free, rel_shift, reuse)
 
     def full(self, p):
         """(n, d) field from free-dof values ``p`` (zero at the handles)."""

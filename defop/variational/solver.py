@@ -272,6 +272,7 @@ class Solver:
         log = Log(self.max_iter if max_iter is None else check_max_iter(max_iter))
         T = self.targets_of(targets)
         X = self.check_start(X0)
+        self.hessian.forget()
         X, reached, reason, ok = continuation(self, log, X, T, tol, max_stages)
         check = None
         if reached:
