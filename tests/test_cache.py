@@ -419,24 +419,26 @@ def _train_child(cache, out, started=None, may_finish=None):
 
 
 def test_two_processes_training_the_same_operator_both_get_it(bar, tmp_path, monkeypatch):
-    """Process A writes each entry slowly and is held mid-write until process B has trained and stored."""
+    """Process A writes each entry slowly, held mid-write while process B starts training the same operator; B
+    waits on the entry's lock (Cache.lock) or reads A's whole entry, never the half-written one. (It used to wait
+    for B to finish first, which the per-entry lock makes B wait out: 2 x 120 s of timeouts.)"""
     ctx = multiprocessing.get_context("spawn")
-    started, b_done = ctx.Event(), ctx.Event()
+    started, go_on = ctx.Event(), ctx.Event()
     cache = str(tmp_path / "cache")
-    a = ctx.Process(target=_train_child, args=(cache, tmp_path / "a.npy", started, b_done))
+    a = ctx.Process(target=_train_child, args=(cache, tmp_path / "a.npy", started, go_on))
     a.start()
     try:
         assert started.wait(120), "process A never started writing"
         assert [p.name for p in Path(cache).glob(".gt-*")]  # A's half-written ground truth is on disk
         b = ctx.Process(target=_train_child, args=(cache, tmp_path / "b.npy"))
         b.start()
+        go_on.set()  # A finishes its entries while B trains
         b.join(300)
         assert b.exitcode == 0, "process B failed while A was writing"
-        b_done.set()
         a.join(300)
         assert a.exitcode == 0
     finally:
-        b_done.set()
+        go_on.set()
         a.join(10)
         if a.is_alive():
             a.kill()

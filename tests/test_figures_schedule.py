@@ -171,8 +171,8 @@ def test_no_lesson_starts_before_what_it_waits_on_has_ended(deps, jobs):
 def test_a_run_from_an_empty_cache_records_who_waits_on_whom(tmp_path):
     path = tmp_path / "runtimes.json"
     report = [
-        dict(name="00_a", seconds=5.0, ok=True, cache="cold", computed=["gt-1.npz"], read=[], start=0.0, end=5.0),
-        dict(name="01_b", seconds=5.0, ok=True, cache="cold", computed=[], read=["gt-1.npz"], start=0.0, end=5.0),
+        dict(name="00_a", seconds=5.0, ok=True, cache="partial", computed=["gt-1.npz"], read=[], start=0.0, end=5.0),
+        dict(name="01_b", seconds=5.0, ok=True, cache="warm", computed=[], read=["gt-1.npz"], start=0.0, end=5.0),
     ]
     report[0]["cpu"] = 4.0
     figures.write_runtimes(report, "full", path, jobs=2, wall=7.0, whole="cold")
@@ -183,4 +183,9 @@ def test_a_run_from_an_empty_cache_records_who_waits_on_whom(tmp_path):
     warm = [{**r, "cache": "warm", "computed": [], "read": ["gt-1.npz"]} for r in report]
     figures.write_runtimes(warm, "full", path, jobs=2, wall=2.0, whole="warm")  # a warm run keeps the lists
     assert json.loads(path.read_text())["full"]["notebooks"]["01_b"]["after"] == ["00_a"]
+    assert schedule.expected_seconds(["00_a"], path, "full", cold=True) == {"00_a": 4.0}
+    # a clean run (each lesson from an empty cache of its own) keeps both: its lessons share nothing
+    clean = [{**r, "cache": "cold", "cpu": 50.0, "computed": ["gt-1.npz"], "read": []} for r in report]
+    figures.write_runtimes(clean, "full", path, jobs=2, wall=60.0, whole="cold")
+    assert schedule.recorded_after(["00_a", "01_b"], path, "full") == {"01_b": ["00_a"]}
     assert schedule.expected_seconds(["00_a"], path, "full", cold=True) == {"00_a": 4.0}

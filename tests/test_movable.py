@@ -83,6 +83,24 @@ def test_bad_regions(shape):
         placement_regions(shape, [0])
 
 
+def test_a_vertex_outside_the_region_is_refused_not_moved_elsewhere(shape, placement):
+    """Vertices given directly (fit_movable's idx, retarget, handles_at) are checked against the region: a vertex
+    outside it, or past its last vertex, was read as another region vertex (the nominal one) with no error."""
+    inside = set(np.concatenate(placement.vertices).tolist())
+    outside = next(v for v in range(shape.mesh.n_vertices) if v not in inside and v not in set(shape.handles))
+    bad = placement.nominal.copy()
+    bad[0] = outside
+    for idx in (bad, np.full(placement.n_movable, shape.mesh.n_vertices + 7)):
+        with pytest.raises(ValueError, match="not in movable handle 0's placement region"):
+            placement.handles_at(idx)
+        with pytest.raises(ValueError, match="placement region"):
+            retarget(shape.P_moving, placement, placement.nominal, idx)
+    Q = shape.P_moving[None] + 0.01
+    X = np.repeat(shape.mesh.V[None], 1, axis=0)
+    with pytest.raises(ValueError, match="placement region"):
+        fit_movable(shape.mesh, shape.handles, shape.moving, placement, bad[None], Q, X)
+
+
 def test_3d_region_moves_the_handle_patch():
     """A 3D movable handle brings its patch (tests/test_movable_3d.py has the operator's guarantees)."""
     s = dop.shapes.load("bar_3d", n_vertices=300)

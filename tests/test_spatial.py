@@ -68,3 +68,17 @@ def test_largest_k_works():
 def test_unknown_kind(grid):
     with pytest.raises(ValueError, match="unknown spatial basis 'fourier'"):
         spatial.make_spatial(grid, "fourier")
+
+
+@pytest.mark.parametrize("lead", [(), (5,), (3, 4), (0,)])
+def test_projection_of_a_batch_equals_the_projection_of_each(lead):
+    """The L² projection of (..., n_vertices, d) data, one matrix product, equals each configuration's own
+    U^T M X (any leading dimensions, an empty batch included)."""
+    mesh = dop.shapes.load("bar", n_vertices=200).mesh
+    phi = spatial.make_spatial(mesh, "reduced", 12)
+    X = np.random.default_rng(1).standard_normal((*lead, mesh.n_vertices, 2))
+    A = phi.coefficients(X)
+    assert A.shape == (*lead, 12, 2)
+    M = mesh.mass_matrix.diagonal()[:, None]
+    for i in np.ndindex(*lead):
+        np.testing.assert_allclose(A[i], phi.U.T @ (M * X[i]), rtol=0, atol=1e-13)

@@ -455,7 +455,7 @@ def regenerate(
         report = [_run_one(path, tags[path], log, **kw) for path in paths]
     else:
         after = schedule.recorded_after([p.stem for p in beside], RUNTIMES if record is None else record, mode)
-        report = _side_by_side(beside, tags, jobs, expected, log, after=after if cold else None, **kw)
+        report = _side_by_side(beside, tags, jobs, expected, log, after=after if cold and not clean else None, **kw)
         report += [_run_one(path, tags[path], log, **kw) for path in alone]  # their measured times: nothing beside
         report.sort(key=lambda r: r["name"])
     _summary(report, mode, jobs, time.perf_counter() - t0, log)

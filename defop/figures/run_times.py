@@ -109,7 +109,8 @@ def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None, whole=None):
         if after:
             new["after"] = after
         work = r.get("cpu") if r.get("cpu") is not None else r["seconds"]
-        job = round(work, 1) if whole == "cold" and r["ok"] else old.get("cold_job")
+        shared = whole == "cold" and r["ok"] and r.get("cache") != "cold"  # not a clean run's own empty cache
+        job = round(work, 1) if shared else old.get("cold_job")
         if job is not None:
             new["cold_job"] = job
         if "cache" in r:

@@ -20,7 +20,8 @@ The rest positions of the *movable* handles (:mod:`defop.scene.placement`) are i
   vertices and at every handle that is not movable). Then the handle rows are written as q_ℓ exactly (Prop. 2,
   bit for bit), as are non-movable moving handles (q) and fixed handles (x); W_F is 0 on their columns.
 * Affine precision: a displacement field affine in (Q − P) with coefficients independent of P is reproduced
-  (the affine part of Ψ); the P-affine part cancels in δψ. Elsewhere between samples D interpolates.
+  (the affine part of Ψ); the P-affine part cancels in δψ. Between samples D is a least-squares TPS fit on
+  m + 1 centres (with ``centres=None`` every joint point is a centre and D interpolates every training pair).
 
 In 3D a movable handle is a patch (:attr:`defop.scene.placement.PlacementRegions.members`): P names the movable
 handle's vertex, every member moves with it by the same rest offset, z keeps one row per patch, and every member

@@ -68,11 +68,11 @@ class SpatialBasis:
 
         Parameters
         ----------
-        X : (n_vertices, d) or (k, n_vertices, d) numpy array
+        X : (n_vertices, d) or (..., n_vertices, d) numpy array
 
         Returns
         -------
-        A : (|Φ|, d) or (k, |Φ|, d) numpy array
+        A : (|Φ|, d) or (..., |Φ|, d) numpy array
             ``X ≈ U @ A``; exact for hat functions, and for x, y and constants with the reduced basis.
         """
         X = np.asarray(X, float)
@@ -81,10 +81,12 @@ class SpatialBasis:
         MX = self.mass.diagonal()[:, None] * X  # the lumped (diagonal) mass matrix
         if MX.ndim == 2:
             return self.U.T @ MX
-        # one matrix product over every configuration (BLAS), not k products of width d
-        k, n, d = MX.shape
-        A = self.U.T @ MX.transpose(1, 0, 2).reshape(n, k * d)
-        return np.ascontiguousarray(A.reshape(-1, k, d).transpose(1, 0, 2))
+        # one matrix product over every configuration (BLAS), not k products of width d; any leading dimensions
+        lead, (n, d) = MX.shape[:-2], MX.shape[-2:]
+        flat = MX.reshape(-1, n, d)
+        A = self.U.T @ flat.transpose(1, 0, 2).reshape(n, -1)  # (p, k d)
+        A = A.reshape(self.size, len(flat), d).transpose(1, 0, 2)
+        return np.ascontiguousarray(A).reshape(*lead, self.size, d)
 
     def evaluate(self, A):
         """Vertex values of Σ_i A_i φ_i.

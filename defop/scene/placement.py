@@ -165,8 +165,36 @@ class PlacementRegions:
         return np.searchsorted(np.flatnonzero(self.moving), self.moved)
 
     def members_at(self, idx):
-        """(B,) int numpy array: every patch member's vertex (:attr:`moved`) with the movable handles at ``idx``."""
-        return np.concatenate([lay[int(np.searchsorted(v, i))] for lay, v, i in zip(self.layout, self.vertices, idx)])
+        """(B,) int numpy array: every patch member's vertex (:attr:`moved`) with the movable handles at ``idx``.
+
+        Raises
+        ------
+        ValueError
+            A vertex of ``idx`` outside its handle's placement region.
+        """
+        return np.concatenate([lay[pos] for lay, pos in zip(self.layout, self.region_positions(idx))])
+
+    def region_positions(self, idx):
+        """(b,) int numpy array: where each vertex of ``idx`` (b,) sits in its handle's :attr:`vertices`.
+
+        Raises
+        ------
+        ValueError
+            A vertex outside its handle's placement region (so that vertices passed directly never get another's).
+        """
+        idx = np.asarray(idx)
+        if idx.shape != (self.n_movable,):
+            raise ValueError(f"expected {self.n_movable} region vertices (one per movable handle), got {idx.shape}")
+        out = np.empty(len(idx), np.int64)
+        for ell, (v, i) in enumerate(zip(self.vertices, idx)):
+            pos = int(np.searchsorted(v, i))
+            if pos == len(v) or v[pos] != i:
+                raise ValueError(
+                    f"vertex {int(i)} is not in movable handle {ell}'s placement region ({len(v)} vertices, nominal "
+                    f"{int(self.nominal[ell])})"
+                )
+            out[ell] = pos
+        return out
 
     def resolve(self, P):
         """The vertex (b,) int numpy array of each movable handle's rest position ``P``.
@@ -247,8 +275,8 @@ class PlacementRegions:
     def bump_rows(self, idx):
         """Rows of :attr:`g` of the region vertices ``idx`` (b,): (B,), each patch's members in turn."""
         rows = [
-            o + int(np.searchsorted(v, i)) * lay.shape[1] + np.arange(lay.shape[1])
-            for o, v, i, lay in zip(self.offset, self.vertices, idx, self.layout)
+            o + pos * lay.shape[1] + np.arange(lay.shape[1])
+            for o, pos, lay in zip(self.offset, self.region_positions(idx), self.layout)
         ]
         return np.concatenate(rows)
 
