@@ -179,9 +179,9 @@ def test_every_exact_factorisation_of_a_solve_takes_the_one_shift(bar):
     bump = np.sin(np.pi * (V[:, 0] - V[:, 0].min()) / np.ptp(V[:, 0]))
     shifts, solve = [], S.hessian.solve
 
-    def spy(data, b, rel_shift):
+    def spy(data, b, rel_shift, *rest):  # rest: a Newton step's re-use tolerance (ReducedHessian.solve)
         shifts.append((rel_shift, inertia_shift(S, data)))
-        return solve(data, b, rel_shift)
+        return solve(data, b, rel_shift, *rest)
 
     S.hessian.solve = spy
     assert S.solve(T, X0=V + np.column_stack([0 * bump, 0.1 * bump])).converged
