@@ -109,10 +109,10 @@ def spin(seconds):  # busy real time, measured on the clock left alone
         pass
 
 clocks = sorted(getattr(time, "_defop_slow_clocks", {}))
-m0, p0, c0, w0 = time.monotonic(), time.perf_counter(), time.process_time(), time.time()
+m0, p0, c0, w0 = time.monotonic(), time.perf_counter(), time.thread_time(), time.time()
 n0 = time.perf_counter_ns()
 spin(0.3)
-m1, p1, c1, w1 = time.monotonic(), time.perf_counter(), time.process_time(), time.time()
+m1, p1, c1, w1 = time.monotonic(), time.perf_counter(), time.thread_time(), time.time()
 n1 = time.perf_counter_ns()
 steps = []
 for _ in range(200):
@@ -161,7 +161,9 @@ def test_a_kernel_started_with_the_slow_clock_ipythondir_runs_ten_times_slow():
     # descheduled between the two reads on a loaded machine)
     for key in ("perf", "ns", "wall"):
         assert 6 <= got[key] <= 14, (key, got)
-    assert got["cpu"] <= 14  # CPU time of a busy loop: at most 10x +30% of the real time
+    # CPU time of the busy loop's own thread (the kernel's other threads would add theirs to process_time): at most
+    # 10x +30% of the real time
+    assert got["cpu"] <= 14
     ratios = sorted(got["steps"])
     inside = [r for r in ratios if 6.9 <= r <= 13.1]
     assert len(inside) >= 0.8 * len(ratios), ratios  # 200 short steps: 10x ±30% (a few descheduled reads aside)
