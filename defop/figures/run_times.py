@@ -98,32 +98,37 @@ def write_runtimes(report, mode, path=RUNTIMES, jobs=1, wall=None, whole=None):
     # who computed what each lesson read (a run in which no lesson read another's entries, such as a clean run where
     # each lesson has an empty cache of its own, keeps the old lists)
     made_by = (producers(report) or None) if whole == "cold" else None
+    known = entry["notebooks"]
     for r in report:
-        old = entry["notebooks"].get(r["name"], {})
-        new = {"seconds": round(r["seconds"], 1), "ok": r["ok"]}
-        if r.get("cpu") is not None:
-            new["cpu"] = round(r["cpu"], 1)
-        if beside.get(r["name"]):
-            new["beside"] = beside[r["name"]]
-        after = old.get("after") if made_by is None else made_by.get(r["name"])
-        if after:
-            new["after"] = after
-        work = r.get("cpu") if r.get("cpu") is not None else r["seconds"]
-        shared = whole == "cold" and r["ok"] and r.get("cache") != "cold"  # not a clean run's own empty cache
-        job = round(work, 1) if shared else old.get("cold_job")
-        if job is not None:
-            new["cold_job"] = job
-        if "cache" in r:
-            new["cache"] = r["cache"]
-            new.update({k: old[k] for k in ("cold", "warm") if k in old})
-            if old.get("ok") and "cache" not in old:  # a record from before cold/warm: its runs were warm
-                new.setdefault("warm", old["seconds"])
-            if r["ok"] and r["cache"] in ("cold", "warm"):
-                new[r["cache"]] = new["seconds"]
-        entry["notebooks"][r["name"]] = new
+        known[r["name"]] = _notebook_entry(known.get(r["name"], {}), r, beside, made_by, whole)
     entry["notebooks"] = dict(sorted(entry["notebooks"].items()))
     path.write_text(json.dumps(dict(sorted(record.items())), indent=1) + "\n")
     return record
+
+
+def _notebook_entry(old, r, beside, made_by, whole):
+    """One notebook's new record entry from its ``old`` one and its report ``r`` (:func:`write_runtimes`)."""
+    new = {"seconds": round(r["seconds"], 1), "ok": r["ok"]}
+    if r.get("cpu") is not None:
+        new["cpu"] = round(r["cpu"], 1)
+    if beside.get(r["name"]):
+        new["beside"] = beside[r["name"]]
+    after = old.get("after") if made_by is None else made_by.get(r["name"])
+    if after:
+        new["after"] = after
+    work = r.get("cpu") if r.get("cpu") is not None else r["seconds"]
+    shared = whole == "cold" and r["ok"] and r.get("cache") != "cold"  # not a clean run's own empty cache
+    job = round(work, 1) if shared else old.get("cold_job")
+    if job is not None:
+        new["cold_job"] = job
+    if "cache" in r:
+        new["cache"] = r["cache"]
+        new.update({k: old[k] for k in ("cold", "warm") if k in old})
+        if old.get("ok") and "cache" not in old:  # a record from before cold/warm: its runs were warm
+            new.setdefault("warm", old["seconds"])
+        if r["ok"] and r["cache"] in ("cold", "warm"):
+            new[r["cache"]] = new["seconds"]
+    return new
 
 
 # "**Run time:** full 95 s, fast 20 s (measured by the main job)", and the older free forms such as
