@@ -127,8 +127,11 @@ def test_grid_error_rejects_a_ground_truth_of_another_moving_handle():
     assert dop.lessons.figure_data.grid_error(op, truth, moving=1) >= 0.0
     with pytest.raises(ValueError, match="another moving handle"):
         dop.lessons.figure_data.grid_error(op, truth)
-    with pytest.raises(ValueError, match="integer index"):
-        dop.lessons.figure_data.grid_error(op, truth, moving=1.5)
+    for bad in (1.5, 5, -1, "1", True):  # 5 and -1: numpy's IndexError or another handle's error before
+        with pytest.raises(
+            ValueError, match=r"moving \(the index of a moving handle\) must be an integer >= 0 and <= 4"
+        ):
+            dop.lessons.figure_data.grid_error(op, truth, moving=bad)
 
 
 def test_local_rotation_rejects_nan_and_a_center_of_the_wrong_shape():

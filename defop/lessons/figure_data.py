@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import options as opt
 from ..analysis.metrics import approximation_error
 from ..analysis.trajectories import Trajectory, check_scan, discontinuities, moving_batch, moving_rest_positions
 from ..training import solves
@@ -248,17 +249,17 @@ def grid_error(defop, truth, moving=0):
     X = np.asarray(truth.X, float)
     if X.shape[2:] != (defop.n_vertices, 2):
         raise ValueError(f"the trajectory has {X.shape[2]} vertices, the DefOp {defop.n_vertices}")
-    if isinstance(moving, bool) or int(moving) != moving:
-        raise ValueError(f"moving must be the integer index of a moving handle, got {moving!r}")
-    Q = moving_batch(truth.grid, len(moving_rest_positions(defop)), int(moving), moving_rest_positions(defop))
+    rest = moving_rest_positions(defop)
+    moving = opt.integer("moving (the index of a moving handle)", moving, minimum=0, maximum=len(rest) - 1)
+    Q = moving_batch(truth.grid, len(rest), moving, rest)
     handles, mask = getattr(defop, "handles", None), getattr(defop, "moving", None)
     if handles is not None and mask is not None:  # the truth's handle sits on the grid where its solve converged
-        v = int(np.asarray(handles)[np.asarray(mask, bool)][int(moving)])
+        v = int(np.asarray(handles)[np.asarray(mask, bool)][moving])
         ok = np.ones(X.shape[:2], bool) if truth.converged is None else np.asarray(truth.converged, bool)
         off = float(np.abs(X[:, :, v] - truth.grid.positions)[ok].max(initial=0.0))
         if not off <= 1e-9 * defop.mesh.bbox_diagonal:
             raise ValueError(
-                f"moving handle {int(moving)} (vertex {v}) is {off:.3g} off the trajectory's grid: "
+                f"moving handle {moving} (vertex {v}) is {off:.3g} off the trajectory's grid: "
                 "was the ground truth solved for another moving handle?"
             )
     return approximation_error(defop, Q, X.reshape(len(Q), -1, 2)) / len(Q)
