@@ -49,7 +49,7 @@ def shipped_frame(op, Q, idx):
     """Python's float64 evaluation of the shipped factors (float32 A, B) at placement idx: what the page computes."""
     st_ = op.at(np.asarray(idx, np.int64))
     u = (op.delta_psi(Q[None], st_) @ op.factors[0].astype(float)) @ op.factors[1].astype(float)
-    return correct(op.mesh, op.placement, op.handles, op.moving, st_, u, Q[None]).reshape(-1, 2)
+    return correct(op.mesh, op.placement, op.handles, op.moving, st_, u, Q[None]).reshape(-1, op.d)
 
 
 def float32_bound(op, Q, idx):
@@ -60,9 +60,9 @@ def float32_bound(op, Q, idx):
     st_ = op.at(np.asarray(idx, np.int64))
     dpsi = np.abs(op.delta_psi(Q[None], st_))[0]
     A, B = (np.abs(f.astype(float)) for f in op.factors)
-    e = (4 * U32 * (dpsi @ A) @ B).reshape(-1, 2)
+    e = (4 * U32 * (dpsi @ A) @ B).reshape(-1, op.d)
     sup, wt = st_.bumps
-    e[sup] += np.abs(wt) @ e[st_.idx]
+    e[sup] += np.abs(wt) @ e[st_.moved]
     return e + 1e-12 * op.mesh.bbox_diagonal
 
 

@@ -12,43 +12,59 @@
 // (defop.editor.movable_page.movable_script); Node tests import it as a module.
 import { createEditor, decodePayload, fromBase64, makePsi, rowCombination, el, addStyle, MODES } from "./defop_editor.js";
 
-/** Region ℓ's vertices (sorted, a view) and the offset of its first bump row (PlacementRegions.offset). */
+/**
+ * Region ℓ's vertices (sorted, a view), its patch (s members: `first` their index among p.members, `layout` the
+ * (k × s) member vertices at each region vertex, PlacementRegions.layout) and its first bump row `offset`
+ * (PlacementRegions.offset). In 2D every patch is its handle alone (s = 1).
+ */
 function regionSlices(p) {
   const out = [];
-  let o = 0;
-  for (let l = 0; l < p.region_sizes.length; l++) {
-    out.push({ vertices: p.region_vertices.subarray(o, o + p.region_sizes[l]), offset: o });
-    o += p.region_sizes[l];
+  for (let l = 0, o = 0, ov = 0, first = 0; l < p.region_sizes.length; l++) {
+    const k = p.region_sizes[l], s = p.member_sizes[l];
+    out.push({ vertices: p.region_vertices.subarray(ov, ov + k), offset: o, first, s,
+      layout: p.layout.subarray(o, o + k * s), members: Array.from(p.members.subarray(first, first + s)) });
+    o += k * s;
+    ov += k;
+    first += s;
   }
   return out;
 }
 
-/** The bumps of region vertices idx (PlacementRegions.bumps_at): support (sorted vertices) and weights (s × b). */
+/**
+ * The bumps of region vertices idx (PlacementRegions.bumps_at): support (sorted vertices) and weights (s × B), one
+ * column per patch member (B of them, region by region).
+ */
 function bumpsAt(p, regions, idx) {
-  const b = idx.length, w = new Map();
-  for (let l = 0; l < b; l++) {
-    const row = regions[l].offset + regions[l].vertices.indexOf(idx[l]);
-    for (let k = p.bump_indptr[row]; k < p.bump_indptr[row + 1]; k++) {
-      const v = p.bump_indices[k];
-      if (!w.has(v)) w.set(v, new Float64Array(b));
-      w.get(v)[l] = p.bump_data[k];
+  const B = p.members.length, w = new Map();
+  regions.forEach((region, l) => {
+    const pos = region.vertices.indexOf(idx[l]);
+    for (let j = 0; j < region.s; j++) {
+      const row = region.offset + pos * region.s + j;
+      for (let k = p.bump_indptr[row]; k < p.bump_indptr[row + 1]; k++) {
+        const v = p.bump_indices[k];
+        if (!w.has(v)) w.set(v, new Float64Array(B));
+        w.get(v)[region.first + j] = p.bump_data[k];
+      }
     }
-  }
-  const sup = Int32Array.from([...w.keys()].sort((a, c) => a - c)), wt = new Float64Array(sup.length * b);
-  sup.forEach((v, s) => wt.set(w.get(v), s * b));
+  });
+  const sup = Int32Array.from([...w.keys()].sort((a, c) => a - c)), wt = new Float64Array(sup.length * B);
+  sup.forEach((v, s) => wt.set(w.get(v), s * B));
   return { sup, wt };
 }
 
 /**
- * The movable operator of a payload: evaluate(Q) at the current placement, setRest(ℓ, v) to move movable handle
- * ℓ's rest position to vertex v of its region (a RangeError naming the handle and the vertex when v is outside the
- * region or holds another handle; nothing changes then), placement() the current vertices. setRest updates the
- * payload's P (rest positions of the moving handles) and handles (their vertices) in place, so the editor draws
- * and resets at the current placement.
+ * The movable operator of a payload (2D or 3D: D = p.d): evaluate(Q) at the current placement, setRest(ℓ, v, Q) to
+ * move movable handle ℓ's rest position to vertex v of its region, its patch with it by one offset (a RangeError
+ * naming the handle and the vertex when v is outside the region or holds another handle; nothing changes then),
+ * placement() the current vertices. setRest updates the payload's P (rest positions of the moving handles) and
+ * handles (their vertices) in place, so the editor draws and resets at the current placement; given Q (flat, the
+ * editor's), it keeps q − p of every member (defop.operator.movable.retarget), and it returns the movable handle's
+ * own shift (D numbers).
  */
 export function makeMovable(p) {
-  const D = 2, n = p.n_moving, nc = D * p.n_vertices, size = p.size, V = p.V, x = p.V, P = p.P;
+  const D = p.d || 2, n = p.n_moving, nc = D * p.n_vertices, size = p.size, V = p.V, x = p.V, P = p.P;
   const mv = p.placement_movable, rows = p.movable_rows, nominal = p.nominal, b = mv.length, J = (b + n) * D;
+  const memberRows = p.member_rows, nB = p.members.length;
   const A = p.A, B = p.B || null, r = B ? p.rank : nc;
   const fillPsi = makePsi({ kind: "tps", d: D, n_moving: b + n, P: new Float64Array(J), scale: 1, size,
     centers: p.joint_centers, kernel: p.kernel }); // pseudo-handles at 0, scale 1: Ψ of the joint z itself
@@ -57,9 +73,10 @@ export function makeMovable(p) {
   for (let h = 0; h < handles.length; h++) (p.moving[h] ? movingHandles : fixed).push(h);
   const fixedVertices = Int32Array.from(fixed, (h) => handles[h]); // fixed handles never move
   const idx = Int32Array.from(nominal), hm = Int32Array.from(movingHandles, (h) => handles[h]);
+  const cur = Int32Array.from(p.members, (h) => handles[h]); // every member's vertex (PlacementRegions.members_at)
   const z = new Float64Array(J), z0 = new Float64Array(J), psiZero = Float64Array.from(fillPsi(z0)).subarray(1);
   const psi0 = new Float64Array(size - 1), dpsi = new Float64Array(size - 1);
-  const tmp = new Float64Array(r), out = new Float64Array(nc), res = new Float64Array(b * D);
+  const tmp = new Float64Array(r), out = new Float64Array(nc), res = new Float64Array(nB * D);
   let bumps = null;
 
   function jointZ(Q, zz) { // joint_z of defop.operator.movable
@@ -88,15 +105,15 @@ export function makeMovable(p) {
     for (let j = 0; j < size - 1; j++) dpsi[j] -= psi0[j];
     if (B) rowCombination(rowCombination(dpsi, A, size - 1, r, tmp), B, r, nc, out); // u = δψ A B
     else rowCombination(dpsi, A, size - 1, nc, out);
-    for (let l = 0; l < b; l++) for (let c = 0; c < D; c++) { // r_ℓ = (q_ℓ − p_ℓ) − u(v_ℓ)
-      const j = D * rows[l] + c;
-      res[D * l + c] = (Q[j] - P[j]) - out[D * idx[l] + c];
+    for (let g = 0; g < nB; g++) for (let c = 0; c < D; c++) { // r_ℓ = (q_ℓ − p_ℓ) − u(v_ℓ), every member
+      const j = D * memberRows[g] + c;
+      res[D * g + c] = (Q[j] - P[j]) - out[D * cur[g] + c];
     }
     for (let c = 0; c < nc; c++) out[c] = x[c] + out[c];
     const { sup, wt } = bumps;
     for (let s = 0; s < sup.length; s++) for (let c = 0; c < D; c++) { // Σ_ℓ g_{v_ℓ} r_ℓ
       let t = 0;
-      for (let l = 0; l < b; l++) t += wt[s * b + l] * res[D * l + c];
+      for (let g = 0; g < nB; g++) t += wt[s * nB + g] * res[D * g + c];
       out[D * sup[s] + c] += t;
     }
     for (let l = 0; l < n; l++) for (let c = 0; c < D; c++) out[D * hm[l] + c] = Q[D * l + c]; // Prop. 2
@@ -111,7 +128,7 @@ export function makeMovable(p) {
       throw new RangeError(`rest handle ${l}: ${v} is not a vertex (0..${p.n_vertices - 1})`);
     }
     for (let h = 0; h < handles.length; h++) {
-      if (h !== mv[l] && handles[h] === v) {
+      if (!regions[l].members.includes(h) && handles[h] === v) {
         throw new RangeError(`rest handle ${l} cannot move onto vertex ${v}: it holds handle ${h}; the rest handle stays`);
       }
     }
@@ -120,33 +137,110 @@ export function makeMovable(p) {
         `vertices around vertex ${nominal[l]}); the rest handle stays`);
     }
   }
-  /** Move movable handle ℓ's rest position to vertex v (checked first: a RangeError changes nothing). */
-  function setRest(l, v) {
+  /** Move movable handle ℓ's rest position to vertex v and its patch with it (checked first: a RangeError changes
+   * nothing); Q (optional, flat) keeps q − p of every member. Returns the handle's shift (D numbers). */
+  function setRest(l, v, Q = null) {
     checkRest(l, v);
-    const row = rows[l];
+    const region = regions[l], pos = region.vertices.indexOf(v), shift = new Float64Array(D);
+    for (let c = 0; c < D; c++) shift[c] = V[D * v + c] - V[D * idx[l] + c];
     idx[l] = v;
-    hm[row] = v;
-    handles[mv[l]] = v;
-    for (let c = 0; c < D; c++) P[D * row + c] = V[D * v + c];
+    for (let j = 0; j < region.s; j++) {
+      const g = region.first + j, w = region.layout[pos * region.s + j], row = memberRows[g];
+      for (let c = 0; c < D; c++) {
+        if (Q) Q[D * row + c] = V[D * w + c] + (Q[D * row + c] - P[D * row + c]); // q − p stays (retarget): at rest, P
+        P[D * row + c] = V[D * w + c];
+      }
+      cur[g] = w;
+      hm[row] = w;
+      handles[p.members[g]] = w;
+    }
     settle();
+    return shift;
   }
   return { evaluate, psi: (Q) => fillPsi(jointZ(Q, z)), setRest, checkRest, placement: () => Array.from(idx),
     regions, movable: mv, rows, n_movable: b, n_moving: n, n_vertices: p.n_vertices, d: D };
 }
 
 const MOVABLE_STYLE = `
-.defop-editor .defop-rest-msg { color: #b00; font-weight: 600; min-height: 1.2em; }
-.defop-editor .defop-rest-toggle[aria-pressed="true"] { background: #2ca02c; color: #fff; }
+.defop-editor .defop-rest-msg, .defop-solid .defop-rest-msg { color: #b00; font-weight: 600; min-height: 1.2em; }
+.defop-editor .defop-rest-toggle[aria-pressed="true"], .defop-solid .defop-rest-toggle[aria-pressed="true"] {
+  background: #2ca02c; color: #fff; }
 `;
 
-/** The nearest of `vertices` to (px, py) in positions X: [vertex, distance]. */
-function nearest(vertices, X, px, py) {
+/** The nearest of `vertices` by dist(w): [vertex, distance]. */
+function nearest(vertices, dist) {
   let best = -1, bestD = Infinity;
   for (const v of vertices) {
-    const d = Math.hypot(X[2 * v] - px, X[2 * v + 1] - py);
+    const d = dist(v);
     if (d < bestD) { best = v; bestD = d; }
   }
   return [best, bestD];
+}
+
+/** dist(w): the distance of vertex w's current position (st.X, D = st.op.d) to a point (D numbers). */
+const worldDistance = (st, point) => (w) => Math.hypot(...point.map((t, c) => st.X[st.op.d * w + c] - t));
+
+/**
+ * The vertex of rest handle ℓ's region nearest by dist (to the pointer or a point), within radius; a RangeError
+ * saying why not: another handle (not of ℓ's patch) nearer and within radius (onto it), or no region vertex within
+ * radius (outside; `where` names the place).
+ */
+function pickRest(st, l, dist, radius, where) {
+  const region = st.op.regions[l], handles = st.p.handles;
+  const [v, d] = nearest(region.vertices, dist);
+  for (let h = 0; h < handles.length; h++) {
+    const dh = dist(handles[h]);
+    if (!region.members.includes(h) && dh <= radius && dh < d) {
+      throw new RangeError(`rest handle ${l} cannot move onto handle ${h} (vertex ${handles[h]}); the rest handle stays`);
+    }
+  }
+  if (d > radius) {
+    throw new RangeError(`${where} is outside rest handle ${l}'s placement region (the green vertices); the rest ` +
+      "handle stays");
+  }
+  return v;
+}
+
+/**
+ * What the rest modes of the 2D and the 3D view share: the toggle ("move rest handle"), the message line (placed
+ * by place(toggle, msg)), the state (st.restMode, st.restActive, st.restTarget), editor.setRest(ℓ, target) (target a
+ * vertex index or a point of D numbers, snapped within snapRadius() to the region: pickRest) and the mover
+ * move(ℓ, locate) that the pointer uses: locate() gives the vertex or throws; the move is checked before anything
+ * changes (a RangeError is shown and changes nothing), keeps q − p (retarget), then after(ℓ, shift), a redraw and
+ * hooks.onRest(placement, Q) unless notify is false. Returns { msg, move }.
+ */
+function restControls(editor, hooks, place, snapRadius, after = null) {
+  const st = editor.st;
+  addStyle("defop-movable-style", MOVABLE_STYLE);
+  const toggle = el("button", { class: "defop-rest-toggle", "aria-pressed": "false",
+    title: "drag a handle to move its rest position within its placement region (or Shift-drag)" }, "move rest handle");
+  const msg = el("div", { class: "defop-rest-msg", role: "status" });
+  place(toggle, msg);
+  st.restMode = false;
+  st.restActive = null;
+  st.restTarget = null;
+  toggle.addEventListener("click", () => {
+    st.restMode = !st.restMode;
+    toggle.setAttribute("aria-pressed", String(st.restMode));
+  });
+  const move = (l, locate, notify = true) => {
+    try {
+      const shift = st.op.setRest(l, locate(), st.Q); // checked first: a RangeError changes nothing
+      if (after) after(l, shift);
+      msg.textContent = "";
+      editor.evaluate();
+      if (notify && hooks.onRest) hooks.onRest(st.op.placement(), Array.from(st.Q));
+      return true;
+    } catch (err) {
+      if (!(err instanceof RangeError)) throw err;
+      msg.textContent = err.message;
+      return false;
+    }
+  };
+  editor.setRest = (l, target, notify = true) => move(l, () => (Array.isArray(target) ?
+    pickRest(st, l, worldDistance(st, target), snapRadius(), `(${target.map((t) => t.toFixed(3)).join(", ")})`) :
+    target), notify);
+  return { msg, move };
 }
 
 /** Draw every placement region on the mesh (its triangles green, its vertices as dots) and the snap target. */
@@ -190,65 +284,26 @@ function drawPlacement(ctx, st, inside) {
  */
 export function attachRestMode(editor, hooks = {}) {
   const { ui, st } = editor, canvas = ui.canvas, stack = canvas.parentNode, controls = ui.reset.parentNode;
-  addStyle("defop-movable-style", MOVABLE_STYLE);
-  const toggle = el("button", { class: "defop-rest-toggle", "aria-pressed": "false",
-    title: "drag a handle to move its rest position within its placement region (or Shift-drag)" }, "move rest handle");
-  const msg = el("div", { class: "defop-rest-msg", role: "status" });
-  controls.append(toggle);
-  controls.parentNode.insertBefore(msg, controls.nextSibling);
   const p = st.p, owner = new Int32Array(p.n_vertices).fill(-1);
+  const snapRadius = () => (p.pick_radius || 0.05) * st.view.diag;
+  const { msg, move } = restControls(editor, hooks, (toggle, line) => {
+    controls.append(toggle);
+    controls.parentNode.insertBefore(line, controls.nextSibling);
+  }, snapRadius, (l, shift) => { // the sampling regions travel with the rest
+    for (const poly of p.regions[st.op.rows[l]]) {
+      for (let i = 0; i < poly.length; i += 2) { poly[i] += shift[0]; poly[i + 1] += shift[1]; }
+    }
+  });
   st.op.regions.forEach((region, l) => region.vertices.forEach((v) => { owner[v] = l; }));
   const inside = []; // the triangles of the regions
   for (let t = 0; t < p.F.length / 3; t++) {
     const o = owner[p.F[3 * t]];
     if (o >= 0 && owner[p.F[3 * t + 1]] === o && owner[p.F[3 * t + 2]] === o) inside.push(t);
   }
-  st.restMode = false;
-  st.restActive = null;
-  st.restTarget = null;
   st.overlay = (ctx, s) => drawPlacement(ctx, s, inside);
-  toggle.addEventListener("click", () => {
-    st.restMode = !st.restMode;
-    toggle.setAttribute("aria-pressed", String(st.restMode));
-  });
-  const snapRadius = () => (p.pick_radius || 0.05) * st.view.diag;
-
   /** The region vertex of rest handle ℓ at point (px, py) (deformed positions), or a RangeError saying why not. */
-  function vertexAt(l, px, py) {
-    const [v, d] = nearest(st.op.regions[l].vertices, st.X, px, py);
-    const movable = st.op.movable[l];
-    for (let h = 0; h < p.handles.length; h++) {
-      const w = p.handles[h], dh = Math.hypot(st.X[2 * w] - px, st.X[2 * w + 1] - py);
-      if (h !== movable && dh <= snapRadius() && dh < d) {
-        throw new RangeError(`rest handle ${l} cannot move onto handle ${h} (vertex ${w}); the rest handle stays`);
-      }
-    }
-    if (d > snapRadius()) {
-      throw new RangeError(`(${px.toFixed(3)}, ${py.toFixed(3)}) is outside rest handle ${l}'s placement region ` +
-        `(the green vertices); the rest handle stays`);
-    }
-    return v;
-  }
-
-  editor.setRest = (l, target, notify = true) => {
-    try {
-      const v = Array.isArray(target) ? vertexAt(l, target[0], target[1]) : target;
-      const row = st.op.rows[l], old = st.op.placement()[l];
-      st.op.setRest(l, v); // checked first: a RangeError changes nothing
-      const dx = p.V[2 * v] - p.V[2 * old], dy = p.V[2 * v + 1] - p.V[2 * old + 1];
-      st.Q[2 * row] += dx; // q − p stays (retarget)
-      st.Q[2 * row + 1] += dy;
-      for (const poly of p.regions[row]) for (let i = 0; i < poly.length; i += 2) { poly[i] += dx; poly[i + 1] += dy; }
-      msg.textContent = "";
-      editor.evaluate();
-      if (notify && hooks.onRest) hooks.onRest(st.op.placement(), Array.from(st.Q));
-      return true;
-    } catch (err) {
-      if (!(err instanceof RangeError)) throw err;
-      msg.textContent = err.message;
-      return false;
-    }
-  };
+  const vertexAt = (l, px, py) => pickRest(st, l, worldDistance(st, [px, py]), snapRadius(),
+    `(${px.toFixed(3)}, ${py.toFixed(3)})`);
 
   const position = (ev) => {
     const rect = canvas.getBoundingClientRect();
@@ -258,9 +313,8 @@ export function attachRestMode(editor, hooks = {}) {
   stack.addEventListener("pointerdown", (ev) => {
     if (!(st.restMode || ev.shiftKey)) return;
     ev.stopPropagation();
-    const [px, py] = position(ev);
     const handles = Array.from(st.op.movable, (h) => p.handles[h]);
-    const [v, d] = nearest(handles, st.X, px, py);
+    const [v, d] = nearest(handles, worldDistance(st, position(ev)));
     if (d > snapRadius()) { msg.textContent = "no movable handle here: press on a red handle with a green region"; return; }
     st.restActive = handles.indexOf(v);
     st.restTarget = { vertex: v };
@@ -286,10 +340,91 @@ export function attachRestMode(editor, hooks = {}) {
     const l = st.restActive;
     st.restActive = null;
     st.restTarget = null;
-    if (!editor.setRest(l, position(ev))) editor.evaluate();
+    if (!move(l, () => vertexAt(l, ...position(ev)))) editor.evaluate();
   };
   stack.addEventListener("pointerup", release, { capture: true });
   stack.addEventListener("pointercancel", release, { capture: true });
+  editor.evaluate();
+  return editor;
+}
+
+const REST_PICK_PX = 14; // the 3D view picks a handle or a region vertex within this many CSS pixels (as defop_solid.js)
+
+/**
+ * The rest mode of the 3D view (createSolidView of defop_solid.js with makeMovable's operator): every placement
+ * region's vertices drawn as small green balls (over the surface: interior vertices too), the toggle or Shift-drag on a
+ * movable handle's sphere picks it, the drag shows where its patch would land (the region vertex nearest the pointer
+ * on screen, within REST_PICK_PX, and every member's vertex there, larger green balls), the release places it; a release
+ * on no region vertex, or nearer another handle, is refused with the message and nothing changes.
+ * editor.setRest(ℓ, target) as in 2D (target: a vertex index or an [x, y, z] point).
+ */
+export function attachSolidRest(editor, hooks = {}) {
+  if (!editor.webgl) return editor; // the page says in words that it cannot draw: nothing to drag
+  const { ui, st, scene: sc } = editor, THREE = sc.THREE, p = st.p, canvas = sc.renderer.domElement;
+  const { msg, move } = restControls(editor, hooks, (toggle, line) => { ui.reset.after(toggle); toggle.after(line); },
+    () => (p.pick_radius || 0.05) * sc.diag);
+  // balls (the vendored three.js has no point sprites), over the surface: interior vertices are seen too
+  const material = new THREE.MeshStandardMaterial({ color: 0x2ca02c, roughness: 0.6, depthTest: false });
+  const balls = (count, radius) => {
+    const geometry = new THREE.SphereGeometry(radius * sc.diag, 10, 8);
+    return Array.from({ length: count }, () => {
+      const ball = new THREE.Mesh(geometry, material);
+      ball.renderOrder = 2;
+      sc.scene.add(ball);
+      return ball;
+    });
+  };
+  const all = Int32Array.from(st.op.regions.flatMap((region) => Array.from(region.vertices)));
+  const cloud = balls(all.length, 0.006), target = balls(Math.max(...st.op.regions.map((r) => r.s)), 0.012);
+  editor.regionBalls = cloud;
+  const fill = (set, vertices) => set.forEach((ball, i) => {
+    ball.visible = i < vertices.length;
+    if (ball.visible) ball.position.set(st.X[3 * vertices[i]], st.X[3 * vertices[i] + 1], st.X[3 * vertices[i] + 2]);
+  });
+  editor.overlay = () => {
+    fill(cloud, all);
+    const t = st.restTarget, region = t && t.vertex !== null ? st.op.regions[st.restActive] : null;
+    const pos = region ? region.vertices.indexOf(t.vertex) : -1;
+    fill(target, region ? region.layout.subarray(pos * region.s, (pos + 1) * region.s) : []);
+  };
+  const local = (ev) => { const r = canvas.getBoundingClientRect(); return [ev.clientX - r.left, ev.clientY - r.top]; };
+  const screenDistance = ([u, v]) => (w) => Math.hypot(...editor.vertexScreen(w).map((a, i) => a - [u, v][i]));
+  const vertexAt = (l, ev) => pickRest(st, l, screenDistance(local(ev)), REST_PICK_PX, "the pointer");
+  // capture on the view's box: before the handle drag of defop_solid.js and OrbitControls on the canvas
+  ui.box.addEventListener("pointerdown", (ev) => {
+    if (!(st.restMode || ev.shiftKey)) return;
+    ev.stopPropagation();
+    const handles = Array.from(st.op.movable, (h) => p.handles[h]);
+    const [v, d] = nearest(handles, screenDistance(local(ev)));
+    if (d > REST_PICK_PX) { msg.textContent = "no movable handle here: press on a red handle with green points"; return; }
+    st.restActive = handles.indexOf(v);
+    st.restTarget = { vertex: v };
+    canvas.setPointerCapture(ev.pointerId);
+    editor.evaluate();
+  }, { capture: true });
+  ui.box.addEventListener("pointermove", (ev) => {
+    if (st.restActive === null) return;
+    ev.stopPropagation();
+    try {
+      st.restTarget = { vertex: vertexAt(st.restActive, ev) };
+      msg.textContent = "";
+    } catch (err) {
+      if (!(err instanceof RangeError)) throw err;
+      st.restTarget = { vertex: null };
+      msg.textContent = err.message;
+    }
+    editor.evaluate(); // redraw with the target
+  }, { capture: true });
+  const release = (ev) => {
+    if (st.restActive === null) return;
+    ev.stopPropagation();
+    const l = st.restActive;
+    st.restActive = null;
+    st.restTarget = null;
+    if (!move(l, () => vertexAt(l, ev))) editor.evaluate();
+  };
+  ui.box.addEventListener("pointerup", release, { capture: true });
+  ui.box.addEventListener("pointercancel", release, { capture: true });
   editor.evaluate();
   return editor;
 }
@@ -320,4 +455,4 @@ function attachWidget(editor, model) {
   model.on("change:rest", follow);
 }
 
-MODES.movable = { makeOperator: makeMovable, attach: attachWidget };
+MODES.movable = { makeOperator: makeMovable, attach: attachWidget, attachSolid: attachSolidRest };
