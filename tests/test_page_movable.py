@@ -72,9 +72,11 @@ def python_frame(op, Q, idx):
         return op(Q, np.asarray(idx, np.int64))
 
 
-def node_steps(op, steps, tmp_path):
-    """Run tests/js/eval_movable.mjs on the page's payload of ``op`` and the steps (frames and setRest calls)."""
-    meta, data = payload.encode_payload(movable_page.movable_to_payload(op))
+def node_steps(op, steps, tmp_path, restrict=None):
+    """Run tests/js/eval_movable.mjs on the page's payload of ``op`` (passed through ``restrict`` if given) and the
+    steps (frames and setRest calls)."""
+    p = movable_page.movable_to_payload(op)
+    meta, data = payload.encode_payload(p if restrict is None else restrict(p))
     spec = {
         "js": str(payload.JS_PATH),
         "movable": str(movable_page.MOVABLE_JS_PATH),

@@ -23,7 +23,7 @@ from test_page_3d import _drag
 from test_page_movable import float32_bound, moving_vertices, node_steps, python_frame, shipped_frame
 
 import defop as dop
-from defop.editor import export
+from defop.editor import export, movable_page
 from defop.scene.placement import placement_regions
 from defop.training.movable import train_movable
 
@@ -48,18 +48,20 @@ def op(bar, tmp_path_factory):
     return op.compress()
 
 
-def check_frame(op, X, Q, v):
-    """The page's frame X at placement [v] and Q: handles on their targets, fixed ones at rest, the shipped factors'
-    float64 frame up to round-off and the operator's own frame within the float32 bound on the free vertices."""
+def check_frame(op, X, Q, v, keep=None):
+    """The page's frame X at placement [v] and Q (of the vertices ``keep``, default all): handles on their targets,
+    fixed ones at rest, the shipped factors' float64 frame up to round-off and the operator's own frame within the
+    float32 bound on the free vertices."""
     V, diag = op.mesh.V, op.mesh.bbox_diagonal
+    keep = np.arange(op.n_vertices) if keep is None else keep
     hm = moving_vertices(op, [v])
-    assert np.abs(X[hm] - Q).max() <= 1e-12 * diag, "the patch's handles are not on their targets (Prop. 2)"
+    assert np.abs(X[np.searchsorted(keep, hm)] - Q).max() <= 1e-12 * diag, "the patch is not on target (Prop. 2)"
     fixed = op.handles[~op.moving]
-    np.testing.assert_array_equal(X[fixed], V[fixed])
-    assert np.abs(X - shipped_frame(op, Q, [v])).max() <= 1e-12 * diag
-    free = np.setdiff1d(np.arange(op.n_vertices), hm)
-    bound = float32_bound(op, Q, [v])
-    err = np.abs(X - python_frame(op, Q, [v]))
+    np.testing.assert_array_equal(X[np.searchsorted(keep, fixed)], V[fixed])
+    assert np.abs(X - shipped_frame(op, Q, [v])[keep]).max() <= 1e-12 * diag
+    free = ~np.isin(keep, hm)
+    bound = float32_bound(op, Q, [v])[keep]
+    err = np.abs(X - python_frame(op, Q, [v])[keep])
     assert np.all(err[free] <= bound[free]), (err / bound).max()
 
 
@@ -103,26 +105,51 @@ def test_javascript_refuses_bad_placements_in_3d(op, tmp_path):
     assert "outside rest handle 0's placement region" in out[2]["error"]  # a patch sibling's vertex is not a place
 
 
+@needs_node
+def test_the_drawn_vertices_are_evaluated_as_the_full_page(op, tmp_path):
+    """The page ships the drawn vertices and the placement's (movable_page.drawn_payload): each is evaluated bit for
+    bit as in the full payload, at a moved placement, and the page speaks the operator's vertex indices."""
+    v = int(op.placement.vertices[0][-1])
+    hm = moving_vertices(op, [v])
+    Q = op.mesh.V[hm] + 0.02 * op.mesh.bbox_diagonal * np.random.default_rng(3).normal(size=(4, 3))
+    steps = [{"rest": [0, v]}, {"Q": Q.ravel().tolist()}, {"rest": [0, int(op.handles[1])]}]
+    small = node_steps(op, steps, tmp_path, restrict=movable_page.drawn_payload)
+    full = node_steps(op, steps, tmp_path)
+    keep = movable_page.drawn_payload(movable_page.movable_to_payload(op))["drawn"]
+    assert len(keep) < op.n_vertices and np.isin(np.concatenate(op.placement.layout).ravel(), keep).all()
+    assert small[0]["placement"] == full[0]["placement"] == [v]
+    np.testing.assert_array_equal(np.reshape(small[1]["X"], (-1, 3)), np.reshape(full[1]["X"], (-1, 3))[keep])
+    assert small[2]["error"] == full[2]["error"] and "holds handle 1" in small[2]["error"]
+
+
 # ---------------------------------------------------------------------------------------------- Chromium
 E = "window.defopEditor"
 STATE_JS = (
     f"() => {{ const e = {E}; return {{Q: Array.from(e.st.Q), X: Array.from(e.st.X), S: Array.from(e.st.S),"
-    " placement: e.st.op.placement(), handles: Array.from(e.st.p.handles),"
+    " placement: e.st.op.placement(), handles: Array.from(e.st.p.handles, e.st.op.toMesh),"
     " msg: e.ui.box.querySelector('.defop-rest-msg').textContent,"
     " shown: e.ui.box.querySelector('.defop-rest-msg').checkVisibility()} }"
 )
 
 
 def open_page(page, op, bar, tmp_path):
+    """The page of ``op``: its canvas' box and the page's vertices (indices into the operator's mesh)."""
     path = export.to_html(op, tmp_path / "movable3d.html", shape=bar)
     page.goto(path.as_uri())
     page.wait_for_function(f"() => {E} && {E}.st.X")
     assert page.evaluate(f"() => {E}.webgl"), "no WebGL in this Chromium"
-    return page.locator("canvas.defop-canvas").bounding_box()
+    keep = np.array(page.evaluate(f"() => Array.from({E}.st.p.drawn)"))
+    assert len(keep) < op.n_vertices  # the drawn vertices and the placement's only
+    return page.locator("canvas.defop-canvas").bounding_box(), keep
 
 
-def screen(page, box, w):
-    u, v = page.evaluate(f"(w) => {E}.vertexScreen(w)", int(w))
+def screens(page, keep, ws):
+    """Where the page draws vertices ``ws`` (the operator's indices), CSS pixels in the canvas: (k, 2)."""
+    return np.array(page.evaluate(f"(ws) => ws.map((w) => {E}.vertexScreen(w))", np.searchsorted(keep, ws).tolist()))
+
+
+def screen(page, box, keep, w):
+    u, v = screens(page, keep, [int(w)])[0]
     return box["x"] + u, box["y"] + v
 
 
@@ -135,12 +162,11 @@ def pointer_path(page, start, end, steps=6):
     page.mouse.up()
 
 
-def lonely_region_vertex(page, op):
+def lonely_region_vertex(page, op, keep):
     """The region vertex (not the nominal) farthest on screen from every other region vertex and handle."""
     pl = op.placement
-    pts = np.array(page.evaluate(f"(ws) => ws.map((w) => {E}.vertexScreen(w))", pl.vertices[0].tolist()))
-    hs = np.array(page.evaluate(f"(ws) => ws.map((w) => {E}.vertexScreen(w))", op.handles.tolist()))
-    others = np.delete(hs, pl.members[0], axis=0)
+    pts = screens(page, keep, pl.vertices[0])
+    others = np.delete(screens(page, keep, op.handles), pl.members[0], axis=0)
     gap = []
     for i, w in enumerate(pl.vertices[0]):
         near = np.concatenate([np.delete(pts, i, axis=0), others])
@@ -155,11 +181,11 @@ def test_page_3d_moves_a_rest_patch_then_drags(op, bar, tmp_path):
     V, diag = op.mesh.V, op.mesh.bbox_diagonal
     nominal = int(op.placement.nominal[0])
     with chromium_page() as page:
-        box = open_page(page, op, bar, tmp_path)
+        box, keep = open_page(page, op, bar, tmp_path)
         start = page.evaluate(STATE_JS)
-        v = lonely_region_vertex(page, op)
-        u0 = screen(page, box, nominal)
-        u1 = screen(page, box, v)
+        v = lonely_region_vertex(page, op, keep)
+        u0 = screen(page, box, keep, nominal)
+        u1 = screen(page, box, keep, v)
         page.keyboard.down("Shift")
         pointer_path(page, u0, (u1[0] + 1.0, u1[1] - 1.0))  # a pixel off: it snaps to v
         page.keyboard.up("Shift")
@@ -181,32 +207,32 @@ def test_page_3d_moves_a_rest_patch_then_drags(op, bar, tmp_path):
     assert not np.array_equal(hm, op.handles[op.moving])
     assert moved["handles"] == op.placement.handles_at(np.array([v])).tolist()
     np.testing.assert_array_equal(np.reshape(moved["Q"], (-1, 3)), V[hm])
-    np.testing.assert_array_equal(np.reshape(moved["X"], (-1, 3)), V)
+    np.testing.assert_array_equal(np.reshape(moved["X"], (-1, 3)), V[keep])
     # the drag at the new placement
     assert drag["held"]["active"] == 1
     Q, X = np.reshape(dragged["Q"], (-1, 3)), np.reshape(dragged["X"], (-1, 3))
     assert dragged["placement"] == [v] and np.linalg.norm(Q[1] - V[hm[1]]) > 0.02 * diag
     np.testing.assert_array_equal(np.delete(Q, 1, axis=0), np.delete(V[hm], 1, axis=0))
-    check_frame(op, X, Q, v)
+    check_frame(op, X, Q, v, keep)
     np.testing.assert_array_equal(np.reshape(dragged["S"], (-1, 3)), X)  # the drawn surface: X's boundary
     # Reset: the rest pose of the new placement, exact
     assert reset["placement"] == [v]
     np.testing.assert_array_equal(np.reshape(reset["Q"], (-1, 3)), V[hm])
-    np.testing.assert_array_equal(np.reshape(reset["X"], (-1, 3)), V)
+    np.testing.assert_array_equal(np.reshape(reset["X"], (-1, 3)), V[keep])
 
 
 @pytest.mark.browser
 def test_page_3d_refuses_bad_rest_placements(op, bar, tmp_path):
     nominal = int(op.placement.nominal[0])
     with chromium_page() as page:
-        box = open_page(page, op, bar, tmp_path)
+        box, keep = open_page(page, op, bar, tmp_path)
         _drag(page, box, E, 0, -30.0, 25.0)  # deformed first: nothing may change
         before = page.evaluate(STATE_JS)
         page.locator("button.defop-rest-toggle").click()
-        here = screen(page, box, nominal)
+        here = screen(page, box, keep, nominal)
         pointer_path(page, here, (here[0] + 0.0, box["y"] + 5.0))  # the canvas' top edge: no region vertex
         outside = page.evaluate(STATE_JS)
-        pointer_path(page, here, screen(page, box, op.handles[0]))  # onto a fixed handle's sphere
+        pointer_path(page, here, screen(page, box, keep, op.handles[0]))  # onto a fixed handle's sphere
         onto = page.evaluate(STATE_JS)
         by_code = page.evaluate(f"() => {E}.setRest(0, {int(op.handles[1])})")
         coded = page.evaluate(STATE_JS)

@@ -16,7 +16,7 @@ from ..operator.movable import MovableOp
 from ..scene.planar_shapes import image_frame as image_frame_of
 from ..scene.shapes import Shape
 from .compact import compact_payload
-from .movable_page import MOVABLE_JS_PATH, movable_page, movable_script, movable_to_payload
+from .movable_page import MOVABLE_JS_PATH, drawn_payload, movable_page, movable_script, movable_to_payload
 from .payload import (
     JS_PATH,
     branched_to_payload,
@@ -284,6 +284,8 @@ def movable_html(op, path, shape=None, title=None):
     payload = movable_to_payload(op, regions)
     if op.d == 3 and shape is not None and shape.surface is not None:
         payload.update(surface_payload(shape.surface, op.n_vertices))
+    if op.d == 3:  # the drawn vertices and the placement's only, as the fixed-P 3D page
+        payload = drawn_payload(payload)
     if not title:
         title = opt.text(
             "title", f"defop: {op.meta.get('shape', 'shape')}, {op.placement.n_movable} movable rest handle(s)"

@@ -26,6 +26,7 @@ import re
 
 import numpy as np
 
+from .compact import drawn_vertices, vertex_renumbering
 from .logic import reach_polygons
 from .payload import JS_PATH, mesh_edges, script_after_editor
 
@@ -59,7 +60,7 @@ def movable_to_payload(op, regions=None):
     payload : dict
         ``movable`` 1 and the keys of :func:`defop.editor.payload.defop_to_payload` that the editor draws (``d``,
         ``kind``, ``size``, ``n_moving``, ``n_vertices``, ``regions``, ``P``, ``V``, ``F`` (in 3D the boundary
-        facets), ``E``, ``handles``, ``moving``, ``A``, ``B``, ``rank``), plus the joint basis (``kernel``,
+        facets), ``E`` (2D), ``handles``, ``moving``, ``A``, ``B``, ``rank``), plus the joint basis (``kernel``,
         ``joint_centers`` (|C|, (b + n) d)), the scales ``s_p``, ``s_q``, the placement (``placement_movable``
         indices into the handles, ``movable_rows`` their rows of Q, ``nominal`` vertices, ``region_vertices`` and
         ``region_sizes``), the patches (:attr:`~defop.scene.placement.PlacementRegions.members`: ``members`` (B,)
@@ -88,7 +89,6 @@ def movable_to_payload(op, regions=None):
         "P": np.asarray(P, np.float64),
         "V": np.asarray(op.mesh.V, np.float64),
         "F": F.astype(np.int32),
-        "E": mesh_edges(F).astype(np.int32),
         "handles": np.asarray(op.handles, np.int32),
         "moving": np.asarray(op.moving, np.uint8),
         "joint_centers": np.asarray(basis.centers, np.float64).reshape(len(basis.centers), -1),
@@ -107,12 +107,36 @@ def movable_to_payload(op, regions=None):
         "bump_indices": np.asarray(g.indices, np.int32),
         "bump_data": np.asarray(g.data, np.float64),
     }
+    if d == 2:
+        p["E"] = mesh_edges(F).astype(np.int32)
     if op.factors is not None:
         p["A"], p["B"] = (np.asarray(f, np.float32) for f in op.factors)
         p["rank"] = int(p["A"].shape[1])
     else:
         p["A"] = np.asarray(op.WF, np.float32)
     return p
+
+
+def drawn_payload(p):
+    """A 3D movable payload restricted to the vertices the page draws and those its placement uses (every member's
+    vertex at every region vertex: ``layout``), as the fixed-P 3D page (:func:`defop.editor.compact.drawn_vertices`),
+    a new dict. The bumps keep their entries on kept vertices (an entry elsewhere changes only a vertex the page
+    does not evaluate), so every kept vertex is evaluated as before; ``drawn`` maps the page's vertices to the
+    operator's (the page speaks the operator's vertex indices: ``makeMovable``'s setRest and placement).
+
+    Returns
+    -------
+    dict
+    """
+    out = drawn_vertices(p, also=p["layout"], renumbered=("nominal", "region_vertices", "layout"))
+    if "drawn" not in out:
+        return out
+    renumber = vertex_renumbering(out["drawn"], out["n_vertices_all"])
+    kept = renumber[p["bump_indices"]] >= 0
+    out["bump_indptr"] = np.concatenate([[0], np.cumsum(kept)])[p["bump_indptr"]].astype(np.int32)
+    out["bump_indices"] = renumber[p["bump_indices"][kept]]
+    out["bump_data"] = p["bump_data"][kept]
+    return out
 
 
 def movable_script():

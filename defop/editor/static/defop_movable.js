@@ -78,6 +78,19 @@ export function makeMovable(p) {
   const psi0 = new Float64Array(size - 1), dpsi = new Float64Array(size - 1);
   const tmp = new Float64Array(r), out = new Float64Array(nc), res = new Float64Array(nB * D);
   let bumps = null;
+  // a page of the drawn vertices only (defop.editor.movable_page.drawn_payload): p.drawn holds the operator's index
+  // of each page vertex; setRest, checkRest and placement speak the operator's indices
+  const ids = p.drawn || null, nAll = p.n_vertices_all || p.n_vertices, toMesh = (i) => (ids ? ids[i] : i);
+  const toPage = (v) => {
+    if (!ids) return v;
+    let lo = 0, hi = ids.length - 1;
+    while (lo <= hi) {
+      const mid = (lo + hi) >> 1;
+      if (ids[mid] === v) return mid;
+      if (ids[mid] < v) lo = mid + 1; else hi = mid - 1;
+    }
+    return -1;
+  };
 
   function jointZ(Q, zz) { // joint_z of defop.operator.movable
     for (let l = 0; l < b; l++) for (let c = 0; c < D; c++) {
@@ -124,24 +137,25 @@ export function makeMovable(p) {
   /** Throws a RangeError unless vertex v is a place for movable handle ℓ's rest position. */
   function checkRest(l, v) {
     if (!Number.isInteger(l) || l < 0 || l >= b) throw new RangeError(`rest handle ${l}: there are ${b} movable handles (0..${b - 1})`);
-    if (!Number.isInteger(v) || v < 0 || v >= p.n_vertices) {
-      throw new RangeError(`rest handle ${l}: ${v} is not a vertex (0..${p.n_vertices - 1})`);
+    if (!Number.isInteger(v) || v < 0 || v >= nAll) {
+      throw new RangeError(`rest handle ${l}: ${v} is not a vertex (0..${nAll - 1})`);
     }
+    const i = toPage(v);
     for (let h = 0; h < handles.length; h++) {
-      if (!regions[l].members.includes(h) && handles[h] === v) {
+      if (!regions[l].members.includes(h) && handles[h] === i) {
         throw new RangeError(`rest handle ${l} cannot move onto vertex ${v}: it holds handle ${h}; the rest handle stays`);
       }
     }
-    if (regions[l].vertices.indexOf(v) < 0) {
+    if (i < 0 || regions[l].vertices.indexOf(i) < 0) {
       throw new RangeError(`vertex ${v} is outside rest handle ${l}'s placement region (${regions[l].vertices.length} ` +
-        `vertices around vertex ${nominal[l]}); the rest handle stays`);
+        `vertices around vertex ${toMesh(nominal[l])}); the rest handle stays`);
     }
   }
   /** Move movable handle ℓ's rest position to vertex v and its patch with it (checked first: a RangeError changes
    * nothing); Q (optional, flat) keeps q − p of every member. Returns the handle's shift (D numbers). */
-  function setRest(l, v, Q = null) {
-    checkRest(l, v);
-    const region = regions[l], pos = region.vertices.indexOf(v), shift = new Float64Array(D);
+  function setRest(l, vertex, Q = null) {
+    checkRest(l, vertex);
+    const v = toPage(vertex), region = regions[l], pos = region.vertices.indexOf(v), shift = new Float64Array(D);
     for (let c = 0; c < D; c++) shift[c] = V[D * v + c] - V[D * idx[l] + c];
     idx[l] = v;
     for (let j = 0; j < region.s; j++) {
@@ -157,8 +171,8 @@ export function makeMovable(p) {
     settle();
     return shift;
   }
-  return { evaluate, psi: (Q) => fillPsi(jointZ(Q, z)), setRest, checkRest, placement: () => Array.from(idx),
-    regions, movable: mv, rows, n_movable: b, n_moving: n, n_vertices: p.n_vertices, d: D };
+  return { evaluate, psi: (Q) => fillPsi(jointZ(Q, z)), setRest, checkRest, placement: () => Array.from(idx, toMesh),
+    toMesh, regions, movable: mv, rows, n_movable: b, n_moving: n, n_vertices: p.n_vertices, d: D };
 }
 
 const MOVABLE_STYLE = `
@@ -205,9 +219,9 @@ function pickRest(st, l, dist, radius, where) {
  * What the rest modes of the 2D and the 3D view share: the toggle ("move rest handle"), the message line (placed
  * by place(toggle, msg)), the state (st.restMode, st.restActive, st.restTarget), editor.setRest(ℓ, target) (target a
  * vertex index or a point of D numbers, snapped within snapRadius() to the region: pickRest) and the mover
- * move(ℓ, locate) that the pointer uses: locate() gives the vertex or throws; the move is checked before anything
- * changes (a RangeError is shown and changes nothing), keeps q − p (retarget), then after(ℓ, shift), a redraw and
- * hooks.onRest(placement, Q) unless notify is false. Returns { msg, move }.
+ * move(ℓ, locate) that the pointer uses: locate() gives the vertex (the operator's index: op.toMesh) or throws; the
+ * move is checked before anything changes (a RangeError is shown and changes nothing), keeps q − p (retarget),
+ * then after(ℓ, shift), a redraw and hooks.onRest(placement, Q) unless notify is false. Returns { msg, move }.
  */
 function restControls(editor, hooks, place, snapRadius, after = null) {
   const st = editor.st;
@@ -237,8 +251,8 @@ function restControls(editor, hooks, place, snapRadius, after = null) {
       return false;
     }
   };
-  editor.setRest = (l, target, notify = true) => move(l, () => (Array.isArray(target) ?
-    pickRest(st, l, worldDistance(st, target), snapRadius(), `(${target.map((t) => t.toFixed(3)).join(", ")})`) :
+  editor.setRest = (l, target, notify = true) => move(l, () => (Array.isArray(target) ? st.op.toMesh(
+    pickRest(st, l, worldDistance(st, target), snapRadius(), `(${target.map((t) => t.toFixed(3)).join(", ")})`)) :
     target), notify);
   return { msg, move };
 }
@@ -340,7 +354,7 @@ export function attachRestMode(editor, hooks = {}) {
     const l = st.restActive;
     st.restActive = null;
     st.restTarget = null;
-    if (!move(l, () => vertexAt(l, ...position(ev)))) editor.evaluate();
+    if (!move(l, () => st.op.toMesh(vertexAt(l, ...position(ev))))) editor.evaluate();
   };
   stack.addEventListener("pointerup", release, { capture: true });
   stack.addEventListener("pointercancel", release, { capture: true });
@@ -421,7 +435,7 @@ export function attachSolidRest(editor, hooks = {}) {
     const l = st.restActive;
     st.restActive = null;
     st.restTarget = null;
-    if (!move(l, () => vertexAt(l, ev))) editor.evaluate();
+    if (!move(l, () => st.op.toMesh(vertexAt(l, ev)))) editor.evaluate();
   };
   ui.box.addEventListener("pointerup", release, { capture: true });
   ui.box.addEventListener("pointercancel", release, { capture: true });
