@@ -196,11 +196,11 @@ def test_page_3d_moves_a_rest_patch_then_drags(op, bar, tmp_path):
         reset = page.evaluate(STATE_JS)
         legend = " ".join(page.locator(".defop-legend").text_content().split())
         said = page.locator(".defop-instruction").text_content()
-        balls = page.evaluate(f"() => {E}.regionBalls.map((b) => b.visible)")
+        balls = page.evaluate(f"() => [{E}.regionBalls.count, {E}.regionBalls.mesh.visible]")
         errors = page.errors
     assert not errors, errors
     assert "placement region of a rest handle" in legend and "Shift-drag" in said
-    assert len(balls) == len(op.placement.vertices[0]) and all(balls)  # the region drawn
+    assert balls == [len(op.placement.vertices[0]), True]  # the region drawn
     hm = moving_vertices(op, [v])
     # the rest move: snapped to v, the whole patch moved by one offset, Q = the new P, X = x bit for bit
     assert start["placement"] == [nominal] and moved["placement"] == [v] and moved["msg"] == ""

@@ -377,29 +377,47 @@ export function attachSolidRest(editor, hooks = {}) {
   const { ui, st, scene: sc } = editor, THREE = sc.THREE, p = st.p, canvas = sc.renderer.domElement;
   const { msg, move } = restControls(editor, hooks, (toggle, line) => { ui.reset.after(toggle); toggle.after(line); },
     () => (p.pick_radius || 0.05) * sc.diag);
-  // balls (the vendored three.js has no point sprites), over the surface: interior vertices are seen too
+  // balls (the vendored three.js has no point sprites), drawn over the surface (interior vertices are seen too), all
+  // of one kind in one mesh: one draw call however large the region
   const material = new THREE.MeshStandardMaterial({ color: 0x2ca02c, roughness: 0.6, depthTest: false });
   const balls = (count, radius) => {
-    const geometry = new THREE.SphereGeometry(radius * sc.diag, 10, 8);
-    return Array.from({ length: count }, () => {
-      const ball = new THREE.Mesh(geometry, material);
-      ball.renderOrder = 2;
-      sc.scene.add(ball);
-      return ball;
-    });
+    const ball = new THREE.SphereGeometry(radius * sc.diag, 8, 6), tpl = ball.attributes.position.array;
+    const normal = ball.attributes.normal.array, index = ball.index.array, k = tpl.length / 3;
+    const pos = new Float32Array(count * tpl.length), nrm = new Float32Array(count * tpl.length);
+    const idx = new Uint32Array(count * index.length);
+    for (let i = 0; i < count; i++) {
+      nrm.set(normal, i * tpl.length);
+      for (let j = 0; j < index.length; j++) idx[i * index.length + j] = index[j] + i * k;
+    }
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute("position", new THREE.BufferAttribute(pos, 3).setUsage(THREE.DynamicDrawUsage));
+    geometry.setAttribute("normal", new THREE.BufferAttribute(nrm, 3));
+    geometry.setIndex(new THREE.BufferAttribute(idx, 1));
+    const mesh = new THREE.Mesh(geometry, material);
+    mesh.renderOrder = 2;
+    mesh.frustumCulled = false;
+    sc.scene.add(mesh);
+    return { mesh, count: 0, place(vertices) { // a ball at the current position of each of `vertices`
+      for (let i = 0; i < vertices.length; i++) {
+        const w = 3 * vertices[i];
+        for (let j = 0; j < tpl.length; j += 3) {
+          for (let c = 0; c < 3; c++) pos[i * tpl.length + j + c] = tpl[j + c] + st.X[w + c];
+        }
+      }
+      geometry.attributes.position.needsUpdate = true;
+      geometry.setDrawRange(0, vertices.length * index.length);
+      mesh.visible = vertices.length > 0;
+      this.count = vertices.length;
+    } };
   };
   const all = Int32Array.from(st.op.regions.flatMap((region) => Array.from(region.vertices)));
   const cloud = balls(all.length, 0.006), target = balls(Math.max(...st.op.regions.map((r) => r.s)), 0.012);
   editor.regionBalls = cloud;
-  const fill = (set, vertices) => set.forEach((ball, i) => {
-    ball.visible = i < vertices.length;
-    if (ball.visible) ball.position.set(st.X[3 * vertices[i]], st.X[3 * vertices[i] + 1], st.X[3 * vertices[i] + 2]);
-  });
   editor.overlay = () => {
-    fill(cloud, all);
+    cloud.place(all);
     const t = st.restTarget, region = t && t.vertex !== null ? st.op.regions[st.restActive] : null;
     const pos = region ? region.vertices.indexOf(t.vertex) : -1;
-    fill(target, region ? region.layout.subarray(pos * region.s, (pos + 1) * region.s) : []);
+    target.place(region ? region.layout.subarray(pos * region.s, (pos + 1) * region.s) : []);
   };
   const local = (ev) => { const r = canvas.getBoundingClientRect(); return [ev.clientX - r.left, ev.clientY - r.top]; };
   const screenDistance = ([u, v]) => (w) => Math.hypot(...editor.vertexScreen(w).map((a, i) => a - [u, v][i]));
