@@ -344,34 +344,36 @@ def main_movable(m=40, steps=200, rounds=2, sync_frames=60):
     op0, _ = dop.train(shape, basis="tps", m=m, progress=False)
     opj, _ = train_movable(shape, pr, m=m, seed=0, progress=False)
     op0.compress(), opj.compress()
-    V, region = shape.mesh.V, pr.vertices[0]
-    v = int(region[np.argmax(np.linalg.norm(V[region] - V[pr.nominal[0]], axis=1))])
     print(
         f"octopus: {shape.mesh.n_vertices} vertices, {shape.n_moving} moving handles, {pr.n_movable} movable "
         f"(regions of 5% of the diagonal, {[len(r) for r in pr.vertices]} vertices); fixed-P {op0} "
         f"(|Ψ| {op0.handle_basis.size}); movable {opj} (|Ψ| {opj.basis.size}, joint dimension "
-        f"{opj.basis.dim}); {time.perf_counter() - t0:.0f} s to train or load; rest handle 0 moved to vertex {v} "
-        f"({np.linalg.norm(V[v] - V[pr.nominal[0]]) / shape.mesh.bbox_diagonal:.1%} of the diagonal)"
+        f"{opj.basis.dim}); {time.perf_counter() - t0:.0f} s to train or load"
     )
+    side_by_side(shape, pr, {"fixed-P page": op0, "movable page, rest moved": opj}, steps, rounds, sync_frames)
+
+
+def side_by_side(shape, pr, ops, steps, rounds, sync_frames):
+    """The pages of the fixed-P and the movable operator ``ops`` (name: operator) dragged alternately, the movable
+    one's rest handle 0 moved first to the vertex of its region farthest from the nominal one; prints their rAF
+    rates, forced frame times, evaluation times and ratios."""
+    V, region = shape.mesh.V, pr.vertices[0]
+    rest = int(region[np.argmax(np.linalg.norm(V[region] - V[pr.nominal[0]], axis=1))])
+    far = np.linalg.norm(V[rest] - V[pr.nominal[0]]) / shape.mesh.bbox_diagonal
+    print(f"rest handle 0 moved to vertex {rest} ({far:.1%} of the diagonal) before the movable page's drags")
+    runs = {name: [] for name in ops}
     with tempfile.TemporaryDirectory() as tmp:
         pages = {
-            "fixed-P page": export.to_html(op0, Path(tmp) / "octopus_fixed.html", shape=shape),
-            "movable page, rest moved": export.to_html(opj, Path(tmp) / "octopus_movable.html", shape=shape),
+            name: export.to_html(op, Path(tmp) / f"page{i}.html", shape=shape)
+            for i, (name, op) in enumerate(ops.items())
         }
-        side_by_side(pages, v, steps, rounds, sync_frames)
-
-
-def side_by_side(pages, rest, steps, rounds, sync_frames):
-    """Drag the fixed-P page and the movable page (rest handle 0 moved to vertex ``rest`` first) alternately, and
-    print their rAF rates, forced frame times, evaluation times and ratios."""
-    runs = {name: [] for name in pages}
-    for _ in range(rounds):  # alternate the two pages: the machine's load drifts
-        for name, path in pages.items():
-            runs[name].append(in_page(path, steps, sync_frames, rest=rest if "movable" in name else None))
+        for _ in range(rounds):  # alternate the two pages: the machine's load drifts
+            for name, path in pages.items():
+                runs[name].append(in_page(path, steps, sync_frames, rest=rest if "movable" in name else None))
+        sizes = ", ".join(f"{path.stat().st_size / 1e6:.1f} MB" for path in pages.values())
     print(
         f"{steps}-step drag of handle 0, one pointer event per animation frame ({rounds} runs per page, "
-        f"alternating); frame time forced to finish ({sync_frames} frames per run); pages "
-        f"{', '.join(f'{path.stat().st_size / 1e6:.1f} MB' for path in pages.values())}; load average "
+        f"alternating); frame time forced to finish ({sync_frames} frames per run); pages {sizes}; load average "
         f"{os.getloadavg()[0]:.2f}:"
     )
     sync, ev = {}, {}
@@ -384,7 +386,7 @@ def side_by_side(pages, rest, steps, rounds, sync_frames):
             f"forced frame {np.median(sync[name]):5.2f} ms median; evaluation {ev[name]:.2f} ms, draw "
             f"submission {dr:.2f} ms"
         )
-    a, b = list(pages)[1], list(pages)[0]
+    b, a = list(ops)
     print(
         f"movable / fixed-P: forced frame time {np.median(sync[a]) / np.median(sync[b]):.2f}x, "
         f"evaluation {ev[a] / ev[b]:.2f}x (load average {os.getloadavg()[0]:.2f})"
@@ -432,21 +434,14 @@ def main_movable_3d(m=200, rank=105, steps=200, rounds=2, sync_frames=60):
     op0, opj = sized_operator_3d(shape, m), sized_movable_3d(shape, pr, m)
     op0.set_factors(smooth_factors(shape, op0.handle_basis.size, rank))
     opj.set_factors(smooth_factors(shape, opj.basis.size, rank))
-    V, region = shape.mesh.V, pr.vertices[0]
-    v = int(region[np.argmax(np.linalg.norm(V[region] - V[pr.nominal[0]], axis=1))])
     print(
         f"octopus_3d: {shape.mesh.n_vertices} vertices, {len(shape.mesh.boundary_facets)} boundary triangles, "
-        f"{shape.n_moving} moving handles, 1 movable (region of 5% of the diagonal, {len(region)} vertices, patch of "
-        f"{len(pr.members[0])}); fixed-P {op0}; movable {opj} (|Ψ| {opj.basis.size}), both of a trained operator's "
-        f"sizes with synthetic factors; rest handle 0 moved to vertex {v} "
-        f"({np.linalg.norm(V[v] - V[pr.nominal[0]]) / shape.mesh.bbox_diagonal:.1%} of the diagonal)"
+        f"{shape.n_moving} moving handles, 1 movable (region of 5% of the diagonal, {len(pr.vertices[0])} vertices, "
+        f"patch of {len(pr.members[0])}); fixed-P {op0}; movable {opj} (|Ψ| {opj.basis.size}), both of a trained "
+        "operator's sizes with synthetic factors"
     )
-    with tempfile.TemporaryDirectory() as tmp:
-        pages = {
-            "3D fixed-P page": export.to_html(op0, Path(tmp) / "octopus3d_fixed.html", shape=shape),
-            "3D movable page, rest moved": export.to_html(opj, Path(tmp) / "octopus3d_movable.html", shape=shape),
-        }
-        side_by_side(pages, v, steps, rounds, sync_frames)
+    ops = {"3D fixed-P page": op0, "3D movable page, rest moved": opj}
+    side_by_side(shape, pr, ops, steps, rounds, sync_frames)
 
 
 if __name__ == "__main__":

@@ -257,6 +257,50 @@ function restControls(editor, hooks, place, snapRadius, after = null) {
   return { msg, move };
 }
 
+/**
+ * The rest mode's pointer on `box`, in the capture phase (before the view's own handle drag and orbit): a press with
+ * the toggle on or Shift on a movable handle (near(ev)(w): a distance from the pointer to vertex w's position, within
+ * radius()) picks it; a move shows the region vertex vertexAt(ℓ, ev) would place it at, or the message why not; the
+ * release moves it there (move of restControls) or says why not, and nothing changes.
+ */
+function wireRestPointer(editor, box, canvas, { msg, move, near, radius, vertexAt }) {
+  const st = editor.st;
+  box.addEventListener("pointerdown", (ev) => {
+    if (!(st.restMode || ev.shiftKey)) return;
+    ev.stopPropagation();
+    const handles = Array.from(st.op.movable, (h) => st.p.handles[h]);
+    const [v, d] = nearest(handles, near(ev));
+    if (d > radius()) { msg.textContent = "no movable handle here: press on a red handle with a green region"; return; }
+    st.restActive = handles.indexOf(v);
+    st.restTarget = { vertex: v };
+    canvas.setPointerCapture(ev.pointerId);
+    editor.evaluate(); // redraw with the target
+  }, { capture: true });
+  box.addEventListener("pointermove", (ev) => {
+    if (st.restActive === null) return;
+    ev.stopPropagation();
+    try {
+      st.restTarget = { vertex: vertexAt(st.restActive, ev) };
+      msg.textContent = "";
+    } catch (err) {
+      if (!(err instanceof RangeError)) throw err;
+      st.restTarget = { vertex: null };
+      msg.textContent = err.message;
+    }
+    editor.evaluate(); // redraw with the target
+  }, { capture: true });
+  const release = (ev) => {
+    if (st.restActive === null) return;
+    ev.stopPropagation();
+    const l = st.restActive;
+    st.restActive = null;
+    st.restTarget = null;
+    if (!move(l, () => st.op.toMesh(vertexAt(l, ev)))) editor.evaluate();
+  };
+  box.addEventListener("pointerup", release, { capture: true });
+  box.addEventListener("pointercancel", release, { capture: true });
+}
+
 /** Draw every placement region on the mesh (its triangles green, its vertices as dots) and the snap target. */
 function drawPlacement(ctx, st, inside) {
   const { view, p, X, op } = st;
@@ -315,49 +359,18 @@ export function attachRestMode(editor, hooks = {}) {
     if (o >= 0 && owner[p.F[3 * t + 1]] === o && owner[p.F[3 * t + 2]] === o) inside.push(t);
   }
   st.overlay = (ctx, s) => drawPlacement(ctx, s, inside);
-  /** The region vertex of rest handle ℓ at point (px, py) (deformed positions), or a RangeError saying why not. */
-  const vertexAt = (l, px, py) => pickRest(st, l, worldDistance(st, [px, py]), snapRadius(),
-    `(${px.toFixed(3)}, ${py.toFixed(3)})`);
-
   const position = (ev) => {
     const rect = canvas.getBoundingClientRect();
     return st.view.toData(ev.clientX - rect.left, ev.clientY - rect.top);
   };
-  // capture on the canvas' parent: in rest mode the moving-handle drag of defop_editor.js never sees the pointer
-  stack.addEventListener("pointerdown", (ev) => {
-    if (!(st.restMode || ev.shiftKey)) return;
-    ev.stopPropagation();
-    const handles = Array.from(st.op.movable, (h) => p.handles[h]);
-    const [v, d] = nearest(handles, worldDistance(st, position(ev)));
-    if (d > snapRadius()) { msg.textContent = "no movable handle here: press on a red handle with a green region"; return; }
-    st.restActive = handles.indexOf(v);
-    st.restTarget = { vertex: v };
-    canvas.setPointerCapture(ev.pointerId);
-  }, { capture: true });
-  stack.addEventListener("pointermove", (ev) => {
-    if (st.restActive === null) return;
-    ev.stopPropagation();
+  const near = (ev) => worldDistance(st, position(ev));
+  /** The region vertex of rest handle ℓ at the pointer (deformed positions), or a RangeError saying why not. */
+  const vertexAt = (l, ev) => {
     const [px, py] = position(ev);
-    try {
-      st.restTarget = { vertex: vertexAt(st.restActive, px, py) };
-      msg.textContent = "";
-    } catch (err) {
-      if (!(err instanceof RangeError)) throw err;
-      st.restTarget = { vertex: null };
-      msg.textContent = err.message;
-    }
-    editor.evaluate(); // redraw with the target
-  }, { capture: true });
-  const release = (ev) => {
-    if (st.restActive === null) return;
-    ev.stopPropagation();
-    const l = st.restActive;
-    st.restActive = null;
-    st.restTarget = null;
-    if (!move(l, () => st.op.toMesh(vertexAt(l, ...position(ev))))) editor.evaluate();
+    return pickRest(st, l, near(ev), snapRadius(), `(${px.toFixed(3)}, ${py.toFixed(3)})`);
   };
-  stack.addEventListener("pointerup", release, { capture: true });
-  stack.addEventListener("pointercancel", release, { capture: true });
+  // capture on the canvas' parent: in rest mode the moving-handle drag of defop_editor.js never sees the pointer
+  wireRestPointer(editor, stack, canvas, { msg, move, near, radius: snapRadius, vertexAt });
   editor.evaluate();
   return editor;
 }
@@ -420,43 +433,13 @@ export function attachSolidRest(editor, hooks = {}) {
     target.place(region ? region.layout.subarray(pos * region.s, (pos + 1) * region.s) : []);
   };
   const local = (ev) => { const r = canvas.getBoundingClientRect(); return [ev.clientX - r.left, ev.clientY - r.top]; };
-  const screenDistance = ([u, v]) => (w) => Math.hypot(...editor.vertexScreen(w).map((a, i) => a - [u, v][i]));
-  const vertexAt = (l, ev) => pickRest(st, l, screenDistance(local(ev)), REST_PICK_PX, "the pointer");
-  // capture on the view's box: before the handle drag of defop_solid.js and OrbitControls on the canvas
-  ui.box.addEventListener("pointerdown", (ev) => {
-    if (!(st.restMode || ev.shiftKey)) return;
-    ev.stopPropagation();
-    const handles = Array.from(st.op.movable, (h) => p.handles[h]);
-    const [v, d] = nearest(handles, screenDistance(local(ev)));
-    if (d > REST_PICK_PX) { msg.textContent = "no movable handle here: press on a red handle with green points"; return; }
-    st.restActive = handles.indexOf(v);
-    st.restTarget = { vertex: v };
-    canvas.setPointerCapture(ev.pointerId);
-    editor.evaluate();
-  }, { capture: true });
-  ui.box.addEventListener("pointermove", (ev) => {
-    if (st.restActive === null) return;
-    ev.stopPropagation();
-    try {
-      st.restTarget = { vertex: vertexAt(st.restActive, ev) };
-      msg.textContent = "";
-    } catch (err) {
-      if (!(err instanceof RangeError)) throw err;
-      st.restTarget = { vertex: null };
-      msg.textContent = err.message;
-    }
-    editor.evaluate(); // redraw with the target
-  }, { capture: true });
-  const release = (ev) => {
-    if (st.restActive === null) return;
-    ev.stopPropagation();
-    const l = st.restActive;
-    st.restActive = null;
-    st.restTarget = null;
-    if (!move(l, () => st.op.toMesh(vertexAt(l, ev)))) editor.evaluate();
+  const near = (ev) => {
+    const uv = local(ev);
+    return (w) => Math.hypot(...editor.vertexScreen(w).map((a, i) => a - uv[i]));
   };
-  ui.box.addEventListener("pointerup", release, { capture: true });
-  ui.box.addEventListener("pointercancel", release, { capture: true });
+  const vertexAt = (l, ev) => pickRest(st, l, near(ev), REST_PICK_PX, "the pointer");
+  // capture on the view's box: before the handle drag of defop_solid.js and OrbitControls on the canvas
+  wireRestPointer(editor, ui.box, canvas, { msg, move, near, radius: () => REST_PICK_PX, vertexAt });
   editor.evaluate();
   return editor;
 }
