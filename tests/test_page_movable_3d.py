@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from test_browser_editor import chromium_page, needs_node
 from test_page_3d import drag_handle
-from test_page_movable import check_frame, check_random_placements, moving_vertices, node_steps
+from test_page_movable import check_frame, check_random_placements, moving_vertices, node_steps, pointer_path
 
 import defop as dop
 from defop.editor import export, movable_page
@@ -115,15 +115,6 @@ def screens(page, keep, ws):
 def screen(page, box, keep, w):
     u, v = screens(page, keep, [int(w)])[0]
     return box["x"] + u, box["y"] + v
-
-
-def pointer_path(page, start, end, steps=6):
-    page.mouse.move(*start)
-    page.mouse.down()
-    for t in np.linspace(0.2, 1.0, steps):
-        page.mouse.move(start[0] + t * (end[0] - start[0]), start[1] + t * (end[1] - start[1]))
-        page.wait_for_timeout(20)
-    page.mouse.up()
 
 
 def lonely_region_vertex(page, op, keep):
