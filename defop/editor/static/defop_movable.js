@@ -391,10 +391,11 @@ export function attachSolidRest(editor, hooks = {}) {
   const { msg, move } = restControls(editor, hooks, (toggle, line) => { ui.reset.after(toggle); toggle.after(line); },
     () => (p.pick_radius || 0.05) * sc.diag);
   // balls (the vendored three.js has no point sprites), drawn over the surface (interior vertices are seen too), all
-  // of one kind in one mesh: one draw call however large the region
-  const material = new THREE.MeshStandardMaterial({ color: 0x2ca02c, roughness: 0.6, depthTest: false });
-  const balls = (count, radius) => {
-    const ball = new THREE.SphereGeometry(radius * sc.diag, 8, 6), tpl = ball.attributes.position.array;
+  // of one kind in one mesh: one draw call however large the region, few triangles a ball (a few pixels wide)
+  const material = new THREE.MeshLambertMaterial({ color: 0x2ca02c, depthTest: false });
+  const balls = (count, radius, segments) => {
+    const ball = new THREE.SphereGeometry(radius * sc.diag, segments, segments - 2);
+    const tpl = ball.attributes.position.array;
     const normal = ball.attributes.normal.array, index = ball.index.array, k = tpl.length / 3;
     const pos = new Float32Array(count * tpl.length), nrm = new Float32Array(count * tpl.length);
     const idx = new Uint32Array(count * index.length);
@@ -424,7 +425,7 @@ export function attachSolidRest(editor, hooks = {}) {
     } };
   };
   const all = Int32Array.from(st.op.regions.flatMap((region) => Array.from(region.vertices)));
-  const cloud = balls(all.length, 0.006), target = balls(Math.max(...st.op.regions.map((r) => r.s)), 0.012);
+  const cloud = balls(all.length, 0.008, 4), target = balls(Math.max(...st.op.regions.map((r) => r.s)), 0.012, 10);
   editor.regionBalls = cloud;
   editor.overlay = () => {
     cloud.place(all);
