@@ -18,10 +18,21 @@ import numpy as np
 import pytest
 from test_browser_editor import chromium_page, needs_node
 from test_page_3d import drag_handle
-from test_page_movable import check_frame, check_random_placements, moving_vertices, node_steps, pointer_path
+from test_page_movable import (
+    check_frame,
+    check_random_placements,
+    float32_bound,
+    moving_vertices,
+    node_steps,
+    pointer_path,
+    python_frame,
+    shipped_frame,
+)
+from test_page_surface import float32_bary_bound, split_surface
 
 import defop as dop
 from defop.editor import export, movable_page
+from defop.geometry.volumetric.surface import EmbeddedSurface
 from defop.scene.placement import placement_regions
 from defop.training.movable import train_movable
 
@@ -30,6 +41,34 @@ from defop.training.movable import train_movable
 def bar():
     """bar_3d at about 300 vertices: 4 fixed handles on one end face, a patch of 4 moving ones on the other."""
     return dop.shapes.load("bar_3d", n_vertices=300)
+
+
+@pytest.fixture(scope="module")
+def surfaced(bar):
+    """bar_3d with its own surface, embedded in its tetrahedra: the boundary split in four (tests/test_page_surface)."""
+    B = bar.mesh.boundary_facets
+    used = np.unique(B)
+    renum = np.full(bar.mesh.n_vertices, -1)
+    renum[used] = np.arange(len(used))
+    surface = EmbeddedSurface.embed(bar.mesh, *split_surface(bar.mesh.V[used], renum[B]))
+    return dop.Shape(
+        name="bar_3d", mesh=bar.mesh, handles=bar.handles, moving=bar.moving, regions=bar.regions, surface=surface
+    )
+
+
+def check_surface(op, surface, S, X, Q, v, keep):
+    """The page's surface S (its vertices, from X of the vertices ``keep``): the page's tetrahedra's barycentric
+    combination (float32 coordinates, b_0 = 1 − Σ in float64) and, through them, the operator's own frame within the
+    float32 bound carried by the coordinates."""
+    diag = op.mesh.bbox_diagonal
+    X_page = shipped_frame(op, Q, [v])  # equal to the page's X on its vertices up to float64 round-off
+    X_page[keep] = X
+    err = np.linalg.norm(S - surface.deform(X_page), axis=1)
+    assert np.all(err <= float32_bary_bound(surface, X_page) + 1e-12 * diag), err.max() / diag
+    T = surface.tets[surface.elements]
+    carried = np.linalg.norm(np.einsum("sk,skc->sc", np.abs(surface.bary), float32_bound(op, Q, [v])[T]), axis=1)
+    err = np.linalg.norm(S - surface.deform(python_frame(op, Q, [v])), axis=1)
+    assert np.all(err <= carried + float32_bary_bound(surface, X_page) + 1e-12 * diag), err.max() / diag
 
 
 @pytest.fixture(scope="module")
@@ -102,8 +141,8 @@ def open_page(page, op, bar, tmp_path):
     page.goto(path.as_uri())
     page.wait_for_function(f"() => {E} && {E}.st.X")
     assert page.evaluate(f"() => {E}.webgl"), "no WebGL in this Chromium"
-    keep = np.array(page.evaluate(f"() => Array.from({E}.st.p.drawn)"))
-    assert len(keep) < op.n_vertices  # the drawn vertices and the placement's only
+    keep = np.array(page.evaluate(f"() => Array.from({E}.st.p.drawn || [])"), np.int64)
+    keep = np.arange(op.n_vertices) if keep.size == 0 else keep  # every vertex drawn, or used by the surface
     return page.locator("canvas.defop-canvas").bounding_box(), keep
 
 
@@ -132,11 +171,11 @@ def lonely_region_vertex(page, op, keep):
 
 
 @pytest.mark.browser
-def test_page_3d_moves_a_rest_patch_then_drags(op, bar, tmp_path):
+def test_page_3d_moves_a_rest_patch_then_drags(op, surfaced, tmp_path):
     V, diag = op.mesh.V, op.mesh.bbox_diagonal
     nominal = int(op.placement.nominal[0])
     with chromium_page() as page:
-        box, keep = open_page(page, op, bar, tmp_path)
+        box, keep = open_page(page, op, surfaced, tmp_path)
         start = page.evaluate(STATE_JS)
         v = lonely_region_vertex(page, op, keep)
         u0 = screen(page, box, keep, nominal)
@@ -169,7 +208,7 @@ def test_page_3d_moves_a_rest_patch_then_drags(op, bar, tmp_path):
     assert dragged["placement"] == [v] and np.linalg.norm(Q[1] - V[hm[1]]) > 0.02 * diag
     np.testing.assert_array_equal(np.delete(Q, 1, axis=0), np.delete(V[hm], 1, axis=0))
     check_frame(op, X, Q, v, keep)
-    np.testing.assert_array_equal(np.reshape(dragged["S"], (-1, 3)), X)  # the drawn surface: X's boundary
+    check_surface(op, surfaced.surface, np.reshape(dragged["S"], (-1, 3)), X, Q, v, keep)  # the user's surface
     # Reset: the rest pose of the new placement, exact
     assert reset["placement"] == [v]
     np.testing.assert_array_equal(np.reshape(reset["Q"], (-1, 3)), V[hm])
@@ -181,6 +220,7 @@ def test_page_3d_refuses_bad_rest_placements(op, bar, tmp_path):
     nominal = int(op.placement.nominal[0])
     with chromium_page() as page:
         box, keep = open_page(page, op, bar, tmp_path)
+        assert len(keep) < op.n_vertices  # the boundary's vertices and the placement's only
         drag_handle(page, box, E, 0, -30.0, 25.0)  # deformed first: nothing may change
         before = page.evaluate(STATE_JS)
         page.locator("button.defop-rest-toggle").click()
