@@ -30,6 +30,11 @@ vertex of its region before the drag, beside the fixed-P page of a DefOp trained
 page's evaluation time, and their ratios. ``python benchmarks/bench_browser.py --movable [m]`` (default m = 40,
 small: the movable frame's |Ψ| is about twice m plus the rest centres).
 
+``--movable --3d``: the same comparison in 3D on ``octopus_3d`` (handle 0 movable within 5% of the diagonal, its
+rest moved to the farthest vertex of its region first): the 3D page of a MovableOp beside the 3D fixed-P page, both
+of a trained operator's sizes with synthetic smooth factors of one rank (default m = 200, rank 105: the trained
+octopus_3d's). ``python benchmarks/bench_browser.py --movable --3d [m] [rank]``.
+
 ``--3d``: the 3D page (issue 27, part 5) of the largest 3D model, ``octopus_3d`` (about 10.3k vertices, 44k
 tetrahedra, 10.8k boundary triangles, 9 moving handles), written by :func:`defop.editor.export.to_html` and
 dragged as above (one pointer event per animation frame on a handle; the handle moves in the view plane, the
@@ -339,27 +344,36 @@ def main_movable(m=40, steps=200, rounds=2, sync_frames=60):
     op0, _ = dop.train(shape, basis="tps", m=m, progress=False)
     opj, _ = train_movable(shape, pr, m=m, seed=0, progress=False)
     op0.compress(), opj.compress()
-    V, region = shape.mesh.V, pr.vertices[0]
-    v = int(region[np.argmax(np.linalg.norm(V[region] - V[pr.nominal[0]], axis=1))])
     print(
         f"octopus: {shape.mesh.n_vertices} vertices, {shape.n_moving} moving handles, {pr.n_movable} movable "
         f"(regions of 5% of the diagonal, {[len(r) for r in pr.vertices]} vertices); fixed-P {op0} "
         f"(|Ψ| {op0.handle_basis.size}); movable {opj} (|Ψ| {opj.basis.size}, joint dimension "
-        f"{opj.basis.dim}); {time.perf_counter() - t0:.0f} s to train or load; rest handle 0 moved to vertex {v} "
-        f"({np.linalg.norm(V[v] - V[pr.nominal[0]]) / shape.mesh.bbox_diagonal:.1%} of the diagonal)"
+        f"{opj.basis.dim}); {time.perf_counter() - t0:.0f} s to train or load"
     )
-    runs = {"fixed-P page": [], "movable page, rest moved": []}
+    side_by_side(shape, pr, {"fixed-P page": op0, "movable page, rest moved": opj}, steps, rounds, sync_frames)
+
+
+def side_by_side(shape, pr, ops, steps, rounds, sync_frames):
+    """The pages of the fixed-P and the movable operator ``ops`` (name: operator) dragged alternately, the movable
+    one's rest handle 0 moved first to the vertex of its region farthest from the nominal one; prints their rAF
+    rates, forced frame times, evaluation times and ratios."""
+    V, region = shape.mesh.V, pr.vertices[0]
+    rest = int(region[np.argmax(np.linalg.norm(V[region] - V[pr.nominal[0]], axis=1))])
+    far = np.linalg.norm(V[rest] - V[pr.nominal[0]]) / shape.mesh.bbox_diagonal
+    print(f"rest handle 0 moved to vertex {rest} ({far:.1%} of the diagonal) before the movable page's drags")
+    runs = {name: [] for name in ops}
     with tempfile.TemporaryDirectory() as tmp:
         pages = {
-            "fixed-P page": export.to_html(op0, Path(tmp) / "octopus_fixed.html", shape=shape),
-            "movable page, rest moved": export.to_html(opj, Path(tmp) / "octopus_movable.html", shape=shape),
+            name: export.to_html(op, Path(tmp) / f"page{i}.html", shape=shape)
+            for i, (name, op) in enumerate(ops.items())
         }
         for _ in range(rounds):  # alternate the two pages: the machine's load drifts
             for name, path in pages.items():
-                runs[name].append(in_page(path, steps, sync_frames, rest=v if "movable" in name else None))
+                runs[name].append(in_page(path, steps, sync_frames, rest=rest if "movable" in name else None))
+        sizes = ", ".join(f"{path.stat().st_size / 1e6:.1f} MB" for path in pages.values())
     print(
         f"{steps}-step drag of handle 0, one pointer event per animation frame ({rounds} runs per page, "
-        f"alternating); frame time forced to finish ({sync_frames} frames per run); load average "
+        f"alternating); frame time forced to finish ({sync_frames} frames per run); pages {sizes}; load average "
         f"{os.getloadavg()[0]:.2f}:"
     )
     sync, ev = {}, {}
@@ -372,16 +386,69 @@ def main_movable(m=40, steps=200, rounds=2, sync_frames=60):
             f"forced frame {np.median(sync[name]):5.2f} ms median; evaluation {ev[name]:.2f} ms, draw "
             f"submission {dr:.2f} ms"
         )
-    a, b = "movable page, rest moved", "fixed-P page"
+    b, a = list(ops)
     print(
         f"movable / fixed-P: forced frame time {np.median(sync[a]) / np.median(sync[b]):.2f}x, "
         f"evaluation {ev[a] / ev[b]:.2f}x (load average {os.getloadavg()[0]:.2f})"
     )
 
 
+def sized_movable_3d(shape, placement, m, seed=0):
+    """A 3D MovableOp on ``shape`` of a trained one's sizes (:func:`defop.operator.movable.fit_movable` on m joint
+    samples drawn as training draws them, X a smooth synthetic field): the page's work per frame depends on |Ψ|,
+    the rank, the vertices and the bumps, not on the values (as :func:`sized_operator_3d`)."""
+    from defop.operator.movable import fit_movable
+    from defop.training.movable import sample_joint
+
+    idx, Q = sample_joint(shape, placement, m, seed)
+    V, diag = shape.mesh.V, shape.mesh.bbox_diagonal
+    X = [
+        V + 0.05 * diag * np.sin(V @ (q - V[placement.handles_at(i)[shape.moving]]).T / diag**2)[:, :3]
+        for i, q in zip(idx, Q)
+    ]
+    meta = {"shape": shape.name, "energy": "sized"}
+    return fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, np.stack(X), meta)
+
+
+def smooth_factors(shape, size, rank, seed=0):
+    """Factors (A (size − 1, rank), B (rank, 3 n_vertices)) in float32 of a compressed operator's sizes: B's rows
+    smooth fields (sines of the rest positions along random directions), zero on the handles' columns."""
+    rng = np.random.default_rng(seed)
+    V, diag = shape.mesh.V, shape.mesh.bbox_diagonal
+    B = 0.01 * diag * np.sin(np.einsum("vc,rcd->rvd", V, rng.standard_normal((rank, 3, 3)) * 6 / diag))
+    B = B.reshape(rank, -1)
+    B[:, (3 * shape.handles[:, None] + np.arange(3)).ravel()] = 0.0
+    A = rng.standard_normal((size - 1, rank)) / np.sqrt(size)
+    return A.astype(np.float32), B.astype(np.float32)
+
+
+def main_movable_3d(m=200, rank=105, steps=200, rounds=2, sync_frames=60):
+    """The 3D page of a MovableOp on octopus_3d (handle 0 movable within 5% of the diagonal, its rest moved to the
+    farthest vertex of its region), beside the 3D fixed-P page of the same sizes (``--3d``), both with factors of
+    ``rank`` (:func:`smooth_factors`; default the rank ``compress`` keeps for octopus_3d trained at m = 200): the
+    ``--movable`` comparison in 3D."""
+    from defop.scene.placement import placement_regions
+
+    shape = dop.shapes.load("octopus_3d")
+    pr = placement_regions(shape, [0], radius=0.05 * shape.mesh.bbox_diagonal)
+    op0, opj = sized_operator_3d(shape, m), sized_movable_3d(shape, pr, m)
+    op0.set_factors(smooth_factors(shape, op0.handle_basis.size, rank))
+    opj.set_factors(smooth_factors(shape, opj.basis.size, rank))
+    print(
+        f"octopus_3d: {shape.mesh.n_vertices} vertices, {len(shape.mesh.boundary_facets)} boundary triangles, "
+        f"{shape.n_moving} moving handles, 1 movable (region of 5% of the diagonal, {len(pr.vertices[0])} vertices, "
+        f"patch of {len(pr.members[0])}); fixed-P {op0}; movable {opj} (|Ψ| {opj.basis.size}), both of a trained "
+        "operator's sizes with synthetic factors"
+    )
+    ops = {"3D fixed-P page": op0, "3D movable page, rest moved": opj}
+    side_by_side(shape, pr, ops, steps, rounds, sync_frames)
+
+
 if __name__ == "__main__":
     args = [a for a in sys.argv[1:] if not a.startswith("--")]
-    if "--3d" in sys.argv:
+    if "--3d" in sys.argv and "--movable" in sys.argv:
+        main_movable_3d(*(int(a) for a in args[:2]))
+    elif "--3d" in sys.argv:
         main_3d(
             *(int(a) for a in args[:2]),
             rounds=int(os.environ.get("DEFOP_BENCH_ROUNDS", 3)),

@@ -188,7 +188,7 @@ def _ray_plane(cam, u, v, point, normal):
     return origin + t * direction
 
 
-def _drag(page, box, e, i, du, dv, steps=5):
+def drag_handle(page, box, e, i, du, dv, steps=5):
     """Drag moving handle i by (du, dv) CSS pixels, ending on whole pixels; returns what the test checks."""
     u, v = page.evaluate(f"() => {e}.handleScreen({i})")
     before = page.evaluate(f"() => ({{Q: Array.from({e}.st.Q), cam: {e}.cameraState()}})")
@@ -222,7 +222,7 @@ def test_page_3d_drag_in_chromium(ops3, bar3, tmp_path):
         e = "window.defopEditor"
         X0 = np.array(page.evaluate(f"() => Array.from({e}.st.X)")).reshape(-1, 3)
         box = page.locator("canvas.defop-canvas").bounding_box()
-        results = [_drag(page, box, e, i, du, dv) for i, du, dv in drags]
+        results = [drag_handle(page, box, e, i, du, dv) for i, du, dv in drags]
         page.screenshot(path="/tmp/defop_page_3d_drag.png")
         page.locator("button.defop-reset").click()
         rest = page.evaluate(f"() => ({{Q: Array.from({e}.st.Q), X: Array.from({e}.st.X)}})")

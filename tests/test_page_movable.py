@@ -49,7 +49,7 @@ def shipped_frame(op, Q, idx):
     """Python's float64 evaluation of the shipped factors (float32 A, B) at placement idx: what the page computes."""
     st_ = op.at(np.asarray(idx, np.int64))
     u = (op.delta_psi(Q[None], st_) @ op.factors[0].astype(float)) @ op.factors[1].astype(float)
-    return correct(op.mesh, op.placement, op.handles, op.moving, st_, u, Q[None]).reshape(-1, 2)
+    return correct(op.mesh, op.placement, op.handles, op.moving, st_, u, Q[None]).reshape(-1, op.d)
 
 
 def float32_bound(op, Q, idx):
@@ -60,9 +60,9 @@ def float32_bound(op, Q, idx):
     st_ = op.at(np.asarray(idx, np.int64))
     dpsi = np.abs(op.delta_psi(Q[None], st_))[0]
     A, B = (np.abs(f.astype(float)) for f in op.factors)
-    e = (4 * U32 * (dpsi @ A) @ B).reshape(-1, 2)
+    e = (4 * U32 * (dpsi @ A) @ B).reshape(-1, op.d)
     sup, wt = st_.bumps
-    e[sup] += np.abs(wt) @ e[st_.idx]
+    e[sup] += np.abs(wt) @ e[st_.moved]
     return e + 1e-12 * op.mesh.bbox_diagonal
 
 
@@ -72,9 +72,11 @@ def python_frame(op, Q, idx):
         return op(Q, np.asarray(idx, np.int64))
 
 
-def node_steps(op, steps, tmp_path):
-    """Run tests/js/eval_movable.mjs on the page's payload of ``op`` and the steps (frames and setRest calls)."""
-    meta, data = payload.encode_payload(movable_page.movable_to_payload(op))
+def node_steps(op, steps, tmp_path, restrict=None):
+    """Run tests/js/eval_movable.mjs on the page's payload of ``op`` (passed through ``restrict`` if given) and the
+    steps (frames and setRest calls)."""
+    p = movable_page.movable_to_payload(op)
+    meta, data = payload.encode_payload(p if restrict is None else restrict(p))
     spec = {
         "js": str(payload.JS_PATH),
         "movable": str(movable_page.MOVABLE_JS_PATH),
@@ -93,33 +95,50 @@ def moving_vertices(op, idx):
 
 
 # ---------------------------------------------------------------------------------------------- Node
-@needs_node
-def test_javascript_matches_the_shipped_operator_at_random_placements(op, tmp_path_factory):
+def check_frame(op, X, Q, v, keep=None):
+    """The page's frame X at placement [v] and Q (of the vertices ``keep``, default all): handles on their targets,
+    fixed ones at rest, Python's float64 evaluation of the shipped factors up to float64 round-off (the same formula)
+    and the operator's own (float32) frame within the float32 bound on the free vertices."""
     V, diag = op.mesh.V, op.mesh.bbox_diagonal
-    region = op.placement.vertices[0]
-    tmp = tmp_path_factory.mktemp("movable")
+    keep = np.arange(op.n_vertices) if keep is None else keep
+    hm = moving_vertices(op, [v])
+    assert np.abs(X[np.searchsorted(keep, hm)] - Q).max() <= 1e-12 * diag, "handles not on target (Prop. 2)"
+    fixed = op.handles[~op.moving]
+    np.testing.assert_array_equal(X[np.searchsorted(keep, fixed)], V[fixed])
+    assert np.abs(X - shipped_frame(op, Q, [v])[keep]).max() <= 1e-12 * diag
+    free = ~np.isin(keep, hm)
+    bound = float32_bound(op, Q, [v])[keep]
+    err = np.abs(X - python_frame(op, Q, [v])[keep])
+    assert np.all(err[free] <= bound[free]), (err / bound).max()
 
-    @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-    @given(st.integers(0, len(region) - 1), st.lists(st.floats(-0.08, 0.08), min_size=4, max_size=4))
+
+def check_random_placements(op, tmp, spread, examples):
+    """The page's module in Node at random region vertices of rest handle 0 and random Q (hypothesis, each
+    coordinate within ``spread`` of the diagonal): the handle (and its patch) moved, the rest pose x bit for bit
+    (8b), the moving handles exactly Q (Prop. 2) and the frame as :func:`check_frame` says."""
+    V, diag, n, d = op.mesh.V, op.mesh.bbox_diagonal, op.n_moving, op.d
+    region = op.placement.vertices[0]
+
+    @settings(max_examples=examples, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+    @given(st.integers(0, len(region) - 1), st.lists(st.floats(-spread, spread), min_size=n * d, max_size=n * d))
     def check(k, dq):
         v = int(region[k])
         hm = moving_vertices(op, [v])
-        P = V[hm]
-        Q = P + np.reshape(dq, (2, 2)) * diag
-        out = node_steps(op, [{"rest": [0, v]}, {"Q": P.ravel().tolist()}, {"Q": Q.ravel().tolist()}], tmp)
+        Q = V[hm] + np.reshape(dq, (n, d)) * diag
+        out = node_steps(op, [{"rest": [0, v]}, {"Q": V[hm].ravel().tolist()}, {"Q": Q.ravel().tolist()}], tmp)
         assert out[0]["placement"] == [v]
-        X_rest, X = (np.array(o["X"]).reshape(-1, 2) for o in out[1:])
+        np.testing.assert_array_equal(np.reshape(out[0]["P"], (-1, d)), V[hm])  # every member of the patch moved
+        X_rest, X = (np.array(o["X"]).reshape(-1, d) for o in out[1:])
         np.testing.assert_array_equal(X_rest, V)  # (8b) bit for bit at the new placement
         assert np.array_equal(X[hm], Q), "moving handles not exact (Prop. 2)"
-        fixed = op.handles[~op.moving]
-        np.testing.assert_array_equal(X[fixed], V[fixed])
-        # the same formula: Python's float64 evaluation of the shipped factors, up to float64 round-off
-        assert np.abs(X - shipped_frame(op, Q, [v])).max() <= 1e-12 * diag
-        # the operator's own (float32) frame, within the float32 bound
-        err = np.abs(X - python_frame(op, Q, [v]))
-        assert np.all(err <= float32_bound(op, Q, [v])), (err / float32_bound(op, Q, [v])).max()
+        check_frame(op, X, Q, v)
 
     check()
+
+
+@needs_node
+def test_javascript_matches_the_shipped_operator_at_random_placements(op, tmp_path_factory):
+    check_random_placements(op, tmp_path_factory.mktemp("movable"), 0.08, 8)
 
 
 @needs_node

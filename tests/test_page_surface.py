@@ -93,7 +93,7 @@ def _node_surface(op, shape, Qs, tmp_path):
     return node_run(SURFACE_DRIVER, p, Qs, tmp_path)
 
 
-def _float32_bary_bound(surface, X):
+def float32_bary_bound(surface, X):
     """|S_page − S| per surface vertex: b_1..b_3 rounded to float32 (relative u), b_0 = 1 − Σ in float64, so the
     error is at most 2u Σ_k |b_k| |X_k − X_0| (and the float64 sums, far below)."""
     T = surface.tets[surface.elements]
@@ -114,7 +114,7 @@ def test_page_surface_in_node(ops3, surfaced, tmp_path):  # noqa: F811
         S = np.array(o["S"]).reshape(-1, 3)
         np.testing.assert_array_equal(S[on_surface], Q)  # the handle's surface vertex: exactly the target
         err = np.linalg.norm(S - surface.deform(X), axis=1)
-        assert np.all(err <= _float32_bary_bound(surface, X)), err.max() / diag
+        assert np.all(err <= float32_bary_bound(surface, X)), err.max() / diag
     # without a surface: the boundary facets on the vertices themselves
     p = payload.defop_to_payload(op)
     assert "surface_F" not in p
@@ -151,7 +151,7 @@ def test_page_draws_and_drags_the_embedded_surface(ops3, surfaced, tmp_path):  #
     S = np.array(st["S"]).reshape(-1, 3)
     assert np.linalg.norm(Q[1] - op.P[1]) > 0.02 * op.mesh.bbox_diagonal, "the handle did not move"
     np.testing.assert_array_equal(S[on_surface], Q)  # exactly on target, in the page
-    assert np.all(np.linalg.norm(S - surface.deform(X), axis=1) <= _float32_bary_bound(surface, X))
+    assert np.all(np.linalg.norm(S - surface.deform(X), axis=1) <= float32_bary_bound(surface, X))
 
 
 @pytest.mark.browser

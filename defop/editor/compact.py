@@ -185,7 +185,7 @@ def compact_payload(p):
     return out
 
 
-def drawn_vertices(p):
+def drawn_vertices(p, also=None, renumbered=()):
     """A 3D payload restricted to the vertices the page draws: those of the surface's tetrahedra
     (``surface_tets``) or else of the boundary facets ``F``, and the handles (a new dict; ``p`` is unchanged).
 
@@ -194,23 +194,42 @@ def drawn_vertices(p):
     and the indices are renumbered, ``n_vertices`` counts the kept ones and ``n_vertices_all`` all of them. The
     boundary facets are left out when the surface is drawn. Unchanged when every vertex is drawn.
 
+    Parameters
+    ----------
+    p : dict
+    also : int numpy array, optional
+        Vertices to keep as well (a movable page's placement vertices: :mod:`defop.editor.movable_page`); then
+        ``drawn`` (k,) int32 holds the kept vertices (their indices in the operator's mesh, increasing).
+    renumbered : sequence of str
+        Further keys of vertex indices to renumber (each must index kept vertices).
+
     Returns
     -------
     dict
     """
     n, surface = int(p["n_vertices"]), "surface_tets" in p
     keep = np.union1d(np.asarray(p["surface_tets"] if surface else p["F"]).ravel(), p["handles"])
+    if also is not None:
+        keep = np.union1d(keep, also)
     out = dict(p)
     if surface:
         out.pop("F", None)
     if len(keep) == n:
         return out
-    renumber = np.full(n, -1, np.int32)
-    renumber[keep] = np.arange(len(keep), dtype=np.int32)
+    renumber = vertex_renumbering(keep, n)
     cols = (3 * keep[:, None] + np.arange(3)).ravel()
     out.update(V=p["V"][keep], handles=renumber[p["handles"]], n_vertices=len(keep), n_vertices_all=n)
+    if also is not None:
+        out["drawn"] = keep.astype(np.int32)
     out["B" if "B" in p else "A"] = (p["B"] if "B" in p else p["A"])[:, cols]
-    for name in ("F", "surface_tets"):
+    for name in ("F", "surface_tets", *renumbered):
         if name in out:
             out[name] = renumber[out[name]]
     return out
+
+
+def vertex_renumbering(keep, n):
+    """(n,) int32 numpy array: the new index of each kept vertex (sorted ``keep``), −1 for the others."""
+    renumber = np.full(n, -1, np.int32)
+    renumber[keep] = np.arange(len(keep), dtype=np.int32)
+    return renumber

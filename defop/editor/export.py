@@ -16,7 +16,7 @@ from ..operator.movable import MovableOp
 from ..scene.planar_shapes import image_frame as image_frame_of
 from ..scene.shapes import Shape
 from .compact import compact_payload
-from .movable_page import movable_page, movable_script, movable_to_payload
+from .movable_page import MOVABLE_JS_PATH, drawn_payload, movable_page, movable_script, movable_to_payload
 from .payload import (
     JS_PATH,
     branched_to_payload,
@@ -168,8 +168,8 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None, comp
     Parameters
     ----------
     op : defop.operator.DefOp, defop.operator.branched.BranchedOperator or defop.operator.movable.MovableOp
-        A 2D MovableOp gets the 2D page with its rest mode (:func:`movable_html`): a toggle or
-        Shift-drag moves a rest handle within its placement region.
+        A MovableOp gets the page with its rest mode (:func:`movable_html`, 2D or 3D): a toggle or
+        Shift-drag moves a rest handle (in 3D its patch) within its placement region.
         A 2D BranchedOperator gets the 2D page with every branch (:func:`.payload.branched_to_payload`): the drag
         runs ``follow`` (``makeBranched`` of ``defop_editor.js``), a toggle switches to ``global``, the current
         branch's label is shown, and Reset goes back to branch 0 (the rest pose's).
@@ -258,12 +258,9 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None, comp
         factor=payload["extrapolation_factor"],
     )
     if op.d == 3:
-        drawn = (
-            "the shape's surface, carried by the tetrahedra"
-            if "surface_F" in payload
-            else "boundary surface of the tetrahedral mesh"
+        text = _PAGE_3D.format(
+            js=solid_script(), three_version=THREE_VERSION, surface_legend=_surface_legend(payload), **fields
         )
-        text = _PAGE_3D.format(js=solid_script(), three_version=THREE_VERSION, surface_legend=drawn, **fields)
     else:
         page = _PAGE_BRANCHED if branched else _PAGE
         text = page.format(js=_inline_script(JS_PATH.read_text(encoding="utf-8")), **fields)
@@ -271,9 +268,10 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None, comp
 
 
 def movable_html(op, path, shape=None, title=None):
-    """Write the page of a 2D MovableOp (:func:`to_html` with a MovableOp; :mod:`.movable_page`): the 2D page with
-    the rest mode, ``defop_movable.js`` after the editor's script. ``shape``'s sampling regions are drawn around the
-    nominal rest positions (its mesh must be the operator's). Returns the path, written atomically."""
+    """Write the page of a MovableOp (:func:`to_html` with a MovableOp; :mod:`.movable_page`): the 2D page, or the
+    3D view, with the rest mode, ``defop_movable.js`` after the editor's (and the 3D view's) script. ``shape``'s
+    sampling regions are drawn around the nominal rest positions in 2D, and in 3D its surface is the one drawn (its
+    mesh must be the operator's). Returns the path, written atomically."""
     if title is not None:
         title = opt.text("title", title)
     regions = None
@@ -282,8 +280,12 @@ def movable_html(op, path, shape=None, title=None):
             raise ValueError(f"shape must be a Shape (dop.shapes.load(...)) or None, got {type(shape).__name__}")
         _check_dimensions(op, shape, None, None)
         check_mesh(op, shape.mesh)
-        regions = region_polygons(shape.P_moving, shape.regions)
+        regions = region_polygons(shape.P_moving, shape.regions) if op.d == 2 else None
     payload = movable_to_payload(op, regions)
+    if op.d == 3 and shape is not None and shape.surface is not None:
+        payload.update(surface_payload(shape.surface, op.n_vertices))
+    if op.d == 3:  # the drawn vertices and the placement's only, as the fixed-P 3D page
+        payload = drawn_payload(payload)
     if not title:
         title = opt.text(
             "title", f"defop: {op.meta.get('shape', 'shape')}, {op.placement.n_movable} movable rest handle(s)"
@@ -296,8 +298,19 @@ def movable_html(op, path, shape=None, title=None):
         data=base64.b64encode(data).decode("ascii"),
         factor=EXTRAPOLATION_FACTOR,
     )
-    text = movable_page(_PAGE).format(js=_inline_script(movable_script()), **fields)
+    if op.d == 2:
+        text = movable_page(_PAGE, 2).format(js=_inline_script(movable_script()), **fields)
+    else:
+        js, drawn = solid_script(MOVABLE_JS_PATH), _surface_legend(payload)
+        text = movable_page(_PAGE_3D, 3).format(js=js, three_version=THREE_VERSION, surface_legend=drawn, **fields)
     return opt.write_atomic(path, text.encode("utf-8"))
+
+
+def _surface_legend(payload):
+    """The 3D page's legend words for the surface it draws."""
+    if "surface_F" in payload:
+        return "the shape's surface, carried by the tetrahedra"
+    return "boundary surface of the tetrahedral mesh"
 
 
 def _vendored(name):
@@ -330,10 +343,15 @@ def _module_as_function(text, name):
     return f"(() => {{\n{body}\nreturn {{ {', '.join(items)} }};\n}})()"
 
 
-def solid_script():
+def solid_script(*after):
     """The 3D page's inline module: the vendored three.js bundle (sha256-checked) as the binding ``THREE`` and its
     ``OrbitControls``, then ``defop_editor.js`` verbatim (the one evaluator) and ``defop_solid.js`` without its
-    import line (the names it imports are in the same module scope).
+    import line (the names it imports are in the same module scope), then the scripts ``after`` the same way (the
+    movable page's ``defop_movable.js``).
+
+    Parameters
+    ----------
+    *after : pathlib.Path
 
     Returns
     -------
@@ -346,6 +364,7 @@ def solid_script():
         "const { OrbitControls } = THREE;",
         JS_PATH.read_text(encoding="utf-8"),
         solid,
+        *(script_after_editor(path) for path in after),
     ]
     return _inline_script("\n".join(parts))
 

@@ -15,7 +15,7 @@
 // that plane at the new handle position q, the operator is evaluated at Q, and the mesh and spheres follow.
 // The orbit camera is disabled while a handle is held. Reset returns Q to P (the rest pose, exact: (8b)).
 
-import { addStyle, decodePayload, dragLoop, el, extrapolating, fromBase64, makeOperator, timingText, warnText }
+import { addStyle, decodePayload, dragLoop, el, extrapolating, fromBase64, makeOperator, MODES, timingText, warnText }
   from "./defop_editor.js";
 
 const PICK_PX = 14; // a handle is picked within this many CSS pixels of its centre
@@ -123,20 +123,21 @@ function makeScene(THREE, OrbitControls, canvas, p, width, height) {
  * Mount the 3D view of a decoded payload `p` (d = 3) in `root`. Returns the editor object (also root.defopEditor):
  * st.Q, st.X (flat, 3·n_vertices: the vertices the surface uses, defop.editor.compact.drawn_vertices),
  * st.S (the drawn surface's vertices, flat, float64), st.frames / st.updates / st.evalMs / st.drawMs as in the 2D editor,
- * evaluate(), reset(), handleScreen(i) (CSS pixels in the canvas), camera, controls.
+ * evaluate(), reset(), handleScreen(i) and vertexScreen(w) (CSS pixels in the canvas), camera, controls.
+ * options.makeOperator: another evaluator of the payload (makeMovable of defop_movable.js); editor.overlay(), when
+ * set, runs before every render (the movable page's region balls).
  */
 export function createSolidView(root, p, THREE, OrbitControls, options = {}) {
   if (p.d !== 3) throw new Error(`the 3D view needs a payload with d = 3, got d = ${p.d}`);
-  const ui = solidLayout(root);
+  const ui = solidLayout(root), make = options.makeOperator || makeOperator;
   const width = options.width || 720, height = options.height || 540;
   let sc;
   try {
     sc = makeScene(THREE, OrbitControls, ui.canvas, p, width, height);
   } catch (err) {
-    return withoutWebGL(root, ui, p, err);
+    return withoutWebGL(root, ui, p, err, make);
   }
-  const op = makeOperator(p);
-  const movingVertices = Array.from(p.handles).filter((_, i) => p.moving[i]);
+  const op = make(p);
   const st = { p, op, Q: Float64Array.from(p.P), X: null, S: null, active: null, outside: [], frames: [], updates: [],
     evalMs: [], drawMs: [], surfaceTriangles: sc.surface.F.length / 3 };
   const editor = { ui, st, scene: sc, camera: sc.camera, controls: sc.controls, webgl: true };
@@ -153,6 +154,7 @@ export function createSolidView(root, p, THREE, OrbitControls, options = {}) {
       sc.spheres[h].position.set(X[3 * v], X[3 * v + 1], X[3 * v + 2]);
       if (p.moving[h]) { sc.spheres[h].material = out.has(k) ? sc.colours.outside : sc.colours.moving; k += 1; }
     });
+    if (editor.overlay) editor.overlay();
     sc.renderer.render(sc.scene, sc.camera);
   };
   editor.render = () => sc.renderer.render(sc.scene, sc.camera);
@@ -176,12 +178,13 @@ export function createSolidView(root, p, THREE, OrbitControls, options = {}) {
     editor.evaluate();
   };
   ui.reset.addEventListener("click", editor.reset);
-  /** Where the current position of moving handle i is drawn, in CSS pixels of the canvas. */
-  editor.handleScreen = (i) => {
-    const v = movingVertices[i], X = st.X;
-    const q = new THREE.Vector3(X[3 * v], X[3 * v + 1], X[3 * v + 2]).project(sc.camera);
+  /** Where vertex w's current position is drawn, in CSS pixels of the canvas. */
+  editor.vertexScreen = (w) => {
+    const X = st.X, q = new THREE.Vector3(X[3 * w], X[3 * w + 1], X[3 * w + 2]).project(sc.camera);
     return [((q.x + 1) / 2) * width, ((1 - q.y) / 2) * height];
   };
+  /** Where the current position of moving handle i is drawn (its vertex: the payload's, which a rest move changes). */
+  editor.handleScreen = (i) => editor.vertexScreen(Array.from(p.handles).filter((_, h) => p.moving[h])[i]);
   editor.cameraState = () => ({ matrixWorld: sc.camera.matrixWorld.elements.slice(),
     projectionMatrixInverse: sc.camera.projectionMatrixInverse.elements.slice(), width, height });
   wireSolidPointer(editor, sc, width, height);
@@ -195,14 +198,14 @@ export function createSolidView(root, p, THREE, OrbitControls, options = {}) {
  * The page without WebGL: the canvas gives way to a message in words, and the operator is still evaluated at
  * the rest pose (st.X), with nothing to drag.
  */
-function withoutWebGL(root, ui, p, err) {
+function withoutWebGL(root, ui, p, err, make) {
   const reason = err && err.message ? ` (${err.message})` : "";
   const note = el("div", { class: "defop-nowebgl", role: "alert" },
     "This page draws the 3D shape with WebGL, which this browser does not provide" + reason + ". Turn on " +
     "WebGL (hardware acceleration) in the browser's settings, or open the page in another browser.");
   ui.canvas.replaceWith(note);
   ui.reset.disabled = true;
-  const op = makeOperator(p);
+  const op = make(p);
   const st = { p, op, Q: Float64Array.from(p.P), X: op.evaluate(p.P), S: null, active: null, outside: [], frames: [],
     updates: [], evalMs: [], drawMs: [], surfaceTriangles: makeSurface(p).F.length / 3 };
   st.S = makeSurface(p).evaluate(st.X);
@@ -277,7 +280,13 @@ function wireSolidPointer(editor, sc, width, height) {
   canvas.addEventListener("pointercancel", release);
 }
 
-/** The standalone 3D page (defop.editor.export.to_html for a 3D operator). */
+/**
+ * The standalone 3D page (defop.editor.export.to_html for a 3D operator); a MovableOp's payload (`movable`) gets the
+ * movable evaluator and rest mode that defop_movable.js, inlined after this file, registers (MODES.movable).
+ */
 export function mountSolid(root, meta, base64, THREE, OrbitControls) {
-  return createSolidView(root, decodePayload(meta, fromBase64(base64)), THREE, OrbitControls);
+  const p = decodePayload(meta, fromBase64(base64)), mode = p.movable ? MODES.movable : null;
+  if (p.movable && !mode) throw new Error("a movable payload needs defop_movable.js after defop_solid.js");
+  const editor = createSolidView(root, p, THREE, OrbitControls, mode ? { makeOperator: mode.makeOperator } : {});
+  return mode ? mode.attachSolid(editor) : editor;
 }
