@@ -175,8 +175,8 @@ def retarget(Q, placement, old, new):
     Q : (n, d) numpy array
     """
     Q = np.array(Q, float)
-    V = placement.mesh.V
-    Q[placement.moved_rows()] += V[placement.members_at(new)] - V[placement.members_at(old)]
+    V, rows = placement.mesh.V, placement.moved_rows()
+    Q[rows] = V[placement.members_at(new)] + (Q[rows] - V[placement.members_at(old)])  # at rest: V[new], exactly
     return Q
 
 
