@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import defop as dop
+from defop.training import cache as cm
 from defop.variational import Solver
 from defop.variational import backend as bk
 from defop.variational.solver import SMOOTHING, SMOOTHING_3D
@@ -31,8 +32,22 @@ def test_sarap_defaults_to_the_held_stage_in_3d_and_keeps_the_smoothed_stage_in_
     assert SMOOTHING_3D == (0.0,) and Solver(mesh, h, "sarap").mu_schedule == (0.0,)
     bar = dop.shapes.load("bar")
     assert SMOOTHING == (1e-5,) and Solver(bar.mesh, bar.handles, "sarap").mu_schedule == (1e-5, 0.0)
-    # an explicit schedule is kept in either dimension
-    assert Solver(mesh, h, "sarap", smoothing=(1e-5,)).mu_schedule == (1e-5, 0.0)
+    # an explicit schedule is kept in either dimension, with no fallback
+    explicit = Solver(mesh, h, "sarap", smoothing=(1e-5,))
+    assert explicit.mu_schedule == (1e-5, 0.0) and not hasattr(explicit, "fallback_schedule")
+    # 2D's settings (its cache keys) are what they were
+    assert set(cm.solver_settings(Solver(bar.mesh, bar.handles, "sarap"))) == {
+        "barrier",
+        "class",
+        "energy",
+        "exact_switch",
+        "max_escapes",
+        "max_iter",
+        "mu_schedule",
+        "stage_tol",
+        "tol",
+        "verify_tol",
+    }
 
 
 @settings(max_examples=4, deadline=None)

@@ -188,10 +188,6 @@ class Solver:
         self.tol = check_tol(tol)
         self.max_iter = check_max_iter(max_iter)
         self.mu_schedule = (0.0,)
-        #: S-ARAP on tetrahedra by default: the schedule that runs from the same point where the held μ = 0 stage
-        #: alone has not converged within ``held_first_iterations`` (:func:`defop.variational.newton.newton`)
-        self.fallback_schedule = None
-        self.held_first_iterations = HELD_FIRST_ITERATIONS
         if self.energy == "sarap":
             default = SMOOTHING_3D if mesh.dim == 3 else SMOOTHING
             mus = default if smoothing is None else tuple(check_tol(m, "smoothing μ") for m in smoothing)
@@ -199,7 +195,12 @@ class Solver:
                 raise ValueError(f"smoothing must be a non-empty sequence of μ >= 0, got {smoothing!r}")
             self.mu_schedule = mus if mus[-1] == 0 else mus + (0.0,)
             if smoothing is None and mesh.dim == 3:
+                #: S-ARAP's default on tetrahedra only (a setting of the solutions there, so an attribute only there,
+                #: and 2D's cache keys stay as they were): the schedule that runs from the same point where the held
+                #: μ = 0 stage alone has not converged within ``held_first_iterations``
+                #: (:func:`defop.variational.newton.newton`) or the solve did not end verified
                 self.fallback_schedule = SMOOTHING + (0.0,)
+                self.held_first_iterations = HELD_FIRST_ITERATIONS
         self.verify_tol = 1e-6
         #: the μ = 0 stage and check 4 treat S-ARAP triangles within KINK of Σ = σ as on the kink
         self._kink = KINK
@@ -292,7 +293,7 @@ class Solver:
         schedule does not end verified, the ``fallback_schedule`` solves again from the same start (its iterations
         counted in the result's)."""
         result = self._path(targets, X0, tol, max_iter, max_stages, label)
-        if result.converged or not self.fallback_schedule:
+        if result.converged or not getattr(self, "fallback_schedule", None):
             return result
         saved = self.mu_schedule, self.fallback_schedule
         self.mu_schedule, self.fallback_schedule = self.fallback_schedule, None
