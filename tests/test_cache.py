@@ -85,6 +85,13 @@ def test_train_keys_read_the_settings_of_the_solver_train_uses(bar, energy):
     assert dop.training.solves.solver_key(bar, energy) == real and real["energy"] == energy
 
 
+def test_train_keys_in_3d_read_the_3d_solvers_settings():
+    """S-ARAP's default schedule depends on the dimension: a 3D shape's key has the 3D solver's settings."""
+    bar3 = dop.shapes.load("bar_3d", 300)
+    real = cm.solver_settings(dop.variational.Solver(bar3.mesh, bar3.handles, "sarap"))
+    assert dop.training.solves.solver_key(bar3, "sarap") == real and real["mu_schedule"] == (0.0,)
+
+
 # ------------------------------------------------------------------------------ store and load
 def test_store_load_round_trip_is_atomic(tmp_path):
     store = cm.Cache(tmp_path)

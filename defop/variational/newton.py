@@ -157,16 +157,36 @@ def too_steep(solver, X, Xt):
 
 
 def newton(solver, log, X, tol):
-    """Newton at fixed handles; S-ARAP runs through its smoothing schedule, ending on Eq. (11) itself."""
-    for i, mu in enumerate(solver.mu_schedule):
-        last = i == len(solver.mu_schedule) - 1
+    """Newton at fixed handles; S-ARAP runs through its smoothing schedule, ending on Eq. (11) itself.
+
+    A schedule of the held μ = 0 stage alone (3D's default) with a ``fallback_schedule`` gets
+    ``held_first_iterations`` Newton iterations; where it has not converged by then (every element on a kink, say),
+    the fallback schedule runs from the same X."""
+    fallback = getattr(solver, "fallback_schedule", None)
+    if not fallback or tuple(solver.mu_schedule) != (0.0,):
+        return _schedule(solver, log, X, tol, solver.mu_schedule)
+    budget = log.budget
+    log.budget = min(budget, log.iters + solver.held_first_iterations)
+    try:
+        Y, converged, reason = _schedule(solver, log, X, tol, solver.mu_schedule)
+    finally:
+        log.budget = budget
+    if converged or log.exhausted:
+        return Y, converged, reason
+    return _schedule(solver, log, X, tol, fallback)
+
+
+def _schedule(solver, log, X, tol, schedule):
+    """:func:`newton` through the given μ schedule."""
+    for i, mu in enumerate(schedule):
+        last = i == len(schedule) - 1
         if last and solver.energy == "sarap":
             return kink.refine(
                 lambda Y, m: newton_stage(solver, log, Y, max(tol, solver.stage_tol), m),
                 lambda Y: kink_active_set(solver, log, Y, tol),
                 lambda Y: kink.kink_gap(solver, Y, KINK_TARGET * solver.verify_tol),
                 X,
-                solver.mu_schedule[i - 1] if i else 0.0,
+                schedule[i - 1] if i else 0.0,
                 KINK_TARGET * solver.verify_tol,
                 kink.certificate_mu(solver.energy_of(X), solver.mesh.areas.sum(), solver.verify_tol),
             )

@@ -100,6 +100,8 @@ class ReducedHessian:
         #: the slots of the diagonal entries in ``data``
         self.diag = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
         self._K = self._factor = self._slot = None
+        #: the values of the last factorised matrix (None: none, or it failed)
+        self._factored = None
         self.reuse = bk.choose_reuse(nf, self.backend)
         #: whether the kept factorisation is a Newton step's, which a later Newton step may re-use, and whether
         #: CG on it stalled since :meth:`forget`
@@ -108,7 +110,8 @@ class ReducedHessian:
         self.kernel = "numba"
 
     def __getstate__(self):
-        return {**self.__dict__, "_K": None, "_factor": None, "_slot": None, "_stale": False, "_stalled": 0}
+        state = {"_K": None, "_factor": None, "_factored": None, "_slot": None, "_stale": False, "_stalled": 0}
+        return {**self.__dict__, **state}
 
     @property
     def slot(self):
@@ -172,10 +175,22 @@ class ReducedHessian:
         self._stale, self._stalled = False, 0
 
     def factorise(self, K, b):
-        """Factorise K (upper CSC) with the back end, keeping the factorisation; K⁻¹ b."""
+        """Factorise K (upper CSC) with the back end, keeping the factorisation; K⁻¹ b.
+
+        A K equal value for value to the last one factorised (the verification at the point where the held μ = 0
+        stage ended on the same matrix) re-uses its factors: the same solution and inertia, bit for bit."""
         if self.backend == "splu":  # pragma: no cover - exercised only without qdldl
             lu = sla.splu((K + sp.triu(K, 1).T).tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
             return lu.solve(b)
+        if self._factored is not None and np.array_equal(self._factored, K.data):
+            return self._factor.solve(b)
+        self._factored = None
+        x = self._factorise(K, b)
+        self._factored = K.data.copy()
+        return x
+
+    def _factorise(self, K, b):
+        """:meth:`factorise` without the re-use: the back end's numeric factorisation."""
         if self.backend == "pardiso":
             if self._factor is None:
                 self._factor = bk.PardisoLDL(K)
