@@ -136,3 +136,16 @@ def test_boundary_points_off_the_outline_are_refused():
     outer = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
     with pytest.raises(ValueError, match=r"boundary_points\[0\] is 0.1 from the outline"):
         triangulate(outer, n_vertices=80, boundary_points=[[1.0, 0.1]])
+
+
+def test_a_3d_patch_is_placed_on_the_coarse_mesh():
+    """bar_3d's end-face patch: at every region vertex each member is a coarse vertex at the same rest position."""
+    shape = dop.shapes.load("bar_3d", 936)
+    pr = placement_regions(shape, radius=0.08 * shape.mesh.bbox_diagonal)
+    used, lv, _ = joint_level(shape, pr, "multilevel")
+    assert used == "multilevel" and lv.coarse.mesh.n_vertices < shape.mesh.n_vertices / 2
+    assert len(pr.members[0]) > 1
+    for v in pr.vertices[0]:
+        h = pr.handles_at(np.array([v]))
+        at = lv.at(h)
+        assert np.array_equal(at.coarse.mesh.V[at.coarse.handles], shape.mesh.V[h])

@@ -312,11 +312,12 @@ def budget_samples(record, factor=BUDGET):
     """The joint m within a budget of ``factor`` fixed-P trainings: ``factor`` × the samples of ``record`` (the
     fixed-P training's record, e.g. ``dop.train(shape, m=200)``).
 
-    A joint sample is one solve from the rest pose on the fine mesh; a fixed-P sample's solves (its rounds, on the
-    coarse mesh under the multilevel policy, then one fine run from the prolongated minimum) cost about as much:
-    on the bar 19 ms against 22 ms of CPU per sample. So the rule spends about ``factor`` times the fixed-P
-    training's CPU seconds, and it is a count, the same m on every machine (the lesson and ``bench_movable.py``
-    print the CPU seconds each side took).
+    A joint sample runs, under :func:`train_movable`'s default policy, what a fixed-P sample runs under
+    ``dop.train``'s: its portfolio on the coarse mesh (the rest pose; the placement's handles at their coarse
+    vertices), then one fine run from the prolongated minimum, with the same safeguard. It still builds its own
+    fine solver (the handles differ per sample), so it costs more than a fixed-P sample wherever that setup
+    dominates: the rule is a count, the same m on every machine, not a bound on CPU seconds (the lesson and
+    ``bench_movable.py`` print the CPU seconds each side took; ``bench_movable_policy.py`` both policies).
 
     Raises
     ------
