@@ -29,7 +29,7 @@ def bar():
 def test_every_placement_is_on_the_coarse_mesh(bar):
     """Each region vertex (those on the outline too) is a coarse vertex at the same rest position, bit for bit."""
     shape, pr = bar
-    used, lv, why = joint_level(shape, pr, "auto")
+    used, lv, why = joint_level(shape, pr, "multilevel")
     assert used == "multilevel" and why == ""
     on = distance_to_outline(shape.mesh.V[pr.vertices[0]], shape.outline) < 1e-9
     assert on.any() and (~on).any()  # the bar's region reaches its end face
@@ -74,18 +74,20 @@ def test_joint_samples_reach_the_full_policys_minima(bar, tmp_path, monkeypatch)
         assert solver.verify(xm, solver.targets_of(xm[pr.handles_at(i)])).ok
 
 
-def test_train_movable_runs_through_the_coarse_level_by_default(bar, tmp_path, monkeypatch):
+def test_train_movable_records_the_policy(bar, tmp_path, monkeypatch):
+    """The record says which policy ran, the safeguard's rule per sample and the coarse mesh; in 2D ``auto`` runs
+    one level and says why."""
     monkeypatch.setenv("DEFOP_CACHE", str(tmp_path))
     shape, pr = bar
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        _, rec = train_movable(shape, pr, m=8, seed=2, n_jobs=1, progress=False)
-        _, full = train_movable(shape, pr, m=8, seed=2, n_jobs=1, progress=False, policy="full")
-        _, again = train_movable(shape, pr, m=8, seed=2, n_jobs=1, progress=False)
-    assert rec.policy == "multilevel" and full.policy == "full"
+        _, rec = train_movable(shape, pr, m=8, seed=2, n_jobs=1, progress=False, policy="multilevel")
+        _, auto = train_movable(shape, pr, m=8, seed=2, n_jobs=1, progress=False)
+        _, again = train_movable(shape, pr, m=8, seed=2, n_jobs=1, progress=False, policy="multilevel")
+    assert rec.policy == "multilevel" and auto.policy == "full" and "2D" in auto.multilevel["fallback"]
     assert len(rec.multilevel["rule"]) == 8 and set(rec.multilevel["rule"]) <= {"", *ml.RULES}
     assert rec.multilevel["coarse_vertices"] < shape.mesh.n_vertices and rec.multilevel["fallback"] == ""
-    assert "rule" not in full.multilevel
+    assert "rule" not in auto.multilevel
     assert np.array_equal(again.X, rec.X) and again.multilevel == rec.multilevel  # the cached truth, its record
     with pytest.raises(ValueError, match="policy"):
         train_movable(shape, pr, m=8, n_jobs=1, progress=False, policy="coarse")
@@ -104,11 +106,12 @@ def test_the_policy_is_part_of_the_cache_key(bar, tmp_path, monkeypatch):
     n = entries()
     solve_joint(shape, pr, idx, Q, n_jobs=1, progress=False, policy="multilevel")
     assert entries() == n + 1
-    solve_joint(shape, pr, idx, Q, n_jobs=1, progress=False, policy="auto")  # auto runs multilevel: a hit
+    solve_joint(shape, pr, idx, Q, n_jobs=1, progress=False, policy="auto")  # auto runs full in 2D: a hit
     assert entries() == n + 1
 
 
 def test_a_shape_without_a_coarse_level_runs_full_and_says_why():
+    """Multilevel asked for, no coarse mesh (too few vertices): one level, the reason returned (and warned)."""
     shape = dop.shapes.from_polygon(
         np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]]),
         handles=np.array([[1.8, 0.5], [0.1, 0.5]]),
@@ -116,7 +119,8 @@ def test_a_shape_without_a_coarse_level_runs_full_and_says_why():
         n_vertices=200,
         regions=[{"kind": "disc", "radius": 0.1}],
     )
-    used, lv, why = joint_level(shape, placement_regions(shape, [0], radius=0.15), "auto")
+    with pytest.warns(ml.MultilevelWarning, match="runs on one level"):
+        used, lv, why = joint_level(shape, placement_regions(shape, [0], radius=0.15), "multilevel")
     assert used == "full" and lv is None and "saves nothing" in why
 
 
@@ -142,7 +146,7 @@ def test_a_3d_patch_is_placed_on_the_coarse_mesh():
     """bar_3d's end-face patch: at every region vertex each member is a coarse vertex at the same rest position."""
     shape = dop.shapes.load("bar_3d", 936)
     pr = placement_regions(shape, radius=0.08 * shape.mesh.bbox_diagonal)
-    used, lv, _ = joint_level(shape, pr, "multilevel")
+    used, lv, _ = joint_level(shape, pr, "auto")  # the default in 3D: two levels
     assert used == "multilevel" and lv.coarse.mesh.n_vertices < shape.mesh.n_vertices / 2
     assert len(pr.members[0]) > 1
     for v in pr.vertices[0]:

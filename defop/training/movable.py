@@ -109,10 +109,20 @@ def _joint_key(shape, placement, idx, Q, energy, lv=None):
     )
 
 
+#: ``policy="auto"`` of the joint solves runs two levels in these dimensions only. A joint sample builds its own
+#: solvers on both levels (its handles differ), so the coarse level saves less than it does for a fixed-P sample:
+#: measured side by side on the same samples (benchmarks/README.md), the two levels took 1.32x fewer CPU s on bar_3d
+#: (936 vertices) but 1.3x more on the bar (596) and 1.15x more on the aleph (2,810).
+JOINT_AUTO_DIMS = (3,)
+
+
 def joint_level(shape, placement, policy="auto"):
-    """The policy that runs the joint solves (:func:`defop.training.multilevel.choose`), the coarse mesh holding
-    every vertex a movable handle's patch member may sit on (:attr:`PlacementRegions.layout`), so that each
-    placement's handles are coarse vertices too: ``(used, level or None, why)``."""
+    """The policy that runs the joint solves (:func:`defop.training.multilevel.choose`; ``"auto"``: two levels in
+    :data:`JOINT_AUTO_DIMS` only), the coarse mesh holding every vertex a movable handle's patch member may sit on
+    (:attr:`PlacementRegions.layout`), so that each placement's handles are coarse vertices too:
+    ``(used, level or None, why)``."""
+    if policy == "auto" and shape.mesh.dim not in JOINT_AUTO_DIMS:
+        return "full", None, f"auto: joint samples run on one level in {shape.mesh.dim}D (JOINT_AUTO_DIMS)"
     where = np.concatenate([lay.ravel() for lay in placement.layout])
     return ml.choose(shape, policy, vertices=where)
 
@@ -122,10 +132,11 @@ def solve_joint(shape, placement, idx, Q, energy="sarap", n_jobs=None, progress=
 
     Each sample is solved by the sample engine (:func:`defop.training.solves.solve` with the handles per sample),
     cached and checkpointed: ``policy="full"`` (default) from the rest pose on the mesh itself; ``"multilevel"``
-    and ``"auto"`` as a fixed-P training's multilevel policy (:mod:`defop.training.multilevel`) with the rest pose
-    as the coarse portfolio: the rest-pose solve on the coarse mesh (the placement's handles at their coarse
-    vertices, :func:`joint_level`), one fine run from the prolongated minimum, the same safeguard and verification
-    (falling back per sample to the fine rest pose and the prolongated start, the lowest verified minimum kept).
+    (and ``"auto"`` where :func:`joint_level` picks it) as a fixed-P training's multilevel policy
+    (:mod:`defop.training.multilevel`) with the rest pose as the coarse portfolio: the rest-pose solve on the coarse
+    mesh (the placement's handles at their coarse vertices, :func:`joint_level`), one fine run from the prolongated
+    minimum, the same safeguard and verification (falling back per sample to the fine rest pose and the prolongated
+    start, the lowest verified minimum kept).
 
     Returns
     -------
@@ -263,7 +274,8 @@ def train_movable(
     policy="auto",
 ):
     """Sample (P_k, Q_k), solve problem (6) at each (cached; :func:`solve_joint` under ``policy``, default
-    ``"auto"`` as :func:`defop.training.bootstrap.train`: through the coarse level wherever one exists), fit
+    ``"auto"``: through the coarse level wherever one exists in the dimensions where that saves CPU seconds,
+    :func:`joint_level`), fit
     D(x; P, Q) (:func:`defop.operator.movable.fit_movable`; ``centres``: how many TPS centres, default one per
     sample, :func:`defop.operator.fit.centre_count`).
 
