@@ -7,7 +7,7 @@ with its ratio and target:
 
 * budget: the joint m is 5x the samples of one fixed-P training at m = 200 (``dop.train``, no cache;
   :func:`defop.training.movable.budget_samples`, one rule for every shape, a count rather than a time: a joint
-  sample's one fine solve costs about what a fixed-P sample's solves cost); the CPU s
+  sample runs through the coarse level as a fixed-P sample does, ``train_movable``'s default policy); the CPU s
   of the joint training (sampling, solves, fit; no cache) over that fixed-P training's are printed beside it;
 * error: mean (8a)/n per held-out frame of the joint operator (design A, TPS over (P, Q − P) with the correction),
   of the carried nominal operator (design B, :class:`defop.operator.movable.CarryOp`), of fixed-P operators

@@ -25,6 +25,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .planar.meshing import triangulate
+from .planar.polygon import diagonal, distance_to_outline
 from .volumetric.coarsening import coarse_solid_mesh, spacing_factor
 
 __all__ = [
@@ -41,6 +42,8 @@ __all__ = [
 #: outline, resampled at the coarse spacing, cuts corners and the ends of thin limbs by up to about one spacing: 0.84
 #: at an octopus tip at 1/8 of the vertices); farther means the coarse mesh lost a part of the shape
 OUTSIDE = 1.0
+#: a point within this share of the bounding-box diagonal of the outline lies on it (Triangle's own bound for points)
+ON_OUTLINE = 1e-6
 
 
 class CoarseningError(ValueError):
@@ -74,7 +77,9 @@ def coarse_planar_mesh(loops, points, n_vertices):
     loops : list of (k, 2) numpy array
         The outline the fine mesh was made from: outer loop first, then the holes.
     points : (h, 2) numpy array
-        The handle points (rest positions); each becomes a vertex of the coarse mesh.
+        The handle points (rest positions); each becomes a vertex of the coarse mesh. Points on the outline (within
+        :data:`ON_OUTLINE` of the diagonal: a fine boundary vertex where a movable handle may sit) become outline
+        vertices.
     n_vertices : int
         About how many vertices the coarse mesh gets.
 
@@ -92,8 +97,11 @@ def coarse_planar_mesh(loops, points, n_vertices):
     if not loops:
         raise CoarseningError("the shape has no outline to mesh coarsely (a mesh given as V, F)")
     points = np.asarray(points, float)
+    on = distance_to_outline(points, loops) <= ON_OUTLINE * diagonal(np.vstack(loops))
     try:
-        mesh = triangulate(loops[0], list(loops[1:]), points=points, n_vertices=int(n_vertices))
+        mesh = triangulate(
+            loops[0], list(loops[1:]), points=points[~on], n_vertices=int(n_vertices), boundary_points=points[on]
+        )
     except ValueError as exc:
         raise CoarseningError(f"Triangle cannot mesh the outline with about {n_vertices} vertices: {exc}") from exc
     idx, dist = mesh.nearest_vertex(points)

@@ -20,8 +20,9 @@ from ..scene.placement import PlacementRegions
 from ..scene.shapes import Shape
 from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning
-from . import batch, solves
+from . import batch, portfolios, solves
 from . import cache as cache_mod
+from . import multilevel as ml
 from .sampling import sample_shape
 
 
@@ -91,19 +92,51 @@ def check_joint(shape, placement, idx, Q):
     return idx, Q
 
 
-def _joint_key(shape, placement, idx, Q, energy):
-    """The cache key of the joint solves: mesh, handles, placement regions, energy, solver settings, samples."""
+def _joint_key(shape, placement, idx, Q, energy, lv=None):
+    """The cache key of the joint solves: mesh, handles, placement regions, energy, solver settings, samples; under
+    the multilevel policy (``lv``, the coarse level) also its constants, its portfolio and the coarse mesh with the
+    vertices the handles map to (the full policy's key is what it always was)."""
     mesh = shape.mesh
     regions = placement.to_arrays().values()
     settings = solves.solver_key(shape, energy)
-    return cache_mod.key("gt-movable", mesh.V, mesh.F, shape.handles, shape.moving, *regions, energy, settings, idx, Q)
+    policy = []
+    if lv is not None:
+        coarse = lv.coarse.mesh
+        what = {"policy": "multilevel", "coarse portfolio": "rest", **ml.constants()}
+        policy = [what, coarse.V, coarse.F, lv.fine_vertices, lv.coarse_vertices]
+    return cache_mod.key(
+        "gt-movable", mesh.V, mesh.F, shape.handles, shape.moving, *regions, energy, settings, idx, Q, *policy
+    )
 
 
-def solve_joint(shape, placement, idx, Q, energy="sarap", n_jobs=None, progress=True, cache=True):
+#: ``policy="auto"`` of the joint solves runs two levels in these dimensions only. A joint sample builds its own
+#: solvers on both levels (its handles differ), so the coarse level saves less than it does for a fixed-P sample:
+#: measured side by side on the same samples (benchmarks/README.md), the two levels took 1.32x fewer CPU s on bar_3d
+#: (936 vertices) but 1.3x more on the bar (596) and 1.15x more on the aleph (2,810).
+JOINT_AUTO_DIMS = (3,)
+
+
+def joint_level(shape, placement, policy="auto"):
+    """The policy that runs the joint solves (:func:`defop.training.multilevel.choose`; ``"auto"``: two levels in
+    :data:`JOINT_AUTO_DIMS` only), the coarse mesh holding every vertex a movable handle's patch member may sit on
+    (:attr:`PlacementRegions.layout`), so that each placement's handles are coarse vertices too:
+    ``(used, level or None, why)``."""
+    if policy == "auto" and shape.mesh.dim not in JOINT_AUTO_DIMS:
+        return "full", None, f"auto: joint samples run on one level in {shape.mesh.dim}D (JOINT_AUTO_DIMS)"
+    where = np.concatenate([lay.ravel() for lay in placement.layout])
+    return ml.choose(shape, policy, vertices=where)
+
+
+def solve_joint(shape, placement, idx, Q, energy="sarap", n_jobs=None, progress=True, cache=True, policy="full"):
     """The verified solutions of problem (6) at joint samples (handles at ``idx`` (m, b), targets Q (m, n, d)).
 
-    Each sample is solved from the rest pose by the sample engine (:func:`defop.training.solves.solve` with the
-    handles per sample), cached and checkpointed.
+    Each sample is solved by the sample engine (:func:`defop.training.solves.solve` with the handles per sample),
+    cached and checkpointed: ``policy="full"`` (default) from the rest pose on the mesh itself; ``"multilevel"``
+    (and ``"auto"`` where :func:`joint_level` picks it) as a fixed-P training's multilevel policy
+    (:mod:`defop.training.multilevel`) with the rest pose as the coarse portfolio: the rest-pose solve on the coarse
+    mesh (the placement's handles at their coarse vertices, :func:`joint_level`), one fine run from the prolongated
+    minimum, the same safeguard and verification (falling back per sample to the fine rest pose and the prolongated
+    start, the lowest verified minimum kept).
 
     Returns
     -------
@@ -114,24 +147,55 @@ def solve_joint(shape, placement, idx, Q, energy="sarap", n_jobs=None, progress=
     ------
     ValueError
         Before any solve: Q not (m, n, d) for the n moving handles (one target each, no broadcast) or not finite;
-        idx not (m, b) whole vertex indices in their regions; idx and Q of different lengths.
+        idx not (m, b) whole vertex indices in their regions; idx and Q of different lengths; an unknown policy.
     """
-    return _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache)[:2]
+    return _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache, policy)[:2]
 
 
-def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache):
+def _multilevel_joint(lv, Q, handles, energy, n_jobs, progress, ck, key):
+    """The joint samples under the multilevel policy: (the truth's arrays, CPU seconds spent in other processes)."""
+    clock = solves.Stopwatch()
+    coarse = [lv.coarse_of(h) for h in handles]
+    run = clock.add(
+        solves.solve(
+            lv.coarse,
+            Q,
+            energy,
+            handles=coarse,
+            keep="all",
+            n_jobs=n_jobs,
+            progress=progress,
+            desc="coarse joint solves",
+        )
+    )
+    key_of = None if ck is None else lambda a, b: cache_mod.key("ml-fine-movable", key, a, b)
+    X, conv, info, remote = portfolios.refine(
+        lv, Q, energy, run.runs, ml.refine_one, ml.RULES, n_jobs, progress, ck, key_of, handles=handles
+    )
+    clock.remote += remote
+    rule = np.array([ml.RULES.index(r) + 1 if r else 0 for r in info["rule"]], np.int64)
+    return {"X": X, "converged": conv, "cpu_seconds": np.array([clock.cpu]), "rule": rule}, clock.remote
+
+
+def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache, policy="full"):
     """:func:`solve_joint` plus the CPU seconds its solves spent in other processes (now) and in all (when they
-    ran, also after a cache hit)."""
+    ran, also after a cache hit), the policy that ran and its record (:attr:`MovableRecord.multilevel`)."""
     en.check_energy(energy)
+    opt.choice("policy", policy, ml.POLICIES)
     check_placement(shape, placement)
     idx, Q = check_joint(shape, placement, idx, Q)
+    used, lv, why = joint_level(shape, placement, policy)
     mesh, store = shape.mesh, cache_mod.open_cache(cache)
-    key = None if store is None else _joint_key(shape, placement, idx, Q, energy)
+    key = None if store is None else _joint_key(shape, placement, idx, Q, energy, lv)
     ck = None if store is None else batch.Checkpoints(store)
-    handles = [placement.handles_at(i) for i in idx]  # a movable handle's patch moves with it
+    handles = np.array([placement.handles_at(i) for i in idx])  # a movable handle's patch moves with it
     spent = []
 
     def compute():  # the solves' CPU seconds are kept with the truth (MovableRecord.solve_cpu_seconds)
+        if lv is not None:
+            arrays, remote = _multilevel_joint(lv, Q, handles, energy, n_jobs, progress, ck, key)
+            spent.append(remote)
+            return arrays
         r = solves.solve(
             shape,
             Q,
@@ -150,14 +214,21 @@ def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache):
     if ck is not None:
         ck.discard()
     solve_cpu = float(gt["cpu_seconds"][0]) if "cpu_seconds" in gt else float("nan")  # NaN: stored without it
-    return gt["X"], gt["converged"], sum(spent), solve_cpu
+    info = {"fallback": why}
+    if lv is not None:
+        info["rule"] = ["" if r == 0 else ml.RULES[r - 1] for r in gt["rule"]]
+        info["coarse_vertices"] = lv.coarse.mesh.n_vertices
+    return gt["X"], gt["converged"], sum(spent), solve_cpu, used, info
 
 
 @dataclasses.dataclass
 class MovableRecord:
     """What :func:`train_movable` did: the joint samples, their truth, the wall seconds it took and its CPU seconds
     (summed over every process that solved), the CPU seconds of the joint solves when they ran (kept in the cache
-    with the truth, so the same after a cache hit; NaN for a truth cached without them) and of the fit."""
+    with the truth, so the same after a cache hit; NaN for a truth cached without them) and of the fit, the policy
+    of the solves (``"full"`` or ``"multilevel"``) and, as ``TrainingRecord.multilevel``, why one level ran where
+    two were asked for (``"fallback"``) and under the multilevel policy the safeguard's rule per sample (``"rule"``,
+    "" where none fired) and the coarse mesh's vertex count (``"coarse_vertices"``)."""
 
     idx: np.ndarray
     Q: np.ndarray
@@ -167,6 +238,8 @@ class MovableRecord:
     cpu_seconds: float = 0.0
     solve_cpu_seconds: float = float("nan")
     fit_cpu_seconds: float = 0.0
+    policy: str = "full"
+    multilevel: dict = dataclasses.field(default_factory=dict)
 
 
 def check_placement(shape, placement):
@@ -188,11 +261,23 @@ def check_placement(shape, placement):
 
 
 def train_movable(
-    shape, placement, energy="sarap", m=400, seed=0, n_q=1, n_jobs=None, cache=True, progress=True, centres="auto"
+    shape,
+    placement,
+    energy="sarap",
+    m=400,
+    seed=0,
+    n_q=1,
+    n_jobs=None,
+    cache=True,
+    progress=True,
+    centres="auto",
+    policy="auto",
 ):
-    """Sample (P_k, Q_k), solve problem (6) at each (cached), fit D(x; P, Q) (:func:`defop.operator.movable
-    .fit_movable`; ``centres``: how many TPS centres, default one per sample, :func:`defop.operator.fit
-    .centre_count`).
+    """Sample (P_k, Q_k), solve problem (6) at each (cached; :func:`solve_joint` under ``policy``, default
+    ``"auto"``: through the coarse level wherever one exists in the dimensions where that saves CPU seconds,
+    :func:`joint_level`), fit
+    D(x; P, Q) (:func:`defop.operator.movable.fit_movable`; ``centres``: how many TPS centres, default one per
+    sample, :func:`defop.operator.fit.centre_count`).
 
     Returns
     -------
@@ -203,10 +288,13 @@ def train_movable(
     m = opt.integer("m", m, minimum=2)
     n_q = opt.integer("n_q", n_q, minimum=1)
     opt.seed(seed)
+    opt.choice("policy", policy, ml.POLICIES)
     check_placement(shape, placement)
     clock = solves.Stopwatch()
     idx, Q = sample_joint(shape, placement, -(-m // n_q), np.random.default_rng(seed), n_q)
-    X, conv, remote, solve_cpu = _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache)
+    X, conv, remote, solve_cpu, used, info = _solve_joint(
+        shape, placement, idx, Q, energy, n_jobs, progress, cache, policy
+    )
     clock.remote += remote
     if not conv.all():
         warnings.warn(
@@ -217,7 +305,7 @@ def train_movable(
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
     fitting = solves.Stopwatch()
     op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta, centres=centres)
-    return op, MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu)
+    return op, MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, info)
 
 
 #: the budget of a joint training, in fixed-P trainings (at m = 200, the 2D default)
@@ -236,11 +324,12 @@ def budget_samples(record, factor=BUDGET):
     """The joint m within a budget of ``factor`` fixed-P trainings: ``factor`` × the samples of ``record`` (the
     fixed-P training's record, e.g. ``dop.train(shape, m=200)``).
 
-    A joint sample is one solve from the rest pose on the fine mesh; a fixed-P sample's solves (its rounds, on the
-    coarse mesh under the multilevel policy, then one fine run from the prolongated minimum) cost about as much:
-    on the bar 19 ms against 22 ms of CPU per sample. So the rule spends about ``factor`` times the fixed-P
-    training's CPU seconds, and it is a count, the same m on every machine (the lesson and ``bench_movable.py``
-    print the CPU seconds each side took).
+    A joint sample runs, under :func:`train_movable`'s default policy, what a fixed-P sample runs under
+    ``dop.train``'s: its portfolio on the coarse mesh (the rest pose; the placement's handles at their coarse
+    vertices), then one fine run from the prolongated minimum, with the same safeguard. It still builds its own
+    fine solver (the handles differ per sample), so it costs more than a fixed-P sample wherever that setup
+    dominates: the rule is a count, the same m on every machine, not a bound on CPU seconds (the lesson and
+    ``bench_movable.py`` print the CPU seconds each side took; ``bench_movable_policy.py`` both policies).
 
     Raises
     ------

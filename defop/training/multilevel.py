@@ -47,6 +47,7 @@ import warnings
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from .. import options as opt
 from ..geometry.coarse import CoarseningError, coarse_mesh_of, prolongate
@@ -59,6 +60,7 @@ __all__ = [
     "COARSE_FACTOR",
     "MARGIN",
     "MAX_FINE_ITERATIONS",
+    "OUTLINE_REACH",
     "REST_TOLERANCE",
     "MultilevelWarning",
     "POLICIES",
@@ -69,6 +71,7 @@ __all__ = [
     "coarse_portfolio",
     "coarse_constants",
     "has_coarse_level",
+    "outline_neighbours",
     "constants",
     "refine",
     "rest_start_energy",
@@ -88,6 +91,9 @@ AUTO_VERTICES = 0
 COARSE_FACTOR = 8
 #: ... and at least this many
 MIN_COARSE_VERTICES = 150
+#: a movable handle's coarse level also keeps the fine boundary vertices within this many coarse spacings of where
+#: the handle may sit (:func:`outline_neighbours`)
+OUTLINE_REACH = 2.0
 #: safeguard "margin": two distinct coarse minima within this relative energy of each other
 MARGIN = 0.05
 #: coarse minima farther apart than this fraction of the bounding-box diagonal (any vertex) are distinct
@@ -136,17 +142,69 @@ class CoarseLevel:
     fine: Shape
     coarse: Shape
     P: sp.csr_matrix
+    #: (k,) int numpy array: the fine vertices that are coarse vertices too (the handles, and with ``vertices`` given
+    #: to :func:`coarse_level` every vertex a handle may be placed at), sorted; and (k,) the coarse vertex of each
+    fine_vertices: np.ndarray = None
+    coarse_vertices: np.ndarray = None
 
     def prolongate(self, Xc):
         """(n_c, d) coarse map -> (n, d) fine map: rest to rest and handles to handles exactly."""
         return prolongate(self.P, self.fine.mesh.V, self.coarse.mesh.V, Xc, self.fine.handles, self.coarse.handles)
 
+    def coarse_of(self, vertices):
+        """(k,) int numpy array: the coarse vertex at each fine vertex of ``vertices`` (k,) (the same rest position).
 
-def coarse_level(shape):
-    """The :class:`CoarseLevel` of a shape; :class:`~defop.geometry.coarse.CoarseningError` where none exists."""
-    mesh, idx, P = coarse_mesh_of(shape.mesh, shape.outline, shape.P, COARSE_FACTOR, MIN_COARSE_VERTICES)
-    coarse = Shape(f"{shape.name} (coarse)", mesh, idx, shape.moving.copy(), list(shape.regions), shape.description)
-    return CoarseLevel(shape, coarse, P)
+        Raises
+        ------
+        ValueError
+            A vertex that is not a coarse vertex (not among :attr:`fine_vertices`).
+        """
+        v = np.asarray(vertices, np.int64)
+        pos = np.clip(np.searchsorted(self.fine_vertices, v), 0, len(self.fine_vertices) - 1)
+        bad = v[self.fine_vertices[pos] != v]
+        if len(bad):
+            raise ValueError(f"fine vertex {int(bad[0])} is not a vertex of the coarse mesh (no handle may sit there)")
+        return self.coarse_vertices[pos]
+
+    def at(self, handles):
+        """The same two meshes with the handles at fine vertices ``handles`` (h,) and at their coarse vertices (a
+        movable handle placed: :func:`coarse_level` with ``vertices`` holding them)."""
+        fine = dataclasses.replace(self.fine, handles=handles)
+        return dataclasses.replace(
+            self, fine=fine, coarse=dataclasses.replace(self.coarse, handles=self.coarse_of(handles))
+        )
+
+
+def coarse_level(shape, vertices=None):
+    """The :class:`CoarseLevel` of a shape; :class:`~defop.geometry.coarse.CoarseningError` where none exists.
+
+    ``vertices`` ((k,) int, optional): fine vertices that become coarse vertices too, beside the handles (where a
+    movable handle may sit: :meth:`CoarseLevel.at` then places the handles on both meshes).
+    """
+    extra = np.setdiff1d(outline_neighbours(shape.mesh, vertices), shape.handles)
+    points = np.concatenate([shape.P, shape.mesh.V[extra]])
+    mesh, idx, P = coarse_mesh_of(shape.mesh, shape.outline, points, COARSE_FACTOR, MIN_COARSE_VERTICES)
+    h = len(shape.handles)
+    coarse = Shape(f"{shape.name} (coarse)", mesh, idx[:h], shape.moving.copy(), list(shape.regions), shape.description)
+    kept = np.concatenate([shape.handles, extra])
+    order = np.argsort(kept)
+    return CoarseLevel(shape, coarse, P, kept[order], np.asarray(idx, np.int64)[order])
+
+
+def outline_neighbours(mesh, vertices):
+    """``vertices`` (k,) and, on a planar mesh, the boundary vertices within :data:`OUTLINE_REACH` coarse spacings
+    (about sqrt(:data:`COARSE_FACTOR`) fine edges) of one of them, sorted (an empty array for None): the coarse
+    outline then runs through the fine one around them, so a vertex near the boundary is not cut off by a coarse
+    chord."""
+    v = np.unique(np.asarray([] if vertices is None else vertices, np.int64))
+    if not len(v) or mesh.dim != 2:
+        return v
+    B = np.asarray(mesh.boundary_vertices, np.int64)
+    E = mesh.F[:, [0, 1]]
+    edge = float(np.median(np.linalg.norm(mesh.V[E[:, 0]] - mesh.V[E[:, 1]], axis=1)))
+    reach = OUTLINE_REACH * np.sqrt(COARSE_FACTOR) * edge
+    near = cKDTree(mesh.V[v]).query(mesh.V[B], distance_upper_bound=reach)[0] <= reach
+    return np.union1d(v, B[near])
 
 
 def has_coarse_level(shape):
@@ -158,7 +216,7 @@ def has_coarse_level(shape):
     return True
 
 
-def choose(shape, policy):
+def choose(shape, policy, vertices=None):
     """The policy that runs for ``shape``: ``(used, level or None, why)``.
 
     Parameters
@@ -166,6 +224,8 @@ def choose(shape, policy):
     shape : defop.scene.shapes.Shape
     policy : str
         One of :data:`POLICIES`.
+    vertices : (k,) int numpy array, optional
+        Fine vertices the coarse mesh must hold beside the handles (:func:`coarse_level`).
 
     Returns
     -------
@@ -182,7 +242,7 @@ def choose(shape, policy):
     if policy == "auto" and n < AUTO_VERTICES:  # a lever kept at 0: every mesh with a coarse mesh
         return "full", None, f"auto: {n} vertices, fewer than {AUTO_VERTICES}"
     try:
-        lv = coarse_level(shape)
+        lv = coarse_level(shape, vertices)
     except CoarseningError as exc:  # asked for: a warning; chosen by auto: the record says it (no noise in lessons)
         if policy == "multilevel":
             warnings.warn(f"multilevel training of {shape.name!r} runs on one level: {exc}", MultilevelWarning, 3)

@@ -87,14 +87,16 @@ def portfolio(shape, samples, energy, n_jobs=None, progress=True, rounds=2, chec
     return X, conv, times, wall, runs
 
 
-def _refine_chunk(decide, lv, solver, jobs):
-    """``decide`` (:func:`defop.training.multilevel.refine_one`) per (targets, candidates) job, with its CPU seconds."""
+def _refine_chunk(decide, lv, solver, energy, jobs):
+    """``decide`` (:func:`defop.training.multilevel.refine_one`) per (targets, candidates, handles) job, with its CPU
+    seconds; a job with handles (h,) runs on ``lv.at(handles)`` with its own fine solver (built in its CPU seconds)."""
     out, pid = [], os.getpid()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotConvergedWarning)
-        for T, c in jobs:
+        for T, c, h in jobs:
             t0 = time.process_time()
-            res = decide(lv, solver, T, c)
+            level, solv = (lv, solver) if h is None else (lv.at(h), Solver(lv.fine.mesh, h, energy))
+            res = decide(level, solv, T, c)
             out.append((*res, time.process_time() - t0, pid))
     return out
 
@@ -135,7 +137,19 @@ def _refine_cache(checkpoint, key_of, n, d, rules):
     return chunk
 
 
-def refine(lv, samples, energy, candidates, decide, rules, n_jobs=None, progress=True, checkpoint=None, key_of=None):
+def refine(
+    lv,
+    samples,
+    energy,
+    candidates,
+    decide,
+    rules,
+    n_jobs=None,
+    progress=True,
+    checkpoint=None,
+    key_of=None,
+    handles=None,
+):
     """The fine stage of every sample, in parallel and checkpointed.
 
     Parameters
@@ -153,6 +167,9 @@ def refine(lv, samples, energy, candidates, decide, rules, n_jobs=None, progress
     checkpoint : defop.training.batch.Checkpoints, optional
     key_of : callable, optional
         ``key_of(a, b)``: the checkpoint key of samples a..b (everything that determines them).
+    handles : (m, h) int numpy array, optional
+        Per sample the fine handle vertices (movable handles: :meth:`defop.training.multilevel.CoarseLevel.at`,
+        ``candidates`` solved on the coarse mesh with the handles at their coarse vertices); default ``lv``'s handles.
 
     Returns
     -------
@@ -165,12 +182,17 @@ def refine(lv, samples, energy, candidates, decide, rules, n_jobs=None, progress
         CPU seconds of the runs in other processes (:class:`defop.training.solves.Stopwatch` adds this one's).
     """
     fine = lv.fine
-    solver = Solver(fine.mesh, fine.handles, energy)
-    jobs = [(fine.targets(q), c) for q, c in zip(samples, candidates)]
+    if handles is None:
+        solver = Solver(fine.mesh, fine.handles, energy)
+        jobs = [(fine.targets(q), c, None) for q, c in zip(samples, candidates)]
+    else:
+        handles = solves.check_handles(fine, handles, len(samples))
+        solver = None  # one per sample, built where it runs
+        jobs = [(solves.targets_at(fine, h, q), c, h) for q, c, h in zip(samples, candidates, handles)]
     n, d = fine.mesh.V.shape
     chunk = _refine_cache(checkpoint, key_of, n, d, tuple(rules))
     res = batch.map_checkpointed(
-        functools.partial(_refine_chunk, decide, lv, solver), jobs, n_jobs, progress, "fine runs", chunk
+        functools.partial(_refine_chunk, decide, lv, solver, energy), jobs, n_jobs, progress, "fine runs", chunk
     )
     cols = list(zip(*res))
     info = {

@@ -16,6 +16,7 @@ from ..mesh import Mesh
 from .polygon import (
     diagonal,
     distance_to_outline,
+    insert_on_outline,
     interior_point,
     points_in_polygon,
     polygon_area,
@@ -120,6 +121,22 @@ def _check_points(points, loops):
     return points
 
 
+def _check_boundary_points(points, loops):
+    """(q,2) points on the outline (within 1e-6 of the diagonal), finite; a ValueError naming ``boundary_points``."""
+    if points is None:
+        return np.zeros((0, 2))
+    points = np.asarray(opt.real_array("boundary_points", points), float).reshape(-1, 2)
+    if not np.isfinite(points).all():
+        raise ValueError("boundary_points has NaN or infinite coordinates")
+    if len(points):
+        d = distance_to_outline(points, loops)
+        tol = 1e-6 * diagonal(np.vstack(loops))
+        if d.max() > tol:
+            k = int(np.argmax(d))
+            raise ValueError(f"boundary_points[{k}] is {d[k]:.3g} from the outline (at most {tol:.3g})")
+    return points
+
+
 def _check_apart(points, tol):
     """Handles closer than ``tol`` are named (Triangle made slivers of them: "150 degenerate triangles")."""
     if len(points) < 2:
@@ -143,11 +160,12 @@ def _check_apart(points, tol):
         )
 
 
-def _resampled(loops, h):
-    """Resampled loops, validated again (a coarse spacing can make a thin part cross itself)."""
+def _resampled(loops, h, keep=None):
+    """Resampled loops (the points of ``keep`` kept where they are vertices), validated again (a coarse spacing can
+    make a thin part cross itself)."""
     if h is None:
         return loops
-    rs = [resample(L, h) for L in loops]
+    rs = [resample(L, h, keep=keep) for L in loops]
     n = sum(len(L) for L in rs)
     if n > MAX_VERTICES:
         raise ValueError(f"resampling the outline with spacing h={h:.3g} gives {n:,} points (at most {MAX_VERTICES:,})")
@@ -159,7 +177,7 @@ def _resampled(loops, h):
     return [outer, *holes]
 
 
-def triangulate(outer, holes=(), points=None, max_area=None, n_vertices=None, h=None):
+def triangulate(outer, holes=(), points=None, max_area=None, n_vertices=None, h=None, boundary_points=None):
     """Mesh a polygon with holes by Triangle (quality, conforming), with given points as vertices.
 
     Parameters
@@ -178,6 +196,9 @@ def triangulate(outer, holes=(), points=None, max_area=None, n_vertices=None, h=
         passes).
     h : float, optional
         Resample the outline with spacing ``h`` first (default: keep it).
+    boundary_points : (q,2) numpy array, optional
+        Points on the outline (within 1e-6 of the diagonal) that must be mesh vertices: inserted into the outline
+        (:func:`~defop.geometry.planar.polygon.insert_on_outline`) and kept by the resampling.
 
     Returns
     -------
@@ -192,6 +213,10 @@ def triangulate(outer, holes=(), points=None, max_area=None, n_vertices=None, h=
     outer, holes = validate_polygon(outer, holes)
     loops = [outer, *holes]
     points = _check_points(points, loops)
+    keep = _check_boundary_points(boundary_points, loops)
+    if len(keep):
+        loops = insert_on_outline(loops, keep)
+        outer = loops[0]
     area = abs(polygon_area(outer)) - sum(abs(polygon_area(H)) for H in holes)
     if n_vertices is not None:
         max_area = 1.6 * area / check_n_vertices(n_vertices)
@@ -203,10 +228,10 @@ def triangulate(outer, holes=(), points=None, max_area=None, n_vertices=None, h=
         h = opt.positive("h", h)
     # Triangle's area flag is a plain decimal: mesh tiny or huge outlines at about unit size
     s = _unit_scale(outer)
-    loops, points, area = [L * s for L in loops], points * s, area * s * s
+    loops, points, area, keep = [L * s for L in loops], points * s, area * s * s, keep * s
     max_area = None if max_area is None else max_area * s * s
     h = None if h is None else h * s
-    rs = _resampled(loops, h)
+    rs = _resampled(loops, h, keep)
     V, F = _triangle(rs[0], rs[1:], points, max_area)
     if n_vertices is not None:
         for _ in range(2):
@@ -215,6 +240,6 @@ def triangulate(outer, holes=(), points=None, max_area=None, n_vertices=None, h=
                 break
             max_area = check_max_area(max_area * ratio, area)
             h = float(np.sqrt(4 / np.sqrt(3) * max_area))
-            rs = _resampled(loops, h)
+            rs = _resampled(loops, h, keep)
             V, F = _triangle(rs[0], rs[1:], points, max_area)
     return Mesh(V / s, F)

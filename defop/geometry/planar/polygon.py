@@ -359,17 +359,55 @@ def _arclength(P):
     return np.concatenate([[0.0], np.cumsum(np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2))])
 
 
-def resample(loop, h, corner_angle=20.0):
+def insert_on_outline(loops, points):
+    """The loops with each point inserted as a vertex on its nearest edge (in order along the edge; a point at an
+    edge's end replaces that vertex), its coordinates exactly: points on the outline become outline vertices.
+
+    Parameters
+    ----------
+    loops : list of (l,2) numpy array
+    points : (k,2) numpy array
+        Points on (or within round-off of) the outline, distinct.
+
+    Returns
+    -------
+    list of (l',2) numpy array
+    """
+    pts = np.atleast_2d(np.asarray(points, float)).reshape(-1, 2)
+    A, B, loop, idx = _edges(loops)
+    out = [np.asarray(L, float).copy() for L in loops]
+    extra = [[[] for _ in L] for L in loops]  # per loop, per edge: (t, point)
+    for p in pts:
+        e = int(np.argmin(_point_segment_distance(np.repeat(p[None], len(A), axis=0), A, B)))
+        d = B[e] - A[e]
+        t = float(np.clip(np.dot(p - A[e], d) / max(np.dot(d, d), 1e-300), 0.0, 1.0))
+        a, i = int(loop[e]), int(idx[e])
+        if t <= 1e-9:
+            out[a][i] = p
+        elif t >= 1 - 1e-9:
+            out[a][(i + 1) % len(out[a])] = p
+        else:
+            extra[a][i].append((t, p))
+    return [
+        np.array([v for i, x in enumerate(L) for v in [x, *(q for _, q in sorted(ex[i], key=lambda c: c[0]))]])
+        for L, ex in zip(out, extra)
+    ]
+
+
+def resample(loop, h, corner_angle=20.0, keep=None):
     """Resample a closed polyline by arc length with spacing about ``h``, keeping its corners.
 
     Vertices where the outline turns by more than ``corner_angle`` degrees are kept exactly
-    (so a polygon's area is preserved); the pieces between them are resampled uniformly.
+    (so a polygon's area is preserved), and those equal to a point of ``keep``; the pieces between them are
+    resampled uniformly.
 
     Parameters
     ----------
     loop : (k,2) numpy array
     h : float
     corner_angle : float
+    keep : (j,2) numpy array, optional
+        Points to keep where they are vertices of the loop (:func:`insert_on_outline`).
 
     Returns
     -------
@@ -380,7 +418,10 @@ def resample(loop, h, corner_angle=20.0):
     e_out = np.roll(P, -1, axis=0) - P
     dot = e_in[:, 0] * e_out[:, 0] + e_in[:, 1] * e_out[:, 1]
     cosang = dot / np.sqrt((e_in[:, 0] ** 2 + e_in[:, 1] ** 2) * (e_out[:, 0] ** 2 + e_out[:, 1] ** 2))
-    corners = np.flatnonzero(cosang < np.cos(np.radians(corner_angle)))
+    sharp = cosang < np.cos(np.radians(corner_angle))
+    if keep is not None and len(keep):
+        sharp |= (P[:, None, :] == np.asarray(keep, float)[None]).all(axis=2).any(axis=1)
+    corners = np.flatnonzero(sharp)
     if len(corners) == 0:
         Pc = np.vstack([P, P[:1]])
         s = _arclength(Pc)
