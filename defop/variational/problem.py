@@ -100,6 +100,8 @@ class ReducedHessian:
         #: the slots of the diagonal entries in ``data``
         self.diag = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
         self._K = self._factor = self._slot = None
+        #: the values of the K factorised last (None: no factorisation kept)
+        self._values = None
         self.reuse = bk.choose_reuse(nf, self.backend)
         #: whether the kept factorisation is a Newton step's, which a later Newton step may re-use, and whether
         #: CG on it stalled since :meth:`forget`
@@ -108,7 +110,15 @@ class ReducedHessian:
         self.kernel = "numba"
 
     def __getstate__(self):
-        return {**self.__dict__, "_K": None, "_factor": None, "_slot": None, "_stale": False, "_stalled": 0}
+        return {
+            **self.__dict__,
+            "_K": None,
+            "_factor": None,
+            "_slot": None,
+            "_values": None,
+            "_stale": False,
+            "_stalled": 0,
+        }
 
     @property
     def slot(self):
@@ -155,14 +165,19 @@ class ReducedHessian:
         Then the last Newton step's factorisation preconditions conjugate gradients
         (:func:`defop.variational.backend.pcg`, to a relative residual of ``reuse``), and K is factorised only
         when they stall. A solve with ``reuse=False`` (the inertia of the verification and the kink's pull) always
-        factorises, so :meth:`inertia` is K's own; call :meth:`forget` where a new solve begins."""
+        has K's own factorisation, so :meth:`inertia` is K's; call :meth:`forget` where a new solve begins. A K equal
+        value for value to the one factorised last is not factorised again: the verification's exact Hessian, at
+        the point where the solve's last held Newton system was just factorised, costs one back-substitution."""
         K = self.matrix(data, rel_shift)
         if reuse and self.reuse and self._stale and self._stalled < bk.REUSE_STALLS:
             found = bk.pcg(K, b, self._factor.solve, reuse)
             self._stalled = 0 if found is not None else self._stalled + 1
             if found is not None:
                 return found[0]
-        x = self.factorise(K, b)
+        if self._values is not None and np.array_equal(K.data, self._values):
+            x = self._factor.solve(b)  # K was factorised last: a factorisation is a deterministic function of K
+        else:
+            x = self.factorise(K, b)
         self._stale = bool(reuse and self.reuse)
         return x
 
@@ -173,6 +188,7 @@ class ReducedHessian:
 
     def factorise(self, K, b):
         """Factorise K (upper CSC) with the back end, keeping the factorisation; K⁻¹ b."""
+        self._values = None  # until the new factorisation exists
         if self.backend == "splu":  # pragma: no cover - exercised only without qdldl
             lu = sla.splu((K + sp.triu(K, 1).T).tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
             return lu.solve(b)
@@ -180,11 +196,11 @@ class ReducedHessian:
             if self._factor is None:
                 self._factor = bk.PardisoLDL(K)
             self._factor.factor(K)
-            return self._factor.solve(b)
-        if self._factor is None:
+        elif self._factor is None:
             self._factor = bk.qdldl.Solver(K, upper=True)
         else:
             self._factor.update(K, upper=True)
+        self._values = K.data.copy()
         return self._factor.solve(b)
 
     def inertia(self):
