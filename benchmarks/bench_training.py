@@ -185,6 +185,8 @@ def report(results):
                 f"{w['factorisations']} factorisations ({w['factorisations'] / m:.1f} a sample), {w['pcg']} CG solves "
                 f"({w['cg']} iterations), {w['stalls']} stalls; {r['cpu'] / m:.2f} CPU s a sample"
             )
+        if r.get("stages"):
+            print(f"  {name:>10}: CPU s by stage " + ", ".join(f"{k} {v:.1f}" for k, v in r["stages"].items()))
         if r.get("rules"):
             med, top = r["fine_iterations"]
             print(
@@ -406,6 +408,7 @@ def child(spec):
     out = {"cpu": cpu, "wall": wall, "peak_mb": peak, "backend": _backend(shape) + reuse, "energies": energies}
     out["work"], out["m"], out["n_vertices"] = work, len(rec.X), shape.mesh.n_vertices
     out["converged"] = int(np.sum(rec.converged))
+    out["stages"] = {k: float(v) for k, v in (getattr(rec, "stage_times", None) or {}).items()}  # CPU s per stage
     ml = getattr(rec, "multilevel", None) or {}
     if ml.get("rule"):  # the multilevel fine stage: which safeguard rule fired per sample, the single runs' iterations
         out["rules"] = {r: int(n) for r, n in zip(*np.unique([r or "none" for r in ml["rule"]], return_counts=True))}
