@@ -164,3 +164,28 @@ def test_a_matrix_pardiso_cannot_factorise_gives_nan_not_an_exception():
         assert np.isnan(x).all()
     else:  # it factorised NaN values: the direction is not finite either
         assert not np.isfinite(x).all()
+
+
+@pytest.mark.parametrize("backend", ["qdldl", pytest.param("pardiso", marks=needs_pardiso)])
+def test_a_matrix_factorised_last_is_not_factorised_again(backend, monkeypatch):
+    """The verification right after a solve (the same exact Hessian at the same point) re-uses the factorisation:
+    no new one, the same Verification (inertia, decrement) bit for bit; a changed matrix is factorised afresh."""
+    shape = dop.shapes.load("bar")
+    s = Solver(shape.mesh, shape.handles, "sarap", backend=backend)
+    targets = shape.targets(shape.P_moving + np.array([[-0.05, 0.1]]))
+    T, r = s.targets_of(targets), s.solve(targets)
+    assert r.converged
+    H = type(s.hessian)
+    real, calls = H._factorise, []  # the back end's numeric factorisation, behind factorise's re-use
+    monkeypatch.setattr(H, "_factorise", lambda self, K, b: calls.append(1) or real(self, K, b))
+    first = s.verify(r.X, T)
+    n_first = len(calls)
+    again = s.verify(r.X, T)
+    assert len(calls) == n_first  # the same K as the last factorised one
+    fields = ("ok", "failed", "negative", "decrement", "energy")
+    assert [getattr(again, f) for f in fields] == [getattr(first, f) for f in fields]
+    moved = r.X.copy()
+    moved[s.free_vertices[:3]] += 1e-6
+    s.verify(moved, T)
+    assert len(calls) == n_first + 1  # other values: factorised
+    assert (s.verify(r.X, T).negative, len(calls)) == (first.negative, n_first + 2)

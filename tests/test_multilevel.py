@@ -243,6 +243,28 @@ def test_safeguard_rules_flip_and_iterations(bar, levels, monkeypatch):
     assert ok and rule == "coarse"  # no verified coarse minimum: the fine portfolio
 
 
+def test_the_fallback_does_not_run_the_single_start_again(bar, levels, monkeypatch):
+    """Where the single fine run fires a rule, the full fine portfolio runs every other start and the rest pose, not
+    the single run's start again (a solve is deterministic), and keeps the minimum it kept before, bit for bit."""
+    solver = Solver(bar.mesh, bar.handles, "sarap")
+    p = bar.P_moving[0]
+    T = bar.targets(np.array([[p[0] - 0.05, p[1] + 0.1]]))
+    c = Solver(levels.coarse.mesh, levels.coarse.handles, "sarap").solve(T)
+    S0 = levels.prolongate(c.X)
+    full = solver.solve_best(T, starts=[S0], rest=True)  # the full portfolio with the single run's start in it
+    monkeypatch.setattr(ml, "MAX_FINE_ITERATIONS", 0)
+    real, seen = Solver.solve, []
+
+    def spy(self, targets, X0=None, **kw):
+        seen.append(X0)
+        return real(self, targets, X0=X0, **kw)
+
+    monkeypatch.setattr(Solver, "solve", spy)
+    X, ok, rule, *_ = ml.refine_one(levels, solver, T, [(c.X, c.energy, True)])
+    assert ok and rule == "iterations" and np.array_equal(X, full.X)
+    assert len(seen) == 2 and sum(X0 is not None and np.array_equal(X0, S0) for X0 in seen) == 1
+
+
 def test_safeguard_rest_catches_a_single_run_above_the_rest_pose_start(bar, levels, monkeypatch):
     """A single fine run that ends above the rest pose's start at the targets (here: its energy raised, as a fine
     run stuck on a higher branch would be) falls back to the fine portfolio, which ends on the rest-pose minimum."""

@@ -54,6 +54,7 @@ from ..geometry.coarse import CoarseningError, coarse_mesh_of, prolongate
 from ..lazy import renamed
 from ..scene.shapes import Shape
 from ..variational import energies as en
+from ..variational.solver import NotConvergedWarning
 
 __all__ = [
     "AUTO_VERTICES",
@@ -334,13 +335,27 @@ def refine_one(lv, solver, T, candidates):
         iters, rule = int(single.iterations), _single_rule(solver, T, single)
         if not rule:
             return single.X, True, "", iters, len(minima), minima[0][1]
-        single = single if single.converged else None
-    barrier = en.is_barrier(solver.energy)
-    ok = [S for S in starts if not (barrier and np.any(lv.fine.mesh.flipped(S)))]
-    best = solver.solve_best(T, starts=ok, rest=True)  # the full fine portfolio
-    if single is not None and (not best.converged or single.energy <= best.energy):
-        best = single  # the verified single run competes as it is
+    best = _fallback(lv, solver, T, starts, single)
     return best.X, bool(best.converged), rule, iters, len(minima), minima[0][1] if minima else np.nan
+
+
+def _fallback(lv, solver, T, starts, single):
+    """The full fine portfolio: the rest pose and every flip-free prolongated coarse minimum, the lowest verified
+    minimum kept (a :class:`~defop.variational.solver.SolveResult`).
+
+    ``single``, the single run from ``starts[0]`` when it ran (else None), is that portfolio's first local solve
+    already (a solve is deterministic): it is not run again but competes as it is, first, with the portfolio's
+    rule (verified before not, then the lower energy, the earlier on a tie); a verified single run wins a tie."""
+    barrier = en.is_barrier(solver.energy)
+    ok = [S for S in starts[1 if single is not None else 0 :] if not (barrier and np.any(lv.fine.mesh.flipped(S)))]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotConvergedWarning)
+        rest = solver.solve_best(T, starts=ok, rest=True)  # the rest of the full fine portfolio
+    if single is None:
+        return rest
+    if single.converged and (not rest.converged or single.energy <= rest.energy):
+        return single
+    return min((single, rest), key=lambda r: (not r.converged, r.energy if np.isfinite(r.energy) else np.inf))
 
 
 def coarse_portfolio(lv, samples, energy, n_jobs=None, progress=True, rounds=2):

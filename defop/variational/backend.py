@@ -40,7 +40,10 @@ BACKENDS = ("auto", "qdldl", "pardiso")
 #: (``benchmarks/bench_factor.py --real``, one MKL thread), per factorisation it wins in 3D from about 200 vertices
 #: (4x qdldl at 512 and 1,000 vertices, 11x on the nut's 3.2k, 26x on the octopus's 10k); loading MKL costs about
 #: 1.5 s once per process, which a training on 1k vertices repays within a few samples. In 2D it loses below 10k
-#: vertices and wins 1.7x at 30k: 2D keeps qdldl (bit for bit)
+#: vertices (0.80x at 9,873) and ties at 30k under ``MKL_CBWR=COMPATIBLE``: on the 29,739-vertex aleph a
+#: factorisation and solve cost 86 ms of CPU against qdldl's 87, eight fine training runs 14.2 against 14.8 CPU s
+#: (1.04x; 1.23x under ``MKL_CBWR=AVX2``, which gives up the same minima on every x86-64 CPU). 2D keeps qdldl
+#: (bit for bit)
 PARDISO_MIN_VERTICES_3D = 1000
 
 

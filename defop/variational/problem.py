@@ -158,14 +158,16 @@ class ReducedHessian:
         Then the last Newton step's factorisation preconditions conjugate gradients
         (:func:`defop.variational.backend.pcg`, to a relative residual of ``reuse``), and K is factorised only
         when they stall. A solve with ``reuse=False`` (the inertia of the verification and the kink's pull) always
-        factorises, so :meth:`inertia` is K's own; call :meth:`forget` where a new solve begins."""
+        has K's own factorisation, so :meth:`inertia` is K's; call :meth:`forget` where a new solve begins. A K equal
+        value for value to the one factorised last is not factorised again: the verification's exact Hessian, at
+        the point where the solve's last held Newton system was just factorised, costs one back-substitution."""
         K = self.matrix(data, rel_shift)
         if reuse and self.reuse and self._stale and self._stalled < bk.REUSE_STALLS:
             found = bk.pcg(K, b, self._factor.solve, reuse)
             self._stalled = 0 if found is not None else self._stalled + 1
             if found is not None:
                 return found[0]
-        x = self.factorise(K, b)
+        x = self.factorise(K, b)  # a K equal to the one factorised last re-uses its factors (:meth:`factorise`)
         self._stale = bool(reuse and self.reuse)
         return x
 
@@ -195,8 +197,7 @@ class ReducedHessian:
             if self._factor is None:
                 self._factor = bk.PardisoLDL(K)
             self._factor.factor(K)
-            return self._factor.solve(b)
-        if self._factor is None:
+        elif self._factor is None:
             self._factor = bk.qdldl.Solver(K, upper=True)
         else:
             self._factor.update(K, upper=True)
