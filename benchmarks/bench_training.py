@@ -235,7 +235,7 @@ def absolute_targets(shape, results):
         met = "met" if r["cpu"] <= limit else "missed"
         print(
             f"target {shape} ({r['n_vertices']:,} vertices), m = {r['m']}: <= {limit:,.0f} CPU s; {name}: "
-            f"{r['cpu']:,.1f} CPU s, {r['cpu'] / limit:.2f}x the target ({limit / r['cpu']:.2f}x under it): {met} "
+            f"{r['cpu']:,.1f} CPU s, {r['cpu'] / limit:.2f}x the target: {met} "
             f"(load average now {os.getloadavg()[0]:.1f})"
         )
 

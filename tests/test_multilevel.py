@@ -388,3 +388,16 @@ def test_training_seconds_count_the_multilevel_stages(bar):
     row = dop.analysis.timing_row(bar, op, rec, Q, "hat", tol=1e-3)
     t = op.meta["stage_times"]
     assert {"coarse", "fine"} <= set(t) and row["preprocess_s"] == pytest.approx(sum(t.values()))
+
+
+def test_handles_on_the_outline_keep_a_fixed_p_training_on_one_level():
+    """A fixed-P shape whose handles are boundary vertices (automatic handles of an outline) has no coarse level, as
+    before movable regions could put points on the coarse outline: its training policy and minima stay as they
+    were (auto chose multilevel on a 192-vertex coarse star for a moment)."""
+    t = np.linspace(0, 2 * np.pi, 10, endpoint=False)
+    r = np.where(np.arange(10) % 2 == 0, 1.0, 0.45)
+    star = dop.shapes.from_polygon(np.c_[r * np.cos(t), r * np.sin(t)], n_vertices=1500, name="star")
+    assert np.isin(star.handles, star.mesh.boundary_vertices).any()
+    used, level, why = ml.choose(star, "auto")
+    assert (used, level) == ("full", None)
+    assert "boundary" in why or "outline" in why

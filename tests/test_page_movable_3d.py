@@ -231,6 +231,13 @@ def test_page_3d_refuses_bad_rest_placements(op, bar, tmp_path):
         onto = page.evaluate(STATE_JS)
         by_code = page.evaluate(f"() => {E}.setRest(0, {int(op.handles[1])})")
         coded = page.evaluate(STATE_JS)
+        p = [float(t) for t in op.mesh.V[nominal]]
+        short = page.evaluate(f"() => {E}.setRest(0, {p[:2]})")  # an x-y point on a 3D page
+        shorted = page.evaluate(STATE_JS)
+        long_ = page.evaluate(f"() => {E}.setRest(0, {p + [0.0]})")
+        longed = page.evaluate(STATE_JS)
+        nan = page.evaluate(f"() => {E}.setRest(0, [{p[0]}, NaN, {p[2]}])")
+        naned = page.evaluate(STATE_JS)
         errors = page.errors
     assert not errors, errors
     assert before["placement"] == [nominal] and before["Q"] != np.asarray(op.mesh.V[op.handles[4:]]).ravel().tolist()
@@ -238,8 +245,11 @@ def test_page_3d_refuses_bad_rest_placements(op, bar, tmp_path):
         (outside, "the pointer is outside rest handle 0's placement region"),
         (onto, "cannot move onto handle 0"),
         (coded, "holds handle 1"),
+        (shorted, "a rest position is 3 finite numbers"),
+        (longed, "a rest position is 3 finite numbers"),
+        (naned, "a rest position is 3 finite numbers"),
     ):
         assert words in bad["msg"] and bad["shown"], bad["msg"]
         for key in ("placement", "Q", "X", "handles"):
             assert bad[key] == before[key], key
-    assert by_code is False
+    assert by_code is False and short is False and long_ is False and nan is False

@@ -101,3 +101,37 @@ def test_the_same_matrix_again_is_solved_with_the_factors_already_made(backend):
     assert np.array_equal(again, p) and s.hessian.inertia() == negative  # the same solution and inertia, bit for bit
     s.newton_direction(gf, data, rel_shift=1e-6)  # another shift: another matrix
     assert counting.count == 1
+
+
+def _pinned_box():
+    """A 4×4×4 grid with every boundary vertex pinned to a 0.7 scaling about the centroid: the held μ = 0 stage does
+    not converge within HELD_FIRST_ITERATIONS there (every tet sits on the kink σ₁ = σ₂ = σ₃)."""
+    V, T = r3.grid_tets(4)
+    c = V.mean(axis=0)
+    h = np.flatnonzero(np.any((V == V.min(axis=0)) | (V == V.max(axis=0)), axis=1))
+    return dop.Mesh(V, T), h, c + 0.7 * (V[h] - c)
+
+
+def test_the_3d_fallback_schedule_runs_where_the_held_stage_stalls(monkeypatch):
+    from defop.variational import newton
+
+    mesh, h, targets = _pinned_box()
+    seen, real = [], newton._schedule
+    monkeypatch.setattr(
+        newton, "_schedule", lambda s, log, X, tol, sched: seen.append(tuple(sched)) or real(s, log, X, tol, sched)
+    )
+    result = Solver(mesh, h, "sarap").solve(targets)
+    assert result.converged
+    assert seen[:2] == [(0.0,), (1e-5, 0.0)]
+
+
+@pytest.mark.parametrize("max_iter", [1, 2, 3, 7])
+def test_the_3d_fallback_shares_the_iteration_budget(max_iter):
+    """The fallback schedule runs on the iterations left: a solve never takes more than max_iter (it took 2x)."""
+    mesh, h, targets = _grid_problem(1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = Solver(mesh, h, "sarap").solve(targets, max_iter=max_iter)
+    assert result.iterations <= max_iter
+    if not result.converged:
+        assert str(max_iter) in result.reason

@@ -69,7 +69,7 @@ def n_parts(F, n_vertices):
     return int(connected_components(A, directed=False)[0])
 
 
-def coarse_planar_mesh(loops, points, n_vertices):
+def coarse_planar_mesh(loops, points, n_vertices, outline_ok=None):
     """A coarse Triangle mesh of the same planar outline with the given points as vertices.
 
     Parameters
@@ -77,11 +77,13 @@ def coarse_planar_mesh(loops, points, n_vertices):
     loops : list of (k, 2) numpy array
         The outline the fine mesh was made from: outer loop first, then the holes.
     points : (h, 2) numpy array
-        The handle points (rest positions); each becomes a vertex of the coarse mesh. Points on the outline (within
-        :data:`ON_OUTLINE` of the diagonal: a fine boundary vertex where a movable handle may sit) become outline
-        vertices.
+        The handle points (rest positions); each becomes a vertex of the coarse mesh.
     n_vertices : int
         About how many vertices the coarse mesh gets.
+    outline_ok : (h,) bool numpy array, optional
+        The points that may lie on the outline (a fine boundary vertex where a movable handle may sit): those within
+        :data:`ON_OUTLINE` of the diagonal become outline vertices. Every other point must be inside (None: all),
+        as the handles of a fixed-P training: one on the outline has no coarse level.
 
     Returns
     -------
@@ -97,7 +99,8 @@ def coarse_planar_mesh(loops, points, n_vertices):
     if not loops:
         raise CoarseningError("the shape has no outline to mesh coarsely (a mesh given as V, F)")
     points = np.asarray(points, float)
-    on = distance_to_outline(points, loops) <= ON_OUTLINE * diagonal(np.vstack(loops))
+    ok = np.zeros(len(points), bool) if outline_ok is None else np.asarray(outline_ok, bool)
+    on = ok & (distance_to_outline(points, loops) <= ON_OUTLINE * diagonal(np.vstack(loops)))
     try:
         mesh = triangulate(
             loops[0], list(loops[1:]), points=points[~on], n_vertices=int(n_vertices), boundary_points=points[on]
@@ -195,7 +198,7 @@ def _coarse_solid(mesh, points, factor, minimum):
     return coarse, idx
 
 
-def coarse_mesh_of(mesh, loops, points, factor, minimum):
+def coarse_mesh_of(mesh, loops, points, factor, minimum, outline_ok=None):
     """The coarse mesh for a fine one: about ``n / factor`` vertices (at least ``minimum``), same parts.
 
     Parameters
@@ -208,6 +211,8 @@ def coarse_mesh_of(mesh, loops, points, factor, minimum):
         Handle points.
     factor : float
     minimum : int
+    outline_ok : (h,) bool numpy array, optional
+        In 2D, the points that may lie on the outline (:func:`coarse_planar_mesh`).
 
     Returns
     -------
@@ -236,7 +241,7 @@ def coarse_mesh_of(mesh, loops, points, factor, minimum):
             raise CoarseningError(
                 f"the mesh has {mesh.n_vertices} vertices: a coarse mesh of {target} (at least {minimum}) saves nothing"
             )
-        coarse, idx = coarse_planar_mesh(loops, points, target)
+        coarse, idx = coarse_planar_mesh(loops, points, target, outline_ok)
     parts, coarse_parts = n_parts(mesh.F, mesh.n_vertices), n_parts(coarse.F, coarse.n_vertices)
     if parts != coarse_parts:
         raise CoarseningError(f"the coarse mesh has {coarse_parts} parts where the shape has {parts}")

@@ -324,12 +324,13 @@ def budget_samples(record, factor=BUDGET):
     """The joint m within a budget of ``factor`` fixed-P trainings: ``factor`` × the samples of ``record`` (the
     fixed-P training's record, e.g. ``dop.train(shape, m=200)``).
 
-    A joint sample runs, under :func:`train_movable`'s default policy, what a fixed-P sample runs under
-    ``dop.train``'s: its portfolio on the coarse mesh (the rest pose; the placement's handles at their coarse
-    vertices), then one fine run from the prolongated minimum, with the same safeguard. It still builds its own
-    fine solver (the handles differ per sample), so it costs more than a fixed-P sample wherever that setup
-    dominates: the rule is a count, the same m on every machine, not a bound on CPU seconds (the lesson and
-    ``bench_movable.py`` print the CPU seconds each side took; ``bench_movable_policy.py`` both policies).
+    A joint sample runs, under :func:`train_movable`'s default policy, one solve from the rest pose on the full
+    mesh in 2D, and in 3D what a fixed-P sample runs under ``dop.train``'s: its portfolio on the coarse mesh (the
+    placement's handles at their coarse vertices), then one fine run from the prolongated minimum, with the same
+    safeguard (:data:`JOINT_AUTO_DIMS`). Either way it builds its own fine solver (the handles differ per sample),
+    so it costs more than a fixed-P sample wherever that setup dominates: the rule is a count, the same m on every
+    machine, not a bound on CPU seconds (the lesson and ``bench_movable.py`` print the CPU seconds each side took;
+    ``bench_movable_policy.py`` both policies).
 
     Raises
     ------

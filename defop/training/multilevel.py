@@ -184,8 +184,9 @@ def coarse_level(shape, vertices=None):
     """
     extra = np.setdiff1d(outline_neighbours(shape.mesh, vertices), shape.handles)
     points = np.concatenate([shape.P, shape.mesh.V[extra]])
-    mesh, idx, P = coarse_mesh_of(shape.mesh, shape.outline, points, COARSE_FACTOR, MIN_COARSE_VERTICES)
     h = len(shape.handles)
+    ok = np.full(len(points), vertices is not None)  # a fixed-P training's handles on the outline: no coarse level
+    mesh, idx, P = coarse_mesh_of(shape.mesh, shape.outline, points, COARSE_FACTOR, MIN_COARSE_VERTICES, ok)
     coarse = Shape(f"{shape.name} (coarse)", mesh, idx[:h], shape.moving.copy(), list(shape.regions), shape.description)
     kept = np.concatenate([shape.handles, extra])
     order = np.argsort(kept)

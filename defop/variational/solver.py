@@ -290,15 +290,16 @@ class Solver:
 
     def _local(self, targets, X0, tol, max_iter, max_stages, label):
         """One local solve (continuation, Newton, saddle escapes), verified; no warning. Where 3D's held-first
-        schedule does not end verified, the ``fallback_schedule`` solves again from the same start (its iterations
-        counted in the result's)."""
+        schedule does not end verified, the ``fallback_schedule`` solves again from the same start with the iterations
+        left of ``max_iter`` (its iterations counted in the result's)."""
         result = self._path(targets, X0, tol, max_iter, max_stages, label)
-        if result.converged or not getattr(self, "fallback_schedule", None):
-            return result
+        left = (self.max_iter if max_iter is None else check_max_iter(max_iter)) - result.iterations
+        if result.converged or not getattr(self, "fallback_schedule", None) or left < 1:
+            return result  # the fallback shares the solve's iteration budget
         saved = self.mu_schedule, self.fallback_schedule
         self.mu_schedule, self.fallback_schedule = self.fallback_schedule, None
         try:
-            again = self._path(targets, X0, tol, max_iter, max_stages, label)
+            again = self._path(targets, X0, tol, left, max_stages, label)
         finally:
             self.mu_schedule, self.fallback_schedule = saved
         again.iterations += result.iterations

@@ -251,9 +251,15 @@ function restControls(editor, hooks, place, snapRadius, after = null) {
       return false;
     }
   };
-  editor.setRest = (l, target, notify = true) => move(l, () => (Array.isArray(target) ? st.op.toMesh(
-    pickRest(st, l, worldDistance(st, target), snapRadius(), `(${target.map((t) => t.toFixed(3)).join(", ")})`)) :
-    target), notify);
+  editor.setRest = (l, target, notify = true) => move(l, () => {
+    if (!Array.isArray(target)) return target;
+    if (target.length !== st.op.d || !target.every(Number.isFinite)) {
+      throw new RangeError(`a rest position is ${st.op.d} finite numbers, got [${target.join(", ")}]; the rest ` +
+        "handle stays");
+    }
+    const where = `(${target.map((t) => t.toFixed(3)).join(", ")})`;
+    return st.op.toMesh(pickRest(st, l, worldDistance(st, target), snapRadius(), where));
+  }, notify);
   return { msg, move };
 }
 
