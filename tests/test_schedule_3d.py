@@ -4,6 +4,7 @@ with the factors already made."""
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -123,6 +124,29 @@ def test_the_3d_fallback_schedule_runs_where_the_held_stage_stalls(monkeypatch):
     result = Solver(mesh, h, "sarap").solve(targets)
     assert result.converged
     assert seen[:2] == [(0.0,), (1e-5, 0.0)]
+
+
+def test_a_fallback_result_counts_both_attempts():
+    """Where the held-first solve ends unverified, the fallback's result counts both attempts: iterations, time and
+    histories (it kept only the fallback's time and histories)."""
+    mesh, h, targets = _grid_problem(2)
+    s = Solver(mesh, h, "sarap")
+    real, runs = s._path, []
+
+    def path(*args):  # the first attempt is reported unverified, as a stalled kink would leave it
+        result = real(*args)
+        runs.append(dataclasses.replace(result))  # a copy: what the attempt returned, whatever happens to it after
+        return dataclasses.replace(result, converged=False) if len(runs) == 1 else result
+
+    s._path = path
+    result = s.solve(targets)
+    first, again = runs
+    assert result.converged and len(runs) == 2
+    assert result.iterations == first.iterations + again.iterations
+    assert result.time == first.time + again.time
+    assert np.array_equal(result.energy_history, np.concatenate([first.energy_history, again.energy_history]))
+    assert len(result.time_history) == len(result.energy_history) and np.all(np.diff(result.time_history) >= 0)
+    assert np.array_equal(result.X, again.X)
 
 
 @pytest.mark.parametrize("max_iter", [1, 2, 3, 7])

@@ -106,6 +106,19 @@ class SolveResult:
     candidates: list = dataclasses.field(default_factory=list)
 
 
+def _joined(first, again):
+    """The result of ``again``, a solve run after ``first`` from the same start, counting both: iterations, time, the
+    histories (``again``'s times shifted by ``first.time``) and the candidates."""
+    return dataclasses.replace(
+        again,
+        iterations=first.iterations + again.iterations,
+        time=first.time + again.time,
+        energy_history=np.concatenate([first.energy_history, again.energy_history]),
+        time_history=np.concatenate([first.time_history, first.time + again.time_history]),
+        candidates=list(first.candidates) + list(again.candidates),
+    )
+
+
 def _held(name, doc, settable=False):
     """An attribute of the solver that is its held problem's ``name`` (read-only unless ``settable``)."""
     fset = (lambda self, value: setattr(self.problem, name, value)) if settable else None
@@ -291,7 +304,7 @@ class Solver:
     def _local(self, targets, X0, tol, max_iter, max_stages, label):
         """One local solve (continuation, Newton, saddle escapes), verified; no warning. Where 3D's held-first
         schedule does not end verified, the ``fallback_schedule`` solves again from the same start with the iterations
-        left of ``max_iter`` (its iterations counted in the result's)."""
+        left of ``max_iter``; the result counts both attempts (:func:`_joined`)."""
         result = self._path(targets, X0, tol, max_iter, max_stages, label)
         left = (self.max_iter if max_iter is None else check_max_iter(max_iter)) - result.iterations
         if result.converged or not getattr(self, "fallback_schedule", None) or left < 1:
@@ -302,8 +315,7 @@ class Solver:
             again = self._path(targets, X0, tol, left, max_stages, label)
         finally:
             self.mu_schedule, self.fallback_schedule = saved
-        again.iterations += result.iterations
-        return again
+        return _joined(result, again)
 
     def _path(self, targets, X0, tol, max_iter, max_stages, label):
         """:meth:`_local` on the solver's schedule."""
