@@ -10,7 +10,7 @@ with its ratio and target:
   sample runs through the coarse level as a fixed-P sample does, ``train_movable``'s default policy); the CPU s
   of the joint training (sampling, solves, fit; no cache) over that fixed-P training's are printed beside it;
 * error: mean (8a)/n per held-out frame of the joint operator (design A, TPS over (P, Q − P) with the correction),
-  of the carried nominal operator (design B, :class:`defop.operator.movable.CarryOp`), of fixed-P operators
+  of the carried nominal operator (design B, :class:`defop.operator.movable_carry.CarryOp`), of fixed-P operators
   retrained at each held-out placement (m = 200; target: joint <= 2x), and of MLS rigid, MLS similarity and
   biharmonic coordinates at the same (P, Q) (target: joint below each; biharmonic coordinates' per-placement
   precompute is printed);
@@ -47,7 +47,8 @@ os.environ.setdefault("DEFOP_N_JOBS", "1")
 
 import defop as dop  # noqa: E402
 from defop.analysis import metrics  # noqa: E402
-from defop.operator.movable import CarryOp, residual  # noqa: E402
+from defop.operator.movable import residual  # noqa: E402
+from defop.operator.movable_carry import CarryOp  # noqa: E402
 from defop.rivals import peers  # noqa: E402
 from defop.scene.placement import placement_regions  # noqa: E402
 from defop.training.movable import (  # noqa: E402

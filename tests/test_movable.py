@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 import defop as dop
 from defop.operator.io import OperatorFileError
-from defop.operator.movable import CarryOp, MovableOp, fit_movable, residual, retarget
+from defop.operator.movable import MovableOp, fit_movable, residual, retarget
+from defop.operator.movable_carry import CarryOp
 from defop.scene.placement import SNAP_TOL, placement_regions
 from defop.training.movable import sample_joint, shape_at, solve_joint, train_movable
 
