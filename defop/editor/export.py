@@ -193,8 +193,9 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None, comp
         was given ``threshold=`` or ``foreground=`` (``dop.shapes.image_frame(picture, shape, threshold=...)``),
         or when the picture is not the one the shape was made from.
     compress : bool
-        True (default): the compressed factors of a :class:`DefOp` (:func:`.payload.page_factors`); False: the
-        full W_F. A BranchedOperator's branches are shipped as they are (compress them yourself).
+        True (default): the compressed factors of a :class:`DefOp` or a MovableOp (:func:`.payload.page_factors`);
+        False: the full W_F (a MovableOp's own factors as they are, if it has them). A BranchedOperator's branches are
+        shipped as they are (compress them yourself).
 
     Returns
     -------
