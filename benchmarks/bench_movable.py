@@ -10,7 +10,7 @@ with its ratio and target:
   sample runs through the coarse level as a fixed-P sample does, ``train_movable``'s default policy); the CPU s
   of the joint training (sampling, solves, fit; no cache) over that fixed-P training's are printed beside it;
 * error: mean (8a)/n per held-out frame of the joint operator (design A, TPS over (P, Q − P) with the correction),
-  of the carried nominal operator (design B, :class:`defop.operator.movable.CarryOp`), of fixed-P operators
+  of the carried nominal operator (design B, :class:`defop.operator.movable_carry.CarryOp`), of fixed-P operators
   retrained at each held-out placement (m = 200; target: joint <= 2x), and of MLS rigid, MLS similarity and
   biharmonic coordinates at the same (P, Q) (target: joint below each; biharmonic coordinates' per-placement
   precompute is printed);
@@ -27,6 +27,8 @@ Run: ``python benchmarks/bench_movable.py [--dim 3] [aleph] [octopus] [bar] [bar
 two arm tips movable, regions of 8% of the diagonal, ``BENCH_MOVABLE_VERTICES=n``: both meshed at about n vertices,
 a reduced run printed as such); 10 placements, joint m by the budget rule (an explicit ``m_joint`` overrides it);
 ``python benchmarks/bench_movable.py frames [shapes]``: the frames alone at m = 200 and 1,000 (:func:`frame_table`);
+``python benchmarks/bench_movable.py designs [--dim 3] [shapes] [n_placements] [centres:tol ...]``: the joint frame's
+designs side by side at the budget, every training through the cache (:func:`designs`, default :data:`DESIGNS`);
 ``BENCH_MOVABLE_NQ=5``: 5 Q per training placement; ``BENCH_MOVABLE_TOL``: the joint operator's compression
 tolerance, default MovableOp.compress's (2e-2; the fixed-P one keeps 5e-3); ``BENCH_MOVABLE_CENTRES``: its TPS
 centres, default train_movable's (one per sample), ``all`` or a count); fewer placements is a reduced run, printed
@@ -47,7 +49,8 @@ os.environ.setdefault("DEFOP_N_JOBS", "1")
 
 import defop as dop  # noqa: E402
 from defop.analysis import metrics  # noqa: E402
-from defop.operator.movable import CarryOp, residual  # noqa: E402
+from defop.operator.movable import fit_movable, residual  # noqa: E402
+from defop.operator.movable_carry import CarryOp  # noqa: E402
 from defop.rivals import peers  # noqa: E402
 from defop.scene.placement import placement_regions  # noqa: E402
 from defop.training.movable import (  # noqa: E402
@@ -80,33 +83,45 @@ def frame_seconds(f, Qs):
     return t["best"] / len(Qs), t["cpu_best"] / len(Qs)
 
 
+#: the frames are timed alternately this many times, the best of each kept
+ROUNDS = 3
 #: what one logarithm of Ψ costs in float32 multiply-adds of t B (numba, no SVML: 4.3 ns against 0.11 ns here)
 LOG_MACS = 40
 
 
-def frame_cost(op):
-    """(multiply-adds, logarithms) of one compiled TPS frame of ``op`` (a compressed DefOp or MovableOp): the
-    squared distances to the centres (dn × |centres|), δψ A' and t B (:func:`defop.operator.kernels.tps_frame`);
-    the handles' correction (a few bumps) is left out."""
+def frame_parts(op):
+    """The multiply-adds of one compiled TPS frame of ``op`` (a compressed DefOp or MovableOp) by part: the squared
+    distances to the centres (dn × |centres|), δψ A' and t B (:func:`defop.operator.kernels.tps_frame`)."""
     k = op.fast_state().kernel
-    cm = k.tps[0]
-    return cm.size + k.A.size + k.B.size, cm.shape[1]
+    return k.tps[0].size, k.A.size, k.B.size
+
+
+def frame_cost(op):
+    """(multiply-adds, logarithms) of one compiled TPS frame of ``op`` (:func:`frame_parts` summed; one logarithm,
+    in 3D a square root, per centre); the handles' correction (a few bumps) is left out."""
+    return sum(frame_parts(op)), op.fast_state().kernel.tps[0].shape[1]
 
 
 def frame_row(label, op0, opj, Qn, Q, P, V, errors=""):
     """Time the compressed fixed-P frame (at Qn) and the joint frame (at Q, P as vertices and as points V[P]),
-    one after the other (the same load), and print the ratios (wall and this thread's CPU time, the steadier on a
-    busy machine) beside the multiply-add floor (and ``errors``, the row's error ratios). Returns the CPU ratio."""
-    tf, cf = frame_seconds(op0.evaluate_fast, Qn)
-    tj, cj = frame_seconds(lambda q: opj.evaluate_fast(q, P=P), Q)
+    alternately :data:`ROUNDS` times, the best of each (the same load), and print the ratios (wall and this
+    thread's CPU time, the steadier on a busy machine) beside the multiply-add floor (and ``errors``, the row's error
+    ratios). Returns the CPU ratio."""
     points = V[P]  # the same array each frame, as an editor's drag passes it
+    runs = [
+        (frame_seconds(op0.evaluate_fast, Qn), frame_seconds(lambda q: opj.evaluate_fast(q, P=P), Q))
+        for _ in range(ROUNDS)  # alternating, the best of each: the same load for both
+    ]
+    (tf, cf), (tj, cj) = (tuple(np.min([r[i] for r in runs], axis=0)) for i in (0, 1))
     tp, cp = frame_seconds(lambda q: opj.evaluate_fast(q, P=points), Q)
     (mf, lf), (mj, lj) = frame_cost(op0), frame_cost(opj)
+    parts = " + ".join(f"{a} / {b}" for a, b in zip(frame_parts(opj), frame_parts(op0), strict=True))
     print(
         f"  {label}: fixed-P rank {op0.rank} {tf * 1e6:.1f} µs; joint |Ψ| {opj.basis.size} rank {opj.rank} "
         f"{tj * 1e6:.1f} µs (P as points {tp * 1e6:.1f} µs): ratio {tj / tf:.2f}x wall, {cj / cf:.2f}x CPU, P as "
         f"points {cp / cf:.2f}x CPU "
-        f"(target <= 3x); floor {mj / mf:.2f}x multiply-adds ({mj} / {mf}), logs {lj} / {lf}, "
+        f"(target <= 3x); floor {mj / mf:.2f}x multiply-adds ({mj} / {mf}: distances, δψ A, t B {parts}), "
+        f"logs {lj} / {lf}, "
         f"{(mj + LOG_MACS * lj) / (mf + LOG_MACS * lf):.2f}x with a log as {LOG_MACS} multiply-adds; "
         f"{errors}load average {os.getloadavg()[0]:.1f}"
     )
@@ -216,7 +231,7 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
     frame = {}
     for m in (200, m_joint):
         opm = opj if m == m_joint else train_movable(shape, pr, "sarap", m=m, seed=seed, progress=False, **CENTRES)[0]
-        frame[m] = compare_row(f"m={m}", op0, opm, held, err["retrained"], mesh, pr)
+        frame[m] = compare_row(f"m={m}", op0, opm, held, err["retrained"], mesh, pr)[0]
     return {
         "budget": t_joint / t_fixed,
         "err": err["joint"] / err["retrained"],
@@ -238,18 +253,68 @@ def joint_error(opj, held, mesh):
     )
 
 
-def compare_row(label, op0, opj, held, e_ret, mesh, pr):
+def compare_row(label, op0, opj, held, e_ret, mesh, pr, tol=None):
     """One row of the side-by-side table: the joint operator's error over the retrained (uncompressed and
-    compressed), then its compressed frame over the fixed-P one (:func:`frame_row`). Returns the frame's CPU ratio."""
+    compressed, with ``tol`` or ``BENCH_MOVABLE_TOL``), then its compressed frame over the fixed-P one
+    (:func:`frame_row`). Returns (the frame's CPU ratio, the compressed error's ratio)."""
     idx, Q, X, _ = held
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
         e_u = joint_error(opj, held, mesh)
-        compress_joint(opj)
+        compress_joint(opj, tol)
         e_c = joint_error(opj, held, mesh)
         Qn = Q[:N_Q] + (op0.P - mesh.V[pr.handles_at(idx[0])[op0.moving]])
         errors = f"error {e_u / e_ret:.2f}x retrained, compressed {e_c / e_ret:.2f}x (target <= 2x); "
-        return frame_row(label, op0, opj, Qn, Q[:N_Q], idx[0], mesh.V, errors)
+        return frame_row(label, op0, opj, Qn, Q[:N_Q], idx[0], mesh.V, errors), e_c / e_ret
+
+
+def retrained(shape, pr, n_place, seed=0):
+    """The held-out set (placements × :data:`N_Q` Q, truth through the cache) and the mean (8a)/n of fixed-P
+    operators retrained at m = 200 at each of its placements (through the cache): ``(held, error)``."""
+    idx, Q = sample_joint(shape, pr, n_place, np.random.default_rng(10_000 + seed), N_Q)
+    X, _ = solve_joint(shape, pr, idx, Q, progress=False)
+    errors = []
+    for p in range(n_place):
+        sl = slice(p * N_Q, (p + 1) * N_Q)
+        opr, _ = dop.train(shape_at(shape, pr, idx[sl][0]), "sarap", "tps", m=200, seed=seed, progress=False)
+        errors.append(err8a(shape.mesh, opr(Q[sl]), X[sl]))
+    return (idx, Q, X, n_place), float(np.mean(errors))
+
+
+#: ``designs``: the joint frame's designs compared at the budget, (TPS centres, compression tolerance) each
+DESIGNS = (("auto", 2e-2), (400, 2e-2), (200, 2e-2), ("auto", 5e-2), (200, 5e-2))
+
+
+def designs(name, movable, n_place, specs=DESIGNS, seed=0):
+    """The joint operator at the budget (one training through the cache, refitted per design by
+    :func:`defop.operator.movable.fit_movable`) for each (centres, tol) of ``specs``: its error over the retrained
+    and its compressed frame over the fixed-P one beside the floor (:func:`compare_row`), one row each.
+    Returns {(centres, tol): (frame CPU ratio, compressed error ratio)}."""
+    shape, pr = case(name, movable)
+    mesh = shape.mesh
+    op0, rec0 = dop.train(shape, "sarap", "tps", m=200, seed=seed, progress=False)
+    m_joint = budget_samples(rec0)
+    _, rec = train_movable(shape, pr, "sarap", m=m_joint, seed=seed, progress=False)
+    held, e_ret = retrained(shape, pr, n_place, seed)
+    op0.compress()
+    print(
+        f"\n== designs, {name} ({mesh.n_vertices} vertices{', REDUCED mesh' if name in SIZES else ''}), joint "
+        f"m = {m_joint} (the budget), {n_place} placements x {N_Q} Q{'' if n_place >= FULL else ' (REDUCED)'}, "
+        f"retrained (8a)/n {e_ret:.3e}; fixed-P compressed with tol 5e-3:"
+    )
+    out = {}
+    for centres, tol in specs:
+        opj = fit_movable(
+            mesh, shape.handles, shape.moving, pr, rec.idx, rec.Q, rec.X, {"shape": name}, centres=centres
+        )
+        out[(centres, tol)] = compare_row(f"centres {centres}, tol {tol:g}", op0, opj, held, e_ret, mesh, pr, tol)
+    return out
+
+
+def design_spec(text):
+    """``centres:tol`` (centres ``auto``, ``all`` or a count) as (centres, tol)."""
+    c, tol = text.split(":")
+    return ("auto" if c == "auto" else None if c == "all" else int(c)), float(tol)
 
 
 #: movable handles, joint m (None: budget_samples of the fixed-P training at m = 200, one rule for every shape)
@@ -272,9 +337,10 @@ _C = os.environ.get("BENCH_MOVABLE_CENTRES", "")
 CENTRES = {} if not _C else {"centres": None if _C == "all" else int(_C)}
 
 
-def compress_joint(opj):
-    """Compress the joint operator with ``BENCH_MOVABLE_TOL`` (default MovableOp.compress's own tolerance)."""
-    return opj.compress() if JOINT_TOL is None else opj.compress(tol=JOINT_TOL)
+def compress_joint(opj, tol=None):
+    """Compress the joint operator with ``tol``, else ``BENCH_MOVABLE_TOL`` (default MovableOp.compress's own)."""
+    tol = JOINT_TOL if tol is None else tol
+    return opj.compress() if tol is None else opj.compress(tol=tol)
 
 
 def tol_label():
@@ -305,5 +371,12 @@ if __name__ == "__main__":
         ratios = [frame_table(name, CASES[name][0]) for name in names]
         print(f"\nload average {os.getloadavg()[0]:.1f}; DEFOP_N_JOBS={os.environ.get('DEFOP_N_JOBS')}")
         sys.exit(0 if all(r <= 3 for t in ratios for r in t.values()) else 1)
+    if "designs" in args:
+        warnings.simplefilter("ignore", dop.operator.ExtrapolationWarning)
+        specs = [design_spec(a) for a in args if ":" in a] or DESIGNS
+        n_place = next((int(a) for a in args if a.isdigit()), FULL)
+        rows = [designs(name, CASES[name][0], n_place, specs) for name in names]
+        print(f"\nload average {os.getloadavg()[0]:.1f}; DEFOP_N_JOBS={os.environ.get('DEFOP_N_JOBS')}")
+        sys.exit(0 if all(f <= 3 and e <= 2 for r in rows for f, e in r.values()) else 1)
     nums = [int(a) for a in args if a not in CASES]
     sys.exit(0 if main(names, *nums) else 1)

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 import defop as dop
 from defop.operator.io import OperatorFileError
-from defop.operator.movable import CarryOp, MovableOp, fit_movable, residual, retarget
+from defop.operator.movable import MovableOp, fit_movable, residual, retarget
+from defop.operator.movable_carry import CarryOp
 from defop.scene.placement import SNAP_TOL, placement_regions
 from defop.training.movable import sample_joint, shape_at, solve_joint, train_movable
 
@@ -335,3 +336,12 @@ def test_train_movable_refuses_before_any_solve(shape, placement):
         train_movable(shape, [0, 1], m=5, n_jobs=1, progress=False, cache=False)
     with pytest.raises(ValueError, match=r"movable\[0\] must be an integer.*0\.5"):
         placement_regions(shape, [0.5], radius=0.1)
+
+
+def test_carry_op_keeps_its_old_import():
+    """CarryOp moved to defop.operator.movable_carry; ``from defop.operator.movable import CarryOp`` still works."""
+    from defop.operator import movable, movable_carry
+
+    assert movable.CarryOp is movable_carry.CarryOp is CarryOp
+    with pytest.raises(AttributeError, match="no attribute 'Nope'"):
+        movable.Nope  # noqa: B018

@@ -220,3 +220,21 @@ def test_damaged_patch_files_are_refused(ops, tmp_path, edit, match):
     bad = _edited(path, tmp_path / "bad.npz", **edit)
     with pytest.raises(OperatorFileError, match=r"bad\.npz.*" + match):
         MovableOp.load(bad)
+
+
+def test_the_default_frame_in_3d_is_the_one_rule(bar, regions):
+    """The 3D joint operator takes the default of every dimension, read from the data (benchmarks/README.md,
+    2026-12-02 fourth part: on bar_3d at the budget it meets the frame and error targets, and at the fixed-P
+    tolerance its rank, not Ψ, set the old floor): m + 1 TPS centres over z of (b + n) rows of 3, and the joint
+    compression tolerance, looser than the fixed-P one, so the factors keep fewer rows."""
+    from defop.operator import compress
+    from defop.operator import movable as mv
+
+    m = 40
+    op = _synthetic(bar, regions[4], m=m)
+    assert op.basis.centers.shape == (m + 1, 1 + 4, 3) and op.meta["n_centres"] == m + 1
+    kernel = op.compress().fast_state().kernel
+    assert kernel.tps[0].shape == ((1 + 4) * 3, m + 1)  # the frame's distances: one column per centre
+    same = _synthetic(bar, regions[4], m=m).compress(tol=mv.COMPRESS_TOL)
+    assert all(np.array_equal(a, b) for a, b in zip(op.factors, same.factors, strict=True))
+    assert op.rank < _synthetic(bar, regions[4], m=m).compress(tol=compress.TOL).rank

@@ -24,6 +24,7 @@ from test_page_movable import (
     float32_bound,
     moving_vertices,
     node_steps,
+    page_operator,
     pointer_path,
     python_frame,
     shipped_frame,
@@ -31,7 +32,7 @@ from test_page_movable import (
 from test_page_surface import float32_bary_bound, split_surface
 
 import defop as dop
-from defop.editor import export, movable_page
+from defop.editor import compact, export, movable_page, payload
 from defop.geometry.volumetric.surface import EmbeddedSurface
 from defop.scene.placement import placement_regions
 from defop.training.movable import train_movable
@@ -125,6 +126,39 @@ def test_the_drawn_vertices_are_evaluated_as_the_full_page(op, tmp_path):
     assert small[2]["error"] == full[2]["error"] and "holds handle 1" in small[2]["error"]
 
 
+@needs_node
+def test_the_shipped_page_payload_is_quantised_as_the_fixed_p_page(op, tmp_path):
+    """The standalone page's payload (export.movable_html): B on its grid and Rice-coded, as the fixed-P page's
+    (payload.page_factors, compact.compact_payload), decoded in the page bit for bit; the drawn and placement vertices
+    evaluate as Python's float64 evaluation of those factors, the moved patch and the rest pose exact."""
+    shipped = page_operator(op)
+    assert not np.array_equal(shipped.factors[1], op.factors[1])  # B moved to its grid
+    np.testing.assert_array_equal(shipped.factors[0], op.factors[0])
+
+    def page(p):
+        p = movable_page.movable_to_payload(op, factors=payload.page_factors(op))
+        out = compact.compact_payload(p, movable_page.drawn_payload)
+        assert "B_rice" in out and "B" not in out and out["F"].dtype == np.uint16
+        return out
+
+    pl = op.placement
+    keep = movable_page.drawn_payload(movable_page.movable_to_payload(op))["drawn"]
+    rng = np.random.default_rng(7)
+    for v in (int(pl.vertices[0][-1]), int(pl.vertices[0][1])):
+        hm = moving_vertices(op, [v])
+        Q = op.mesh.V[hm] + 0.03 * op.mesh.bbox_diagonal * rng.normal(size=hm.shape + (3,))
+        out = node_steps(
+            op,
+            [{"rest": [0, v]}, {"Q": op.mesh.V[hm].ravel().tolist()}, {"Q": Q.ravel().tolist()}],
+            tmp_path,
+            restrict=page,
+        )
+        X_rest, X = (np.reshape(o["X"], (-1, 3)) for o in out[1:])
+        np.testing.assert_array_equal(X_rest, op.mesh.V[keep])  # (8b) bit for bit at the new placement
+        np.testing.assert_array_equal(X[np.searchsorted(keep, hm)], Q)  # Prop. 2: the patch and the others exact
+        check_frame(shipped, X, Q, v, keep)
+
+
 # ---------------------------------------------------------------------------------------------- Chromium
 E = "window.defopEditor"
 STATE_JS = (
@@ -207,8 +241,10 @@ def test_page_3d_moves_a_rest_patch_then_drags(op, surfaced, tmp_path):
     Q, X = np.reshape(dragged["Q"], (-1, 3)), np.reshape(dragged["X"], (-1, 3))
     assert dragged["placement"] == [v] and np.linalg.norm(Q[1] - V[hm[1]]) > 0.02 * diag
     np.testing.assert_array_equal(np.delete(Q, 1, axis=0), np.delete(V[hm], 1, axis=0))
-    check_frame(op, X, Q, v, keep)
-    check_surface(op, surfaced.surface, np.reshape(dragged["S"], (-1, 3)), X, Q, v, keep)  # the user's surface
+    shipped = page_operator(op)  # B on its grid, as the fixed-P page ships it
+    check_frame(shipped, X, Q, v, keep)
+    check_surface(shipped, surfaced.surface, np.reshape(dragged["S"], (-1, 3)), X, Q, v, keep)  # the user's surface
+    assert np.abs(X - python_frame(op, Q, [v])[keep]).max() <= 1e-3 * diag  # the grid moves the frame little
     # Reset: the rest pose of the new placement, exact
     assert reset["placement"] == [v]
     np.testing.assert_array_equal(np.reshape(reset["Q"], (-1, 3)), V[hm])

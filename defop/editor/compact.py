@@ -100,10 +100,9 @@ def exact_grid(B):
     low = np.log2((bits & -bits).astype(np.float64), where=bits != 0, out=np.zeros(B.shape))
     lowest = np.where(B != 0, power - 53 + low, np.inf).min(axis=1, initial=np.inf)
     exponent = np.where(np.isfinite(lowest), lowest, 0).astype(np.int32)
-    codes = quantize_rows(B, exponent)
-    if np.abs(codes).max(initial=0) > CODE_MAX:
+    if np.abs(B / np.exp2(exponent.astype(np.float64))[:, None]).max(initial=0) > CODE_MAX:  # before any int cast
         return None, None
-    return codes, exponent
+    return quantize_rows(B, exponent), exponent
 
 
 def rice_pack(codes):
@@ -153,21 +152,22 @@ def rice_unpack(packed, k, cols):
     return out
 
 
-def compact_payload(p):
+def compact_payload(p, drawn=None):
     """The payload as the standalone page ships it (a new dict; ``p`` is unchanged).
 
-    In 3D only the vertices the page draws (:func:`drawn_vertices`). ``B``, when its rows lie on power-of-two
-    grids with codes of at most 16 bits (as :func:`defop.editor.payload.page_factors` makes it), becomes ``B_rice``
-    and ``B_k`` (:func:`rice_pack`) and ``B_exponent`` (:func:`exact_grid`: its rows' powers of two); the edges
-    ``E`` are left out (the page rebuilds them from F); the region outlines keep 7 significant digits; triangle
-    indices (``F``, ``surface_F``, ``surface_tets``) become uint16 when there are fewer than 65,536 vertices.
-    Everything else is as in ``p``.
+    In 3D only the vertices the page draws (``drawn(p)``, default :func:`drawn_vertices`; the movable page's keeps
+    its placement's vertices too, :func:`defop.editor.movable_page.drawn_payload`). ``B``, when its rows lie on
+    power-of-two grids with codes of at most 16 bits (as :func:`defop.editor.payload.page_factors` makes it), becomes
+    ``B_rice`` and ``B_k`` (:func:`rice_pack`) and ``B_exponent`` (:func:`exact_grid`: its rows' powers of two); the
+    edges ``E`` are left out (the page rebuilds them from F); the region outlines keep 7 significant digits;
+    triangle indices (``F``, ``surface_F``, ``surface_tets``) become uint16 when there are fewer than 65,536
+    vertices. Everything else is as in ``p``.
 
     Returns
     -------
     dict
     """
-    out = drawn_vertices(p) if p.get("d") == 3 else dict(p)
+    out = (drawn or drawn_vertices)(p) if p.get("d") == 3 else dict(p)
     B = out.get("B")
     if B is not None:
         codes, exponent = exact_grid(B)

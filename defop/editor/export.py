@@ -193,8 +193,9 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None, comp
         was given ``threshold=`` or ``foreground=`` (``dop.shapes.image_frame(picture, shape, threshold=...)``),
         or when the picture is not the one the shape was made from.
     compress : bool
-        True (default): the compressed factors of a :class:`DefOp` (:func:`.payload.page_factors`); False: the
-        full W_F. A BranchedOperator's branches are shipped as they are (compress them yourself).
+        True (default): the compressed factors of a :class:`DefOp` or a MovableOp (:func:`.payload.page_factors`);
+        False: the full W_F (a MovableOp's own factors as they are, if it has them). A BranchedOperator's branches are
+        shipped as they are (compress them yourself).
 
     Returns
     -------
@@ -214,7 +215,7 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None, comp
     if isinstance(op, MovableOp):  # handles that move at rest: the page of defop.editor.movable_page
         if image is not None or image_frame is not None:
             raise ValueError("image and image_frame are not offered on the page of a MovableOp")
-        return movable_html(op, path, shape=shape, title=title)
+        return movable_html(op, path, shape=shape, title=title, compress=compress)
     branched = isinstance(op, BranchedOperator)
     if branched:
         if op.branches[0].op.d != 2:
@@ -267,11 +268,14 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None, comp
     return opt.write_atomic(path, text.encode("utf-8"))
 
 
-def movable_html(op, path, shape=None, title=None):
+def movable_html(op, path, shape=None, title=None, compress=True):
     """Write the page of a MovableOp (:func:`to_html` with a MovableOp; :mod:`.movable_page`): the 2D page, or the
     3D view, with the rest mode, ``defop_movable.js`` after the editor's (and the 3D view's) script. ``shape``'s
     sampling regions are drawn around the nominal rest positions in 2D, and in 3D its surface is the one drawn (its
-    mesh must be the operator's). Returns the path, written atomically."""
+    mesh must be the operator's). ``compress`` as :func:`to_html`'s: the fixed-P page's factors
+    (:func:`.payload.page_factors`: ``op``'s own or :meth:`MovableOp.compress
+    <defop.operator.movable.MovableOp.compress>`'s, B on its grid and Rice-coded, :func:`.compact.compact_payload`);
+    the handles and the rest pose stay exact (the correction writes them). Returns the path, written atomically."""
     if title is not None:
         title = opt.text("title", title)
     regions = None
@@ -281,17 +285,15 @@ def movable_html(op, path, shape=None, title=None):
         _check_dimensions(op, shape, None, None)
         check_mesh(op, shape.mesh)
         regions = region_polygons(shape.P_moving, shape.regions) if op.d == 2 else None
-    payload = movable_to_payload(op, regions)
+    payload = movable_to_payload(op, regions, page_factors(op, compress))
     if op.d == 3 and shape is not None and shape.surface is not None:
         payload.update(surface_payload(shape.surface, op.n_vertices))
-    if op.d == 3:  # the drawn vertices and the placement's only, as the fixed-P 3D page
-        payload = drawn_payload(payload)
     if not title:
         title = opt.text(
             "title", f"defop: {op.meta.get('shape', 'shape')}, {op.placement.n_movable} movable rest handle(s)"
         )
     payload.update(title=title, kinds=["tps"])
-    meta, data = encode_payload(payload)
+    meta, data = encode_payload(compact_payload(payload, drawn_payload))  # in 3D the drawn and placement vertices
     fields = dict(
         title=html.escape(title),
         meta=script_json(meta),

@@ -42,7 +42,7 @@ INSTRUCTION = {
 }
 
 
-def movable_to_payload(op, regions=None):
+def movable_to_payload(op, regions=None, factors=None):
     """Everything the page needs to evaluate and draw a MovableOp (2D or 3D) at its nominal placement.
 
     Parameters
@@ -54,6 +54,9 @@ def movable_to_payload(op, regions=None):
         the operator's reach (the farthest training offset). The page translates a handle's polygons with its rest
         position. 3D: balls ``[cx, cy, cz, r]`` (:func:`defop.editor.payload.region_balls`; default none: the 3D
         page draws the placement regions' vertices, not the sampling balls).
+    factors : tuple of two numpy arrays, optional
+        (A, B) to ship instead of ``op.factors`` (the standalone page's: :func:`defop.editor.payload.page_factors`,
+        B on its grid, as the fixed-P page's).
 
     Returns
     -------
@@ -109,8 +112,9 @@ def movable_to_payload(op, regions=None):
     }
     if d == 2:
         p["E"] = mesh_edges(F).astype(np.int32)
-    if op.factors is not None:
-        p["A"], p["B"] = (np.asarray(f, np.float32) for f in op.factors)
+    factors = op.factors if factors is None else factors
+    if factors is not None:
+        p["A"], p["B"] = (np.asarray(f, np.float32) for f in factors)
         p["rank"] = int(p["A"].shape[1])
     else:
         p["A"] = np.asarray(op.WF, np.float32)

@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.planar.outlines import load_image
-from ..operator.compress import factorise, training_deltas
 from ..operator.core import EXTRAPOLATION_FACTOR
 from ..operator.defop import training_reach
 from .compact import grid_exponents, on_grid
@@ -114,14 +113,20 @@ def region_balls(P, regions=None, samples=None):
 
 
 def page_factors(op, compress=True):
-    """The factors (A, B) of W_F ≈ A B a page carries for ``op``.
+    """The factors (A, B) of W_F ≈ A B a page carries for ``op``: the one quantisation of every page.
 
-    With ``compress``: ``op``'s own factors, or else those of :meth:`DefOp.compress
-    <defop.operator.defop.DefOp.compress>` at its defaults (float32, :data:`defop.operator.compress.TOL`), with B
-    rounded to its grid (:func:`defop.editor.compact.on_grid`, steps by :func:`defop.editor.compact.grid_exponents`:
-    the grid's expected error on the training displacements is :data:`defop.editor.compact.GRID_TOL` of theirs;
-    zero on the handle columns still), the factors the page evaluates bit for bit. ``op`` is unchanged.
-    Without: ``op.factors`` (None: the full W_F).
+    With ``compress``: ``op``'s own factors, or else those its ``compress`` would set at its defaults (float32;
+    :meth:`DefOp.factorise <defop.operator.defop.DefOp.factorise>`, :meth:`MovableOp.factorise
+    <defop.operator.movable.MovableOp.factorise>`), with B rounded to its grid (:func:`defop.editor.compact.on_grid`,
+    steps by :func:`defop.editor.compact.grid_exponents` over the rows of ``op.compression_samples()``: the grid's
+    expected error on those displacements is :data:`defop.editor.compact.GRID_TOL` of theirs; zero on the handle
+    columns still), the factors the page evaluates bit for bit. ``op`` is unchanged. Without: ``op.factors`` (None:
+    the full W_F).
+
+    Parameters
+    ----------
+    op : defop.operator.DefOp or defop.operator.movable.MovableOp
+    compress : bool
 
     Returns
     -------
@@ -129,9 +134,9 @@ def page_factors(op, compress=True):
     """
     if not compress:
         return op.factors
-    A, B = op.factors if op.factors is not None else factorise(op)
+    A, B = op.factors if op.factors is not None else op.factorise()
     A = np.asarray(A, np.float32)
-    S = training_deltas(op)
+    S = op.compression_samples()
     SA = A.astype(np.float64) if S is None else S @ A
     mass = np.repeat(op.mesh.mass_matrix.diagonal(), op.d)
     return A, on_grid(B, grid_exponents(B, SA, mass))

@@ -265,7 +265,17 @@ class DefOp(OperatorCore):
         (relative, in [0, 1); default :data:`compress.TOL`, 5e-3); ``dtype`` float32 (default) or float64. See
         :func:`compress.factorise`, which raises a ValueError naming a bad option. Returns ``self``.
         """
-        return self.set_factors(compress_mod.factorise(self, rank, tol, dtype))
+        return self.set_factors(self.factorise(rank, tol, dtype))
+
+    def factorise(self, rank=None, tol=compress_mod.TOL, dtype=np.float32):
+        """The factors (A, B) :meth:`compress` would set (:func:`compress.factorise`); ``self`` is unchanged."""
+        return compress_mod.factorise(self, rank, tol, dtype)
+
+    def compression_samples(self):
+        """δψ at the training samples ((m, |Ψ|−1) numpy array, or None): the rows whose displacements the
+        compression (and a page's grid, :func:`defop.editor.payload.page_factors`) keeps
+        (:func:`compress.training_deltas`)."""
+        return compress_mod.training_deltas(self)
 
     # ------------------------------------------------------------------ checks and files
     def save(self, path):

@@ -41,7 +41,6 @@ import warnings
 
 import numpy as np
 
-from .. import options as opt
 from . import compress as compress_mod
 from . import core
 from . import handle_bases as hb
@@ -60,14 +59,15 @@ COMPRESS_TOL = 2e-2
 
 @dataclasses.dataclass
 class RestPlacement:
-    """The state of one rest placement P of the movable handles (:meth:`MovableOp.at`, :meth:`CarryOp.at`):
-    ``idx`` (b,) the movable handles' vertices, ``hm`` (n,) the moving handles' vertices, ``P`` (n, d) their rest
-    positions, ``bumps`` the placement's bumps (support, weights (s, B)), ``moved`` (B,) the vertices of every
-    member of the movable patches (:attr:`PlacementRegions.moved`) and ``rows`` (B,) their rows of Q; for
-    :class:`MovableOp` also the factors it was made for (``key``), z(P, P) (``z0``), δψ's subtrahend (``psi0``),
-    the kernel's frame at (P, P) (``X0``), the fixed handles, whether P is the nominal placement and the frame
-    kernel's packed arguments (``zp`` = z0[:b], ``ints`` = moved, rows, hm, the bumps' support and the fixed
-    handles end to end); for :class:`CarryOp` the barycentric map ``S`` and the shift of Q to the nominal operator.
+    """The state of one rest placement P of the movable handles (:meth:`MovableOp.at`,
+    :meth:`.movable_carry.CarryOp.at`): ``idx`` (b,) the movable handles' vertices, ``hm`` (n,) the moving handles'
+    vertices, ``P`` (n, d) their rest positions, ``bumps`` the placement's bumps (support, weights (s, B)),
+    ``moved`` (B,) the vertices of every member of the movable patches (:attr:`PlacementRegions.moved`) and ``rows``
+    (B,) their rows of Q; for :class:`MovableOp` also the factors it was made for (``key``), z(P, P) (``z0``), δψ's
+    subtrahend (``psi0``), the kernel's frame at (P, P) (``X0``), the fixed handles, whether P is the nominal
+    placement and the frame kernel's packed arguments (``zp`` = z0[:b], ``ints`` = moved, rows, hm, the bumps'
+    support and the fixed handles end to end); for :class:`.movable_carry.CarryOp` the barycentric map ``S`` and the
+    shift of Q to the nominal operator.
     """
 
     idx: np.ndarray
@@ -183,7 +183,7 @@ def retarget(Q, placement, old, new):
 def correct(mesh, placement, handles, moving, st, u, Qs):
     """x + u, the residual correction Σ_ℓ g_{v_ℓ} r_ℓ in float64, the handles written exactly, rest rows = x.
 
-    ``st``: the :class:`RestPlacement` of :meth:`MovableOp.at` (or :meth:`CarryOp.at`); u (k, d n)
+    ``st``: the :class:`RestPlacement` of :meth:`MovableOp.at` (or :meth:`.movable_carry.CarryOp.at`); u (k, d n)
     float64, Qs (k, n, d). Returns (k, d n_vertices).
     """
     k, d, n_vertices = len(Qs), mesh.dim, mesh.n_vertices
@@ -417,10 +417,17 @@ class MovableOp(OperatorCore):
         """W_F ≈ A B (:func:`defop.operator.compress.principal_factors`), the directions of δψ at ``samples``
         (joint z rows, (m, |Ψ|−1) δψ; default the basis' centres), to ``tol`` (default :data:`COMPRESS_TOL`);
         the guarantees stay exact. Returns self."""
-        dtype = compress_mod.check_options(rank, tol, dtype)
-        C = self.basis.centers.reshape(len(self.basis.centers), -1)
-        S = self.basis.delta_z(C) if samples is None else samples
-        return self.set_factors(compress_mod.free_factors(self, self.still, S, rank, tol, dtype))
+        return self.set_factors(self.factorise(rank, tol, dtype, samples))
+
+    def factorise(self, rank=None, tol=COMPRESS_TOL, dtype=np.float32, samples=None):
+        """The factors (A, B) :meth:`compress` would set; ``self`` is unchanged."""
+        S = self.compression_samples() if samples is None else samples
+        return compress_mod.free_factors(self, self.still, S, rank, tol, compress_mod.check_options(rank, tol, dtype))
+
+    def compression_samples(self):
+        """δψ (|C|, |Ψ|−1) at the basis' centres: the rows whose displacements the compression (and a page's grid,
+        :func:`defop.editor.payload.page_factors`) keeps."""
+        return self.basis.delta_z(self.basis.centers.reshape(len(self.basis.centers), -1))
 
     def save(self, path):
         """Save to ``path`` (.npz, format ``defop-movable-1``, placement regions included): :func:`save_movable`."""
@@ -438,63 +445,11 @@ def load_movable(path, cls=None):
     return io_mod.load_movable(path, cls or MovableOp)
 
 
-class CarryOp:
-    """The second design: the nominal fixed-P operator, carried with the rest handles.
+def __getattr__(name):
+    """``CarryOp``, the compared second design, is :class:`defop.operator.movable_carry.CarryOp` (imported here on
+    first use: that module imports this one)."""
+    if name == "CarryOp":
+        from .movable_carry import CarryOp
 
-    A rest-space warp w_P(x) = x + Σ_ℓ g_{v_ℓ}(x) (p_ℓ⁰ − p_ℓ) (the placement bumps) takes each movable handle's
-    vertex to its nominal position; the nominal operator D⁰ is evaluated with the same handle displacements,
-    Q' = Q − P + P⁰, and its displacement field is read at w_P(x) (barycentric, in the rest mesh):
-    D(x; P, Q) = x + u⁰(w_P(x); Q'), then the correction of (M). No joint training: one fixed-P operator.
-    (8b) holds as for (M) (u⁰ = 0 at Q' = P⁰, and rest rows are x), Prop. 2 by the exact handle rows.
-
-    Parameters
-    ----------
-    op0 : defop.operator.defop.DefOp
-        Trained at the nominal placement.
-    placement : defop.scene.placement.PlacementRegions
-    """
-
-    def __init__(self, op0, placement):
-        self.op0, self.placement, self.mesh = op0, placement, op0.mesh
-        self.handles, self.moving, self.d = op0.handles, op0.moving, op0.d
-        self.n_vertices, self._placements = op0.n_vertices, core.KeptPlacements(PLACEMENTS_KEPT)
-
-    def at(self, P=None):
-        """The state of rest placement P: its vertices, the bumps, the barycentric map S of the rest-space warp
-        and the shift of Q (checked and resolved once per placement, :class:`core.KeptPlacements`)."""
-        return self._placements.get(P, None, self.placement.resolve, self._placement_state)
-
-    def _placement_state(self, idx):
-        import scipy.sparse as sp
-
-        hm = self.placement.handles_at(idx)[self.moving]
-        y, pl = self.mesh.V.copy(), self.placement
-        g, rows, moved = pl.g, pl.bump_rows(idx), pl.members_at(idx)
-        back = self.mesh.V[pl.members_at(pl.nominal)] - self.mesh.V[moved]  # (B, d): each member to its nominal
-        for ell, row in enumerate(rows):
-            a, b = g.indptr[row], g.indptr[row + 1]
-            y[g.indices[a:b]] += g.data[a:b, None] * back[ell]
-        elem, bary = self.mesh.locate(y)
-        n = self.n_vertices
-        S = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(n), self.d + 1), self.mesh.F[elem].ravel())), (n, n))
-        return RestPlacement(
-            idx=idx,
-            hm=hm,
-            P=self.mesh.V[hm],
-            bumps=self.placement.bumps_at(idx),
-            rows=self.placement.moved_rows(),
-            moved=moved,
-            S=S,
-            shift=self.op0.P - self.mesh.V[hm],
-        )
-
-    def __call__(self, Q, P=None, fast=False):
-        """D(·; P, Q) for Q (n, d) or (k, n, d) at one P; ``fast``: the nominal operator's fast path."""
-        st = self.at(P)
-        Q = opt.real_array("Q", Q)
-        Qs = Q.reshape(-1, *st.P.shape)
-        Qn = Qs + st.shift
-        X0 = np.stack([self.op0.evaluate_fast(q) for q in Qn]) if fast else self.op0(Qn)
-        u = np.stack([st.S @ (x - self.mesh.V) for x in X0]).reshape(len(Qs), -1)
-        out = correct(self.mesh, self.placement, self.handles, self.moving, st, u, Qs)
-        return out.reshape(*Q.shape[:-2], self.n_vertices, self.d)
+        return CarryOp
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
