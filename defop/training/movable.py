@@ -152,6 +152,23 @@ def solve_joint(shape, placement, idx, Q, energy="sarap", n_jobs=None, progress=
     return _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache, policy)[:2]
 
 
+#: a part of the checkpoint keys of the joint solves: they run in :func:`by_placement`'s order
+BY_PLACEMENT = "by placement"
+
+
+def by_placement(idx):
+    """(m,) int numpy array: the order that puts the samples of one placement ``idx`` (m, b) in a row, each
+    placement where it first occurs and its samples in their order (a solve does not depend on the order)."""
+    _, first, inverse = np.unique(idx, axis=0, return_index=True, return_inverse=True)
+    return np.argsort(first[inverse.ravel()], kind="stable")
+
+
+def in_order(arrays, order):
+    """The per-sample arrays of ``arrays`` (those of ``len(order)``) back in the samples' order from ``order``'s."""
+    back = np.argsort(order)
+    return {k: v[back] if len(v) == len(order) and k != "cpu_seconds" else v for k, v in arrays.items()}
+
+
 def _multilevel_joint(lv, Q, handles, energy, n_jobs, progress, ck, key):
     """The joint samples under the multilevel policy: (the truth's arrays, CPU seconds spent in other processes)."""
     clock = solves.Stopwatch()
@@ -168,7 +185,7 @@ def _multilevel_joint(lv, Q, handles, energy, n_jobs, progress, ck, key):
             desc="coarse joint solves",
         )
     )
-    key_of = None if ck is None else lambda a, b: cache_mod.key("ml-fine-movable", key, a, b)
+    key_of = None if ck is None else lambda a, b: cache_mod.key("ml-fine-movable", key, BY_PLACEMENT, a, b)
     X, conv, info, remote = portfolios.refine(
         lv, Q, energy, run.runs, ml.refine_one, ml.RULES, n_jobs, progress, ck, key_of, handles=handles
     )
@@ -188,27 +205,28 @@ def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache, poli
     mesh, store = shape.mesh, cache_mod.open_cache(cache)
     key = None if store is None else _joint_key(shape, placement, idx, Q, energy, lv)
     ck = None if store is None else batch.Checkpoints(store)
-    handles = np.array([placement.handles_at(i) for i in idx])  # a movable handle's patch moves with it
+    order = by_placement(idx)  # the samples of one placement in a row: one solver each (solves.Problem.solver_for)
+    handles = np.array([placement.handles_at(i) for i in idx[order]])  # a movable handle's patch moves with it
     spent = []
 
     def compute():  # the solves' CPU seconds are kept with the truth (MovableRecord.solve_cpu_seconds)
         if lv is not None:
-            arrays, remote = _multilevel_joint(lv, Q, handles, energy, n_jobs, progress, ck, key)
+            arrays, remote = _multilevel_joint(lv, Q[order], handles, energy, n_jobs, progress, ck, key)
             spent.append(remote)
-            return arrays
+            return in_order(arrays, order)
         r = solves.solve(
             shape,
-            Q,
+            Q[order],
             energy,
             n_jobs=n_jobs,
             progress=progress,
             desc="joint solves",
             checkpoint=ck,
             handles=handles,
-            key_of=lambda a, b: cache_mod.key("chunk-movable", key, a, b),
+            key_of=lambda a, b: cache_mod.key("chunk-movable", key, BY_PLACEMENT, a, b),
         )
         spent.append(r.cpu_seconds - r.local_cpu_seconds)
-        return {"X": r.X, "converged": r.converged, "cpu_seconds": np.array([r.cpu_seconds])}
+        return in_order({"X": r.X, "converged": r.converged, "cpu_seconds": np.array([r.cpu_seconds])}, order)
 
     gt = batch.load_or_compute(store, "gt", key, solves.gt_expect(len(Q), mesh.n_vertices, mesh.dim), compute)
     if ck is not None:
