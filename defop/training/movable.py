@@ -109,10 +109,10 @@ def _joint_key(shape, placement, idx, Q, energy, lv=None):
     )
 
 
-#: ``policy="auto"`` of the joint solves runs two levels in these dimensions only. A joint sample builds its own
-#: solvers on both levels (its handles differ), so the coarse level saves less than it does for a fixed-P sample:
-#: measured side by side on the same samples (benchmarks/README.md), the two levels took 1.32x fewer CPU s on bar_3d
-#: (936 vertices) but 1.3x more on the bar (596) and 1.15x more on the aleph (2,810).
+#: ``policy="auto"`` of the joint solves runs two levels in these dimensions only. Each placement builds its own
+#: solvers on both levels (its handles differ; its samples share them), so the coarse level saves less than it does
+#: for a fixed-P sample: measured side by side on the same samples (benchmarks/README.md), the two levels took 1.32x
+#: fewer CPU s on bar_3d (936 vertices) but 1.3x more on the bar (596) and 1.15x more on the aleph (2,810).
 JOINT_AUTO_DIMS = (3,)
 
 
@@ -345,10 +345,12 @@ def budget_samples(record, factor=BUDGET):
     A joint sample runs, under :func:`train_movable`'s default policy, one solve from the rest pose on the full
     mesh in 2D, and in 3D what a fixed-P sample runs under ``dop.train``'s: its portfolio on the coarse mesh (the
     placement's handles at their coarse vertices), then one fine run from the prolongated minimum, with the same
-    safeguard (:data:`JOINT_AUTO_DIMS`). Either way it builds its own fine solver (the handles differ per sample),
-    so it costs more than a fixed-P sample wherever that setup dominates: the rule is a count, the same m on every
-    machine, not a bound on CPU seconds (the lesson and ``bench_movable.py`` print the CPU seconds each side took;
-    ``bench_movable_policy.py`` both policies).
+    safeguard (:data:`JOINT_AUTO_DIMS`). Either way each placement builds its own fine solver (its samples share
+    it, :func:`by_placement`), so a joint sample costs more than a fixed-P sample where placements rarely repeat
+    (the aleph, 2,810 vertices: 1.38x, its bi-Laplacian's LU and the longer rest-pose solve) and about as much where
+    they do (bar_3d, 19 placements: 1.07x at m = 1,000; benchmarks/README.md, 2026-12-02, fourth part). The rule is
+    a count, the same m on every machine, not a bound on CPU seconds (the lesson and ``bench_movable.py`` print the
+    CPU seconds each side took; ``bench_movable_policy.py`` both policies).
 
     Raises
     ------

@@ -211,9 +211,11 @@ def chunk_key(shape, energy, samples, starts, rest, incumbents):
     return key_of
 
 
-#: How many solvers with handles per sample a :class:`Problem` keeps (the most recently used), and at most how many
-#: mesh vertices over all of them (a kept solver holds its Hessian's pattern and LDLᵀ and its bi-Laplacian's LU)
-POOL_SIZE, POOL_VERTICES = 32, 1 << 15
+#: How many solvers with handles per sample a :class:`Problem` keeps (the most recently used, at least one), and at
+#: most how many mesh vertices over all of them: a kept solver holds its Hessian's pattern and LDLᵀ and its
+#: bi-Laplacian's LU, 14 MB on the aleph (2,810 vertices), 18 MB on bar_3d (936). The joint solves run grouped by
+#: placement (:func:`defop.training.movable.by_placement`), so one is all they re-use.
+POOL_SIZE, POOL_VERTICES = 4, 1 << 13
 
 
 @dataclasses.dataclass
