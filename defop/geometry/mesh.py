@@ -254,6 +254,39 @@ class Mesh:
         dihedral angles times edge lengths on tetrahedra)."""
         return cotangent_laplacian(self.V, self.F)
 
+    @cached_property
+    def bilaplacian(self):
+        """(n,n) scipy sparse CSC: the bi-Laplacian L M⁻¹ L (L :attr:`cotmatrix`, M :attr:`mass_matrix`), which the
+        biharmonic extension of every handle set on this mesh factorises on its free vertices."""
+        return (self.cotmatrix.T @ sp.diags(1.0 / self.mass_matrix.diagonal()) @ self.cotmatrix).tocsc()
+
+    @cached_property
+    def dof_pairs(self):
+        """The sparsity pattern of every matrix assembled element by element over the vertex dofs d·v + c (the
+        Hessian of problem (6) before any handle is eliminated), computed once per mesh: a handle set's pattern is
+        the part of it on its free dofs (:class:`defop.variational.problem.ReducedHessian`).
+
+        Returns
+        -------
+        dofs : (m, k) int64 numpy array
+            Each element's dofs in local order (k = (d + 1)·d: local dof d·i + c is d·F[t, i] + c).
+        pairs : (p,) int64 numpy array
+            The distinct dof pairs (row, col) that share an element with row <= col, as col·N + row (N = d·n),
+            sorted: column-major, CSC order.
+        inverse : (m·k²,) int64 numpy array
+            Per local entry t·k² + i·k + j (row dofs[t, i], col dofs[t, j]) its index in ``pairs``, −1 below the
+            diagonal.
+        """
+        d = self.dim
+        k = self.F.shape[1] * d
+        dofs = (d * self.F[:, :, None] + np.arange(d)).reshape(len(self.F), -1).astype(np.int64)
+        rows, cols = np.repeat(dofs, k, axis=1).ravel(), np.tile(dofs, (1, k)).ravel()
+        upper = np.flatnonzero(rows <= cols)
+        pairs, inv = np.unique(cols[upper] * (d * self.n_vertices) + rows[upper], return_inverse=True)
+        inverse = -np.ones(len(rows), np.int64)
+        inverse[upper] = inv.ravel()
+        return dofs, pairs, inverse
+
     # -------------------------------------------------------------- lookup
     @cached_property
     def _kdtree(self):

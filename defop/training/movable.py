@@ -109,10 +109,10 @@ def _joint_key(shape, placement, idx, Q, energy, lv=None):
     )
 
 
-#: ``policy="auto"`` of the joint solves runs two levels in these dimensions only. A joint sample builds its own
-#: solvers on both levels (its handles differ), so the coarse level saves less than it does for a fixed-P sample:
-#: measured side by side on the same samples (benchmarks/README.md), the two levels took 1.32x fewer CPU s on bar_3d
-#: (936 vertices) but 1.3x more on the bar (596) and 1.15x more on the aleph (2,810).
+#: ``policy="auto"`` of the joint solves runs two levels in these dimensions only. Each placement builds its own
+#: solvers on both levels (its handles differ; its samples share them), so the coarse level saves less than it does
+#: for a fixed-P sample: measured side by side on the same samples (benchmarks/README.md), the two levels took 1.32x
+#: fewer CPU s on bar_3d (936 vertices) but 1.3x more on the bar (596) and 1.15x more on the aleph (2,810).
 JOINT_AUTO_DIMS = (3,)
 
 
@@ -152,6 +152,23 @@ def solve_joint(shape, placement, idx, Q, energy="sarap", n_jobs=None, progress=
     return _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache, policy)[:2]
 
 
+#: a part of the checkpoint keys of the joint solves: they run in :func:`by_placement`'s order
+BY_PLACEMENT = "by placement"
+
+
+def by_placement(idx):
+    """(m,) int numpy array: the order that puts the samples of one placement ``idx`` (m, b) in a row, each
+    placement where it first occurs and its samples in their order (a solve does not depend on the order)."""
+    _, first, inverse = np.unique(idx, axis=0, return_index=True, return_inverse=True)
+    return np.argsort(first[inverse.ravel()], kind="stable")
+
+
+def in_order(arrays, order):
+    """The per-sample arrays of ``arrays`` (those of ``len(order)``) back in the samples' order from ``order``'s."""
+    back = np.argsort(order)
+    return {k: v[back] if len(v) == len(order) and k != "cpu_seconds" else v for k, v in arrays.items()}
+
+
 def _multilevel_joint(lv, Q, handles, energy, n_jobs, progress, ck, key):
     """The joint samples under the multilevel policy: (the truth's arrays, CPU seconds spent in other processes)."""
     clock = solves.Stopwatch()
@@ -168,7 +185,7 @@ def _multilevel_joint(lv, Q, handles, energy, n_jobs, progress, ck, key):
             desc="coarse joint solves",
         )
     )
-    key_of = None if ck is None else lambda a, b: cache_mod.key("ml-fine-movable", key, a, b)
+    key_of = None if ck is None else lambda a, b: cache_mod.key("ml-fine-movable", key, BY_PLACEMENT, a, b)
     X, conv, info, remote = portfolios.refine(
         lv, Q, energy, run.runs, ml.refine_one, ml.RULES, n_jobs, progress, ck, key_of, handles=handles
     )
@@ -188,27 +205,28 @@ def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache, poli
     mesh, store = shape.mesh, cache_mod.open_cache(cache)
     key = None if store is None else _joint_key(shape, placement, idx, Q, energy, lv)
     ck = None if store is None else batch.Checkpoints(store)
-    handles = np.array([placement.handles_at(i) for i in idx])  # a movable handle's patch moves with it
+    order = by_placement(idx)  # the samples of one placement in a row: one solver each (solves.Problem.solver_for)
+    handles = np.array([placement.handles_at(i) for i in idx[order]])  # a movable handle's patch moves with it
     spent = []
 
     def compute():  # the solves' CPU seconds are kept with the truth (MovableRecord.solve_cpu_seconds)
         if lv is not None:
-            arrays, remote = _multilevel_joint(lv, Q, handles, energy, n_jobs, progress, ck, key)
+            arrays, remote = _multilevel_joint(lv, Q[order], handles, energy, n_jobs, progress, ck, key)
             spent.append(remote)
-            return arrays
+            return in_order(arrays, order)
         r = solves.solve(
             shape,
-            Q,
+            Q[order],
             energy,
             n_jobs=n_jobs,
             progress=progress,
             desc="joint solves",
             checkpoint=ck,
             handles=handles,
-            key_of=lambda a, b: cache_mod.key("chunk-movable", key, a, b),
+            key_of=lambda a, b: cache_mod.key("chunk-movable", key, BY_PLACEMENT, a, b),
         )
         spent.append(r.cpu_seconds - r.local_cpu_seconds)
-        return {"X": r.X, "converged": r.converged, "cpu_seconds": np.array([r.cpu_seconds])}
+        return in_order({"X": r.X, "converged": r.converged, "cpu_seconds": np.array([r.cpu_seconds])}, order)
 
     gt = batch.load_or_compute(store, "gt", key, solves.gt_expect(len(Q), mesh.n_vertices, mesh.dim), compute)
     if ck is not None:
@@ -327,10 +345,12 @@ def budget_samples(record, factor=BUDGET):
     A joint sample runs, under :func:`train_movable`'s default policy, one solve from the rest pose on the full
     mesh in 2D, and in 3D what a fixed-P sample runs under ``dop.train``'s: its portfolio on the coarse mesh (the
     placement's handles at their coarse vertices), then one fine run from the prolongated minimum, with the same
-    safeguard (:data:`JOINT_AUTO_DIMS`). Either way it builds its own fine solver (the handles differ per sample),
-    so it costs more than a fixed-P sample wherever that setup dominates: the rule is a count, the same m on every
-    machine, not a bound on CPU seconds (the lesson and ``bench_movable.py`` print the CPU seconds each side took;
-    ``bench_movable_policy.py`` both policies).
+    safeguard (:data:`JOINT_AUTO_DIMS`). Either way each placement builds its own fine solver (its samples share
+    it, :func:`by_placement`), so a joint sample costs more than a fixed-P sample where placements rarely repeat
+    (the aleph, 2,810 vertices: 1.38x, its bi-Laplacian's LU and the longer rest-pose solve) and about as much where
+    they do (bar_3d, 19 placements: 1.07x at m = 1,000; benchmarks/README.md, 2026-12-02, fourth part). The rule is
+    a count, the same m on every machine, not a bound on CPU seconds (the lesson and ``bench_movable.py`` print the
+    CPU seconds each side took; ``bench_movable_policy.py`` both policies).
 
     Raises
     ------

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..operator import handle_bases as hb
 from ..operator.fit import fit
-from ..variational.solver import NotConvergedWarning, Solver
+from ..variational.solver import NotConvergedWarning
 from . import batch, solves
 
 __all__ = ["portfolio", "refine"]
@@ -87,16 +87,17 @@ def portfolio(shape, samples, energy, n_jobs=None, progress=True, rounds=2, chec
     return X, conv, times, wall, runs
 
 
-def _refine_chunk(decide, lv, solver, energy, jobs):
+def _refine_chunk(decide, lv, problem, jobs):
     """``decide`` (:func:`defop.training.multilevel.refine_one`) per (targets, candidates, handles) job, with its CPU
-    seconds; a job with handles (h,) runs on ``lv.at(handles)`` with its own fine solver (built in its CPU seconds)."""
+    seconds; a job with handles (h,) runs on ``lv.at(handles)`` with the fine solver of those handles
+    (:meth:`defop.training.solves.Problem.solver_for`: built in its CPU seconds unless kept from an earlier job)."""
     out, pid = [], os.getpid()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotConvergedWarning)
         for T, c, h in jobs:
             t0 = time.process_time()
-            level, solv = (lv, solver) if h is None else (lv.at(h), Solver(lv.fine.mesh, h, energy))
-            res = decide(level, solv, T, c)
+            level = lv if h is None else lv.at(h)
+            res = decide(level, problem.solver_for(h), T, c)
             out.append((*res, time.process_time() - t0, pid))
     return out
 
@@ -182,17 +183,17 @@ def refine(
         CPU seconds of the runs in other processes (:class:`defop.training.solves.Stopwatch` adds this one's).
     """
     fine = lv.fine
+    problem = solves.Problem(fine.mesh, fine.handles, energy)
     if handles is None:
-        solver = Solver(fine.mesh, fine.handles, energy)
+        problem.solver_for(None)  # built once here, shipped to the workers
         jobs = [(fine.targets(q), c, None) for q, c in zip(samples, candidates)]
     else:
-        handles = solves.check_handles(fine, handles, len(samples))
-        solver = None  # one per sample, built where it runs
+        handles = solves.check_handles(fine, handles, len(samples))  # solvers per handle set, where they run
         jobs = [(solves.targets_at(fine, h, q), c, h) for q, c, h in zip(samples, candidates, handles)]
     n, d = fine.mesh.V.shape
     chunk = _refine_cache(checkpoint, key_of, n, d, tuple(rules))
     res = batch.map_checkpointed(
-        functools.partial(_refine_chunk, decide, lv, solver, energy), jobs, n_jobs, progress, "fine runs", chunk
+        functools.partial(_refine_chunk, decide, lv, problem), jobs, n_jobs, progress, "fine runs", chunk
     )
     cols = list(zip(*res))
     info = {

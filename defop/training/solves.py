@@ -211,10 +211,18 @@ def chunk_key(shape, energy, samples, starts, rest, incumbents):
     return key_of
 
 
+#: How many solvers with handles per sample a :class:`Problem` keeps (the most recently used, at least one), and at
+#: most how many mesh vertices over all of them: a kept solver holds its Hessian's pattern and LDLᵀ and its
+#: bi-Laplacian's LU, 14 MB on the aleph (2,810 vertices), 18 MB on bar_3d (936). The joint solves run grouped by
+#: placement (:func:`defop.training.movable.by_placement`), so one is all they re-use.
+POOL_SIZE, POOL_VERTICES = 4, 1 << 13
+
+
 @dataclasses.dataclass
 class Problem:
     """What every sample of a batch shares: the mesh, the default handles, the energy, the solver's settings and
-    the policy (``rest``: also solve from the rest pose; ``keep``: ``"best"`` or ``"all"`` end points)."""
+    the policy (``rest``: also solve from the rest pose; ``keep``: ``"best"`` or ``"all"`` end points); the solvers
+    of the handle sets met so far (``pool``, not pickled: each process keeps its own)."""
 
     mesh: object
     handles: np.ndarray
@@ -224,14 +232,33 @@ class Problem:
     solver_kw: dict = dataclasses.field(default_factory=dict)
     solve_kw: dict = dataclasses.field(default_factory=dict)
     solver: object = None
+    pool: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
+
+    def __getstate__(self):
+        return {**self.__dict__, "pool": {}}
 
     def solver_for(self, handles):
-        """The solver with the handles at ``handles`` (None: the default ones, built once)."""
+        """The solver with the handles at ``handles`` (None: the default ones, built once).
+
+        Handles per sample (movable handles) get the solver kept for that handle set (in the order given) if there
+        is one, else a new one, kept (the :data:`POOL_SIZE` most recently used, at most :data:`POOL_VERTICES` mesh
+        vertices in all): the samples of one placement share its Hessian's pattern, symbolic analysis and
+        bi-Laplacian factorisation as the samples of a fixed-P training share theirs. A solve leaves nothing in a
+        solver that moves the next one's minimum (:meth:`defop.variational.problem.ReducedHessian.factorise` re-uses
+        factors only of a matrix equal value for value)."""
         if handles is None:
             if self.solver is None:
                 self.solver = Solver(self.mesh, self.handles, self.energy, **self.solver_kw)
             return self.solver
-        return Solver(self.mesh, handles, self.energy, **self.solver_kw)
+        key = np.asarray(handles, np.int64).tobytes()
+        solver = self.pool.pop(key, None)
+        if solver is None:
+            solver = Solver(self.mesh, handles, self.energy, **self.solver_kw)
+        self.pool[key] = solver  # the most recent last
+        room = max(1, min(POOL_SIZE, POOL_VERTICES // self.mesh.n_vertices))
+        while len(self.pool) > room:
+            del self.pool[next(iter(self.pool))]
+        return solver
 
 
 def best_of(solver, T, starts, incumbent, rest, solve_kw):

@@ -43,11 +43,6 @@ from .checks import (  # noqa: F401 (public here too)
 from .elements import KERNELS, ElementKernels, check_kernel  # noqa: F401 (KERNELS, check_kernel: public here too)
 
 
-def element_dofs(F, d):
-    """(m, (d+1)·d) global dof of every element's local dof: local (d·i + c) -> d·F[t, i] + c."""
-    return (d * F[:, :, None] + np.arange(d)).reshape(len(F), -1)
-
-
 class ReducedHessian:
     """The Hessian on the free dofs: a fixed sparsity pattern, assembly, an LDLᵀ and its inertia.
 
@@ -79,20 +74,21 @@ class ReducedHessian:
 
     def __init__(self, mesh, free, backend=None):
         self.backend = bk.choose_backend(backend, mesh.n_vertices, mesh.V.shape[1])
-        F = mesh.F
-        d = mesh.V.shape[1]
-        k = F.shape[1] * d  # local dofs per element: (d+1)·d
-        dofs = element_dofs(F, d)
-        rows = np.repeat(dofs, k, axis=1).ravel()
-        cols = np.tile(dofs, (1, k)).ravel()
-        gmap = -np.ones(d * mesh.n_vertices, np.int64)
-        gmap[free] = np.arange(len(free))
-        r, c = gmap[rows], gmap[cols]
-        keep = (r >= 0) & (c >= 0) & (r <= c)  # upper triangle of the free-free block
-        self._keep = np.flatnonzero(keep)
+        # the mesh's pattern over every dof (built once per mesh, Mesh.dof_pairs), restricted to the free dofs: the
+        # numbering d·v + c -> rank among the free dofs keeps the order, so its CSC order is the pattern's own
+        dofs, pairs, inverse = mesh.dof_pairs
+        n_dofs, nf = mesh.V.size, len(free)
+        is_free = np.zeros(n_dofs, bool)
+        is_free[free] = True
+        gmap = np.cumsum(is_free) - 1
+        on = is_free[dofs]  # (m, k): local dofs (d+1)·d per element
+        self._keep = np.flatnonzero((inverse >= 0) & (on[:, :, None] & on[:, None, :]).ravel())  # free-free, upper
         self.dofs = dofs
-        nf = self.nf = len(free)
-        uniq, self._inv = np.unique(c[keep] * nf + r[keep], return_inverse=True)  # column-major = CSC
+        self.nf = nf
+        pr, pc = pairs % n_dofs, pairs // n_dofs
+        on_free = is_free[pr] & is_free[pc]
+        self._inv = (np.cumsum(on_free) - 1)[inverse[self._keep]]
+        uniq = gmap[pc[on_free]] * nf + gmap[pr[on_free]]  # column-major = CSC
         self._rows = (uniq % nf).astype(np.int32)
         self._ptr = np.concatenate([[0], np.cumsum(np.bincount(uniq // nf, minlength=nf))]).astype(np.int32)
         #: values in the pattern (the length of every ``data`` array)
@@ -363,9 +359,7 @@ def biharmonic_factors(mesh, free_vertices, handles):
     -------
     factors : (scipy SuperLU of the free block, (n_free, u) sparse matrix)
     """
-    L = mesh.cotmatrix
-    Minv = sp.diags(1.0 / mesh.mass_matrix.diagonal())
-    Q = (L.T @ Minv @ L).tocsc()
+    Q = mesh.bilaplacian
     return sla.splu(Q[free_vertices][:, free_vertices].tocsc()), Q[free_vertices][:, handles].tocsc()
 
 
