@@ -187,6 +187,16 @@ def report(results):
             )
         if r.get("stages"):
             print(f"  {name:>10}: CPU s by stage " + ", ".join(f"{k} {v:.1f}" for k, v in r["stages"].items()))
+        for nf, (n, c) in sorted((w.get("numeric") or {}).items(), key=lambda kv: int(kv[0])):
+            print(
+                f"  {name:>10}: {n} numeric factorisations of {int(nf):,} unknowns (an equal K re-used is none), "
+                f"{c:.1f} CPU s ({100 * c / r['cpu']:.0f}% of train()), {1000 * c / n:.1f} CPU ms each"
+            )
+        if r.get("rule_cpu"):
+            cells = ", ".join(
+                f"{k}: {n} samples {c:.1f} CPU s (max {top:.1f})" for k, (n, c, top) in r["rule_cpu"].items()
+            )
+            print(f"  {name:>10}: the fine stage's CPU s by safeguard rule: {cells}")
         if r.get("rules"):
             med, top = r["fine_iterations"]
             print(
@@ -325,7 +335,7 @@ def count_work():
     fills as solves run); trees without the re-use count every ``ReducedHessian.solve`` as a factorisation."""
     from defop.variational import problem, solver
 
-    work = dict(newton=0, factorisations=0, pcg=0, cg=0, stalls=0)
+    work = dict(newton=0, factorisations=0, pcg=0, cg=0, stalls=0, numeric={})
     H = problem.ReducedHessian
     name = "factorise" if hasattr(H, "factorise") else "solve"
     factor, finish = getattr(H, name), solver.Solver.finish
@@ -333,6 +343,19 @@ def count_work():
     def counted_factor(self, *a, **k):
         work["factorisations"] += 1
         return factor(self, *a, **k)
+
+    if hasattr(H, "_factorise"):  # the back end's numeric factorisations alone (a re-used equal K is not one)
+        numeric = H._factorise
+
+        def timed_numeric(self, *a, **k):
+            t0 = time.process_time()
+            try:
+                return numeric(self, *a, **k)
+            finally:  # per matrix size (the coarse and the fine mesh): count, CPU s
+                c = work["numeric"].setdefault(str(self.nf), [0, 0.0])
+                c[0], c[1] = c[0] + 1, c[1] + time.process_time() - t0
+
+        H._factorise = timed_numeric
 
     def counted_finish(self, log, *a, **k):
         work["newton"] += log.iters
@@ -413,6 +436,13 @@ def child(spec):
     if ml.get("rule"):  # the multilevel fine stage: which safeguard rule fired per sample, the single runs' iterations
         out["rules"] = {r: int(n) for r, n in zip(*np.unique([r or "none" for r in ml["rule"]], return_counts=True))}
         out["fine_iterations"] = [int(np.median(ml["iterations"])), int(np.max(ml["iterations"]))]
+        if ml.get("cpu"):  # the fine stage's CPU seconds per safeguard rule: samples, sum, largest
+            rules = np.array([r or "none" for r in ml["rule"]])
+            cpu = np.array(ml["cpu"], float)
+            out["rule_cpu"] = {
+                r: [int(np.sum(rules == r)), float(cpu[rules == r].sum()), float(cpu[rules == r].max())]
+                for r in np.unique(rules)
+            }
     out["errors"] = [errors(op, p) for p in spec["truths"]]
     print(json.dumps(out))
 

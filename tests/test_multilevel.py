@@ -390,6 +390,15 @@ def test_training_seconds_count_the_multilevel_stages(bar):
     assert {"coarse", "fine"} <= set(t) and row["preprocess_s"] == pytest.approx(sum(t.values()))
 
 
+def test_the_record_places_the_fine_stage_cpu_sample_by_sample(bar):
+    """``record.multilevel["cpu"]``: each sample's fine-stage CPU seconds (single run, checks, any fallback), which
+    add up to the fine stage's (bench_training places a training's CPU by safeguard rule with them)."""
+    _, rec = dop.train(bar, m=14, seed=3, n_jobs=1, progress=False, policy="multilevel", cache=False)
+    cpu = np.array(rec.multilevel["cpu"])
+    assert cpu.shape == (14,) and np.all(cpu > 0)
+    assert cpu.sum() <= rec.stage_times["fine"] + 1e-6
+
+
 def test_handles_on_the_outline_keep_a_fixed_p_training_on_one_level():
     """A fixed-P shape whose handles are boundary vertices (automatic handles of an outline) has no coarse level, as
     before movable regions could put points on the coarse outline: its training policy and minima stay as they

