@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import defop as dop
+from defop.geometry.mesh import element_dof_pattern
 from defop.variational import NotConvergedWarning, Solver
 from defop.variational.problem import count_flips
 
@@ -187,6 +188,7 @@ class _TetMesh:
         self.F[vol < 0] = self.F[vol < 0][:, [0, 2, 1, 3]]
         E = np.swapaxes(self.V[self.F[:, 1:]] - self.V[self.F[:, :1]], 1, 2)
         self.areas = np.linalg.det(E) / 6
+        self.dof_pairs = element_dof_pattern(self.F, len(self.V))  # the sparsity pattern only, as a Mesh has it
         Einv = np.linalg.inv(E)
         self.local_gradients = np.concatenate([-Einv.sum(axis=1, keepdims=True), Einv], axis=1)  # (m,4,3)
         m, n = len(self.F), len(self.V)

@@ -20,6 +20,7 @@ from .movable_page import MOVABLE_JS_PATH, drawn_payload, movable_page, movable_
 from .payload import (
     JS_PATH,
     branched_to_payload,
+    check_compress,
     defop_to_payload,
     encode_payload,
     image_for,
@@ -210,8 +211,7 @@ def to_html(op, path, shape=None, title=None, image=None, image_frame=None, comp
         ``image_frame``, or one whose silhouette is not ``shape``'s outline (the message says what to pass),
         ``compress`` not a bool.
     """
-    if not isinstance(compress, bool):
-        raise ValueError(f"compress must be True (the compressed factors) or False (the full W_F), got {compress!r}")
+    check_compress(compress)
     if isinstance(op, MovableOp):  # handles that move at rest: the page of defop.editor.movable_page
         if image is not None or image_frame is not None:
             raise ValueError("image and image_frame are not offered on the page of a MovableOp")

@@ -112,6 +112,13 @@ def region_balls(P, regions=None, samples=None):
     return out
 
 
+def check_compress(compress):
+    """``compress`` (a page's choice of factors), or ValueError when it is not a bool."""
+    if not isinstance(compress, bool):
+        raise ValueError(f"compress must be True (the compressed factors) or False (the full W_F), got {compress!r}")
+    return compress
+
+
 def page_factors(op, compress=True):
     """The factors (A, B) of W_F ≈ A B a page carries for ``op``: the one quantisation of every page.
 
@@ -131,8 +138,13 @@ def page_factors(op, compress=True):
     Returns
     -------
     factors : tuple of ((|Ψ|−1, r), (r, d n_vertices)) float32 numpy arrays, or None
+
+    Raises
+    ------
+    ValueError
+        ``compress`` not a bool.
     """
-    if not compress:
+    if not check_compress(compress):
         return op.factors
     A, B = op.factors if op.factors is not None else op.factorise()
     A = np.asarray(A, np.float32)

@@ -47,6 +47,7 @@ from .surface_files import MAX_FILE_ELEMENTS, check_file
 
 __all__ = [
     "Mesh",
+    "element_dof_pattern",
     "read_mesh",
     "write_mesh",
     "signed_volumes",
@@ -125,6 +126,12 @@ class Mesh:
     def n_faces(self) -> int:
         """Number of elements (rows of F): triangles in 2D, tetrahedra in 3D."""
         return len(self.F)
+
+    #: per-mesh tables rebuilt on demand, left out of a pickle (joblib sends the mesh with every task)
+    _NOT_PICKLED = ("dof_pairs", "bilaplacian", "_kdtree")
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k not in self._NOT_PICKLED}
 
     def __repr__(self):
         if self.dim == 2:
@@ -277,15 +284,7 @@ class Mesh:
             Per local entry t·k² + i·k + j (row dofs[t, i], col dofs[t, j]) its index in ``pairs``, −1 below the
             diagonal.
         """
-        d = self.dim
-        k = self.F.shape[1] * d
-        dofs = (d * self.F[:, :, None] + np.arange(d)).reshape(len(self.F), -1).astype(np.int64)
-        rows, cols = np.repeat(dofs, k, axis=1).ravel(), np.tile(dofs, (1, k)).ravel()
-        upper = np.flatnonzero(rows <= cols)
-        pairs, inv = np.unique(cols[upper] * (d * self.n_vertices) + rows[upper], return_inverse=True)
-        inverse = -np.ones(len(rows), np.int64)
-        inverse[upper] = inv.ravel()
-        return dofs, pairs, inverse
+        return element_dof_pattern(self.F, self.n_vertices)
 
     # -------------------------------------------------------------- lookup
     @cached_property
@@ -476,3 +475,16 @@ def _read_npz(path):
             raise ValueError(f"mesh file {path} holds no mesh (arrays V and F are missing)")
         members = z.members(check=check)
         return z.read(members["V"]), z.read(members["F"])
+
+
+def element_dof_pattern(F, n_vertices):
+    """:attr:`Mesh.dof_pairs` of the elements ``F`` (m, d + 1) over ``n_vertices`` vertices (d read from ``F``)."""
+    d = F.shape[1] - 1
+    k = F.shape[1] * d
+    dofs = (d * F[:, :, None] + np.arange(d)).reshape(len(F), -1).astype(np.int64)
+    rows, cols = np.repeat(dofs, k, axis=1).ravel(), np.tile(dofs, (1, k)).ravel()
+    upper = np.flatnonzero(rows <= cols)
+    pairs, inv = np.unique(cols[upper] * (d * n_vertices) + rows[upper], return_inverse=True)
+    inverse = -np.ones(len(rows), np.int64)
+    inverse[upper] = inv.ravel()
+    return dofs, pairs, inverse

@@ -35,7 +35,8 @@ class TrainingRecord:
         also, per sample: ``"rule"`` (the safeguard rule that fired, "" for none:
         :data:`defop.training.multilevel.RULES`), ``"iterations"`` (of the single fine run), ``"minima"`` (distinct
         verified coarse minima), ``"coarse_energy"`` (the coarse winner's), ``"cpu"`` (CPU seconds of the
-        sample's fine stage: the single run, the safeguard's checks and any fallback; 0 where a checkpoint held it);
+        sample's fine stage: the single run, the safeguard's checks and any fallback, and the first sample of a
+        handle set also building its solver; 0 where a checkpoint held it);
         and ``"coarse_vertices"``.
     wall_times : dict of str -> float
         Wall seconds per stage, beside ``stage_times``.
