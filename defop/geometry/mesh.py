@@ -127,8 +127,7 @@ class Mesh:
         """Number of elements (rows of F): triangles in 2D, tetrahedra in 3D."""
         return len(self.F)
 
-    #: per-mesh tables rebuilt on demand, left out of a pickle (joblib sends the mesh with every task)
-    _NOT_PICKLED = ("dof_pairs", "bilaplacian", "_kdtree")
+    _NOT_PICKLED = ("dof_pairs", "bilaplacian", "_kdtree")  # rebuilt on demand; joblib sends the mesh with every task
 
     def __getstate__(self):
         return {k: v for k, v in self.__dict__.items() if k not in self._NOT_PICKLED}
@@ -263,27 +262,12 @@ class Mesh:
 
     @cached_property
     def bilaplacian(self):
-        """(n,n) scipy sparse CSC: the bi-Laplacian L M⁻¹ L (L :attr:`cotmatrix`, M :attr:`mass_matrix`), which the
-        biharmonic extension of every handle set on this mesh factorises on its free vertices."""
+        """(n,n) scipy sparse CSC: the bi-Laplacian L M⁻¹ L, factorised on its free vertices by every handle set."""
         return (self.cotmatrix.T @ sp.diags(1.0 / self.mass_matrix.diagonal()) @ self.cotmatrix).tocsc()
 
     @cached_property
     def dof_pairs(self):
-        """The sparsity pattern of every matrix assembled element by element over the vertex dofs d·v + c (the
-        Hessian of problem (6) before any handle is eliminated), computed once per mesh: a handle set's pattern is
-        the part of it on its free dofs (:class:`defop.variational.problem.ReducedHessian`).
-
-        Returns
-        -------
-        dofs : (m, k) int64 numpy array
-            Each element's dofs in local order (k = (d + 1)·d: local dof d·i + c is d·F[t, i] + c).
-        pairs : (p,) int64 numpy array
-            The distinct dof pairs (row, col) that share an element with row <= col, as col·N + row (N = d·n),
-            sorted: column-major, CSC order.
-        inverse : (m·k²,) int64 numpy array
-            Per local entry t·k² + i·k + j (row dofs[t, i], col dofs[t, j]) its index in ``pairs``, −1 below the
-            diagonal.
-        """
+        """(dofs, pairs, inverse): :func:`element_dof_pattern` of this mesh, once per mesh."""
         return element_dof_pattern(self.F, self.n_vertices)
 
     # -------------------------------------------------------------- lookup
@@ -478,7 +462,22 @@ def _read_npz(path):
 
 
 def element_dof_pattern(F, n_vertices):
-    """:attr:`Mesh.dof_pairs` of the elements ``F`` (m, d + 1) over ``n_vertices`` vertices (d read from ``F``)."""
+    """The sparsity pattern of every matrix assembled element by element over the vertex dofs d·v + c of the elements
+    ``F`` (m, d + 1) over ``n_vertices`` vertices (d read from ``F``): the Hessian of problem (6) before any handle is
+    eliminated. :attr:`Mesh.dof_pairs` keeps it per mesh; a handle set's pattern is the part of it on its free dofs
+    (:class:`defop.variational.problem.ReducedHessian`).
+
+    Returns
+    -------
+    dofs : (m, k) int64 numpy array
+        Each element's dofs in local order (k = (d + 1)·d: local dof d·i + c is d·F[t, i] + c).
+    pairs : (p,) int64 numpy array
+        The distinct dof pairs (row, col) that share an element with row <= col, as col·N + row (N = d·n),
+        sorted: column-major, CSC order.
+    inverse : (m·k²,) int64 numpy array
+        Per local entry t·k² + i·k + j (row dofs[t, i], col dofs[t, j]) its index in ``pairs``, −1 below the
+        diagonal.
+    """
     d = F.shape[1] - 1
     k = F.shape[1] * d
     dofs = (d * F[:, :, None] + np.arange(d)).reshape(len(F), -1).astype(np.int64)

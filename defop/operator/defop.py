@@ -82,9 +82,8 @@ class DefOp(OperatorCore):
         A and B of the compressed W_F ≈ A B (after :meth:`compress`).
     """
 
-    # evaluate_batch works in chunks of this many rows when the fast matrices are small (compressed: B stays in
-    # cache and the chunk's ψ temporaries and float32 product too; measured 1.1-1.9x faster than one product at
-    # k = 256 on the aleph); a large float32 W_F is streamed once per batch instead (one product)
+    # evaluate_batch's chunk of rows when the fast matrices are small (B and the chunk's temporaries stay in cache:
+    # 1.1-1.9x faster than one product at k = 256 on the aleph); a large float32 W_F is streamed once per batch
     BATCH_CHUNK = 64
     BATCH_CHUNK_BYTES = 4 * 2**20
 
@@ -259,12 +258,9 @@ class DefOp(OperatorCore):
 
     # ------------------------------------------------------------------ compression
     def compress(self, rank=None, tol=compress_mod.TOL, dtype=np.float32):
-        """Replace W_F by a rank-r factor W_F ≈ A B; the guarantees stay exact.
-
-        ``rank`` (a positive integer), or else the fewest directions whose discarded part is at most ``tol``
-        (relative, in [0, 1); default :data:`compress.TOL`, 5e-3); ``dtype`` float32 (default) or float64. See
-        :func:`compress.factorise`, which raises a ValueError naming a bad option. Returns ``self``.
-        """
+        """Replace W_F by a rank-r factor W_F ≈ A B (the guarantees stay exact) and return ``self``: ``rank``, or
+        the fewest directions whose discarded part is at most ``tol`` (relative, in [0, 1); default 5e-3); ``dtype``
+        float32 or float64. :func:`compress.factorise` raises a ValueError naming a bad option."""
         return self.set_factors(self.factorise(rank, tol, dtype))
 
     def factorise(self, rank=None, tol=compress_mod.TOL, dtype=np.float32):
@@ -272,9 +268,7 @@ class DefOp(OperatorCore):
         return compress_mod.factorise(self, rank, tol, dtype)
 
     def compression_samples(self):
-        """δψ at the training samples ((m, |Ψ|−1) numpy array, or None): the rows whose displacements the
-        compression (and a page's grid, :func:`defop.editor.payload.page_factors`) keeps
-        (:func:`compress.training_deltas`)."""
+        """δψ at the training samples ((m, |Ψ|−1) or None): the rows the compression and a page's grid keep."""
         return compress_mod.training_deltas(self)
 
     # ------------------------------------------------------------------ checks and files
@@ -284,11 +278,9 @@ class DefOp(OperatorCore):
 
     @classmethod
     def load(cls, path):
-        """Load an operator written by :meth:`save` (or by an older defop), checked before any work.
-
-        A missing, corrupt, truncated, oversized or incompatible file raises a ValueError naming the file and
-        what is wrong (:func:`defop.operator.io.load`: the limits and the checks).
-        """
+        """Load an operator written by :meth:`save` (or by an older defop), checked before any work: a missing,
+        corrupt, truncated, oversized or incompatible file raises a ValueError naming the file and what is wrong
+        (:func:`defop.operator.io.load`)."""
         return io_mod.load(path, cls)
 
 

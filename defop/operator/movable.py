@@ -443,13 +443,3 @@ def load_movable(path, cls=None):
     """A :class:`MovableOp` (or ``cls``) from a file of :func:`save_movable`
     (:func:`defop.operator.io.load_movable`: checked before any work, errors naming the file)."""
     return io_mod.load_movable(path, cls or MovableOp)
-
-
-def __getattr__(name):
-    """``CarryOp``, the compared second design, is :class:`defop.operator.movable_carry.CarryOp` (imported here on
-    first use: that module imports this one)."""
-    if name == "CarryOp":
-        from .movable_carry import CarryOp
-
-        return CarryOp
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
