@@ -81,6 +81,8 @@ def test_stored_with_its_digest_and_reused(case, monkeypatch):
         assert np.array_equal(getattr(again, f), getattr(first, f))
     monkeypatch.undo()
     assert truth(case, case[3]).digest != first.digest  # another reference operator: another entry
+    monkeypatch.setattr(rf, "RULE", rf.RULE + 1)  # a new pick rule or portfolio never reads the old entry
+    assert truth(case, case[2]).digest != first.digest
 
 
 def test_coarse_minima_join_the_portfolio(case):

@@ -39,12 +39,15 @@ from . import cache as cache_mod
 from . import multilevel as ml
 from .minima import distinct_minima
 
-__all__ = ["SOURCES", "TOL", "Reference", "pick", "portfolio_starts", "reference_truth"]
+__all__ = ["RULE", "SOURCES", "TOL", "Reference", "pick", "portfolio_starts", "reference_truth"]
 
 #: the reference replaces the rest-pose minimum only where it is lower by more than this, relative
 TOL = 1e-6
 #: where each sample's reference minimum came from (``Reference.source`` indexes this)
 SOURCES = ("rest", "coarse", "operator")
+#: the version of :func:`pick`'s rule and of the portfolio; part of the cache key, bump it when either changes (the
+#: key already holds the library version, :data:`TOL` and :data:`~defop.training.multilevel.DISTINCT`)
+RULE = 1
 
 
 @dataclasses.dataclass
@@ -187,7 +190,7 @@ def _key(shape, Q, energy, reference, coarse, tol):
     mesh = shape.mesh
     pred = None if reference is None else np.asarray(reference(Q), float)
     parts = [mesh.V, mesh.F, shape.handles, shape.moving, energy, solves.solver_key(shape, energy), Q]
-    return cache_mod.key("reference", *parts, pred, bool(coarse), ml.coarse_constants(), float(tol), ml.DISTINCT)
+    return cache_mod.key("reference", *parts, pred, bool(coarse), ml.coarse_constants(), float(tol), ml.DISTINCT, RULE)
 
 
 def _expect(m, n, d):
