@@ -139,8 +139,12 @@ class ReducedHessian:
         if self._K is None:  # the pattern is fixed: build the matrix once, then only overwrite its values
             self._K = sp.csc_matrix((data.copy(), self._rows, self._ptr), shape=(self.nf, self.nf))
         self._K.data[:] = data
-        self._K.data[self.diag] += rel_shift * max(float(np.mean(np.abs(data[self.diag]))), 1e-300)
+        self._K.data[self.diag] += self.shift(data, rel_shift)
         return self._K
+
+    def shift(self, data, rel_shift):
+        """The diagonal shift :meth:`matrix` adds: ``rel_shift`` · mean|diag| (at least 1e-300 of mean|diag|)."""
+        return rel_shift * max(float(np.mean(np.abs(data[self.diag]))), 1e-300)
 
     def full(self, data):
         """The symmetric matrix (both triangles), CSC."""
