@@ -236,6 +236,10 @@ class PardisoLDL:
         """Negative eigenvalues of the last factorised K (MKL's iparm[22]); None when it failed."""
         return int(self._ps.iparm[22]) if self._ok else None
 
+    def nonzeros(self):
+        """Nonzeros of the factor (MKL's iparm[17], from the symbolic analysis)."""
+        return int(self._ps.iparm[17])
+
 
 #: ``DEFOP_REUSE=auto`` re-uses a factorisation (:func:`pcg`) on Newton systems of at least this many unknowns (free
 #: dofs); None: at no size. Measured on the 29,739-vertex aleph (59,468 unknowns, one thread), a qdldl factorisation
