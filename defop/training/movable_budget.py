@@ -18,6 +18,7 @@ import warnings
 import numpy as np
 
 from .. import options as opt
+from ..operator.fit import centre_count
 from ..operator.movable import fit_movable
 from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning
@@ -31,6 +32,23 @@ __all__ = ["CAP", "budget_work", "stop_at", "train_within"]
 #: the longest joint sequence, in multiples of ``factor`` × the fixed-P training's samples (a joint sample has cost
 #: 0.36-1.07 fixed-P samples' work on the shapes measured, so the budget is met far before it)
 CAP = 4
+
+#: multiply-adds of the joint fit per unit of work (a unit is one factor nonzero, :mod:`defop.variational.work`):
+#: measured, a TPS fit of 2,000 joint samples took 2.9 CPU s on the bar and 9.8 on the aleph, c³/3 + c² n d
+#: multiply-adds (c centres, n vertices in d dimensions) at about 130 of them a unit of the solves' work
+FIT_FLOPS = 130.0
+
+#: of the samples the work so far says are still needed, the share solved in the next block (the rest, a chunk at a
+#: time at the end, keeps the samples solved beyond m within one chunk)
+AHEAD = 0.9
+
+
+def fit_work(m, n_vertices, dim, centres="auto"):
+    """(k,) the work of the joint fit of m (k,) samples: (c³/3 + c² n d) / :data:`FIT_FLOPS`, c the fit's centres
+    (:func:`defop.operator.fit.centre_count`, the rest poses counted as many as the samples)."""
+    m = np.atleast_1d(np.asarray(m, np.int64))
+    c = np.array([centre_count(centres, int(k), 2 * int(k)) for k in m], float)
+    return (c**3 / 3 + c**2 * n_vertices * dim) / FIT_FLOPS
 
 
 def budget_work(record, factor=mv.BUDGET):
@@ -53,7 +71,7 @@ def budget_work(record, factor=mv.BUDGET):
     return factor * float(spent)
 
 
-def stop_at(work, setup, idx, target):
+def stop_at(work, setup, idx, target, fit=None):
     """Where the work of a seeded sequence first reaches ``target``: (m, the work of the first m samples), or
     (None, the work of them all) when it never does.
 
@@ -64,6 +82,8 @@ def stop_at(work, setup, idx, target):
     idx : (k, b) int numpy array
         The placements: a placement's setup counts once, at its first sample.
     target : float
+    fit : (k,) numpy array, optional
+        The work of fitting the first 1, 2, ..., k samples (:func:`fit_work`), added to theirs.
 
     Raises
     ------
@@ -75,12 +95,25 @@ def stop_at(work, setup, idx, target):
         raise ValueError("a joint sample has no work (NaN): its truth was loaded from a cache that did not keep it")
     first = np.zeros(len(idx), bool)
     first[np.unique(np.asarray(idx), axis=0, return_index=True)[1]] = True
-    total = work_mod.prefix(work, setup, first)
+    total = work_mod.prefix(work, setup, first) + (0.0 if fit is None else np.asarray(fit, float))
     reached = np.flatnonzero(total >= target)
     if len(reached) == 0:
         return None, float(total[-1]) if len(total) else 0.0
     m = int(reached[0]) + 1
     return m, float(total[m - 1])
+
+
+def _ahead(solved, spent, target, cap, n, dim, centres):
+    """How many chunks the next block solves: 1 first, then :data:`AHEAD` of those that the work per sample so far
+    and the fit's growth say the budget still needs (at least 1). A function of counted work only: the same on every
+    machine."""
+    if solved == 0:
+        return 1
+    per = (spent - fit_work(solved, n, dim, centres)[0]) / solved  # a sample's solves and setup, on average
+    grid = np.arange(solved + 1, cap + 1)
+    reach = np.flatnonzero(per * grid + fit_work(grid, n, dim, centres) >= target)
+    need = (grid[reach[0]] if len(reach) else cap) - solved
+    return max(1, int(AHEAD * need) // batch.CHUNK)
 
 
 def train_within(
@@ -116,8 +149,8 @@ def train_within(
         Fitted to the first m samples of the sequence.
     record : defop.training.movable.MovableRecord
         Of those m samples; ``work`` theirs, ``budget`` the target, the factor, how many were solved to find m
-        (the chunk's rest; their CPU seconds are in ``cpu_seconds``) and whether the sequence ended first
-        (``"capped"``: :data:`CAP`, warned).
+        and whether the sequence ended first (``"capped"``: :data:`CAP`, warned). ``cpu_seconds`` and
+        ``solve_cpu_seconds`` count every chunk solved (the last chunk's samples beyond m too).
 
     Raises
     ------
@@ -133,17 +166,22 @@ def train_within(
     target = budget_work(reference, factor)
     cap = int(CAP * np.ceil(factor * len(reference.samples)))
     clock, rng = solves.Stopwatch(), np.random.default_rng(seed)
-    got, m, spent = [], None, 0.0
-    while m is None and sum(len(g[0]) for g in got) < cap:
-        idx, Q = mv.sample_joint(shape, placement, -(-batch.CHUNK // n_q), rng, n_q)  # the sequence's next chunk
-        X, conv, remote, solve_cpu, used, info = mv._solve_joint(
+    n, dim = shape.mesh.V.shape
+    got, m, spent, solve_cpu, solved = [], None, 0.0, 0.0, 0
+    while m is None and solved < cap:
+        k = _ahead(solved, spent, target, cap, n, dim, centres)  # chunks in this block, from the work so far
+        chunks = [mv.sample_joint(shape, placement, -(-batch.CHUNK // n_q), rng, n_q) for _ in range(k)]
+        idx, Q = (np.concatenate([c[i] for c in chunks]) for i in (0, 1))  # the sequence's next k chunks
+        X, conv, remote, block_cpu, used, info = mv._solve_joint(
             shape, placement, idx, Q, energy, n_jobs, progress, cache, policy, counted=True
-        )
+        )  # one block: the samples of one placement share its solvers (by_placement)
         clock.remote += remote
+        solve_cpu += block_cpu
         got.append((idx, Q, X, conv, info["work"], info["setup"]))
-        idx_all, work, setup = (np.concatenate([g[k] for g in got]) for k in (0, 4, 5))
-        m, spent = stop_at(work, setup, idx_all, target)
-    solved = len(idx_all)
+        idx_all, work, setup = (np.concatenate([g[i] for g in got]) for i in (0, 4, 5))
+        solved = len(idx_all)
+        fit = fit_work(np.arange(1, solved + 1), n, dim, centres)
+        m, spent = stop_at(work, setup, idx_all, target, fit)
     capped = m is None
     if capped:
         m = solved
@@ -160,6 +198,6 @@ def train_within(
     fitting = solves.Stopwatch()
     op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta, centres=centres)
     budget = {"target": target, "factor": float(factor), "solved": solved, "capped": capped}
-    record = mv.MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, float("nan"), fitting.cpu, used, {})
+    record = mv.MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, {})
     record.work, record.budget = spent, budget
     return op, record
