@@ -129,3 +129,24 @@ def test_train_within_refuses_a_record_without_work_before_any_solve(bar):
     shape, placement, _ = bar
     with pytest.raises(ValueError, match="holds no work"):
         train_within(shape, placement, _record(float("nan"), 12), progress=False, cache=False)
+
+
+def test_fit_work_grows_with_the_samples_and_the_mesh():
+    from defop.training.movable_budget import fit_work
+
+    w = fit_work([1, 10, 100, 1000], 596, 2)
+    assert np.all(np.diff(w) > 0) and np.all(fit_work(100, 2810, 2) > fit_work(100, 596, 2))
+
+
+def test_reference_trains_again_where_the_cache_kept_no_work(monkeypatch):
+    from defop.training import movable_budget as mb
+
+    calls = []
+
+    def fake(shape, m, seed, **kw):
+        calls.append(kw.get("cache", True))
+        return None, _record(float("nan") if len(calls) == 1 else 7.0, m)
+
+    monkeypatch.setattr(mb, "train", fake)
+    _, rec = mb.reference("shape", m=200, progress=False)
+    assert calls == [True, False] and rec.work == 7.0

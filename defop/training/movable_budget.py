@@ -24,10 +24,11 @@ from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning
 from . import batch, solves
 from . import movable as mv
+from .bootstrap import train
 from . import multilevel as ml
 from . import work as work_mod
 
-__all__ = ["CAP", "budget_work", "stop_at", "train_within"]
+__all__ = ["AHEAD", "CAP", "FIT_FLOPS", "budget_work", "fit_work", "reference", "stop_at", "train_within"]
 
 #: the longest joint sequence, in multiples of ``factor`` × the fixed-P training's samples (a joint sample has cost
 #: 0.36-1.07 fixed-P samples' work on the shapes measured, so the budget is met far before it)
@@ -69,6 +70,24 @@ def budget_work(record, factor=mv.BUDGET):
             "cache that did not keep it, or resumed from a checkpoint; train it with cache=False"
         )
     return factor * float(spent)
+
+
+def reference(shape, m=200, seed=0, **kw):
+    """The fixed-P training a budget is counted in: ``dop.train(shape, m=m, seed=seed, **kw)`` (:func:`defop.training.
+    bootstrap.train`), its record's work read from the cached ground truth, or, where the cache kept none (a truth
+    cached before work was counted), trained again without the cache.
+
+    Returns
+    -------
+    op : defop.operator.core.DefOp
+    record : defop.training.record.TrainingRecord
+        With ``work`` finite.
+    """
+
+    op, record = train(shape, m=m, seed=seed, **kw)
+    if not np.isfinite(record.work):
+        op, record = train(shape, m=m, seed=seed, **{**kw, "cache": False})
+    return op, record
 
 
 def stop_at(work, setup, idx, target, fit=None):
