@@ -24,9 +24,9 @@ from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning
 from . import batch, solves
 from . import movable as mv
-from .bootstrap import train
 from . import multilevel as ml
 from . import work as work_mod
+from .bootstrap import train
 
 __all__ = ["AHEAD", "CAP", "FIT_FLOPS", "budget_work", "fit_work", "reference", "stop_at", "train_within"]
 
