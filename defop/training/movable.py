@@ -327,6 +327,9 @@ def train_movable(
         shape, placement, idx, Q, energy, n_jobs, progress, cache, policy
     )
     clock.remote += remote
+    first = np.zeros(len(idx), bool)
+    first[np.unique(idx, axis=0, return_index=True)[1]] = True  # a placement's setup counts once
+    spent = float(np.sum(info.pop("work")) + np.sum(info.pop("setup")[first]))
     if not conv.all():
         warnings.warn(
             f"{int((~conv).sum())} of {len(conv)} joint solves did not converge; used as they are",
@@ -336,7 +339,7 @@ def train_movable(
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
     fitting = solves.Stopwatch()
     op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta, centres=centres)
-    return op, MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, info)
+    return op, MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, info, spent)
 
 
 #: the budget of a joint training, in fixed-P trainings (at m = 200, the 2D default)

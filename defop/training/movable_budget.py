@@ -196,7 +196,7 @@ def train_within(
         )  # one block: the samples of one placement share its solvers (by_placement)
         clock.remote += remote
         solve_cpu += block_cpu
-        got.append((idx, Q, X, conv, info["work"], info["setup"]))
+        got.append((idx, Q, X, conv, info.pop("work"), info.pop("setup")))
         idx_all, work, setup = (np.concatenate([g[i] for g in got]) for i in (0, 4, 5))
         solved = len(idx_all)
         fit = fit_work(np.arange(1, solved + 1), n, dim, centres)
@@ -217,6 +217,7 @@ def train_within(
     fitting = solves.Stopwatch()
     op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta, centres=centres)
     budget = {"target": target, "factor": float(factor), "solved": solved, "capped": capped}
-    record = mv.MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, {})
+    levels = {k: v for k, v in info.items() if k in ("fallback", "coarse_vertices")}  # per-sample rules: per block
+    record = mv.MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, levels)
     record.work, record.budget = spent, budget
     return op, record
