@@ -6,7 +6,8 @@ policies on it; :mod:`.bootstrap` runs the pipeline (:func:`train`); :mod:`.adap
 the operator is least certain (:func:`train_adaptive`); :mod:`.branches` finds every branch of D^E and fits a
 multi-valued operator and certifies where each branch is present and absent;
 :mod:`.multilevel` is ``train``'s multilevel policy (decisions on a coarse mesh), :mod:`.movable` trains handles
-that move at rest (:func:`train_movable`) and :mod:`.reference` gives held-out comparisons a truth independent of
+that move at rest (:func:`train_movable`; :mod:`.movable_budget` within a budget counted in :mod:`.work`,
+:func:`train_within`) and :mod:`.reference` gives held-out comparisons a truth independent of
 the operator under test.
 """
 
@@ -16,16 +17,19 @@ from . import (
     branches,
     cache,
     movable,
+    movable_budget,
     multilevel,
     paths,
     portfolios,
     reference,
     sampling,
     solves,
+    work,
 )
 from .adaptive import train_adaptive
 from .bootstrap import TrainingRecord, held_out, min_samples, solve_samples, train
 from .movable import train_movable
+from .movable_budget import train_within
 
 __all__ = [
     "TrainingRecord",
@@ -36,6 +40,7 @@ __all__ = [
     "held_out",
     "min_samples",
     "movable",
+    "movable_budget",
     "multilevel",
     "paths",
     "portfolios",
@@ -46,6 +51,8 @@ __all__ = [
     "train",
     "train_adaptive",
     "train_movable",
+    "train_within",
+    "work",
 ]
 
 

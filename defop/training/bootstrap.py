@@ -408,7 +408,8 @@ def _cached_operator(store, gt_key, op_key, shape, basis, spatial, samples, para
     gt = truths.load(store, gt_key, m, shape.mesh.n_vertices, shape.mesh.dim)
     X, conv = (None, None) if gt is None else gt[:2]
     info = _levels_info(used, why, None if gt is None else gt[2].get("multilevel"))
-    return op, TrainingRecord(samples, X, conv, times, "operator", params, used, info, wall)
+    done = float("nan") if gt is None or gt[2].get("work") is None else float(gt[2]["work"])
+    return op, TrainingRecord(samples, X, conv, times, "operator", params, used, info, wall, done)
 
 
 def _train_new(
@@ -417,7 +418,7 @@ def _train_new(
     """:func:`train`'s solves (or its cached ground truth) and fit, the operator stored in the cache."""
     m, used = len(samples), params["policy_used"]
     meta = {"shape": shape.name, "energy": energy, "seed": seed, "policy": used}
-    X, conv, times, wall, info, cache_state = truths.ground_truth(
+    X, conv, times, wall, info, cache_state, done = truths.ground_truth(
         shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, meta
     )
     info = _levels_info(used, why, info)
@@ -432,7 +433,7 @@ def _train_new(
         op.meta["safeguard_fired"] = int(sum(1 for r in info["rule"] if r))
     if store is not None:
         store.store_with("op", op_key, op.save)
-    return op, TrainingRecord(samples, X, conv, times, cache_state, params, used, info, wall)
+    return op, TrainingRecord(samples, X, conv, times, cache_state, params, used, info, wall, done)
 
 
 def _fit_timed(shape, samples, X, basis, spatial, k, meta, times, wall):

@@ -7,7 +7,7 @@ While one process solves a ground truth, another that needs the same one waits f
 
 from __future__ import annotations
 
-from . import batch, portfolios, solves
+from . import batch, portfolios, solves, work
 from . import cache as cache_mod
 from . import multilevel as ml
 
@@ -56,7 +56,8 @@ def train_key(shape, energy, samples, rounds, used, lv):
 
 def ground_truth(shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, meta):
     """The training's ground truth, loaded or solved by the policy and cached: (X, converged, CPU times, wall times,
-    multilevel info, cache state)."""
+    multilevel info, cache state, work (:mod:`defop.training.work`; kept with the truth, NaN for a truth cached
+    without it))."""
     gt = cached(store, gt_key, shape, len(samples))
     if gt is not None:
         return gt
@@ -73,27 +74,29 @@ def cached(store, gt_key, shape, m):
     if gt is None:
         return None
     meta = gt[2]
-    return gt[0], gt[1], dict(meta.get("times", {})), dict(meta.get("wall", {})), meta.get("multilevel"), "ground truth"
+    times, wall, done = dict(meta.get("times", {})), dict(meta.get("wall", {})), meta.get("work")
+    return gt[0], gt[1], times, wall, meta.get("multilevel"), "ground truth", float("nan" if done is None else done)
 
 
 def solve(shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, meta):
-    """:func:`ground_truth`'s solves by the policy, cached."""
+    """:func:`ground_truth`'s solves by the policy, cached with their CPU and wall seconds and their work."""
     ck = None if store is None else batch.Checkpoints(store)  # resume an interrupted run where it stopped
-    info = None
     total = len(samples) * (rounds + (lv is not None))  # every round solves each sample; multilevel: one fine run
     stages = batch.Stages(total, progress) if progress else False  # one display, one ETA, over every stage
     try:
-        if lv is None:
-            X, conv, times, wall, _ = portfolios.portfolio(
-                shape, samples, energy, n_jobs, stages, rounds, ck, meta=meta
-            )
-        else:
-            X, conv, times, wall, info = _multilevel(lv, samples, energy, n_jobs, stages, rounds, ck, [gt_key])
+        with work.tally() as tally:
+            info = None
+            if lv is None:
+                X, conv, times, wall, _ = portfolios.portfolio(
+                    shape, samples, energy, n_jobs, stages, rounds, ck, meta=meta
+                )
+            else:
+                X, conv, times, wall, info = _multilevel(lv, samples, energy, n_jobs, stages, rounds, ck, [gt_key])
     finally:
         if stages:
             stages.close()
     if store is not None:
-        meta = {"times": times, "wall": wall, "multilevel": info}
+        meta = {"times": times, "wall": wall, "multilevel": info, "work": tally.total}
         store.store("gt", gt_key, {"X": X, "converged": conv}, meta=meta)
         ck.discard()  # the whole ground truth is cached
-    return X, conv, times, wall, info, "none"
+    return X, conv, times, wall, info, "none", tally.total

@@ -191,12 +191,15 @@ def _multilevel_joint(lv, Q, handles, energy, n_jobs, progress, ck, key):
     )
     clock.remote += remote
     rule = np.array([ml.RULES.index(r) + 1 if r else 0 for r in info["rule"]], np.int64)
-    return {"X": X, "converged": conv, "cpu_seconds": np.array([clock.cpu]), "rule": rule}, clock.remote
+    spent = {"work": run.work + np.array(info["work"]), "setup": run.setup + np.array(info["setup"])}
+    return {"X": X, "converged": conv, "cpu_seconds": np.array([clock.cpu]), "rule": rule, **spent}, clock.remote
 
 
-def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache, policy="full"):
+def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache, policy="full", counted=False):
     """:func:`solve_joint` plus the CPU seconds its solves spent in other processes (now) and in all (when they
-    ran, also after a cache hit), the policy that ran and its record (:attr:`MovableRecord.multilevel`)."""
+    ran, also after a cache hit), the policy that ran and its record (:attr:`MovableRecord.multilevel`, with the
+    per-sample ``"work"`` and ``"setup"`` of :mod:`defop.training.work`, NaN for a truth cached without them;
+    ``counted``: a cached truth without them is solved again)."""
     en.check_energy(energy)
     opt.choice("policy", policy, ml.POLICIES)
     check_placement(shape, placement)
@@ -226,13 +229,18 @@ def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache, poli
             key_of=lambda a, b: cache_mod.key("chunk-movable", key, BY_PLACEMENT, a, b),
         )
         spent.append(r.cpu_seconds - r.local_cpu_seconds)
-        return in_order({"X": r.X, "converged": r.converged, "cpu_seconds": np.array([r.cpu_seconds])}, order)
+        arrays = {"X": r.X, "converged": r.converged, "cpu_seconds": np.array([r.cpu_seconds])}
+        return in_order({**arrays, "work": r.work, "setup": r.setup}, order)
 
-    gt = batch.load_or_compute(store, "gt", key, solves.gt_expect(len(Q), mesh.n_vertices, mesh.dim), compute)
+    expect = solves.gt_expect(len(Q), mesh.n_vertices, mesh.dim)
+    if counted:
+        expect.update({"work": ((len(Q),), "f"), "setup": ((len(Q),), "f")})
+    gt = batch.load_or_compute(store, "gt", key, expect, compute)
     if ck is not None:
         ck.discard()
     solve_cpu = float(gt["cpu_seconds"][0]) if "cpu_seconds" in gt else float("nan")  # NaN: stored without it
-    info = {"fallback": why}
+    nan = np.full(len(Q), np.nan)  # a truth cached without its work: not known
+    info = {"fallback": why, "work": gt.get("work", nan), "setup": gt.get("setup", nan)}
     if lv is not None:
         info["rule"] = ["" if r == 0 else ml.RULES[r - 1] for r in gt["rule"]]
         info["coarse_vertices"] = lv.coarse.mesh.n_vertices
@@ -258,6 +266,11 @@ class MovableRecord:
     fit_cpu_seconds: float = 0.0
     policy: str = "full"
     multilevel: dict = dataclasses.field(default_factory=dict)
+    #: the work of the joint solves of these samples (:mod:`defop.training.work`; NaN: not known) and, from
+    #: :func:`defop.training.movable_budget.train_within`, the budget that chose m (``"target"``, ``"factor"``,
+    #: ``"solved"``: the samples solved to find it, ``"capped"``)
+    work: float = float("nan")
+    budget: dict = dataclasses.field(default_factory=dict)
 
 
 def check_placement(shape, placement):
@@ -314,6 +327,9 @@ def train_movable(
         shape, placement, idx, Q, energy, n_jobs, progress, cache, policy
     )
     clock.remote += remote
+    first = np.zeros(len(idx), bool)
+    first[np.unique(idx, axis=0, return_index=True)[1]] = True  # a placement's setup counts once
+    spent = float(np.sum(info.pop("work")) + np.sum(info.pop("setup")[first]))
     if not conv.all():
         warnings.warn(
             f"{int((~conv).sum())} of {len(conv)} joint solves did not converge; used as they are",
@@ -323,7 +339,7 @@ def train_movable(
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
     fitting = solves.Stopwatch()
     op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta, centres=centres)
-    return op, MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, info)
+    return op, MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, info, spent)
 
 
 #: the budget of a joint training, in fixed-P trainings (at m = 200, the 2D default)

@@ -21,7 +21,7 @@ import numpy as np
 from ..operator import handle_bases as hb
 from ..operator.fit import fit
 from ..variational.solver import NotConvergedWarning
-from . import batch, solves
+from . import batch, solves, work
 
 __all__ = ["portfolio", "refine"]
 
@@ -95,10 +95,10 @@ def _refine_chunk(decide, lv, problem, jobs):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotConvergedWarning)
         for T, c, h in jobs:
-            t0 = time.process_time()
-            level = lv if h is None else lv.at(h)
-            res = decide(level, problem.solver_for(h), T, c)
-            out.append((*res, time.process_time() - t0, pid))
+            t0, w0 = time.process_time(), work.reading()
+            level, solver = lv if h is None else lv.at(h), problem.solver_for(h)
+            res = decide(level, solver, T, c)
+            out.append((*res, time.process_time() - t0, pid, work.reading() - w0, work.setup_of(solver)))
     return out
 
 
@@ -132,7 +132,8 @@ def _refine_cache(checkpoint, key_of, n, d, rules):
         got = checkpoint.load_or_compute(key_of(a, b), expect(b - a), arrays)
         names = ["" if r == 0 else rules[r - 1] for r in got["rule"]]
         cols = (got["X"], got["converged"], names, got["iterations"], got["minima"], got["coarse_energy"])
-        clocks = [r[-2:] for r in fresh] or [(0.0, 0)] * (b - a)  # refined now: its CPU seconds; loaded: none
+        # refined now: its CPU seconds and work; loaded: none, its work not counted (NaN)
+        clocks = [r[6:] for r in fresh] or [(0.0, 0, np.nan, np.nan)] * (b - a)
         return [(*row, *clock) for row, clock in zip(zip(*cols), clocks)]
 
     return chunk
@@ -179,7 +180,8 @@ def refine(
     info : dict
         Per sample: ``rule`` (str, "" when the safeguard did not fire), ``iterations`` (the single fine run's),
         ``minima`` (distinct verified coarse minima), ``coarse_energy``, ``cpu`` (CPU seconds of the sample's fine
-        stage in the process that ran it; 0 for a sample loaded from a checkpoint).
+        stage in the process that ran it; 0 for a sample loaded from a checkpoint), ``work`` and ``setup`` (its
+        factorisations' work and its fine solver's setup, :mod:`defop.training.work`; NaN where loaded).
     cpu : float
         CPU seconds of the runs in other processes (:class:`defop.training.solves.Stopwatch` adds this one's).
     """
@@ -203,6 +205,10 @@ def refine(
         "minima": [int(k) for k in cols[4]],
         "coarse_energy": [float(e) for e in cols[5]],
         "cpu": [float(t) for t in cols[6]],
+        "work": [float(w) for w in cols[8]],
+        "setup": [float(w) for w in cols[9]],
     }
+    at = [fine.handles] * len(jobs) if handles is None else handles
+    work.count(info["work"], info["setup"], [work.solver_key(fine.mesh, h) for h in at])
     remote = float(sum(t for t, pid in zip(cols[6], cols[7]) if pid not in (0, os.getpid())))
     return np.array(cols[0]), np.array(cols[1], bool), info, remote

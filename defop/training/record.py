@@ -40,6 +40,10 @@ class TrainingRecord:
         and ``"coarse_vertices"``.
     wall_times : dict of str -> float
         Wall seconds per stage, beside ``stage_times``.
+    work : float
+        The work of the training's solves (:mod:`defop.training.work`: factor nonzeros over every factorisation and
+        each solver's setup once), the same on every machine where the solves are; kept with the ground truth. NaN:
+        not known (a truth cached without it, or a sample loaded from an interrupted run's checkpoint).
     """
 
     samples: np.ndarray
@@ -51,6 +55,7 @@ class TrainingRecord:
     policy: str = "full"
     multilevel: dict = dataclasses.field(default_factory=dict)
     wall_times: dict = dataclasses.field(default_factory=dict)
+    work: float = float("nan")
 
     @property
     def safeguard(self) -> dict:

@@ -29,7 +29,7 @@ from ..geometry.mesh import Mesh
 from ..operator import core
 from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning, Solver
-from . import batch
+from . import batch, work
 from . import cache as cache_mod
 
 __all__ = [
@@ -52,7 +52,8 @@ __all__ = [
 
 class Item(typing.NamedTuple):
     """One sample's result: its solution, energy and verification, the CPU seconds of its solves in process ``pid``,
-    and every end point ``(X, energy, converged)`` when the engine keeps them all (else None)."""
+    every end point ``(X, energy, converged)`` when the engine keeps them all (else None), and its work
+    (:mod:`defop.training.work`: its factorisations, its solver's setup; NaN: not counted, e.g. loaded)."""
 
     X: np.ndarray
     energy: float
@@ -60,6 +61,8 @@ class Item(typing.NamedTuple):
     cpu: float = 0.0
     pid: int = 0
     runs: list | None = None
+    work: float = float("nan")
+    setup: float = float("nan")
 
 
 @dataclasses.dataclass
@@ -80,6 +83,9 @@ class Solves:
         The part of ``cpu_seconds`` spent in this process (:class:`Stopwatch` counts it once).
     runs : list or None
         Per sample every end point ``(X, energy, converged)`` (``keep="all"``), else None.
+    work, setup : (m,) numpy arrays
+        Per sample the work of its factorisations and its solver's setup (:mod:`defop.training.work`; NaN where
+        loaded from a checkpoint).
     """
 
     X: np.ndarray
@@ -89,6 +95,8 @@ class Solves:
     wall_seconds: float = 0.0
     local_cpu_seconds: float = 0.0
     runs: list | None = None
+    work: np.ndarray | None = None
+    setup: np.ndarray | None = None
 
 
 def collect(items, wall):
@@ -105,6 +113,8 @@ def collect(items, wall):
         float(wall),
         local,
         runs,
+        np.array([it.work for it in items], float),
+        np.array([it.setup for it in items], float),
     )
 
 
@@ -313,13 +323,14 @@ def solve_chunk(problem, jobs):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotConvergedWarning)
         for T, starts, incumbent, handles in jobs:
-            t0 = time.process_time()
+            t0, w0 = time.process_time(), work.reading()
             solver = problem.solver_for(handles)
             if problem.keep == "all":
                 X, E, ok, runs = all_of(solver, T, as_list(starts), incumbent, problem.rest, problem.solve_kw)
             else:
                 (X, E, ok), runs = best_of(solver, T, as_list(starts), incumbent, problem.rest, problem.solve_kw), None
-            out.append(Item(X, float(E), bool(ok), time.process_time() - t0, pid, runs))
+            done = work.reading() - w0, work.setup_of(solver)
+            out.append(Item(X, float(E), bool(ok), time.process_time() - t0, pid, runs, *done))
     return out
 
 
@@ -433,6 +444,8 @@ def solve(
         functools.partial(solve_chunk, problem), list(zip(targets, starts, held, per)), n_jobs, progress, desc, chunk
     )
     out = collect(items, time.perf_counter() - w0)
+    at = [shape.handles] * m if handles is None else handles
+    work.count(out.work, out.setup, [work.solver_key(shape.mesh, h) for h in at])
     return out if clock is None else clock.add(out)
 
 

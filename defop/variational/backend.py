@@ -197,6 +197,7 @@ class PardisoLDL:
         self._ps.libmkl.MKL_Set_Num_Threads(ctypes.c_int(mkl_threads()))
         iparm = self._ps.iparm
         iparm[0], iparm[1], iparm[9], iparm[10], iparm[12], iparm[20] = 1, 2, 8, 0, 0, 1
+        iparm[17] = -1  # report the factor's nonzeros (:meth:`nonzeros`); a report only, the factors are the same
         # PARDISO reads the upper triangle row by row: the CSR order of the CSC values, found once
         order = sp.csc_matrix((np.arange(K.nnz, dtype=float), K.indices, K.indptr), shape=K.shape).tocsr()
         order.sort_indices()
@@ -235,6 +236,10 @@ class PardisoLDL:
     def inertia(self):
         """Negative eigenvalues of the last factorised K (MKL's iparm[22]); None when it failed."""
         return int(self._ps.iparm[22]) if self._ok else None
+
+    def nonzeros(self):
+        """Nonzeros of the factor (MKL's iparm[17], from the symbolic analysis)."""
+        return int(self._ps.iparm[17])
 
 
 #: ``DEFOP_REUSE=auto`` re-uses a factorisation (:func:`pcg`) on Newton systems of at least this many unknowns (free

@@ -18,6 +18,7 @@ import scipy.sparse.linalg as sla
 
 from . import backend as bk
 from . import energies as en
+from . import work
 from .backend import (  # noqa: F401 (public here too)
     BACKENDS,
     FALLBACK_COST,
@@ -96,6 +97,9 @@ class ReducedHessian:
         #: the slots of the diagonal entries in ``data``
         self.diag = np.searchsorted(uniq, uniq[(uniq % nf) == (uniq // nf)])
         self._K = self._factor = self._slot = None
+        #: nonzeros of the factor L (the back end's ordering), known after the first factorisation: what each
+        #: factorisation adds to :func:`defop.variational.work.total`
+        self.factor_nnz = None
         #: the values of the last factorised matrix (None: none, or it failed)
         self._factored = None
         self.reuse = bk.choose_reuse(nf, self.backend)
@@ -183,6 +187,8 @@ class ReducedHessian:
         stage ended on the same matrix) re-uses its factors: the same solution and inertia, bit for bit."""
         if self.backend == "splu":  # pragma: no cover - exercised only without qdldl
             lu = sla.splu((K + sp.triu(K, 1).T).tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
+            self.factor_nnz = lu.L.nnz + lu.U.nnz
+            work.add(self.factor_nnz)
             return lu.solve(b)
         if self._factored is not None and np.array_equal(self._factored, K.data):
             return self._factor.solve(b)
@@ -201,6 +207,9 @@ class ReducedHessian:
             self._factor = bk.qdldl.Solver(K, upper=True)
         else:
             self._factor.update(K, upper=True)
+        if self.factor_nnz is None:  # the pattern is fixed: so is the factor's (symbolic) fill
+            self.factor_nnz = self._factor.nonzeros() if self.backend == "pardiso" else self._factor.factors()[0].nnz
+        work.add(self.factor_nnz)
         return self._factor.solve(b)
 
     def inertia(self):
@@ -259,6 +268,8 @@ class ReducedProblem:
         self.hessian = ReducedHessian(mesh, self.free, backend)
         self.elements = ElementKernels(mesh, self.energy, self.hessian, kernel)
         self._biharmonic = None
+        #: nonzeros of the bi-Laplacian's LU factors (the rest pose's start), 0 until it is built
+        self.biharmonic_nnz = 0
         #: energies below this (1e-12 · area) count as zero in relative tests (ARAP and S-ARAP vanish at rest)
         self._energy_floor = 1e-12 * float(mesh.areas.sum())
 
@@ -350,6 +361,7 @@ class ReducedProblem:
             return np.zeros(self.mesh.V.shape)
         if self._biharmonic is None:
             self._biharmonic = biharmonic_factors(self.mesh, self.free_vertices, self.handles)
+            self.biharmonic_nnz = self._biharmonic[0].L.nnz + self._biharmonic[0].U.nnz
         return biharmonic_extension(self._biharmonic, self.mesh, self.free_vertices, self.handles, displacement)
 
     def check_start(self, X0):

@@ -1,0 +1,85 @@
+"""The work of a training's solves: a deterministic measure of its cost, counted from symbolic data.
+
+A sample's work is what its factorisations cost in factor nonzeros (:mod:`defop.variational.work`, read where the
+sample runs); each distinct solver (one handle set on one mesh) adds its setup once: its bi-Laplacian's LU (the
+rest pose's start) and its ordering and symbolic analysis, :data:`SETUP` factorisations' worth. Neither depends on
+the machine's speed, its load, the number of workers or which solvers a worker happened to keep, so a budget
+counted in work (:func:`defop.training.movable.train_within`) picks the same m on every machine where the solves
+are the same. A sample loaded from a checkpoint has no work (NaN): its solves did not run here.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+
+from ..variational import work as counter
+
+__all__ = ["SETUP", "Tally", "prefix", "setup_of", "solver_key", "tally"]
+
+#: a solver's ordering, symbolic analysis and pattern, in factorisations of its Hessian (measured: about 7 ms against
+#: 2.2 ms a numeric factorisation on the aleph, benchmarks/README.md, 2026-12-02, fourth part)
+SETUP = 3.0
+
+
+def setup_of(solver):
+    """The setup work of a solver (:class:`defop.variational.solver.Solver`): its bi-Laplacian's LU nonzeros (0 until
+    a solve from the rest pose built it) plus :data:`SETUP` times its Hessian factor's nonzeros."""
+    p = solver.problem
+    return float(p.biharmonic_nnz + SETUP * (p.hessian.factor_nnz or 0))
+
+
+def solver_key(mesh, handles):
+    """What identifies a solver's setup: its mesh's vertex count and its handles (bytes)."""
+    return (int(mesh.n_vertices), np.asarray(handles, np.int64).tobytes())
+
+
+class Tally:
+    """The work of every batch solved while it is open (:func:`tally`): the samples' factorisations and each
+    distinct solver's setup once (the largest seen: one that never solved from the rest pose built no LU)."""
+
+    def __init__(self):
+        self.factor, self.setups = 0.0, {}
+
+    def add(self, work, setup, keys):
+        self.factor += float(np.sum(work))
+        for k, s in zip(keys, setup):
+            self.setups[k] = max(self.setups.get(k, 0.0), float(s))
+
+    @property
+    def total(self):
+        """The work so far: NaN where a sample was loaded from a checkpoint."""
+        return self.factor + float(sum(self.setups.values()))
+
+
+_OPEN = []
+
+
+@contextlib.contextmanager
+def tally():
+    """A :class:`Tally` of the batches solved in this block (:func:`count`)."""
+    t = Tally()
+    _OPEN.append(t)
+    try:
+        yield t
+    finally:
+        _OPEN.remove(t)
+
+
+def count(work, setup, keys):
+    """Count a batch's per-sample work (m,), its solvers' setup (m,) and their keys (m,) in every open tally."""
+    for t in _OPEN:
+        t.add(work, setup, keys)
+
+
+def prefix(work, setup, first):
+    """(m,) the work of the first 1, 2, ..., m samples: their factorisations and the setup of each solver where it
+    is first met (``first`` (m,) bool: sample k is the first of its solver)."""
+    work, setup = np.asarray(work, float), np.asarray(setup, float)
+    return np.cumsum(work + np.where(first, setup, 0.0))
+
+
+def reading():
+    """This process's factorisation work so far (:func:`defop.variational.work.total`)."""
+    return counter.total()
