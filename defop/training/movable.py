@@ -3,8 +3,8 @@
 A joint draw takes each movable handle's rest vertex uniformly from its placement region
 (:mod:`defop.scene.placement`) and Q from the shape's sampling regions centred at P (the Q regions travel with P):
 :func:`sample_joint`. The training samples (:func:`train_movable`) are the m draws of a pool of :data:`POOL` m that
-lie farthest apart in Ψ's joint coordinates (:func:`spread_joint`), so that no placement's corner of Q is left
-without a sample near it. The truth at each sample is problem (6) with the handles at those vertices, solved by the
+lie farthest apart in Ψ's joint coordinates (:func:`spread_joint`), so that fewer corners of the joint space are
+left without a sample near them. The truth at each sample is problem (6) with the handles at those vertices, solved by the
 verified solver from the rest pose (:meth:`defop.variational.solver.Solver.solve_best`), through the sample engine
 (:func:`defop.training.solves.solve`: parallel, checkpointed, cached; the placement regions are part of the key).
 """
@@ -53,8 +53,8 @@ def sample_joint(shape, placement, m, rng, n_q=1):
 
 
 #: :func:`spread_joint`: the pool of uniform joint draws, in training samples (chosen once for every shape; on the
-#: bar at m = 1,000 it took the held-out error from 35.4x to 7.5x the retrained, on the aleph from 2.22x to 2.14x:
-#: benchmarks/README.md, 2026-12-02, fifth part)
+#: bar at m = 1,000 it took the held-out error from 35.4x to 7.5x the retrained (the mean of 3 seeds from 30.2x to
+#: 13.2x), on the aleph from 2.22x to 2.14x: benchmarks/README.md, 2026-12-02, fifth part)
 POOL = 4
 
 #: the designs of :func:`train_movable`'s samples: ``"spread"`` (:func:`spread_joint`) or ``"uniform"`` (the first
@@ -72,7 +72,7 @@ def spread_joint(shape, placement, m, rng, n_q=1, pool=POOL):
     narrow end had no training sample within 40% of the ellipse at its placement and carried 73% of the mean
     error. The thin-plate spline's error grows with the distance to its data (its fill distance), which the
     greedy pick lowers at equal m where the joint space has few dimensions (the bar, R^4, m = 1,000: the pool's
-    covering radius 0.50 against the uniform design's, 0.17) and hardly in many (the aleph, R^20: 3.3, 2.9).
+    covering radius 0.17 against the uniform design's 0.50) and hardly in many (the aleph, R^20: 2.9 against 3.3).
 
     Returns
     -------
