@@ -4,9 +4,10 @@ A joint draw takes each movable handle's rest vertex uniformly from its placemen
 (:mod:`defop.scene.placement`) and Q from the shape's sampling regions centred at P (the Q regions travel with P):
 :func:`sample_joint`. The training samples (:func:`train_movable`) are the m draws of a pool of :data:`POOL` m that
 lie farthest apart in Ψ's joint coordinates (:func:`spread_joint`), so that fewer corners of the joint space are
-left without a sample near them. The truth at each sample is problem (6) with the handles at those vertices, solved by the
-verified solver from the rest pose (:meth:`defop.variational.solver.Solver.solve_best`), through the sample engine
-(:func:`defop.training.solves.solve`: parallel, checkpointed, cached; the placement regions are part of the key).
+left without a sample near them. The truth at each sample is problem (6) with the handles at those vertices, solved
+by the verified solver from the rest pose (:meth:`defop.variational.solver.Solver.solve_best`), through the sample
+engine (:func:`defop.training.solves.solve`: parallel, checkpointed, cached; the placement regions are part of the
+key).
 """
 
 from __future__ import annotations
