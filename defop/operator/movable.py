@@ -102,6 +102,31 @@ def joint_z(V, nominal, idx, handles_moving, Q, s_p, s_q):
     return np.concatenate([np.broadcast_to(a, (len(bq), *a.shape)), bq], axis=1)
 
 
+def joint_points(mesh, placement, moving, idx, Q, p_weight=1.0):
+    """The joint samples' coordinates z in Ψ's space, with the scales that make them (the one rule of
+    :func:`fit_movable` and of the spread design, :func:`defop.training.movable.spread_joint`): s_P the RMS rest
+    offset |P_b − P_b⁰| over ``p_weight``, s_Q the RMS displacement |Q − P| (1 where they are 0).
+
+    Parameters
+    ----------
+    idx : (m, b) int numpy array
+    Q : (m, n, d) numpy array
+
+    Returns
+    -------
+    zs : (m, b + n, d) numpy array
+    scales : (s_P, s_Q)
+    off_q : (m, n, d) numpy array
+        The displacements Q − P.
+    """
+    hm = np.array([placement.handles_at(i)[moving] for i in idx])  # (m, n)
+    off_p = mesh.V[idx] - mesh.V[placement.nominal]
+    off_q = Q - mesh.V[hm]
+    s_p = (float(np.sqrt(np.mean(np.sum(off_p**2, axis=-1)))) or 1.0) / p_weight
+    s_q = float(np.sqrt(np.mean(np.sum(off_q**2, axis=-1)))) or 1.0
+    return np.concatenate([off_p / s_p, off_q / s_q], axis=1), (s_p, s_q), off_q
+
+
 def rest_centres(zs, b):
     """The distinct rest poses (P_k, P_k) of joint samples zs (m, b + n, d), the nominal (0) first: (r, b + n, d)."""
     z0 = zs.copy()
@@ -141,12 +166,7 @@ def fit_movable(mesh, handles, moving, placement, idx, Q, X, meta=None, p_weight
     m, n, d = Q.shape
     if idx.shape != (m, placement.n_movable) or X.shape != (m, mesh.n_vertices, d):
         raise ValueError(f"idx must be (m, {placement.n_movable}) and X (m, {mesh.n_vertices}, {d}) for m = {m}")
-    hm = np.array([placement.handles_at(i)[moving] for i in idx])  # (m, n)
-    off_p = mesh.V[idx] - mesh.V[placement.nominal]
-    off_q = Q - mesh.V[hm]
-    s_p = (float(np.sqrt(np.mean(np.sum(off_p**2, axis=-1)))) or 1.0) / p_weight
-    s_q = float(np.sqrt(np.mean(np.sum(off_q**2, axis=-1)))) or 1.0
-    zs = np.concatenate([off_p / s_p, off_q / s_q], axis=1)
+    zs, (s_p, s_q), off_q = joint_points(mesh, placement, moving, idx, Q, p_weight)
     rc = rest_centres(zs, placement.n_movable)
     points = np.concatenate([rc, zs])
     k = centre_count(centres, m, len(points))
