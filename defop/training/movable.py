@@ -1,13 +1,12 @@
 """Training the movable-handle operator D(x; P, Q): joint samples (P_k, Q_k), their truth, the fit.
 
-A joint draw takes each movable handle's rest vertex uniformly from its placement region
-(:mod:`defop.scene.placement`) and Q from the shape's sampling regions centred at P (the Q regions travel with P):
-:func:`sample_joint`. The training samples (:func:`train_movable`) are the first m draws, or (``design="spread"``)
-the m draws of a pool of :data:`POOL` m that lie farthest apart in Ψ's joint coordinates (:func:`spread_joint`), so
-that fewer corners of the joint space are left without a sample near them. The truth at each sample is problem (6) with the handles at those vertices, solved
-by the verified solver from the rest pose (:meth:`defop.variational.solver.Solver.solve_best`), through the sample
-engine (:func:`defop.training.solves.solve`: parallel, checkpointed, cached; the placement regions are part of the
-key).
+A joint draw takes each movable handle's rest vertex uniformly from its placement region (:mod:`defop.scene.placement`)
+and Q from the shape's sampling regions centred at P (the Q regions travel with P): :func:`sample_joint`. The training
+samples (:func:`train_movable`) are the first m draws, or (``design="spread"``) the m draws of a pool of :data:`POOL` m
+that lie farthest apart in Ψ's joint coordinates (:func:`spread_joint`), so that fewer corners of the joint space are
+left without a sample near them. The truth at each sample is problem (6) with the handles at those vertices, solved by
+the verified solver from the rest pose (:meth:`defop.variational.solver.Solver.solve_best`), through the sample engine
+(:func:`defop.training.solves.solve`: parallel, checkpointed, cached; the placement regions are part of the key).
 """
 
 from __future__ import annotations
@@ -350,13 +349,14 @@ def train_movable(
     policy="auto",
     design="uniform",
 ):
-    """Sample (P_k, Q_k) (``design``: ``"uniform"``, default, the first m draws of :func:`sample_joint`, the
-    sequence whose prefix :func:`defop.training.movable_budget.train_within` takes; ``"spread"``, the m farthest
-    apart of :data:`POOL` m draws, :func:`spread_joint`, not a prefix of one sequence, so not yet the budget's), solve problem (6) at each
-    (cached; :func:`solve_joint` under ``policy``, default ``"auto"``: through the coarse level wherever one exists
-    in the dimensions where that saves CPU seconds, :func:`joint_level`), fit
-    D(x; P, Q) (:func:`defop.operator.movable.fit_movable`; ``centres``: how many TPS centres, default one per
-    sample, :func:`defop.operator.fit.centre_count`).
+    """Sample (P_k, Q_k) (``design``: ``"uniform"``, default, the first m draws of :func:`sample_joint`, the sequence
+    whose prefix :func:`defop.training.movable_budget.train_within` takes; ``"spread"``, the m farthest apart of
+    :data:`POOL` m draws, :func:`spread_joint`, not a prefix of one sequence, so not yet the budget's), solve problem
+    (6) at each
+    (cached; :func:`solve_joint` under ``policy``, default ``"auto"``: through the coarse level wherever one exists in
+    the dimensions where that saves CPU seconds, :func:`joint_level`), fit D(x; P, Q)
+    (:func:`defop.operator.movable.fit_movable`; ``centres``: how many TPS centres, default one per sample,
+    :func:`defop.operator.fit.centre_count`).
 
     Returns
     -------
