@@ -25,8 +25,11 @@ SETUP = 3.0
 
 def setup_of(solver):
     """The setup work of a solver (:class:`defop.variational.solver.Solver`): its bi-Laplacian's LU nonzeros (0 until
-    a solve from the rest pose built it) plus :data:`SETUP` times its Hessian factor's nonzeros."""
-    p = solver.problem
+    a solve from the rest pose built it) plus :data:`SETUP` times its Hessian factor's nonzeros; 0 for a stand-in
+    without a ``problem`` (a test's solver double: it factorises nothing)."""
+    p = getattr(solver, "problem", None)
+    if p is None:
+        return 0.0
     return float(p.biharmonic_nnz + SETUP * (p.hessian.factor_nnz or 0))
 
 
