@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.sparse.linalg as sla
+from threadpoolctl import threadpool_limits
 
 import defop as dop
 from defop.variational import escape
@@ -48,16 +49,30 @@ def _lowered(bar, q):
 @pytest.mark.parametrize("q", [1, 3])
 def test_the_shift_invert_eigenpair_is_eighs_lowest(bar, q):
     solver = _lowered(bar, q)
-    lam, v = np.linalg.eigh(solver.hessian.full(solver.data).toarray())
+    with threadpool_limits(limits=1):  # as negative_curvature runs it: the dense path is then the same bits
+        lam, v = np.linalg.eigh(solver.hessian.full(solver.data).toarray())
     assert np.sum(lam < 0) == q
     got, D = escape.negative_curvature(solver, None)
     assert got == pytest.approx(lam[0], rel=1e-9, abs=1e-12)
     d = D.ravel()[bar[0].free]
     assert abs(d @ v[:, 0]) == pytest.approx(1.0, abs=1e-9)  # the same vector up to its sign
-    assert d[np.argmax(np.abs(d))] > 0  # the sign convention: the largest entry positive
+    assert d @ escape._sign_probe(len(d)) > 0  # the sign convention: positive along the fixed probe
     assert np.all(D[bar[0].handles] == 0)
     dense, Dd = escape.negative_curvature(solver, None, dense_max=10**6)  # numpy's eigh, the small-K path
-    assert dense == lam[0] and np.array_equal(Dd.ravel()[bar[0].free], v[:, 0])
+    sign = np.sign(v[:, 0] @ escape._sign_probe(len(d)))  # the same convention on the dense path
+    assert dense == lam[0] and np.array_equal(Dd.ravel()[bar[0].free], sign * v[:, 0])
+
+
+def test_more_than_q_max_below_the_shift_takes_plain_lanczos(bar, monkeypatch):
+    """Shift-invert would need k = q Lanczos vectors and more; above Q_MAX the plain iteration (k = 1) runs."""
+    q = escape.Q_MAX + 1
+    solver = _lowered(bar, q)
+    lam = np.linalg.eigvalsh(solver.hessian.full(solver.data).toarray())
+    assert np.sum(lam < 0) == q
+    eigsh, calls = _stalling(sla.eigsh, 0)
+    monkeypatch.setattr(escape.sla, "eigsh", eigsh)
+    got, _ = escape.negative_curvature(solver, None)
+    assert calls["sigma"] == [None] and got == pytest.approx(lam[0], rel=1e-5)
 
 
 def _stalling(real, fail_times):

@@ -18,6 +18,9 @@ from .newton import newton, step_off
 LARGE_NCV = 120
 #: reduced Hessians of at most this many unknowns are diagonalised densely (``numpy.linalg.eigh``)
 DENSE_MAX = 400
+#: shift-invert Lanczos asks for every eigenvalue below −s (k = q); beyond this many, plain Lanczos (k = 1) instead:
+#: ARPACK's Krylov space grows with k (at least 2k + 1 vectors of the Hessian's size)
+Q_MAX = 16
 
 
 def negative_curvature(solver, X, dense_max=DENSE_MAX):
@@ -44,8 +47,11 @@ def negative_curvature(solver, X, dense_max=DENSE_MAX):
     -------
     lam : float
     D : (n, d) numpy array
-        Unit eigenvector as a displacement field (zero at the handles). Above ``dense_max`` unknowns its sign is
-        fixed: its entry of largest magnitude (the first such) is positive; the start vector is deterministic.
+        Unit eigenvector as a displacement field (zero at the handles). Its sign is fixed on every path: its dot
+        product with a fixed seeded random vector (:func:`_sign_probe`) is positive (a largest-entry rule flips
+        under round-off where a mirror-symmetric mode's entries tie); Lanczos' start vector is deterministic, and
+        every eigen solve runs on one BLAS thread (two threads moved an escaped minimum by 4.8e-9 relative on the
+        30k aleph: the same inputs must reach the same minimum whatever the thread count).
 
     Raises
     ------
@@ -53,16 +59,23 @@ def negative_curvature(solver, X, dense_max=DENSE_MAX):
         When the fallback's Lanczos converges neither with ARPACK's default Krylov space nor with
         :data:`LARGE_NCV` vectors.
     """
+    from threadpoolctl import threadpool_limits
+
     data = solver.grad_hess(X, 0.0, project=False)[2]
-    if solver.hessian.nf <= dense_max:
-        lam, v = np.linalg.eigh(solver.hessian.full(data).toarray())
-        return float(lam[0]), solver.full(v[:, 0])
-    found = _shift_invert(solver, data)
-    if found is None:
-        found = _lowest(solver.hessian.full(data))
+    with threadpool_limits(limits=1):
+        if solver.hessian.nf <= dense_max:
+            lam, v = np.linalg.eigh(solver.hessian.full(data).toarray())
+            found = float(lam[0]), v[:, 0]
+        else:
+            found = _shift_invert(solver, data) or _lowest(solver.hessian.full(data))
     lam, v = found
-    v = v if v[np.argmax(np.abs(v))] > 0 else -v
+    v = v if v @ _sign_probe(len(v)) > 0 else -v
     return lam, solver.full(v)
+
+
+def _sign_probe(n):
+    """The fixed vector that sets an eigenvector's sign: seeded normal entries, the same for every n-vector."""
+    return np.random.default_rng(20261202).standard_normal(n)
 
 
 def _start(n):
@@ -77,7 +90,7 @@ def _shift_invert(solver, data):
     n = hessian.nf
     hessian.solve(data, np.zeros(n), rel)  # factorises K + s I (the back end keeps it)
     q = hessian.inertia()
-    if not q or q >= n - 1:  # no inertia (SuperLU), nothing below −s, or no room for ARPACK
+    if not q or q > Q_MAX or q >= n - 1:  # no inertia (SuperLU), nothing below −s, too many, or no room for ARPACK
         return None
     M = hessian.matrix(data, rel)
     OPinv = sla.LinearOperator((n, n), matvec=lambda b: hessian.factorise(M, b), dtype=float)
