@@ -199,7 +199,8 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
         m_joint = len(rec.idx)
     t_joint = time.process_time() - c0
     rule = (
-        f"work {rec.work / rec0.work:.2f}x one fixed-P training's (the rule: first >= {rec.budget['factor']:g}x; "
+        f"work {(rec.work + rec.budget['fit']) / rec0.work:.2f}x one fixed-P training's (solves + fit; the rule: "
+        f"first >= {rec.budget['factor']:g}x; "
         f"{rec.budget['solved']} samples solved to find m)"
         if rec.budget
         else "m given"

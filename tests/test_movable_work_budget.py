@@ -109,7 +109,8 @@ def test_train_within_stops_where_the_work_reaches_the_budget(bar):
     target = 1.5 * ref.work
     assert rec.budget["target"] == target and not rec.budget["capped"]
     m = len(rec.idx)
-    assert rec.work >= target and m <= rec.budget["solved"] and rec.budget["solved"] % 25 == 0
+    assert rec.work + rec.budget["fit"] >= target and m <= rec.budget["solved"] and rec.budget["solved"] % 25 == 0
+    assert rec.work_units == work.units(shape.mesh) == ref.work_units
     again, rec2 = _within(bar, factor=1.5)  # the same m and the same operator, twice
     assert len(rec2.idx) == m and rec2.work == rec.work
     q = shape.P_moving + 0.01
@@ -150,3 +151,79 @@ def test_reference_trains_again_where_the_cache_kept_no_work(monkeypatch):
     monkeypatch.setattr(mb, "train", fake)
     _, rec = mb.reference("shape", m=200, progress=False)
     assert calls == [True, False] and rec.work == 7.0
+
+
+def test_stop_at_names_the_cause_of_a_missing_work():
+    with pytest.raises(ValueError, match="did not run in this count.*counted=True"):
+        stop_at(np.array([1.0, np.nan]), np.zeros(2), np.zeros((2, 1), int), 1.0)
+
+
+def test_work_in_other_units_is_not_read_back_nor_compared(bar, tmp_path, monkeypatch):
+    shape, placement, ref = bar
+    units = work.units(shape.mesh)
+    assert set(units) == {"backend", "reuse", "iteration", "setup", "version"} and ref.work_units == units
+    assert work.recorded({"work": 5.0, "work_units": units}, shape.mesh) == 5.0
+    assert np.isnan(work.recorded({"work": 5.0}, shape.mesh))  # cached before the units were kept
+    assert np.isnan(work.recorded({"work": 5.0, "work_units": {**units, "backend": "pardiso"}}, shape.mesh))
+    other = {**units, "reuse": not units["reuse"]}
+    with pytest.raises(ValueError, match="other units.*against"):
+        budget_work(_record(2.0e6), 5, units)  # a record without units
+    rec = _record(2.0e6, 12)
+    rec.work_units = other
+    with pytest.raises(ValueError, match=f"other units.*'reuse': {other['reuse']}.*'reuse': {units['reuse']}"):
+        budget_work(rec, 5, units)  # both named
+    assert budget_work(rec, 5, other) == 1.0e7
+    with pytest.raises(ValueError, match="other units"):
+        train_within(shape, placement, rec, progress=False, cache=False)
+    monkeypatch.setenv("DEFOP_CACHE", str(tmp_path))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        dop.train(shape, m=12, n_jobs=1, progress=False)
+        monkeypatch.setattr(work, "VERSION", work.VERSION + 1)  # the work rule changed: the cached work is not read
+        _, loaded = dop.train(shape, m=12, n_jobs=1, progress=False)
+    assert loaded.cache == "operator" and np.isnan(loaded.work)
+
+
+def test_train_within_checks_centres_before_any_solve(bar, monkeypatch):
+    from defop.training import movable as mv
+
+    shape, placement, ref = bar
+    monkeypatch.setattr(mv, "_solve_joint", lambda *a, **k: pytest.fail("solved before the check"))
+    with pytest.raises(ValueError, match="centres"):
+        train_within(shape, placement, ref, centres="many", progress=False, cache=False)
+
+
+def test_train_within_counts_two_samples_where_one_met_the_budget(bar, monkeypatch):
+    from defop.training import movable as mv
+
+    shape, placement, ref = bar
+    tiny = _record(1e-9, 12)
+    tiny.work_units = ref.work_units
+
+    def solved(shape, placement, idx, Q, *a, **k):  # per sample: work 5, 3, 3, ...; no setup
+        X = np.repeat(shape.mesh.V[None], len(idx), 0) + 1e-3 * np.arange(len(idx))[:, None, None]
+        spent = np.r_[5.0, np.full(len(idx) - 1, 3.0)]
+        info = {"fallback": "", "work": spent, "setup": np.zeros(len(idx)), "work_units": ref.work_units}
+        return X, np.ones(len(idx), bool), 0.0, 0.0, "full", info
+
+    monkeypatch.setattr(mv, "_solve_joint", solved)
+    _, rec = _within((shape, placement, tiny))
+    assert len(rec.idx) == 2 and rec.work == 8.0  # both samples' solves, not the first's
+    from defop.training.movable_budget import fit_work
+
+    assert rec.budget["fit"] == fit_work(2, *shape.mesh.V.shape)[0]
+
+
+def test_counted_joint_solves_keep_no_checkpoint(bar, tmp_path, monkeypatch):
+    """A counted truth is solved without a checkpoint: no sample is loaded without its work (NaN)."""
+    from defop.training import batch
+    from defop.training import movable as mv
+
+    shape, placement, _ = bar
+    monkeypatch.setenv("DEFOP_CACHE", str(tmp_path))
+    monkeypatch.setattr(batch, "Checkpoints", lambda *a, **k: pytest.fail("a checkpoint while counting"))
+    idx, Q = mv.sample_joint(shape, placement, 3, np.random.default_rng(0), 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        *_, info = mv._solve_joint(shape, placement, idx, Q, "sarap", 1, False, True, "full", counted=True)
+    assert np.isfinite(info["work"]).all() and info["work_units"] == work.units(shape.mesh)

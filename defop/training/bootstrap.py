@@ -30,7 +30,7 @@ from ..operator.defop import DefOp
 from ..operator.fit import check_distinct, fit
 from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning
-from . import batch, solves
+from . import batch, solves, work
 from . import cache as cache_mod
 from . import ground_truths as truths
 from . import multilevel as ml
@@ -408,8 +408,9 @@ def _cached_operator(store, gt_key, op_key, shape, basis, spatial, samples, para
     gt = truths.load(store, gt_key, m, shape.mesh.n_vertices, shape.mesh.dim)
     X, conv = (None, None) if gt is None else gt[:2]
     info = _levels_info(used, why, None if gt is None else gt[2].get("multilevel"))
-    done = float("nan") if gt is None or gt[2].get("work") is None else float(gt[2]["work"])
-    return op, TrainingRecord(samples, X, conv, times, "operator", params, used, info, wall, done)
+    done = float("nan") if gt is None else work.recorded(gt[2], shape.mesh)
+    units = work.units(shape.mesh)
+    return op, TrainingRecord(samples, X, conv, times, "operator", params, used, info, wall, done, units)
 
 
 def _train_new(
@@ -433,7 +434,8 @@ def _train_new(
         op.meta["safeguard_fired"] = int(sum(1 for r in info["rule"] if r))
     if store is not None:
         store.store_with("op", op_key, op.save)
-    return op, TrainingRecord(samples, X, conv, times, cache_state, params, used, info, wall, done)
+    units = work.units(shape.mesh)
+    return op, TrainingRecord(samples, X, conv, times, cache_state, params, used, info, wall, done, units)
 
 
 def _fit_timed(shape, samples, X, basis, spatial, k, meta, times, wall):

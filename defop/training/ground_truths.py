@@ -56,8 +56,8 @@ def train_key(shape, energy, samples, rounds, used, lv):
 
 def ground_truth(shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, meta):
     """The training's ground truth, loaded or solved by the policy and cached: (X, converged, CPU times, wall times,
-    multilevel info, cache state, work (:mod:`defop.training.work`; kept with the truth, NaN for a truth cached
-    without it))."""
+    multilevel info, cache state, work (:mod:`defop.training.work`; kept with the truth and its units, NaN for a
+    truth cached without it or in other units))."""
     gt = cached(store, gt_key, shape, len(samples))
     if gt is not None:
         return gt
@@ -74,8 +74,8 @@ def cached(store, gt_key, shape, m):
     if gt is None:
         return None
     meta = gt[2]
-    times, wall, done = dict(meta.get("times", {})), dict(meta.get("wall", {})), meta.get("work")
-    return gt[0], gt[1], times, wall, meta.get("multilevel"), "ground truth", float("nan" if done is None else done)
+    times, wall, done = dict(meta.get("times", {})), dict(meta.get("wall", {})), work.recorded(meta, shape.mesh)
+    return gt[0], gt[1], times, wall, meta.get("multilevel"), "ground truth", done
 
 
 def solve(shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, meta):
@@ -96,7 +96,13 @@ def solve(shape, samples, energy, n_jobs, progress, rounds, store, gt_key, lv, m
         if stages:
             stages.close()
     if store is not None:
-        meta = {"times": times, "wall": wall, "multilevel": info, "work": tally.total}
+        meta = {
+            "times": times,
+            "wall": wall,
+            "multilevel": info,
+            "work": tally.total,
+            "work_units": work.units(shape.mesh),
+        }
         store.store("gt", gt_key, {"X": X, "converged": conv}, meta=meta)
         ck.discard()  # the whole ground truth is cached
     return X, conv, times, wall, info, "none", tally.total

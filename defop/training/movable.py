@@ -23,7 +23,7 @@ from ..scene.placement import PlacementRegions
 from ..scene.shapes import Shape
 from ..variational import energies as en
 from ..variational.solver import NotConvergedWarning
-from . import batch, portfolios, solves
+from . import batch, portfolios, solves, work
 from . import cache as cache_mod
 from . import multilevel as ml
 from .sampling import sample_shape
@@ -242,16 +242,20 @@ def _multilevel_joint(lv, Q, handles, energy, n_jobs, progress, ck, key):
 def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache, policy="full", counted=False):
     """:func:`solve_joint` plus the CPU seconds its solves spent in other processes (now) and in all (when they
     ran, also after a cache hit), the policy that ran and its record (:attr:`MovableRecord.multilevel`, with the
-    per-sample ``"work"`` and ``"setup"`` of :mod:`defop.training.work`, NaN for a truth cached without them;
-    ``counted``: a cached truth without them is solved again)."""
+    per-sample ``"work"`` and ``"setup"`` of :mod:`defop.training.work`, NaN for a truth cached without them, and
+    their ``"work_units"``; ``counted``: a cached truth without them is solved again, the truth is cached under its
+    units and solved without a checkpoint, so every sample's work is counted here: none is loaded without it)."""
     en.check_energy(energy)
     opt.choice("policy", policy, ml.POLICIES)
     check_placement(shape, placement)
     idx, Q = check_joint(shape, placement, idx, Q)
     used, lv, why = joint_level(shape, placement, policy)
     mesh, store = shape.mesh, cache_mod.open_cache(cache)
+    units = work.units(mesh)
     key = None if store is None else _joint_key(shape, placement, idx, Q, energy, lv)
-    ck = None if store is None else batch.Checkpoints(store)
+    if counted and key is not None:
+        key = cache_mod.key("counted", key, units)
+    ck = None if store is None or counted else batch.Checkpoints(store)
     order = by_placement(idx)  # the samples of one placement in a row: one solver each (solves.Problem.solver_for)
     handles = np.array([placement.handles_at(i) for i in idx[order]])  # a movable handle's patch moves with it
     spent = []
@@ -284,7 +288,7 @@ def _solve_joint(shape, placement, idx, Q, energy, n_jobs, progress, cache, poli
         ck.discard()
     solve_cpu = float(gt["cpu_seconds"][0]) if "cpu_seconds" in gt else float("nan")  # NaN: stored without it
     nan = np.full(len(Q), np.nan)  # a truth cached without its work: not known
-    info = {"fallback": why, "work": gt.get("work", nan), "setup": gt.get("setup", nan)}
+    info = {"fallback": why, "work": gt.get("work", nan), "setup": gt.get("setup", nan), "work_units": units}
     if lv is not None:
         info["rule"] = ["" if r == 0 else ml.RULES[r - 1] for r in gt["rule"]]
         info["coarse_vertices"] = lv.coarse.mesh.n_vertices
@@ -310,11 +314,13 @@ class MovableRecord:
     fit_cpu_seconds: float = 0.0
     policy: str = "full"
     multilevel: dict = dataclasses.field(default_factory=dict)
-    #: the work of the joint solves of these samples (:mod:`defop.training.work`; NaN: not known) and, from
-    #: :func:`defop.training.movable_budget.train_within`, the budget that chose m (``"target"``, ``"factor"``,
-    #: ``"solved"``: the samples solved to find it, ``"capped"``)
+    #: the work of the joint solves of these samples, their setup included, the fit's not (:mod:`defop.training.
+    #: work`; NaN: not known) and, from :func:`defop.training.movable_budget.train_within`, the budget that chose m
+    #: (``"target"``, ``"factor"``, ``"fit"``: the fit's work, counted against the target beside ``work``,
+    #: ``"solved"``: the samples solved to find m, ``"capped"``); ``work_units`` (:func:`defop.training.work.units`)
     work: float = float("nan")
     budget: dict = dataclasses.field(default_factory=dict)
+    work_units: dict = dataclasses.field(default_factory=dict)
 
 
 def check_placement(shape, placement):
@@ -379,7 +385,7 @@ def train_movable(
     clock.remote += remote
     first = np.zeros(len(idx), bool)
     first[np.unique(idx, axis=0, return_index=True)[1]] = True  # a placement's setup counts once
-    spent = float(np.sum(info.pop("work")) + np.sum(info.pop("setup")[first]))
+    spent, units = float(np.sum(info.pop("work")) + np.sum(info.pop("setup")[first])), info.pop("work_units")
     if not conv.all():
         warnings.warn(
             f"{int((~conv).sum())} of {len(conv)} joint solves did not converge; used as they are",
@@ -389,7 +395,9 @@ def train_movable(
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
     fitting = solves.Stopwatch()
     op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta, centres=centres)
-    return op, MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, info, spent)
+    record = MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, info, spent)
+    record.work_units = units
+    return op, record
 
 
 #: the budget of a joint training, in fixed-P trainings (at m = 200, the 2D default)
@@ -415,8 +423,8 @@ def budget_samples(record, factor=BUDGET):
     it, :func:`by_placement`), so a joint sample costs more than a fixed-P sample where placements rarely repeat
     (the aleph, 2,810 vertices: 1.38x, its bi-Laplacian's LU and the longer rest-pose solve) and about as much where
     they do (bar_3d, 19 placements: 1.07x at m = 1,000; benchmarks/README.md, 2026-12-02, fourth part). The rule is
-    a count, the same m on every machine, not a bound on CPU seconds (the lesson and ``bench_movable.py`` print the
-    CPU seconds each side took; ``bench_movable_policy.py`` both policies).
+    a count, the same m wherever the same back end runs the same solves, not a bound on CPU seconds (the lesson and
+    ``bench_movable.py`` print the CPU seconds each side took; ``bench_movable_policy.py`` both policies).
 
     Raises
     ------

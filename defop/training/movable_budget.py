@@ -2,9 +2,12 @@
 fixed-P trainings cost (issue 44: 5 trainings at m = 200), its m where the count stops.
 
 Work (:mod:`defop.training.work`) is counted from symbolic data: each factorisation's factor nonzeros plus a fixed
-part, each distinct solver's setup once. It is not time, so the same inputs give the same m and the same operator on
-every machine where the solves are the same; measured side by side, the ratio of two trainings' work is their CPU
-seconds' ratio within a few per cent (benchmarks/README.md, 2026-12-02, fifth part). The joint training draws its
+part, each distinct solver's setup once. It is not time, so the same inputs give the same m and the same operator
+wherever the same back end runs the same solves; work in other units (another back end, re-use on or off, other
+constants: :func:`defop.training.work.units`) is never compared. It tracks CPU seconds only roughly: its constant
+was fitted on the bar, the aleph and the octopus, the one held-out shape (bar_3d) gave a CPU/work ratio of 0.97,
+and at full size a 5.00x work budget cost 6.03x (bar) and 6.23x (aleph) the CPU seconds, 20-25% more
+(benchmarks/README.md, 2026-12-02, fifth part). The joint training draws its
 samples as one seeded sequence, chunk by chunk (:data:`defop.training.batch.CHUNK` each,
 :func:`defop.training.movable.sample_joint` on one generator), solves each chunk (cached) and stops in the chunk
 where its work first reaches ``factor`` × the fixed-P training's: m is that sample's place in the sequence, and the
@@ -52,15 +55,22 @@ def fit_work(m, n_vertices, dim, centres="auto"):
     return (c**3 / 3 + c**2 * n_vertices * dim) / FIT_FLOPS
 
 
-def budget_work(record, factor=mv.BUDGET):
+def budget_work(record, factor=mv.BUDGET, units=None):
     """The work ``factor`` fixed-P trainings cost: ``factor`` × ``record.work`` (a
     :class:`~defop.training.record.TrainingRecord` of ``dop.train``, e.g. at m = 200).
+
+    Parameters
+    ----------
+    units : dict, optional
+        The units the budget is spent in (:func:`defop.training.work.units`): the record's ``work_units`` must be
+        equal.
 
     Raises
     ------
     ValueError
         ``factor`` not a positive finite number; a record without work (NaN: its ground truth was loaded from a
-        cache that did not keep it, or resumed from a checkpoint: train it again with ``cache=False``) or with none.
+        cache that did not keep it, or resumed from a checkpoint: train it again with ``cache=False``) or with none;
+        a record whose work is in other units than ``units`` (both named).
     """
     factor = opt.positive("factor", factor)
     spent = getattr(record, "work", None)
@@ -69,13 +79,20 @@ def budget_work(record, factor=mv.BUDGET):
             f"the fixed-P training's record holds no work (work = {spent!r}): its ground truth was loaded from a "
             "cache that did not keep it, or resumed from a checkpoint; train it with cache=False"
         )
+    theirs = getattr(record, "work_units", None)
+    if units is not None and theirs != units:
+        raise ValueError(
+            f"the fixed-P training's work is in other units than the joint solves' ({theirs!r} against {units!r}): "
+            "train both under the same back end (DEFOP_BACKEND) and DEFOP_REUSE, e.g. with movable_budget.reference"
+        )
     return factor * float(spent)
 
 
 def reference(shape, m=200, seed=0, **kw):
     """The fixed-P training a budget is counted in: ``dop.train(shape, m=m, seed=seed, **kw)`` (:func:`defop.training.
-    bootstrap.train`), its record's work read from the cached ground truth, or, where the cache kept none (a truth
-    cached before work was counted), trained again without the cache.
+    bootstrap.train`), its record's work read from the cached ground truth, or, where the cache kept none in this
+    run's units (a truth cached before work was counted, or under another back end or re-use setting: :func:`defop.
+    training.work.units`), trained again without the cache.
 
     Returns
     -------
@@ -85,7 +102,7 @@ def reference(shape, m=200, seed=0, **kw):
     """
 
     op, record = train(shape, m=m, seed=seed, **kw)
-    if not np.isfinite(record.work):
+    if not np.isfinite(record.work) or record.work_units != work_mod.units(shape.mesh):
         op, record = train(shape, m=m, seed=seed, **{**kw, "cache": False})
     return op, record
 
@@ -109,12 +126,7 @@ def stop_at(work, setup, idx, target, fit=None):
     ValueError
         A sample without work (NaN).
     """
-    work, setup = np.asarray(work, float), np.asarray(setup, float)
-    if not (np.isfinite(work).all() and np.isfinite(setup).all()):
-        raise ValueError("a joint sample has no work (NaN): its truth was loaded from a cache that did not keep it")
-    first = np.zeros(len(idx), bool)
-    first[np.unique(np.asarray(idx), axis=0, return_index=True)[1]] = True
-    total = work_mod.prefix(work, setup, first) + (0.0 if fit is None else np.asarray(fit, float))
+    total = _totals(work, setup, idx, fit)
     reached = np.flatnonzero(total >= target)
     if len(reached) == 0:
         return None, float(total[-1]) if len(total) else 0.0
@@ -122,10 +134,23 @@ def stop_at(work, setup, idx, target, fit=None):
     return m, float(total[m - 1])
 
 
+def _totals(work, setup, idx, fit=None):
+    """(k,) the work of the first 1, 2, ..., k samples (:func:`stop_at`'s arguments), ValueError on a NaN."""
+    work, setup = np.asarray(work, float), np.asarray(setup, float)
+    if not (np.isfinite(work).all() and np.isfinite(setup).all()):
+        raise ValueError(
+            "a joint sample has no work (NaN): its solves did not run in this count (a truth cached or "
+            "checkpointed without its work); solve the joint samples with counted=True, or with cache=False"
+        )
+    first = np.zeros(len(idx), bool)
+    first[np.unique(np.asarray(idx), axis=0, return_index=True)[1]] = True
+    return work_mod.prefix(work, setup, first) + (0.0 if fit is None else np.asarray(fit, float))
+
+
 def _ahead(solved, spent, target, cap, n, dim, centres):
     """How many chunks the next block solves: 1 first, then :data:`AHEAD` of those that the work per sample so far
-    and the fit's growth say the budget still needs (at least 1). A function of counted work only: the same on every
-    machine."""
+    and the fit's growth say the budget still needs (at least 1). A function of counted work only: the same wherever
+    the same back end runs the same solves."""
     if solved == 0:
         return 1
     per = (spent - fit_work(solved, n, dim, centres)[0]) / solved  # a sample's solves and setup, on average
@@ -167,25 +192,29 @@ def train_within(
     op : defop.operator.movable.MovableOp
         Fitted to the first m samples of the sequence.
     record : defop.training.movable.MovableRecord
-        Of those m samples; ``work`` theirs, ``budget`` the target, the factor, how many were solved to find m
+        Of those m samples; ``work`` their solves' (with setup), ``work_units`` its units, ``budget`` the target,
+        the factor, the fit's work (``"fit"``: ``work`` + it is what met the target), how many were solved to find m
         and whether the sequence ended first (``"capped"``: :data:`CAP`, warned). ``cpu_seconds`` and
         ``solve_cpu_seconds`` count every chunk solved (the last chunk's samples beyond m too).
 
     Raises
     ------
     ValueError
-        Before any solve: a record without work, a bad ``factor`` (:func:`budget_work`), and what
-        :func:`~defop.training.movable.train_movable` refuses.
+        Before any solve: a record without work, or with work in other units than this run's joint solves
+        (:func:`defop.training.work.units`; both named), a bad ``factor`` (:func:`budget_work`), a bad ``centres``,
+        and what :func:`~defop.training.movable.train_movable` refuses.
     """
     en.check_energy(energy)
     n_q = opt.integer("n_q", n_q, minimum=1)
     opt.seed(seed)
     opt.choice("policy", policy, ml.POLICIES)
     mv.check_placement(shape, placement)
-    target = budget_work(reference, factor)
+    n, dim = shape.mesh.V.shape
+    fit_work(2, n, dim, centres)  # a bad ``centres`` fails here, before any solve
+    units = work_mod.units(shape.mesh)
+    target = budget_work(reference, factor, units)
     cap = int(CAP * np.ceil(factor * len(reference.samples)))
     clock, rng = solves.Stopwatch(), np.random.default_rng(seed)
-    n, dim = shape.mesh.V.shape
     got, m, spent, solve_cpu, solved = [], None, 0.0, 0.0, 0
     while m is None and solved < cap:
         k = _ahead(solved, spent, target, cap, n, dim, centres)  # chunks in this block, from the work so far
@@ -196,6 +225,7 @@ def train_within(
         )  # one block: the samples of one placement share its solvers (by_placement)
         clock.remote += remote
         solve_cpu += block_cpu
+        budget_work(reference, factor, info.pop("work_units"))  # the joint solves' units: the reference's
         got.append((idx, Q, X, conv, info.pop("work"), info.pop("setup")))
         idx_all, work, setup = (np.concatenate([g[i] for g in got]) for i in (0, 4, 5))
         solved = len(idx_all)
@@ -205,7 +235,8 @@ def train_within(
     if capped:
         m = solved
         warnings.warn(f"the joint sequence ended ({cap} samples) before its work reached the budget", stacklevel=2)
-    m = max(m, 2)
+    m = max(m, 2)  # the work of the m samples fitted, the fit's apart (MovableRecord.work: the solves')
+    budget = {"target": target, "factor": float(factor), "fit": float(fit[m - 1]), "solved": solved, "capped": capped}
     idx, Q, X, conv = (np.concatenate([g[k] for g in got])[:m] for k in range(4))
     if not conv.all():
         warnings.warn(
@@ -216,8 +247,7 @@ def train_within(
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
     fitting = solves.Stopwatch()
     op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta, centres=centres)
-    budget = {"target": target, "factor": float(factor), "solved": solved, "capped": capped}
     levels = {k: v for k, v in info.items() if k in ("fallback", "coarse_vertices")}  # per-sample rules: per block
     record = mv.MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, levels)
-    record.work, record.budget = spent, budget
+    record.work, record.budget, record.work_units = float(_totals(work, setup, idx_all)[m - 1]), budget, units
     return op, record

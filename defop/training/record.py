@@ -42,8 +42,11 @@ class TrainingRecord:
         Wall seconds per stage, beside ``stage_times``.
     work : float
         The work of the training's solves (:mod:`defop.training.work`: factor nonzeros over every factorisation and
-        each solver's setup once), the same on every machine where the solves are; kept with the ground truth. NaN:
-        not known (a truth cached without it, or a sample loaded from an interrupted run's checkpoint).
+        each solver's setup once), the same wherever the same back end runs the same solves; kept with the ground
+        truth. NaN: not known (a truth cached without it or in other units, or a sample loaded from an interrupted
+        run's checkpoint).
+    work_units : dict
+        The units of ``work`` (:func:`defop.training.work.units`: back end, re-use, constants, rule version).
     """
 
     samples: np.ndarray
@@ -56,6 +59,7 @@ class TrainingRecord:
     multilevel: dict = dataclasses.field(default_factory=dict)
     wall_times: dict = dataclasses.field(default_factory=dict)
     work: float = float("nan")
+    work_units: dict = dataclasses.field(default_factory=dict)
 
     @property
     def safeguard(self) -> dict:

@@ -4,8 +4,11 @@ A sample's work is what its factorisations cost in factor nonzeros (:mod:`defop.
 sample runs); each distinct solver (one handle set on one mesh) adds its setup once: its bi-Laplacian's LU (the
 rest pose's start) and its ordering and symbolic analysis, :data:`SETUP` factorisations' worth. Neither depends on
 the machine's speed, its load, the number of workers or which solvers a worker happened to keep, so a budget
-counted in work (:func:`defop.training.movable.train_within`) picks the same m on every machine where the solves
-are the same. A sample loaded from a checkpoint has no work (NaN): its solves did not run here.
+counted in work (:func:`defop.training.movable_budget.train_within`) picks the same m wherever the same back end runs
+the same solves. It does depend on the back end (PARDISO and qdldl give different factor nonzeros), on whether
+factorisations are re-used (``DEFOP_REUSE``: CG steps are not counted) and on the constants :data:`SETUP` and
+:data:`~defop.variational.work.ITERATION`: :func:`units` describes them, kept with every work recorded, and work in
+other units is not compared. A sample loaded from a checkpoint has no work (NaN): its solves did not run here.
 """
 
 from __future__ import annotations
@@ -14,13 +17,36 @@ import contextlib
 
 import numpy as np
 
+from ..variational import backend as bk
 from ..variational import work as counter
 
-__all__ = ["SETUP", "Tally", "prefix", "setup_of", "solver_key", "tally"]
+__all__ = ["SETUP", "VERSION", "Tally", "count", "prefix", "reading", "setup_of", "solver_key", "tally", "units"]
 
 #: a solver's ordering, symbolic analysis and pattern, in factorisations of its Hessian (measured: about 7 ms against
 #: 2.2 ms a numeric factorisation on the aleph, benchmarks/README.md, 2026-12-02, fourth part)
 SETUP = 3.0
+
+#: the rule's version: bumped when what is counted changes (a work recorded under another version is not compared)
+VERSION = 1
+
+
+def units(mesh):
+    """The units a training's work on ``mesh`` is counted in, here and now: the back end its solves use
+    (:func:`defop.variational.backend.choose_backend`, ``DEFOP_BACKEND``), whether they re-use factorisations
+    (``DEFOP_REUSE``, at the mesh's unknowns), :data:`~defop.variational.work.ITERATION`, :data:`SETUP` and
+    :data:`VERSION`. Two works compare only in equal units."""
+    name = bk.choose_backend(None, mesh.n_vertices, mesh.dim)
+    reuse = bool(bk.choose_reuse(mesh.n_vertices * mesh.dim, name))
+    return {"backend": name, "reuse": reuse, "iteration": float(counter.ITERATION), "setup": SETUP, "version": VERSION}
+
+
+def recorded(meta, mesh):
+    """The work kept in a cached truth's ``meta`` (``"work"``), NaN unless it is there in this run's
+    :func:`units` (``"work_units"``): a truth cached without its units, or in others, has no work here."""
+    done = meta.get("work")
+    if done is None or meta.get("work_units") != units(mesh):
+        return float("nan")
+    return float(done)
 
 
 def setup_of(solver):
