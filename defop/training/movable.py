@@ -358,9 +358,8 @@ def train_movable(
     """Sample (P_k, Q_k) (``design``: ``"uniform"``, default, the first m draws of :func:`sample_joint`, the sequence
     whose prefix :func:`defop.training.movable_budget.train_within` takes; ``"spread"``, the m farthest apart of
     :data:`POOL` m draws, :func:`spread_joint`, not a prefix of one sequence, so not yet the budget's), solve problem
-    (6) at each
-    (cached; :func:`solve_joint` under ``policy``, default ``"auto"``: through the coarse level wherever one exists in
-    the dimensions where that saves CPU seconds, :func:`joint_level`), fit D(x; P, Q)
+    (6) at each (cached; :func:`solve_joint` under ``policy``, default ``"auto"``: through the coarse level wherever one
+    exists in the dimensions where that saves CPU seconds, :func:`joint_level`), fit D(x; P, Q)
     (:func:`defop.operator.movable.fit_movable`; ``centres``: how many TPS centres, default one per sample,
     :func:`defop.operator.fit.centre_count`).
 
@@ -383,21 +382,28 @@ def train_movable(
         shape, placement, idx, Q, energy, n_jobs, progress, cache, policy
     )
     clock.remote += remote
-    first = np.zeros(len(idx), bool)
-    first[np.unique(idx, axis=0, return_index=True)[1]] = True  # a placement's setup counts once
-    spent, units = float(np.sum(info.pop("work")) + np.sum(info.pop("setup")[first])), info.pop("work_units")
+    spent = float(work.prefix(info.pop("work"), info.pop("setup"), work.first_of(idx))[-1])  # setup once a placement
+    units = info.pop("work_units")
+    op, fit_cpu = fit_joint(shape, placement, idx, Q, X, conv, energy, seed, centres)
+    record = MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fit_cpu, used, info, spent)
+    record.work_units = units
+    return op, record
+
+
+def fit_joint(shape, placement, idx, Q, X, conv, energy, seed, centres):
+    """D(x; P, Q) fitted to solved joint samples (:func:`defop.operator.movable.fit_movable`), a warning naming the
+    solves that did not converge (used as they are): (op, the fit's CPU seconds). ``idx`` (m, b), ``Q`` (m, n, d),
+    ``X`` (m, n_vertices, d), ``conv`` (m,) bool; the rest as :func:`train_movable`'s."""
     if not conv.all():
         warnings.warn(
             f"{int((~conv).sum())} of {len(conv)} joint solves did not converge; used as they are",
             NotConvergedWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
     meta = {"shape": shape.name, "energy": energy, "seed": seed}
     fitting = solves.Stopwatch()
     op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta, centres=centres)
-    record = MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, info, spent)
-    record.work_units = units
-    return op, record
+    return op, fitting.cpu
 
 
 #: the budget of a joint training, in fixed-P trainings (at m = 200, the 2D default)

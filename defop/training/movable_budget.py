@@ -22,9 +22,7 @@ import numpy as np
 
 from .. import options as opt
 from ..operator.fit import centre_count
-from ..operator.movable import fit_movable
 from ..variational import energies as en
-from ..variational.solver import NotConvergedWarning
 from . import batch, solves
 from . import movable as mv
 from . import multilevel as ml
@@ -142,9 +140,7 @@ def _totals(work, setup, idx, fit=None):
             "a joint sample has no work (NaN): its solves did not run in this count (a truth cached or "
             "checkpointed without its work); solve the joint samples with counted=True, or with cache=False"
         )
-    first = np.zeros(len(idx), bool)
-    first[np.unique(np.asarray(idx), axis=0, return_index=True)[1]] = True
-    return work_mod.prefix(work, setup, first) + (0.0 if fit is None else np.asarray(fit, float))
+    return work_mod.prefix(work, setup, work_mod.first_of(idx)) + (0.0 if fit is None else np.asarray(fit, float))
 
 
 def _ahead(solved, spent, target, cap, n, dim, centres):
@@ -238,16 +234,8 @@ def train_within(
     m = max(m, 2)  # the work of the m samples fitted, the fit's apart (MovableRecord.work: the solves')
     budget = {"target": target, "factor": float(factor), "fit": float(fit[m - 1]), "solved": solved, "capped": capped}
     idx, Q, X, conv = (np.concatenate([g[k] for g in got])[:m] for k in range(4))
-    if not conv.all():
-        warnings.warn(
-            f"{int((~conv).sum())} of {m} joint solves did not converge; used as they are",
-            NotConvergedWarning,
-            stacklevel=2,
-        )
-    meta = {"shape": shape.name, "energy": energy, "seed": seed}
-    fitting = solves.Stopwatch()
-    op = fit_movable(shape.mesh, shape.handles, shape.moving, placement, idx, Q, X, meta, centres=centres)
+    op, fit_cpu = mv.fit_joint(shape, placement, idx, Q, X, conv, energy, seed, centres)
     levels = {k: v for k, v in info.items() if k in ("fallback", "coarse_vertices")}  # per-sample rules: per block
-    record = mv.MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fitting.cpu, used, levels)
+    record = mv.MovableRecord(idx, Q, X, conv, clock.wall, clock.cpu, solve_cpu, fit_cpu, used, levels)
     record.work, record.budget, record.work_units = float(_totals(work, setup, idx_all)[m - 1]), budget, units
     return op, record

@@ -20,7 +20,19 @@ import numpy as np
 from ..variational import backend as bk
 from ..variational import work as counter
 
-__all__ = ["SETUP", "VERSION", "Tally", "count", "prefix", "reading", "setup_of", "solver_key", "tally", "units"]
+__all__ = [
+    "SETUP",
+    "VERSION",
+    "Tally",
+    "count",
+    "first_of",
+    "prefix",
+    "reading",
+    "setup_of",
+    "solver_key",
+    "tally",
+    "units",
+]
 
 #: a solver's ordering, symbolic analysis and pattern, in factorisations of its Hessian (measured: about 7 ms against
 #: 2.2 ms a numeric factorisation on the aleph, benchmarks/README.md, 2026-12-02, fourth part)
@@ -100,6 +112,14 @@ def count(work, setup, keys):
     """Count a batch's per-sample work (m,), its solvers' setup (m,) and their keys (m,) in every open tally."""
     for t in _OPEN:
         t.add(work, setup, keys)
+
+
+def first_of(idx):
+    """(m,) bool: sample k is the first of its placement (``idx`` (m, b) int: each sample's rest vertices), where a
+    placement's solver setup is counted, once."""
+    first = np.zeros(len(idx), bool)
+    first[np.unique(np.asarray(idx), axis=0, return_index=True)[1]] = True
+    return first
 
 
 def prefix(work, setup, first):
