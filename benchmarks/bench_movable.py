@@ -56,14 +56,13 @@ from defop.operator.movable_carry import CarryOp  # noqa: E402
 from defop.rivals import peers  # noqa: E402
 from defop.scene.placement import placement_regions  # noqa: E402
 from defop.training.movable import (  # noqa: E402
-    budget_samples,
     sample_joint,
     shape_at,
     solve_joint,
     train_movable,
     training_solves,
 )
-from defop.training.movable_budget import train_within  # noqa: E402
+from defop.training.movable_budget import reference, train_within  # noqa: E402
 
 N_Q = 10
 FULL = 10
@@ -331,15 +330,16 @@ DESIGNS = (("auto", 2e-2), (400, 2e-2), (200, 2e-2), ("auto", 5e-2), (200, 5e-2)
 
 
 def designs(name, movable, n_place, specs=DESIGNS, seed=0):
-    """The joint operator at the budget (one training through the cache, refitted per design by
+    """The joint operator at the budget (one training through the cache by the rule of :func:`run`,
+    :func:`defop.training.movable_budget.train_within` against the fixed-P training at m = 200, refitted per design by
     :func:`defop.operator.movable.fit_movable`) for each (centres, tol) of ``specs``: its error over the retrained
     and its compressed frame over the fixed-P one beside the floor (:func:`compare_row`), one row each.
     Returns {(centres, tol): ((frame CPU ratio, floor), compressed error ratio)}."""
     shape, pr = case(name, movable)
     mesh = shape.mesh
-    op0, rec0 = dop.train(shape, "sarap", "tps", m=200, seed=seed, progress=False)
-    m_joint = budget_samples(rec0)
-    _, rec = train_movable(shape, pr, "sarap", m=m_joint, seed=seed, progress=False)
+    op0, rec0 = reference(shape, m=200, seed=seed, progress=False)  # its work, from the cache or trained again
+    _, rec = train_within(shape, pr, rec0, seed=seed, progress=False)
+    m_joint = len(rec.idx)
     held, e_ret = retrained(shape, pr, n_place, seed)
     op0.compress()
     print(
@@ -362,7 +362,7 @@ def design_spec(text):
     return ("auto" if c == "auto" else None if c == "all" else int(c)), float(tol)
 
 
-#: movable handles, joint m (None: budget_samples of the fixed-P training at m = 200, one rule for every shape)
+#: movable handles, joint m (None: train_within against the fixed-P training at m = 200, one rule for every shape)
 CASES = {"aleph": (None, None), "octopus": ([0, 3, 6], None), "bar": (None, None)}
 #: ``--dim 3``: bar_3d's moving end face (one patch of 4 handles, moved by handle 4), two arm tips of the tet octopus
 CASES.update({"bar_3d": (None, None), "octopus_3d": ([0, 3], None)})

@@ -4,12 +4,14 @@ the fine mesh) against ``"multilevel"`` (through the coarse level, :mod:`defop.t
 
 Per shape (as :mod:`bench_movable` sets it up: the aleph, all 5 handles movable, regions of 5% of the diagonal;
 ``--dim 3`` bar_3d, its end-face patch movable, 8%): one fixed-P training at m = 200 (no cache), then the joint
-training at :func:`~defop.training.movable.budget_samples` of it under each policy (no cache), each timed in CPU
-seconds (this process: ``DEFOP_N_JOBS=1``), its solve and fit seconds printed apart; then the held-out error of both
-joint operators over fixed-P operators retrained at each held-out placement (m = 200), against one truth (the full
-policy's, cached). Printed with the load average. Run: ``python benchmarks/bench_movable_policy.py [aleph] [bar_3d]
-[n_placements] [m_joint]`` (default the aleph and bar_3d, 3 placements x 10 Q: a reduced run; ``m_joint`` replaces the
-budget, a reduced run printed as such).
+training within the budget under each policy (:func:`~defop.training.movable_budget.train_within`, the one rule, as
+``bench_movable.py``: the first m of one seeded sequence whose work reaches 5x the fixed-P training's, so each policy
+gets its own m, the shorter sequence a prefix of the longer; no cache), each timed in CPU seconds (this process:
+``DEFOP_N_JOBS=1``), its m, work ratio, solve and fit seconds printed apart; then the held-out error of both joint
+operators over fixed-P operators retrained at each held-out placement (m = 200), against one truth (the full policy's,
+cached). Printed with the load average. Run: ``python benchmarks/bench_movable_policy.py [aleph] [bar_3d]
+[n_placements] [m_joint]`` (default the aleph and bar_3d, 3 placements x 10 Q: a reduced run; ``m_joint``: both
+policies at that m (``train_movable``) instead of the budget, a reduced run printed as such).
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ os.environ.setdefault("DEFOP_N_JOBS", "1")
 import bench_movable as bm  # noqa: E402
 
 import defop as dop  # noqa: E402
-from defop.training.movable import budget_samples, sample_joint, shape_at, solve_joint, train_movable  # noqa: E402
+from defop.training.movable import sample_joint, shape_at, solve_joint, train_movable  # noqa: E402
+from defop.training.movable_budget import train_within  # noqa: E402
 
 POLICIES = ("full", "multilevel")
 
@@ -48,20 +51,25 @@ def run(name, n_place, m_joint=None, seed=0):
     (op0, rec0), t_fixed = timed(
         lambda: dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)
     )
-    m = m_joint or budget_samples(rec0)
-    asked = "" if m_joint is None else f" (REDUCED: m={m_joint} asked, the budget is {budget_samples(rec0)})"
-    print(f"fixed-P m=200 ({rec0.policy}): {t_fixed:.1f} CPU s; joint m={m}{asked}", flush=True)
+    asked = "the budget (train_within)" if m_joint is None else f"m={m_joint} given (REDUCED: not the budget)"
+    print(f"fixed-P m=200 ({rec0.policy}): {t_fixed:.1f} CPU s, work {rec0.work:.3e}; joint at {asked}", flush=True)
+    kw = {"seed": seed, "cache": False, "progress": False}
     ops = {}
     for pol in POLICIES:
         (opj, rec), t = timed(
-            lambda pol=pol: train_movable(shape, pr, "sarap", m=m, seed=seed, cache=False, progress=False, policy=pol)
+            lambda pol=pol: (
+                train_movable(shape, pr, "sarap", m=m_joint, policy=pol, **kw)
+                if m_joint
+                else train_within(shape, pr, rec0, policy=pol, **kw)
+            )
         )
-        rules = rec.multilevel.get("rule") or []
-        fired = sum(1 for r in rules if r)
+        rules = rec.multilevel.get("rule") or []  # none on one level, nor from train_within (kept per block)
+        fired = f"{sum(1 for r in rules if r)}/{len(rules)}" if rules else "-"
         why = rec.multilevel.get("fallback")
+        work = f"work {(rec.work + rec.budget['fit']) / rec0.work:.2f}x, " if rec.budget else ""
         print(
             f"  joint policy={pol} ran {rec.policy} (coarse {rec.multilevel.get('coarse_vertices', '-')} vertices, "
-            f"safeguard fired {fired}/{len(rules)}{', fallback: ' + why if why else ''}): "
+            f"safeguard fired {fired}{', fallback: ' + why if why else ''}): m={len(rec.idx)}, {work}"
             f"{t:.1f} CPU s (solves {rec.solve_cpu_seconds:.1f}, fit {rec.fit_cpu_seconds:.1f}); ratio to fixed-P "
             f"{t / t_fixed:.2f}x; converged {int(rec.converged.sum())}/{len(rec.converged)}; load average "
             f"{os.getloadavg()[0]:.1f}",

@@ -50,3 +50,24 @@ def grid():
             a = j * 9 + i
             F += [[a, a + 1, a + 10], [a, a + 10, a + 9]]
     return dop.geometry.mesh.Mesh(V, np.array(F))
+
+
+@pytest.fixture(scope="session")
+def movable_rect():
+    """A factory of the movable tests' 2 x 1 rectangle: ``movable_rect(n_vertices)`` -> a Shape named "rect" of
+    about ``n_vertices`` vertices with two moving handles (at (1.8, 0.5) and (1.0, 0.8), discs of radius 0.15, the
+    handles a placement region moves) and one fixed one (at (0.1, 0.5))."""
+
+    def make(n_vertices):
+        outer = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
+        H = np.array([[1.8, 0.5], [1.0, 0.8], [0.1, 0.5]])
+        return dop.shapes.from_polygon(
+            outer,
+            handles=H,
+            moving=[True, True, False],
+            n_vertices=n_vertices,
+            name="rect",
+            regions=[{"kind": "disc", "radius": 0.15}] * 2,
+        )
+
+    return make

@@ -19,18 +19,9 @@ from defop.training.movable import sample_joint, shape_at, solve_joint, train_mo
 
 
 @pytest.fixture(scope="module")
-def shape():
-    """A 2 x 1 rectangle, about 250 vertices: two moving handles (movable) and one fixed."""
-    outer = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
-    H = np.array([[1.8, 0.5], [1.0, 0.8], [0.1, 0.5]])
-    return dop.shapes.from_polygon(
-        outer,
-        handles=H,
-        moving=[True, True, False],
-        n_vertices=250,
-        name="rect",
-        regions=[{"kind": "disc", "radius": 0.15}] * 2,
-    )
+def shape(movable_rect):
+    """The 2 x 1 rectangle of tests/conftest.py, about 250 vertices: two moving handles (movable) and one fixed."""
+    return movable_rect(250)
 
 
 @pytest.fixture(scope="module")

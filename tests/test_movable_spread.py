@@ -5,25 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import defop as dop
 from defop.operator.movable import joint_points
 from defop.scene.placement import placement_regions
 from defop.training.movable import POOL, sample_joint, spread_joint, train_movable
 
 
 @pytest.fixture(scope="module")
-def shape():
-    """A 2 x 1 rectangle: two moving handles (movable), one fixed."""
-    outer = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
-    H = np.array([[1.8, 0.5], [1.0, 0.8], [0.1, 0.5]])
-    return dop.shapes.from_polygon(
-        outer,
-        handles=H,
-        moving=[True, True, False],
-        n_vertices=160,
-        name="rect",
-        regions=[{"kind": "disc", "radius": 0.15}] * 2,
-    )
+def shape(movable_rect):
+    """The 2 x 1 rectangle of tests/conftest.py, about 160 vertices: two moving handles (movable), one fixed."""
+    return movable_rect(160)
 
 
 @pytest.fixture(scope="module")

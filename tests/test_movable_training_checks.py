@@ -8,18 +8,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import defop as dop
 from defop.scene.placement import placement_regions
 from defop.training import solves
 from defop.training.movable import sample_joint, shape_at, solve_joint, vertex_indices
 
 
 @pytest.fixture(scope="module")
-def shape():
-    outer = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
-    H = np.array([[1.8, 0.5], [1.0, 0.8], [0.1, 0.5]])
-    regions = [{"kind": "disc", "radius": 0.15}] * 2
-    return dop.shapes.from_polygon(outer, handles=H, moving=[True, True, False], n_vertices=150, regions=regions)
+def shape(movable_rect):
+    return movable_rect(150)  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")

@@ -141,21 +141,12 @@ def test_discover_refuses_fractional_sweeps_and_complex_samples(samples, sweep, 
             br.discover(bar, Q, [sweep], cache=False)
 
 
-def test_movable_sampling_names_m_and_rng():
+def test_movable_sampling_names_m_and_rng(movable_rect):
     """sample_placements(m=-1) raised numpy's 'negative dimensions'; a bad rng, SeedSequence's TypeError."""
     from defop.scene.placement import placement_regions
     from defop.training.movable import sample_joint, sample_placements
 
-    outer = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
-    H = np.array([[1.8, 0.5], [1.0, 0.8], [0.1, 0.5]])
-    rect = dop.shapes.from_polygon(
-        outer,
-        handles=H,
-        moving=[True, True, False],
-        n_vertices=120,
-        name="rect",
-        regions=[{"kind": "disc", "radius": 0.15}] * 2,
-    )
+    rect = movable_rect(120)  # tests/conftest.py
     placement = placement_regions(rect, [0, 1], radius=0.15)
     with pytest.raises(ValueError, match="m must be an integer >= 1, got -1"):
         sample_placements(placement, -1, 0)
