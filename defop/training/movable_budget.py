@@ -4,10 +4,10 @@ fixed-P trainings cost (issue 44: 5 trainings at m = 200), its m where the count
 Work (:mod:`defop.training.work`) is counted from symbolic data: each factorisation's factor nonzeros plus a fixed
 part, each distinct solver's setup once. It is not time, so the same inputs give the same m and the same operator
 wherever the same back end runs the same solves; work in other units (another back end, re-use on or off, other
-constants: :func:`defop.training.work.units`) is never compared. It tracks CPU seconds only roughly: its constant
-was fitted on the bar, the aleph and the octopus, the one held-out shape (bar_3d) gave a CPU/work ratio of 0.97,
-and at full size a 5.00x work budget cost 6.03x (bar) and 6.23x (aleph) the CPU seconds, 20-25% more
-(benchmarks/README.md, 2026-12-02, fifth part). The joint training draws its
+constants: :func:`defop.training.work.units`) is never compared. It tracks CPU seconds: its constants (a Newton
+iteration's fixed part and its part per Hessian nonzero, the bi-Laplacian LU's weight, :data:`FIT_FLOPS`) were fitted
+once on the bar and the aleph at full size, the octopus and bar_3d held out (benchmarks/README.md, 2026-12-02, sixth
+part; before it a 5.00x work budget cost 5.4-6.2x the CPU seconds). The joint training draws its
 samples as one seeded sequence, chunk by chunk (:data:`defop.training.batch.CHUNK` each,
 :func:`defop.training.movable.sample_joint` on one generator), solves each chunk (cached) and stops in the chunk
 where its work first reaches ``factor`` × the fixed-P training's: m is that sample's place in the sequence, and the
@@ -35,10 +35,11 @@ __all__ = ["AHEAD", "CAP", "FIT_FLOPS", "budget_work", "fit_work", "reference", 
 #: 0.36-1.07 fixed-P samples' work on the shapes measured, so the budget is met far before it)
 CAP = 4
 
-#: multiply-adds of the joint fit per unit of work (a unit is one factor nonzero, :mod:`defop.variational.work`):
-#: measured, a TPS fit of 2,000 joint samples took 2.9 CPU s on the bar and 9.8 on the aleph, c³/3 + c² n d
-#: multiply-adds (c centres, n vertices in d dimensions) at about 130 of them a unit of the solves' work
-FIT_FLOPS = 130.0
+#: multiply-adds of the joint fit per unit of work (a unit is one factor nonzero, :mod:`defop.variational.work`, about
+#: 20 ns of CPU): fitted once on the bar's and the aleph's joint trainings within 5x (fits of 1,870 and 838 samples,
+#: 2.2 and 1.1 CPU s: 59 and 77 a unit, their geometric mean; benchmarks/README.md, 2026-12-02, sixth part), with the
+#: fit counted as c³/3 + c² n d multiply-adds (c centres, n vertices in d dimensions). 130 before (fifth part).
+FIT_FLOPS = 67.0
 
 #: of the samples the work so far says are still needed, the share solved in the next block (the rest, a chunk at a
 #: time at the end, keeps the samples solved beyond m within one chunk)
