@@ -9,6 +9,12 @@ sample on the fine and the coarse mesh.
 training at m = M (``train_movable``, no cache) side by side, their CPU ratio (what ``bench_movable.py`` prints as
 "budget", without its held-out stage) and the peak RSS.
 
+``python benchmarks/bench_joint_sample.py within NAME SIZE RADIUS ROUNDS``: the budget rule's CPU honesty: the fixed-P
+training at m = 200 and ``train_within`` (no cache) alternated (fixed, joint, fixed, ... ROUNDS joint trainings), each
+with its CPU seconds split by stage (solver construction, bi-Laplacian LU, factorisations per level; the rest: Python,
+assembly, line search, fit) beside the work counted for it (factorisations, Hessian nonzeros K, setup, fit) and the
+load average before and after, then the joint's work ratio beside its CPU ratio to the first and the mean fixed-P.
+
 SIZE 0: the catalogue's mesh; RADIUS: the placement regions' share of the diagonal (2D 0.05, 3D 0.08 as
 ``bench_movable.py``). Set ``DEFOP_N_JOBS=1`` and one BLAS thread.
 """

@@ -161,7 +161,7 @@ def test_stop_at_names_the_cause_of_a_missing_work():
 def test_work_in_other_units_is_not_read_back_nor_compared(bar, tmp_path, monkeypatch):
     shape, placement, ref = bar
     units = work.units(shape.mesh)
-    assert set(units) == {"backend", "reuse", "iteration", "hessian", "setup", "solver", "version"}
+    assert set(units) == {"backend", "reuse", "iteration", "hessian", "setup", "solver", "draw", "version"}
     assert ref.work_units == units
     assert work.recorded({"work": 5.0, "work_units": units}, shape.mesh) == 5.0
     assert np.isnan(work.recorded({"work": 5.0}, shape.mesh))  # cached before the units were kept
@@ -209,7 +209,7 @@ def test_train_within_counts_two_samples_where_one_met_the_budget(bar, monkeypat
 
     monkeypatch.setattr(mv, "_solve_joint", solved)
     _, rec = _within((shape, placement, tiny))
-    assert len(rec.idx) == 2 and rec.work == 8.0  # both samples' solves, not the first's
+    assert len(rec.idx) == 2 and rec.work == 8.0 + 2 * work.DRAW  # both samples' solves and draws, not the first's
     from defop.training.movable_budget import fit_work
 
     assert rec.budget["fit"] == fit_work(2, *shape.mesh.V.shape)[0]
@@ -278,3 +278,14 @@ def test_a_solvers_setup_grows_with_its_mesh_and_its_factors():
     Problem.mesh.n_vertices = 400  # four times the unknowns: the construction's part four times
     assert work.setup_of(Solver()) == 1000 + work.SETUP * 200 + work.SOLVER * 800
     assert work.setup_of(object()) == 0.0
+
+
+def test_train_within_counts_each_joint_samples_draw(bar, monkeypatch):
+    """A joint sample's draw is counted (work.DRAW): a draw as costly as the whole reference stops at m = 2."""
+    import dataclasses
+
+    shape, _, ref = bar
+    monkeypatch.setattr(work, "DRAW", ref.work)
+    again = dataclasses.replace(ref, work_units=work.units(shape.mesh))  # the reference in the patched units
+    _, rec = _within((shape, bar[1], again), factor=1.5)
+    assert len(rec.idx) == 2 and rec.work >= 2 * ref.work

@@ -189,10 +189,11 @@ def train_within(
     op : defop.operator.movable.MovableOp
         Fitted to the first m samples of the sequence.
     record : defop.training.movable.MovableRecord
-        Of those m samples; ``work`` their solves' (with setup), ``work_units`` its units, ``budget`` the target,
-        the factor, the fit's work (``"fit"``: ``work`` + it is what met the target), how many were solved to find m
-        and whether the sequence ended first (``"capped"``: :data:`CAP`, warned). ``cpu_seconds`` and
-        ``solve_cpu_seconds`` count every chunk solved (the last chunk's samples beyond m too).
+        Of those m samples; ``work`` their solves' (with setup) and draws' (:data:`defop.training.work.DRAW` each),
+        ``work_units`` its units, ``budget`` the target, the factor, the fit's work (``"fit"``: ``work`` + it is what
+        met the target), how many were solved to find m and whether the sequence ended first (``"capped"``:
+        :data:`CAP`, warned). ``cpu_seconds`` and ``solve_cpu_seconds`` count every chunk solved (the last chunk's
+        samples beyond m too).
 
     Raises
     ------
@@ -223,7 +224,7 @@ def train_within(
         clock.remote += remote
         solve_cpu += block_cpu
         budget_work(reference, factor, info.pop("work_units"))  # the joint solves' units: the reference's
-        got.append((idx, Q, X, conv, info.pop("work"), info.pop("setup")))
+        got.append((idx, Q, X, conv, info.pop("work") + work_mod.DRAW, info.pop("setup")))  # its draw too
         idx_all, work, setup = (np.concatenate([g[i] for g in got]) for i in (0, 4, 5))
         solved = len(idx_all)
         fit = fit_work(np.arange(1, solved + 1), n, dim, centres)
