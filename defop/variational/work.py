@@ -22,10 +22,11 @@ __all__ = ["HESSIAN", "ITERATION", "add", "total"]
 #: CPU, qdldl's numeric factorisation on the bar and the aleph): the share of a Newton iteration's CPU that does not
 #: grow with the mesh. With :data:`HESSIAN`, fitted once (least squares, relative) to the CPU seconds outside the
 #: factorisations and the fit of the fixed-P training at m = 200 and of the joint training within 5x, on the bar and
-#: the aleph at full size (benchmarks/README.md, 2026-12-02, sixth part: they are the fit, within 1.5%; the octopus and
-#: bar_3d are held out). Before (12,000, no Hessian term) a fixed-P training's many small coarse iterations cost as
-#: much as fine ones: its work was overstated against the joint training's all-fine iterations and a 5.00x work
-#: budget cost 5.4-6.2x the CPU seconds at full size.
+#: the aleph at full size (benchmarks/README.md, 2026-12-02, sixth part: they are the fit, within 1.5%; the octopus is
+#: held out). Before (12,000, no Hessian term) a fixed-P training's many small coarse iterations counted as much as
+#: fine ones: its work was overstated against the joint training's all-fine iterations and a 5.00x work budget cost
+#: 5.4-6.2x the CPU seconds at full size; with all the sixth part's terms, 4.84x (bar), 5.49x (aleph) and 5.30x
+#: (octopus), the CPU ratio of one run varying by about ±5% at the same work.
 ITERATION = 14_000
 
 #: what a factorisation adds per nonzero of its Hessian K (the upper triangle factorised), in factor nonzeros: the
