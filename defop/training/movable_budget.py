@@ -7,8 +7,9 @@ wherever the same back end runs the same solves; work in other units (another ba
 constants: :func:`defop.training.work.units`) is never compared. It tracks CPU seconds: its constants (a Newton
 iteration's fixed part and its part per Hessian nonzero, a solver's construction per unknown, a joint sample's draw,
 :data:`FIT_FLOPS`) were fitted once on the bar and the aleph at full size, the octopus held out; a 5.00x work budget
-cost 4.84x (bar), 5.49x (aleph) and 5.30x (octopus) the CPU seconds, a run's ratio varying by about ±5% at the same
-work (benchmarks/README.md, 2026-12-02, sixth part; before it 6.03x, 6.23x and 4.84x). The joint training draws its
+cost 4.84-5.73x (bar, three runs), 5.49x (aleph) and 5.30x (octopus) the CPU seconds: about 5% still unpredicted, a
+run's ratio scattering by ±8% at the same work (benchmarks/README.md, 2026-12-02, sixth part; before it 6.03x, 6.23x
+and 4.84x). The joint training draws its
 samples as one seeded sequence, chunk by chunk (:data:`defop.training.batch.CHUNK` each,
 :func:`defop.training.movable.sample_joint` on one generator), solves each chunk (cached) and stops in the chunk
 where its work first reaches ``factor`` × the fixed-P training's: m is that sample's place in the sequence, and the

@@ -25,8 +25,8 @@ __all__ = ["HESSIAN", "ITERATION", "add", "total"]
 #: the aleph at full size (benchmarks/README.md, 2026-12-02, sixth part: they are the fit, within 1.5%; the octopus is
 #: held out). Before (12,000, no Hessian term) a fixed-P training's many small coarse iterations counted as much as
 #: fine ones: its work was overstated against the joint training's all-fine iterations and a 5.00x work budget cost
-#: 5.4-6.2x the CPU seconds at full size; with all the sixth part's terms, 4.84x (bar), 5.49x (aleph) and 5.30x
-#: (octopus), the CPU ratio of one run varying by about ±5% at the same work.
+#: 5.4-6.2x the CPU seconds at full size; with all the sixth part's terms 4.84-5.73x (bar, three runs), 5.49x (aleph)
+#: and 5.30x (octopus): about 5% still unpredicted, a run's CPU ratio scattering by ±8% at the same work.
 ITERATION = 14_000
 
 #: what a factorisation adds per nonzero of its Hessian K (the upper triangle factorised), in factor nonzeros: the
