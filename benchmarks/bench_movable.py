@@ -9,7 +9,9 @@ with its ratio and target:
   m = 200 (``dop.train``, no cache; :func:`defop.training.movable_budget.train_within`, one rule for every shape,
   counted in factor nonzeros rather than time, so the same m on every machine); printed: m, the work ratio and
   the CPU s of the joint training (sampling, every solve of the chunks it ran, fit; no cache) over that fixed-P
-  training's (target <= 5x). Both are timed after a small training on the shape has compiled the kernels;
+  training's (target <= 5x), the fixed-P training timed before and after the joint one and their mean taken (the CPU
+  seconds of this shared machine drift with its load: both are printed with the load). All are timed after a small
+  training on the shape has compiled the kernels;
 * error: mean (8a)/n per held-out frame of the joint operator (design A, TPS over (P, Q − P) with the correction),
   of the carried nominal operator (design B, :class:`defop.operator.movable_carry.CarryOp`), of fixed-P operators
   retrained at each held-out placement (m = 200; target: joint <= 2x), and of MLS rigid, MLS similarity and
@@ -185,7 +187,7 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
     )
     assert min(sizes) >= 20 or name in SIZES, sizes  # a reduced mesh has fewer region vertices
     warm(shape, pr, seed)  # the kernels compiled before either timed training (numba JIT)
-    c0 = time.process_time()
+    load_fixed, c0 = os.getloadavg()[0], time.process_time()
     op0, rec0 = dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)
     t_fixed = time.process_time() - c0
     c0 = time.process_time()
@@ -197,6 +199,10 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
         opj, rec = train_within(shape, pr, rec0, seed=seed, n_q=n_q, cache=False, progress=False, **CENTRES)
         m_joint = len(rec.idx)
     t_joint = time.process_time() - c0
+    load_joint, c0 = os.getloadavg()[0], time.process_time()
+    dop.train(shape, "sarap", "tps", m=200, seed=seed, cache=False, progress=False)  # again, after: the load drifts
+    t_after = time.process_time() - c0
+    t_before, t_fixed = t_fixed, (t_fixed + t_after) / 2
     rule = (
         f"work {(rec.work + rec.budget['fit']) / rec0.work:.2f}x one fixed-P training's (solves + fit; the rule: "
         f"first >= {rec.budget['factor']:g}x; "
@@ -205,10 +211,12 @@ def run(name, movable, n_place, m_joint, seed=0, n_q=1):
         else "m given"
     )
     print(
-        f"budget: fixed-P training m=200 {training_solves(rec0)} solves, {t_fixed:.1f} CPU s, work {rec0.work:.3e}; "
+        f"budget: fixed-P training m=200 {training_solves(rec0)} solves, {t_fixed:.1f} CPU s (before the joint "
+        f"{t_before:.1f} at load {load_fixed:.1f}, after {t_after:.1f} at load {os.getloadavg()[0]:.1f}), work "
+        f"{rec0.work:.3e}; "
         f"joint m={m_joint} ({n_q} Q per placement), {rule}; {t_joint:.1f} CPU s "
         f"(|Ψ| = {opj.basis.size}); CPU ratio {t_joint / t_fixed:.2f}x (target <= 5x); "
-        f"converged {int(rec.converged.sum())}/{len(rec.converged)}; load average {os.getloadavg()[0]:.1f}"
+        f"converged {int(rec.converged.sum())}/{len(rec.converged)}; load average {load_joint:.1f}"
     )
     carry = CarryOp(op0, pr)
     idx, Q = sample_joint(shape, pr, n_place, np.random.default_rng(10_000 + seed), N_Q)

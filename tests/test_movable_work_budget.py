@@ -161,7 +161,8 @@ def test_stop_at_names_the_cause_of_a_missing_work():
 def test_work_in_other_units_is_not_read_back_nor_compared(bar, tmp_path, monkeypatch):
     shape, placement, ref = bar
     units = work.units(shape.mesh)
-    assert set(units) == {"backend", "reuse", "iteration", "setup", "version"} and ref.work_units == units
+    assert set(units) == {"backend", "reuse", "iteration", "hessian", "setup", "solver", "draw", "version"}
+    assert ref.work_units == units
     assert work.recorded({"work": 5.0, "work_units": units}, shape.mesh) == 5.0
     assert np.isnan(work.recorded({"work": 5.0}, shape.mesh))  # cached before the units were kept
     assert np.isnan(work.recorded({"work": 5.0, "work_units": {**units, "backend": "pardiso"}}, shape.mesh))
@@ -208,7 +209,7 @@ def test_train_within_counts_two_samples_where_one_met_the_budget(bar, monkeypat
 
     monkeypatch.setattr(mv, "_solve_joint", solved)
     _, rec = _within((shape, placement, tiny))
-    assert len(rec.idx) == 2 and rec.work == 8.0  # both samples' solves, not the first's
+    assert len(rec.idx) == 2 and rec.work == 8.0 + 2 * work.DRAW  # both samples' solves and draws, not the first's
     from defop.training.movable_budget import fit_work
 
     assert rec.budget["fit"] == fit_work(2, *shape.mesh.V.shape)[0]
@@ -227,3 +228,64 @@ def test_counted_joint_solves_keep_no_checkpoint(bar, tmp_path, monkeypatch):
         warnings.simplefilter("ignore")
         *_, info = mv._solve_joint(shape, placement, idx, Q, "sarap", 1, False, True, "full", counted=True)
     assert np.isfinite(info["work"]).all() and info["work_units"] == work.units(shape.mesh)
+
+
+def test_a_factorisation_counts_its_factor_its_hessian_and_the_iteration():
+    """The work of one numeric factorisation (sixth part): its factor's nonzeros, ITERATION and HESSIAN per nonzero of
+    the factorised K, so a fine iteration (larger K) counts more than a coarse one beyond its factor."""
+    import scipy.sparse as sp
+
+    from defop.variational import problem as pb
+    from defop.variational import work as vwork
+
+    mesh = dop.shapes.load("bar").mesh
+    h = pb.ReducedHessian(mesh, np.arange(10, mesh.n_vertices), backend="qdldl")
+    n = 2 * (mesh.n_vertices - 10)
+    K = sp.triu(sp.diags([4.0] * n) + sp.diags([-1.0] * (n - 1), 1) + sp.diags([-1.0] * (n - 1), -1)).tocsc()
+    before = vwork.total()
+    h.factorise(K, np.ones(n))
+    spent = vwork.total() - before
+    assert h.factor_nnz > 0 and K.nnz == 2 * n - 1
+    assert spent == h.factor_nnz + vwork.ITERATION + round(vwork.HESSIAN * K.nnz)
+    h.factorise(K, np.ones(n))  # the same K again: re-used, no factorisation
+    assert vwork.total() - before == pytest.approx(spent)
+
+
+@pytest.mark.parametrize("bad", [(-1, 0), (1, -1), (float("nan"), 0), (1, float("inf"))])
+def test_work_refuses_a_bad_count_and_counts_nothing(bad):
+    from defop.variational import work as vwork
+
+    before = vwork.total()
+    with pytest.raises(ValueError, match="finite and >= 0"):
+        vwork.add(*bad)
+    assert vwork.total() == before
+
+
+def test_a_solvers_setup_grows_with_its_mesh_and_its_factors():
+    class Mesh:
+        n_vertices, dim = 100, 2
+
+    class Problem:
+        mesh, biharmonic_nnz = Mesh(), 1000
+
+        class hessian:
+            factor_nnz = 200
+
+    class Solver:
+        problem = Problem()
+
+    assert work.setup_of(Solver()) == 1000 + work.SETUP * 200 + work.SOLVER * 200
+    Problem.mesh.n_vertices = 400  # four times the unknowns: the construction's part four times
+    assert work.setup_of(Solver()) == 1000 + work.SETUP * 200 + work.SOLVER * 800
+    assert work.setup_of(object()) == 0.0
+
+
+def test_train_within_counts_each_joint_samples_draw(bar, monkeypatch):
+    """A joint sample's draw is counted (work.DRAW): a draw as costly as the whole reference stops at m = 2."""
+    import dataclasses
+
+    shape, _, ref = bar
+    monkeypatch.setattr(work, "DRAW", ref.work)
+    again = dataclasses.replace(ref, work_units=work.units(shape.mesh))  # the reference in the patched units
+    _, rec = _within((shape, bar[1], again), factor=1.5)
+    assert len(rec.idx) == 2 and rec.work >= 2 * ref.work

@@ -4,10 +4,12 @@ fixed-P trainings cost (issue 44: 5 trainings at m = 200), its m where the count
 Work (:mod:`defop.training.work`) is counted from symbolic data: each factorisation's factor nonzeros plus a fixed
 part, each distinct solver's setup once. It is not time, so the same inputs give the same m and the same operator
 wherever the same back end runs the same solves; work in other units (another back end, re-use on or off, other
-constants: :func:`defop.training.work.units`) is never compared. It tracks CPU seconds only roughly: its constant
-was fitted on the bar, the aleph and the octopus, the one held-out shape (bar_3d) gave a CPU/work ratio of 0.97,
-and at full size a 5.00x work budget cost 6.03x (bar) and 6.23x (aleph) the CPU seconds, 20-25% more
-(benchmarks/README.md, 2026-12-02, fifth part). The joint training draws its
+constants: :func:`defop.training.work.units`) is never compared. It tracks CPU seconds: its constants (a Newton
+iteration's fixed part and its part per Hessian nonzero, a solver's construction per unknown, a joint sample's draw,
+:data:`FIT_FLOPS`) were fitted once on the bar and the aleph at full size, the octopus held out; a 5.00x work budget
+cost 4.84-5.73x (bar, three runs), 5.49x (aleph) and 5.30x (octopus) the CPU seconds: about 5% still unpredicted, a
+run's ratio scattering by ±8% at the same work (benchmarks/README.md, 2026-12-02, sixth part; before it 6.03x, 6.23x
+and 4.84x). The joint training draws its
 samples as one seeded sequence, chunk by chunk (:data:`defop.training.batch.CHUNK` each,
 :func:`defop.training.movable.sample_joint` on one generator), solves each chunk (cached) and stops in the chunk
 where its work first reaches ``factor`` × the fixed-P training's: m is that sample's place in the sequence, and the
@@ -35,10 +37,11 @@ __all__ = ["AHEAD", "CAP", "FIT_FLOPS", "budget_work", "fit_work", "reference", 
 #: 0.36-1.07 fixed-P samples' work on the shapes measured, so the budget is met far before it)
 CAP = 4
 
-#: multiply-adds of the joint fit per unit of work (a unit is one factor nonzero, :mod:`defop.variational.work`):
-#: measured, a TPS fit of 2,000 joint samples took 2.9 CPU s on the bar and 9.8 on the aleph, c³/3 + c² n d
-#: multiply-adds (c centres, n vertices in d dimensions) at about 130 of them a unit of the solves' work
-FIT_FLOPS = 130.0
+#: multiply-adds of the joint fit per unit of work (a unit is one factor nonzero, :mod:`defop.variational.work`, about
+#: 20 ns of CPU): fitted once on the bar's and the aleph's joint trainings within 5x (fits of 1,870 and 838 samples,
+#: 2.2 and 1.1 CPU s: 59 and 77 a unit, their geometric mean; benchmarks/README.md, 2026-12-02, sixth part), with the
+#: fit counted as c³/3 + c² n d multiply-adds (c centres, n vertices in d dimensions). 130 before (fifth part).
+FIT_FLOPS = 67.0
 
 #: of the samples the work so far says are still needed, the share solved in the next block (the rest, a chunk at a
 #: time at the end, keeps the samples solved beyond m within one chunk)
@@ -188,10 +191,11 @@ def train_within(
     op : defop.operator.movable.MovableOp
         Fitted to the first m samples of the sequence.
     record : defop.training.movable.MovableRecord
-        Of those m samples; ``work`` their solves' (with setup), ``work_units`` its units, ``budget`` the target,
-        the factor, the fit's work (``"fit"``: ``work`` + it is what met the target), how many were solved to find m
-        and whether the sequence ended first (``"capped"``: :data:`CAP`, warned). ``cpu_seconds`` and
-        ``solve_cpu_seconds`` count every chunk solved (the last chunk's samples beyond m too).
+        Of those m samples; ``work`` their solves' (with setup) and draws' (:data:`defop.training.work.DRAW` each),
+        ``work_units`` its units, ``budget`` the target, the factor, the fit's work (``"fit"``: ``work`` + it is what
+        met the target), how many were solved to find m and whether the sequence ended first (``"capped"``:
+        :data:`CAP`, warned). ``cpu_seconds`` and ``solve_cpu_seconds`` count every chunk solved (the last chunk's
+        samples beyond m too).
 
     Raises
     ------
@@ -222,7 +226,7 @@ def train_within(
         clock.remote += remote
         solve_cpu += block_cpu
         budget_work(reference, factor, info.pop("work_units"))  # the joint solves' units: the reference's
-        got.append((idx, Q, X, conv, info.pop("work"), info.pop("setup")))
+        got.append((idx, Q, X, conv, info.pop("work") + work_mod.DRAW, info.pop("setup")))  # its draw too
         idx_all, work, setup = (np.concatenate([g[i] for g in got]) for i in (0, 4, 5))
         solved = len(idx_all)
         fit = fit_work(np.arange(1, solved + 1), n, dim, centres)

@@ -2,13 +2,16 @@
 
 A sample's work is what its factorisations cost in factor nonzeros (:mod:`defop.variational.work`, read where the
 sample runs); each distinct solver (one handle set on one mesh) adds its setup once: its bi-Laplacian's LU (the
-rest pose's start) and its ordering and symbolic analysis, :data:`SETUP` factorisations' worth. Neither depends on
+rest pose's start, its LU's nonzeros), its ordering and symbolic analysis (:data:`SETUP` factorisations' worth) and
+the rest of its construction (:data:`SOLVER` per unknown); a joint sample adds its draw (:data:`DRAW`,
+:func:`defop.training.movable_budget.train_within`). Neither depends on
 the machine's speed, its load, the number of workers or which solvers a worker happened to keep, so a budget
 counted in work (:func:`defop.training.movable_budget.train_within`) picks the same m wherever the same back end runs
 the same solves. It does depend on the back end (PARDISO and qdldl give different factor nonzeros), on whether
-factorisations are re-used (``DEFOP_REUSE``: CG steps are not counted) and on the constants :data:`SETUP` and
-:data:`~defop.variational.work.ITERATION`: :func:`units` describes them, kept with every work recorded, and work in
-other units is not compared. A sample loaded from a checkpoint has no work (NaN): its solves did not run here.
+factorisations are re-used (``DEFOP_REUSE``: CG steps are not counted) and on the constants :data:`SETUP`,
+:data:`SOLVER`, :data:`~defop.variational.work.ITERATION` and :data:`~defop.variational.work.HESSIAN`:
+:func:`units` describes them, kept with every work recorded, and work in other units is not compared. A sample
+loaded from a checkpoint has no work (NaN): its solves did not run here.
 """
 
 from __future__ import annotations
@@ -21,7 +24,9 @@ from ..variational import backend as bk
 from ..variational import work as counter
 
 __all__ = [
+    "DRAW",
     "SETUP",
+    "SOLVER",
     "VERSION",
     "Tally",
     "count",
@@ -34,22 +39,47 @@ __all__ = [
     "units",
 ]
 
-#: a solver's ordering, symbolic analysis and pattern, in factorisations of its Hessian (measured: about 7 ms against
-#: 2.2 ms a numeric factorisation on the aleph, benchmarks/README.md, 2026-12-02, fourth part)
-SETUP = 3.0
+#: a solver's construction beside its factorisations, per unknown (n d) of its mesh, in factor nonzeros: the
+#: problem's set-up, the bi-Laplacian's slicing and ordering, qdldl's ordering and symbolic analysis, all growing
+#: with the mesh. Fitted once to the per-placement CPU of the bar's and the aleph's joint trainings at full size (4.9
+#: and 23 ms a placement: 309 and 295 a vertex; one factor nonzero is about 20 ns); held out, the octopus's 34.8 ms
+#: was counted as 34.4 (benchmarks/README.md, 2026-12-02, sixth part). Before (SETUP 3 factorisations, no term per
+#: unknown) the aleph's 850 placements were counted at about half their CPU.
+SOLVER = 150.0
 
-#: the rule's version: bumped when what is counted changes (a work recorded under another version is not compared)
-VERSION = 1
+#: a solver's ordering and symbolic analysis, in factorisations of its Hessian (counted with :data:`SOLVER`)
+SETUP = 1.0
+
+#: drawing one joint (P, Q) sample (:func:`defop.training.movable.sample_joint`: the shape at its placement, its
+#: regions, its Q), in factor nonzeros: measured 0.37 ms a sample on the bar and 0.55 on the aleph, 3% and 0.5% of
+#: their joint trainings' CPU (the geometric mean, at 20.3 ns a unit; held out, the octopus's 9 handles took 1.2 ms:
+#: 0.5% of its). A fixed-P training's 200 draws are not counted.
+DRAW = 22_000.0
+
+#: the rule's version: bumped when what is counted changes (a work recorded under another version is not compared;
+#: 2: :data:`~defop.variational.work.HESSIAN`, :data:`SOLVER`, :data:`DRAW`, ITERATION 14,000 and SETUP 1, 2026-12-02
+#: sixth part)
+VERSION = 2
 
 
 def units(mesh):
     """The units a training's work on ``mesh`` is counted in, here and now: the back end its solves use
     (:func:`defop.variational.backend.choose_backend`, ``DEFOP_BACKEND``), whether they re-use factorisations
-    (``DEFOP_REUSE``, at the mesh's unknowns), :data:`~defop.variational.work.ITERATION`, :data:`SETUP` and
-    :data:`VERSION`. Two works compare only in equal units."""
+    (``DEFOP_REUSE``, at the mesh's unknowns), :data:`~defop.variational.work.ITERATION`,
+    :data:`~defop.variational.work.HESSIAN`, :data:`SETUP`, :data:`SOLVER`, :data:`DRAW` and :data:`VERSION`. Two
+    works compare only in equal units."""
     name = bk.choose_backend(None, mesh.n_vertices, mesh.dim)
     reuse = bool(bk.choose_reuse(mesh.n_vertices * mesh.dim, name))
-    return {"backend": name, "reuse": reuse, "iteration": float(counter.ITERATION), "setup": SETUP, "version": VERSION}
+    return {
+        "backend": name,
+        "reuse": reuse,
+        "iteration": float(counter.ITERATION),
+        "hessian": float(counter.HESSIAN),
+        "setup": SETUP,
+        "solver": SOLVER,
+        "draw": DRAW,
+        "version": VERSION,
+    }
 
 
 def recorded(meta, mesh):
@@ -63,12 +93,14 @@ def recorded(meta, mesh):
 
 def setup_of(solver):
     """The setup work of a solver (:class:`defop.variational.solver.Solver`): its bi-Laplacian's LU nonzeros (0 until
-    a solve from the rest pose built it) plus :data:`SETUP` times its Hessian factor's nonzeros; 0 for a stand-in
-    without a ``problem`` (a test's solver double: it factorises nothing)."""
+    a solve from the rest pose built it), :data:`SETUP` times its Hessian factor's nonzeros and :data:`SOLVER` times
+    its mesh's unknowns (n d); 0 for a stand-in without a ``problem`` (a test's solver double: it factorises
+    nothing)."""
     p = getattr(solver, "problem", None)
     if p is None:
         return 0.0
-    return float(p.biharmonic_nnz + SETUP * (p.hessian.factor_nnz or 0))
+    unknowns = p.mesh.n_vertices * p.mesh.dim
+    return float(p.biharmonic_nnz + SETUP * (p.hessian.factor_nnz or 0) + SOLVER * unknowns)
 
 
 def solver_key(mesh, handles):

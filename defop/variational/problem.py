@@ -188,7 +188,7 @@ class ReducedHessian:
         if self.backend == "splu":  # pragma: no cover - exercised only without qdldl
             lu = sla.splu((K + sp.triu(K, 1).T).tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
             self.factor_nnz = lu.L.nnz + lu.U.nnz
-            work.add(self.factor_nnz)
+            work.add(self.factor_nnz, K.nnz)
             return lu.solve(b)
         if self._factored is not None and np.array_equal(self._factored, K.data):
             return self._factor.solve(b)
@@ -209,7 +209,7 @@ class ReducedHessian:
             self._factor.update(K, upper=True)
         if self.factor_nnz is None:  # the pattern is fixed: so is the factor's (symbolic) fill
             self.factor_nnz = self._factor.nonzeros() if self.backend == "pardiso" else self._factor.factors()[0].nnz
-        work.add(self.factor_nnz)
+        work.add(self.factor_nnz, K.nnz)
         return self._factor.solve(b)
 
     def inertia(self):
