@@ -59,7 +59,7 @@ def run(name, n_place, m_joint=None, seed=0):
         (opj, rec), t = timed(
             lambda pol=pol: (
                 train_movable(shape, pr, "sarap", m=m_joint, policy=pol, **kw)
-                if m_joint
+                if m_joint is not None
                 else train_within(shape, pr, rec0, policy=pol, **kw)
             )
         )

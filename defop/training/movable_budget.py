@@ -1,8 +1,9 @@
 """The budget of a joint training, counted in work: the joint operator D(x; P, Q) that costs what ``factor``
 fixed-P trainings cost (issue 44: 5 trainings at m = 200), its m where the count stops.
 
-Work (:mod:`defop.training.work`) is counted from symbolic data: each factorisation's factor nonzeros plus a fixed
-part, each distinct solver's setup once. It is not time, so the same inputs give the same m and the same operator
+Work (:mod:`defop.training.work`) is counted from symbolic data: each factorisation's factor nonzeros plus a part
+per Hessian nonzero and a fixed part, each distinct solver's setup once, each joint sample's draw, the fit. It is
+not time, so the same inputs give the same m and the same operator
 wherever the same back end runs the same solves; work in other units (another back end, re-use on or off, other
 constants: :func:`defop.training.work.units`) is never compared. It tracks CPU seconds: its constants (a Newton
 iteration's fixed part and its part per Hessian nonzero, a solver's construction per unknown, a joint sample's draw,
@@ -34,7 +35,8 @@ from .bootstrap import train
 __all__ = ["AHEAD", "CAP", "FIT_FLOPS", "budget_work", "fit_work", "reference", "stop_at", "train_within"]
 
 #: the longest joint sequence, in multiples of ``factor`` × the fixed-P training's samples (a joint sample has cost
-#: 0.36-1.07 fixed-P samples' work on the shapes measured, so the budget is met far before it)
+#: 0.61-1.56 fixed-P samples' work on the bar, bar_3d, the aleph and the octopus under work VERSION 2, so the
+#: budget is met far before it)
 CAP = 4
 
 #: multiply-adds of the joint fit per unit of work (a unit is one factor nonzero, :mod:`defop.variational.work`, about

@@ -4,7 +4,7 @@ A sample's work is what its factorisations cost in factor nonzeros (:mod:`defop.
 sample runs); each distinct solver (one handle set on one mesh) adds its setup once: its bi-Laplacian's LU (the
 rest pose's start, its LU's nonzeros), its ordering and symbolic analysis (:data:`SETUP` factorisations' worth) and
 the rest of its construction (:data:`SOLVER` per unknown); a joint sample adds its draw (:data:`DRAW`,
-:func:`defop.training.movable_budget.train_within`). Neither depends on
+:func:`defop.training.movable_budget.train_within`). None depends on
 the machine's speed, its load, the number of workers or which solvers a worker happened to keep, so a budget
 counted in work (:func:`defop.training.movable_budget.train_within`) picks the same m wherever the same back end runs
 the same solves. It does depend on the back end (PARDISO and qdldl give different factor nonzeros), on whether
